@@ -1,0 +1,186 @@
+"""The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import LowcamError
+
+
+def _vector3(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected wx,wy,wz in rad/s, got {text!r}") from None
+    if len(values) != 3 or not all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers wx,wy,wz in rad/s, got {text!r}")
+    return values
+
+
+def _load_inputs(args, profile):
+    from .io import read_plate, read_render
+
+    render = read_render(args.render)
+    plate = None
+    if args.plate:
+        c = profile.camera
+        plate = read_plate(args.plate, c.width, c.height, channels=None if profile.is_raw else 3)
+    return render, plate
+
+
+def cmd_apply(args) -> int:
+    from .io import write_image
+    from .pipeline import run
+    from .profile import load_profile
+
+    profile = load_profile(args.profile)
+    render, plate = _load_inputs(args, profile)
+    t0 = time.perf_counter()
+    result = run(render, profile, plate, args.angular_velocity, args.exposure_s, args.seed, args.frame)
+    write_image(args.output, result.frame)
+    print(f"{args.output}: {profile.name}, {result.frame.shape[1]}x{result.frame.shape[0]}, "
+          f"{100 * result.footprint.mean():.1f} % of pixels from the render, {1e3 * (time.perf_counter() - t0):.0f} ms")
+    return 0
+
+
+def save_stages(stages, folder: Path) -> list[Path]:
+    """Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)."""
+    from .io import write_png
+
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, img in stages.items():
+        if img.dtype != np.uint8:
+            img = np.clip(img[..., :3] * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        paths.append(write_png(folder / f"{name}.png", img))
+    return paths
+
+
+def cmd_stages(args) -> int:
+    from .pipeline import run
+    from .profile import load_profile
+    from .sample import sample_plate, sample_render
+
+    profile = load_profile(args.profile)
+    if args.render:
+        render, plate = _load_inputs(args, profile)
+    else:
+        render, plate = sample_render(profile, 1600), sample_plate(profile)
+    result = run(render, profile, plate, args.angular_velocity, args.exposure_s, args.seed, args.frame,
+                 keep_stages=True)
+    paths = save_stages(result.stages, Path(args.output))
+    print(f"{args.output}: {len(paths)} stage images ({', '.join(p.stem for p in paths)})")
+    return 0
+
+
+def cmd_profiles(args) -> int:
+    from .profile import list_profiles, load_profile
+
+    for name, path in list_profiles():
+        try:
+            p = load_profile(path)
+            desc = f"{p.camera.name}: {p.camera.width}x{p.camera.height}, {len(p.effects)} effects"
+        except LowcamError as e:
+            desc = f"INVALID: {e}"
+        print(f"{name:12s} {desc}  ({path})")
+    return 0
+
+
+def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
+    """Two frames next to each other with a caption bar above each."""
+    import cv2
+
+    h, w = left.shape[:2]
+    bar = 28
+    canvas = np.full((h + bar, 2 * w + 8, 3), 255, np.uint8)
+    canvas[bar:, :w] = left
+    canvas[bar:, w + 8:] = right
+    for x, label in ((6, left_label), (w + 14, right_label)):
+        cv2.putText(canvas, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas
+
+
+def cmd_demo(args) -> int:
+    from .io import read_plate, read_render, write_exr, write_png
+    from .pipeline import plain_composite, run
+    from .profile import load_profile
+    from .sample import sample_plate, sample_render
+
+    out = Path(args.output)
+    profile = load_profile(args.profile)
+    steps = ["making the sample scene", "simulating the camera", "writing the composites"]
+    say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
+    say(0)
+    write_exr(out / "sample_render.exr", sample_render(profile, args.render_width))
+    write_png(out / "sample_plate.png", sample_plate(profile))
+    render = read_render(out / "sample_render.exr")
+    plate = read_plate(out / "sample_plate.png", profile.camera.width, profile.camera.height)
+    say(1)
+    w = args.angular_velocity
+    result = run(render, profile, plate, w, None, args.seed, 0)
+    plain = plain_composite(render, profile, plate)
+    say(2)
+    write_png(out / "lowcam.png", result.frame)
+    write_png(out / "plain.png", plain)
+    write_png(out / "side_by_side.png", side_by_side(plain, result.frame, "plain composite",
+                                                     f"lowcam ({profile.name}), w = {w} rad/s"))
+    print(f"{out / 'side_by_side.png'}: plain composite (left) next to the {profile.name} camera (right)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
+                                     "(Klein & Murray 2010).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def frame_options(p, render_required=True):
+        p.add_argument("--profile", default="fire-i", help="profile name or TOML path (default fire-i)")
+        p.add_argument("--render", required=render_required, help="premultiplied RGBA render (EXR or PNG)")
+        p.add_argument("--plate", help="the video frame (PNG/JPEG) at the camera's size")
+        p.add_argument("--angular-velocity", type=_vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+                       help="camera rotation in rad/s, camera frame: x right, y down, z forward")
+        p.add_argument("--exposure-s", type=float, default=None, help="exposure time (s); default: the profile's")
+        p.add_argument("--seed", type=int, default=0, help="noise seed")
+        p.add_argument("--frame", type=int, default=0, help="frame number (noise differs per frame)")
+
+    p = sub.add_parser("apply", help="simulate the camera on one render")
+    frame_options(p)
+    p.add_argument("-o", "--output", required=True, help="output frame (.png, or .exr)")
+    p.set_defaults(func=cmd_apply)
+
+    p = sub.add_parser("stages", help="write every stage's intermediate output as an image")
+    frame_options(p, render_required=False)
+    p.add_argument("-o", "--output", required=True, help="folder for the stage images")
+    p.set_defaults(func=cmd_stages)
+
+    p = sub.add_parser("profiles", help="list the bundled profiles")
+    p.set_defaults(func=cmd_profiles)
+
+    p = sub.add_parser("demo", help="the main job on the bundled sample scene")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
+    p.add_argument("--angular-velocity", type=_vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--render-width", type=int, default=1600, help="width of the sample render (px)")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except LowcamError as e:
+        print(f"lowcam: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lowcam: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

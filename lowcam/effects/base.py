@@ -1,0 +1,171 @@
+"""The effect interface: one physical effect, its typed parameters, and its simulation step.
+
+Every stage of the imaging chain (Klein & Murray 2010, sec. 5.2) is an :class:`Effect`. A profile lists effects in
+order; :mod:`lowcam.pipeline` walks that list. Calibration, comparison and diagnosis reuse the same objects.
+
+Writing your own effect (a plug-in)::
+
+    from lowcam.effects import Effect, Param
+
+    class Haze(Effect):
+        '''Adds a constant veil to the rendered light (DN, 8-bit units).'''
+        name = "haze"
+        section = "not in the paper"
+        writes = "bayer"
+        params = {"veil_dn": Param(2.0, low=0.0, high=255.0, unit="DN")}
+
+        def apply(self, state):
+            state.bayer += self.veil_dn * state.bayer_alpha
+
+and in a profile: ``[[effect]]`` / ``type = "mypackage.haze:Haze"`` / ``veil_dn = 3.0``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from ..errors import ProfileError
+
+
+@dataclass(frozen=True)
+class Param:
+    """Specification of one effect parameter.
+
+    ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``"path"`` (a file relative to the profile),
+    ``"vector"`` (a list of floats, ``length`` long) or ``"matrix"`` (a list of ``length`` lists of floats).
+    """
+
+    default: Any
+    kind: Any = float
+    low: float | None = None
+    high: float | None = None
+    unit: str = ""
+    doc: str = ""
+    choices: tuple[str, ...] | None = None
+    length: int | None = None
+
+
+class ParamSet:
+    """A named, validated set of :class:`Param` values (an effect, or the profile's ``[camera]`` table)."""
+
+    name: ClassVar[str] = ""
+    params: ClassVar[dict[str, Param]] = {}
+
+    def __init__(self, source: str = "<python>", base_dir: Path | None = None, **values):
+        self.source = source
+        self.base_dir = Path(base_dir) if base_dir is not None else None
+        where = f"{source}: [{self.name}]" if not isinstance(self, Effect) else f"{source}: effect '{self.name}'"
+        unknown = sorted(set(values) - set(self.params))
+        if unknown:
+            raise ProfileError(f"{where}: unknown key '{unknown[0]}' (known keys: {', '.join(sorted(self.params))})")
+        for key, spec in self.params.items():
+            setattr(self, key, _validated(where, key, spec, values.get(key, spec.default), self.base_dir))
+        self.check()
+
+    def check(self) -> None:
+        """Cross-parameter validation; raise :class:`ProfileError` on a problem."""
+
+    def values(self) -> dict[str, Any]:
+        """The parameters as plain TOML-ready values (paths as given relative to the profile when possible)."""
+        out = {}
+        for key in self.params:
+            value = getattr(self, key)
+            if isinstance(value, Path):
+                value = str(value.relative_to(self.base_dir)) if self.base_dir and value.is_relative_to(
+                    self.base_dir) else str(value)
+            out[key] = value
+        return out
+
+    def error(self, message: str) -> ProfileError:
+        return ProfileError(f"{self.source}: {self.name}: {message}")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.values().items())})"
+
+
+class Effect(ParamSet):
+    """Base class of every stage. Subclasses set the class attributes and implement :meth:`apply`.
+
+    Attributes
+    ----------
+    name : str
+        The profile's ``type`` for this effect.
+    section : str
+        Where the paper describes it.
+    writes : str
+        Which part of the simulation state the effect changes: ``"working"`` (the distorted RGBA image),
+        ``"sampling"`` (where the Bayer sensels look), ``"bayer"`` (the per-channel sensel planes), ``"rgb"``
+        (the demosaiced frame) or ``"output"`` (the blended frame).
+    params : dict[str, Param]
+    """
+
+    section: ClassVar[str] = ""
+    writes: ClassVar[str] = ""
+    #: True for a stage the chain cannot skip; disabling it selects its neutral form (the lens becomes a pinhole).
+    always_runs: ClassVar[bool] = False
+
+    def __init__(self, enabled: bool = True, source: str = "<python>", base_dir: Path | None = None, **values):
+        self.enabled = bool(enabled)
+        super().__init__(source, base_dir, **values)
+
+    def apply(self, state) -> None:  # pragma: no cover - interface
+        """Run this step of the imaging chain on ``state`` (a :class:`lowcam.pipeline.SimState`) in place."""
+        raise NotImplementedError
+
+    def error(self, message: str) -> ProfileError:
+        return ProfileError(f"{self.source}: effect '{self.name}': {message}")
+
+
+def _validated(where: str, key: str, spec: Param, value: Any, base_dir: Path | None) -> Any:
+    def fail(problem: str) -> ProfileError:
+        return ProfileError(f"{where}: '{key}' {problem}")
+
+    if spec.kind is bool:
+        if not isinstance(value, bool):
+            raise fail(f"must be true or false, got {value!r}")
+        return value
+    if spec.kind is str:
+        if not isinstance(value, str):
+            raise fail(f"must be a string, got {value!r}")
+        if spec.choices and value not in spec.choices:
+            raise fail(f"must be one of {', '.join(spec.choices)}, got {value!r}")
+        return value
+    if spec.kind == "path":
+        if value is None or value == "":
+            return None
+        if not isinstance(value, str):
+            raise fail(f"must be a file name, got {value!r}")
+        path = Path(value)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        if not path.is_file():
+            raise fail(f"names a file that does not exist: {path}")
+        return path
+    if spec.kind in ("vector", "matrix"):
+        rows = value if spec.kind == "matrix" else [value]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(r, (list, tuple)) for r in rows):
+            raise fail(f"must be a {'list of lists' if spec.kind == 'matrix' else 'list'} of numbers, got {value!r}")
+        if spec.length is not None and (len(rows[0]) if spec.kind == "vector" else len(rows)) != spec.length:
+            raise fail(f"must have {spec.length} entries, got {value!r}")
+        out = []
+        for row in rows:
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row):
+                raise fail(f"must hold numbers only, got {value!r}")
+            out.append([float(v) for v in row])
+        return out if spec.kind == "matrix" else out[0]
+    # numbers
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise fail(f"must be a number, got {value!r}")
+    if spec.kind is int:
+        if float(value) != int(value):
+            raise fail(f"must be a whole number, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+    if value != value:
+        raise fail("is NaN")
+    if (spec.low is not None and value < spec.low) or (spec.high is not None and value > spec.high):
+        unit = f" {spec.unit}" if spec.unit else ""
+        raise fail(f"= {value}{unit} is out of range [{spec.low}, {spec.high}]")
+    return value

@@ -1,0 +1,124 @@
+"""Gaussian blurs: the spatially varying optical blur and the sensor's horizontal blur (Klein & Murray 2010,
+sec. 4.3, 5.2 steps 3 and 6)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..geometry import grid_points, sample_texture
+from .base import Effect, Param
+
+
+def gaussian_taps(sigma: float, taps: int = 7) -> np.ndarray:
+    """A normalised ``taps``-tap sampled Gaussian of standard deviation ``sigma`` (px)."""
+    x = np.arange(taps) - (taps - 1) / 2
+    k = np.exp(-0.5 * (x / sigma) ** 2) if sigma > 0 else (x == 0).astype(float)
+    return (k / k.sum()).astype(np.float32)
+
+
+def blur_levels(lo: float, hi: float) -> list[float]:
+    """Blur radii (px) whose linear interpolation approximates any sigma in [lo, hi]: 0, then steps of
+    ``sqrt(2)`` from 0.5 px."""
+    levels = [0.0] + [0.5 * 2 ** (k / 2) for k in range(24)]
+    below = max(i for i, s in enumerate(levels) if s <= lo)
+    above = next((i for i, s in enumerate(levels) if s >= hi), len(levels) - 1)
+    return levels[below:above + 1]
+
+
+def varying_gaussian(image: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Blur ``image`` with a per-pixel Gaussian ``sigma`` (px) by blending a stack of uniform blurs."""
+    lo, hi = float(sigma.min()), float(sigma.max())
+    if hi - lo < 1e-3:
+        return cv2.GaussianBlur(image, (0, 0), lo) if lo > 0 else image
+    levels = blur_levels(lo, hi)
+    out = np.zeros_like(image)
+    for i, s in enumerate(levels):
+        left = levels[i - 1] if i > 0 else s
+        right = levels[i + 1] if i + 1 < len(levels) else s
+        w = np.zeros_like(sigma)
+        if s > left:
+            w = np.where((sigma >= left) & (sigma <= s), (sigma - left) / (s - left), w)
+        if right > s:
+            w = np.where((sigma > s) & (sigma <= right), (right - sigma) / (right - s), w)
+        if i == 0:
+            w = np.where(sigma <= s, 1.0, w)
+        if i == len(levels) - 1:
+            w = np.where(sigma >= s, 1.0, w)
+        if not w.any():
+            continue
+        level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image
+        out += level * w[..., None]
+    return out
+
+
+class SpatialBlur(Effect):
+    """Spatially varying Gaussian blur on a 24x18-cell grid (sec. 5.2 step 3).
+
+    ``sigma^2 = antialias^2 + (corner_softness * |d_red - d_blue|)^2 + gap^2`` in output pixels, where
+    ``|d_red - d_blue|`` is the calibrated red-blue separation and ``gap = 0.5 * max(0, s - 1)`` fills the
+    spaces between motion-blur taps that are ``s`` working pixels apart.
+    """
+
+    name = "spatial_blur"
+    section = "5.2 step 3"
+    writes = "working"
+    params = {
+        "antialias_sigma_px": Param(0.3, low=0.0, high=20.0, unit="px (output)"),
+        "corner_softness": Param(0.5, low=0.0, high=20.0, doc="sigma per px of red-blue separation"),
+        "grid": Param([24.0, 18.0], "vector", length=2, doc="cells (columns, rows)"),
+    }
+
+    def sigma_grid(self, state) -> np.ndarray:
+        """Blur sigma in output pixels at the grid's cell centres over the working extent."""
+        g = state.geometry
+        cells = tuple(int(c) for c in self.grid)
+        u, v = grid_points(g.working_extent, cells)
+        var = np.full(u.shape, self.antialias_sigma_px ** 2)
+        if state.ca_grid is not None:
+            ca = sample_texture(state.ca_grid, g.frame_extent, u, v)
+            separation = np.hypot(ca[..., 0] - ca[..., 2], ca[..., 1] - ca[..., 3])
+            var += (self.corner_softness * separation) ** 2
+        if state.motion_tap_spacing is not None:
+            spacing = sample_texture(state.motion_tap_spacing, g.working_extent, u, v)
+            scale = min(g.working_scale)
+            var += (0.5 * np.maximum(0.0, spacing * scale - 1.0) / scale) ** 2
+        return np.sqrt(var).astype(np.float32)
+
+    def apply(self, state):
+        g = state.geometry
+        h, w = g.working_shape
+        sigma = cv2.resize(self.sigma_grid(state), (w, h), interpolation=cv2.INTER_LINEAR)
+        state.working = varying_gaussian(state.working, sigma * min(g.working_scale))
+
+
+class HorizontalBlur(Effect):
+    """Horizontal Gaussian blur of every sensel plane, 7 taps, sigma 0.7 sensels (sec. 4.3, 5.2 step 6).
+
+    Applied to colour and alpha alike (it is linear), so premultiplied blending stays exact.
+    """
+
+    name = "horizontal_blur"
+    section = "4.3, 5.2 step 6"
+    writes = "bayer"
+    params = {
+        "sigma": Param(0.7, low=0.0, high=10.0, unit="sensels"),
+        "taps": Param(7, int, low=1, high=31),
+    }
+
+    def check(self):
+        if self.taps % 2 == 0:
+            raise self.error("'taps' must be odd")
+
+    def kernel(self) -> np.ndarray:
+        return gaussian_taps(self.sigma, self.taps)
+
+    def apply(self, state):
+        filter_rows(state, self.kernel())
+
+
+def filter_rows(state, kernel: np.ndarray) -> None:
+    """Convolve every sensel plane's colour and alpha along rows with ``kernel``."""
+    k = kernel.reshape(1, -1).astype(np.float32)
+    for planes in (state.bayer, state.bayer_alpha):
+        for i in range(planes.shape[0]):
+            planes[i] = cv2.filter2D(planes[i], -1, k, borderType=cv2.BORDER_REPLICATE)

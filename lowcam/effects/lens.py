@@ -1,0 +1,345 @@
+"""Lens models and the lens-distortion stage (Klein & Murray 2010, sec. 4.1 and sec. 5.2 step 1).
+
+A lens model maps the ideal pinhole camera plane (``x = X/Z``, ``y = Y/Z``; x right, y down, z forward) to output
+pixels and back: :meth:`LensModel.distort` and :meth:`LensModel.undistort`. Pixel centres are on integers.
+
+Models
+------
+``fov``
+    Devernay & Faugeras' field-of-view model as in PTAM's ``ATANCamera``: ``r_d = atan(2 r tan(w/2)) / w``.
+    Parameters ``fx, fy, cx, cy`` are normalised by the frame size (``fx_px = W fx``, ``cx_px = W cx - 0.5``),
+    ``w`` in radians. Unlike PTAM, the small-radius branches use the continuous limit (PTAM switches to a factor
+    of 1, which jumps by ``2 tan(w/2) / w`` at the centre).
+``opencv``
+    Brown-Conrady as in OpenCV: ``fx_px, fy_px, cx_px, cy_px`` and ``k1, k2, k3, p1, p2``.
+``polynomial``, ``division``, ``nuke``, ``brown``
+    Blender's motion-tracking camera models (libmv), with the names of ``clip.tracking.camera``: ``focal_length``
+    and ``sensor_width`` in mm, ``principal_point`` in Blender's normalised frame coordinates (-1..1, y up),
+    ``pixel_aspect`` and ``k1, k2, k3`` / ``division_k1, division_k2`` / ``nuke_k1, nuke_k2`` /
+    ``brown_k1..brown_k4, brown_p1, brown_p2``. They are evaluated in Blender's pixel frame (origin bottom-left,
+    y up), so a camera solved in Blender is used as it is.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .base import Effect, Param
+
+
+class LensModel:
+    """Mapping between the pinhole camera plane and output pixels. Subclasses give one direction in closed form;
+    the other is solved by Newton's method unless it also has a closed form."""
+
+    def __init__(self, width: int, height: int):
+        self.width, self.height = int(width), int(height)
+
+    def distort(self, x, y):
+        """Camera plane (x, y) -> output pixel (u, v)."""
+        return self._solve(self.undistort, x, y, self.pinhole_distort)
+
+    def undistort(self, u, v):
+        """Output pixel (u, v) -> camera plane (x, y)."""
+        return self._solve(self.distort, u, v, self.pinhole_undistort)
+
+    # The pinhole part, used for starting guesses and by :meth:`pinhole`.
+    def pinhole_distort(self, x, y):
+        fx, fy, cx, cy = self.pinhole_intrinsics()
+        return cx + fx * np.asarray(x), cy + fy * np.asarray(y)
+
+    def pinhole_undistort(self, u, v):
+        fx, fy, cx, cy = self.pinhole_intrinsics()
+        return (np.asarray(u) - cx) / fx, (np.asarray(v) - cy) / fy
+
+    def pinhole_intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in output pixels of the model without distortion."""
+        raise NotImplementedError
+
+    def pinhole(self) -> "PinholeLens":
+        return PinholeLens(self.width, self.height, *self.pinhole_intrinsics())
+
+    @staticmethod
+    def _solve(forward, a, b, guess, iterations: int = 40, tol: float = 1e-12):
+        """Solve ``forward(p, q) = (a, b)`` for (p, q) elementwise by damped Newton with a numeric Jacobian."""
+        a = np.asarray(a, np.float64)
+        b = np.asarray(b, np.float64)
+        p, q = guess(a, b)
+        p = np.array(p, np.float64)
+        q = np.array(q, np.float64)
+        h = 1e-7 * (1.0 + np.abs(p).max(initial=0.0) + np.abs(q).max(initial=0.0))
+        for _ in range(iterations):
+            fa, fb = forward(p, q)
+            ra, rb = fa - a, fb - b
+            if max(np.abs(ra).max(initial=0.0), np.abs(rb).max(initial=0.0)) < tol:
+                break
+            pa, pb = forward(p + h, q)
+            qa, qb = forward(p, q + h)
+            j11, j21 = (pa - fa) / h, (pb - fb) / h
+            j12, j22 = (qa - fa) / h, (qb - fb) / h
+            det = j11 * j22 - j12 * j21
+            det = np.where(np.abs(det) < 1e-300, 1e-300, det)
+            dp = (j22 * ra - j12 * rb) / det
+            dq = (j11 * rb - j21 * ra) / det
+            p -= dp
+            q -= dq
+        return p, q
+
+
+class PinholeLens(LensModel):
+    """No distortion: ``u = cx + fx x``."""
+
+    def __init__(self, width, height, fx, fy, cx, cy):
+        super().__init__(width, height)
+        self._k = (float(fx), float(fy), float(cx), float(cy))
+
+    def pinhole_intrinsics(self):
+        return self._k
+
+    def distort(self, x, y):
+        return self.pinhole_distort(x, y)
+
+    def undistort(self, u, v):
+        return self.pinhole_undistort(u, v)
+
+
+class FovLens(LensModel):
+    """Devernay & Faugeras' FOV model with PTAM's normalised parameters (see the module docstring)."""
+
+    def __init__(self, width, height, fx, fy, cx, cy, w):
+        super().__init__(width, height)
+        self.fx, self.fy = width * fx, height * fy
+        self.cx, self.cy = width * cx - 0.5, height * cy - 0.5
+        self.w = float(w)
+        self.d = 2.0 * np.tan(self.w / 2.0)
+
+    def pinhole_intrinsics(self):
+        return self.fx, self.fy, self.cx, self.cy
+
+    def _radial_factor(self, r):
+        """f(r) = atan(r d) / (w r): distorted radius over undistorted radius."""
+        if self.w == 0.0:
+            return np.ones_like(r)
+        rd = r * self.d
+        small = rd < 1e-4
+        safe = np.where(small, 1.0, r)
+        exact = np.arctan(safe * self.d) / (self.w * safe)
+        series = (self.d / self.w) * (1.0 - rd * rd / 3.0)
+        return np.where(small, series, exact)
+
+    def _inverse_factor(self, rd):
+        """g(rd) = tan(rd w) / (d rd): undistorted radius over distorted radius."""
+        if self.w == 0.0:
+            return np.ones_like(rd)
+        t = rd * self.w
+        small = t < 1e-4
+        safe = np.where(small, 1.0, rd)
+        exact = np.tan(safe * self.w) / (self.d * safe)
+        series = (self.w / self.d) * (1.0 + t * t / 3.0)
+        return np.where(small, series, exact)
+
+    def distort(self, x, y):
+        x = np.asarray(x, np.float64)
+        y = np.asarray(y, np.float64)
+        f = self._radial_factor(np.hypot(x, y))
+        return self.cx + self.fx * f * x, self.cy + self.fy * f * y
+
+    def undistort(self, u, v):
+        xd = (np.asarray(u, np.float64) - self.cx) / self.fx
+        yd = (np.asarray(v, np.float64) - self.cy) / self.fy
+        rd = np.hypot(xd, yd)
+        if self.w > 0:
+            # Beyond rd w = pi/2 the model has no inverse (the ray points backwards): clamp just inside.
+            rd_max = (np.pi / 2 - 1e-6) / self.w
+            scale = np.where(rd > rd_max, rd_max / np.maximum(rd, 1e-300), 1.0)
+            xd, yd, rd = xd * scale, yd * scale, rd * scale
+        g = self._inverse_factor(rd)
+        return xd * g, yd * g
+
+
+class OpenCVLens(LensModel):
+    """Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2."""
+
+    def __init__(self, width, height, fx_px, fy_px, cx_px, cy_px, k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0):
+        super().__init__(width, height)
+        self._k = (fx_px, fy_px, cx_px, cy_px)
+        self.k1, self.k2, self.k3, self.p1, self.p2 = k1, k2, k3, p1, p2
+
+    def pinhole_intrinsics(self):
+        return self._k
+
+    def distort(self, x, y):
+        x = np.asarray(x, np.float64)
+        y = np.asarray(y, np.float64)
+        r2 = x * x + y * y
+        radial = 1 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
+        return self.pinhole_distort(xd, yd)
+
+
+class BlenderLens(LensModel):
+    """Blender's tracking-camera models (libmv), in Blender's pixel frame (origin bottom-left, y up)."""
+
+    def __init__(self, width, height, model, focal_length, sensor_width, principal_point=(0.0, 0.0),
+                 pixel_aspect=1.0, **coefficients):
+        super().__init__(width, height)
+        self.model = model
+        self.c = coefficients
+        self.f = focal_length / sensor_width * width
+        self.aspect = pixel_aspect
+        # Blender's normalised principal point (-1..1) -> pixels from the bottom-left corner.
+        self.ppx = (principal_point[0] + 1.0) * 0.5 * width
+        self.ppy = (principal_point[1] + 1.0) * 0.5 * height * pixel_aspect
+
+    def _to_blender(self, u, v):
+        return np.asarray(u, np.float64) + 0.5, (self.height - 0.5 - np.asarray(v, np.float64)) * self.aspect
+
+    def _from_blender(self, bx, by):
+        return bx - 0.5, self.height - 0.5 - by / self.aspect
+
+    def pinhole_intrinsics(self):
+        # y flips between the camera plane (down) and Blender's pixels (up); the y focal length is negative there.
+        cx, cy = self._from_blender(self.ppx, self.ppy)
+        return self.f, self.f / self.aspect, cx, cy
+
+    def _apply(self, x, y):
+        """libmv's Apply*DistortionModel: normalised (y up) -> Blender pixels."""
+        c, f = self.c, self.f
+        r2 = x * x + y * y
+        if self.model == "polynomial":
+            radial = 1 + r2 * (c.get("k1", 0) + r2 * (c.get("k2", 0) + r2 * c.get("k3", 0)))
+            return f * x * radial + self.ppx, f * y * radial + self.ppy
+        if self.model == "division":
+            den = 1 + r2 * (c.get("division_k1", 0) + r2 * c.get("division_k2", 0))
+            return f * x / den + self.ppx, f * y / den + self.ppy
+        if self.model == "brown":
+            k1, k2, k3, k4 = (c.get(f"brown_k{i}", 0) for i in range(1, 5))
+            p1, p2 = c.get("brown_p1", 0), c.get("brown_p2", 0)
+            radial = 1 + (((k4 * r2 + k3) * r2 + k2) * r2 + k1) * r2
+            xd = x * radial + p1 * (r2 + 2 * x * x) + p2 * 2 * x * y
+            yd = y * radial + p2 * (r2 + 2 * y * y) + p1 * 2 * x * y
+            return f * xd + self.ppx, f * yd + self.ppy
+        # nuke: closed form only in the inverse direction
+        return LensModel._solve(self._invert_nuke, x, y, lambda a, b: (f * a + self.ppx, f * b + self.ppy))
+
+    def _invert_nuke(self, bx, by):
+        """libmv's InvertNukeDistortionModel: Blender pixels -> normalised (y up)."""
+        half = max(self.width, self.height) * 0.5
+        xd, yd = (bx - self.ppx) / half, (by - self.ppy) / half
+        rd2 = xd * xd + yd * yd
+        k = 1.0 / (1 + rd2 * (self.c.get("nuke_k1", 0) + rd2 * self.c.get("nuke_k2", 0)))
+        return xd * k * half / self.f, yd * k * half / self.f
+
+    def distort(self, x, y):
+        bx, by = self._apply(np.asarray(x, np.float64), -np.asarray(y, np.float64))
+        return self._from_blender(bx, by)
+
+    def undistort(self, u, v):
+        bx, by = self._to_blender(u, v)
+        if self.model == "nuke":
+            xn, yn = self._invert_nuke(bx, by)
+        else:
+            xn, yn = LensModel._solve(self._apply, bx, by,
+                                      lambda a, b: ((a - self.ppx) / self.f, (b - self.ppy) / self.f))
+        return xn, -yn
+
+
+_MODEL_KEYS = {
+    "fov": ("fx", "fy", "cx", "cy", "w"),
+    "opencv": ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3", "p1", "p2"),
+    "polynomial": ("k1", "k2", "k3"),
+    "division": ("division_k1", "division_k2"),
+    "nuke": ("nuke_k1", "nuke_k2"),
+    "brown": ("brown_k1", "brown_k2", "brown_k3", "brown_k4", "brown_p1", "brown_p2"),
+}
+_BLENDER_KEYS = ("focal_length", "sensor_width", "principal_point", "pixel_aspect")
+
+
+class LensDistortion(Effect):
+    """Warps the ideal pinhole render through the lens into the supersampled working grid (sec. 5.2 step 1).
+
+    The render covers a pinhole field of view of ``render_hfov_deg`` horizontally (square pixels, centred); with
+    0 the engine picks the field that just covers the working grid (frame plus margin) for a render of the
+    frame's aspect ratio (see :func:`lowcam.pipeline.render_field_of_view`). The maps are exact per pixel and
+    computed once per render size.
+    """
+
+    name = "lens_distortion"
+    section = "4.1, 5.2 step 1"
+    writes = "working"
+    always_runs = True
+    params = {
+        "model": Param("fov", str, choices=tuple(_MODEL_KEYS)),
+        "fx": Param(0.57, low=0.01, high=10.0, doc="FOV model: focal length / frame width"),
+        "fy": Param(0.76, low=0.01, high=10.0, doc="FOV model: focal length / frame height"),
+        "cx": Param(0.5, low=-1.0, high=2.0, doc="FOV model: principal point / frame width"),
+        "cy": Param(0.5, low=-1.0, high=2.0, doc="FOV model: principal point / frame height"),
+        "w": Param(0.0, low=0.0, high=3.0, unit="rad", doc="FOV model: field-of-view distortion parameter"),
+        "fx_px": Param(500.0, low=1.0, high=1e6, unit="px"),
+        "fy_px": Param(500.0, low=1.0, high=1e6, unit="px"),
+        "cx_px": Param(319.5, low=-1e5, high=1e5, unit="px"),
+        "cy_px": Param(239.5, low=-1e5, high=1e5, unit="px"),
+        "k1": Param(0.0, low=-100.0, high=100.0),
+        "k2": Param(0.0, low=-100.0, high=100.0),
+        "k3": Param(0.0, low=-100.0, high=100.0),
+        "p1": Param(0.0, low=-10.0, high=10.0),
+        "p2": Param(0.0, low=-10.0, high=10.0),
+        "focal_length": Param(4.0, low=0.01, high=5000.0, unit="mm"),
+        "sensor_width": Param(3.6, low=0.01, high=500.0, unit="mm"),
+        "principal_point": Param([0.0, 0.0], "vector", length=2, doc="Blender's normalised (-1..1, y up)"),
+        "pixel_aspect": Param(1.0, low=0.1, high=10.0),
+        "division_k1": Param(0.0, low=-100.0, high=100.0),
+        "division_k2": Param(0.0, low=-100.0, high=100.0),
+        "nuke_k1": Param(0.0, low=-100.0, high=100.0),
+        "nuke_k2": Param(0.0, low=-100.0, high=100.0),
+        "brown_k1": Param(0.0, low=-100.0, high=100.0),
+        "brown_k2": Param(0.0, low=-100.0, high=100.0),
+        "brown_k3": Param(0.0, low=-100.0, high=100.0),
+        "brown_k4": Param(0.0, low=-100.0, high=100.0),
+        "brown_p1": Param(0.0, low=-10.0, high=10.0),
+        "brown_p2": Param(0.0, low=-10.0, high=10.0),
+        "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg", doc="0: automatic"),
+    }
+
+    def __init__(self, enabled=True, source="<python>", base_dir=None, **values):
+        model = values.get("model", "fov")
+        allowed = {"model", "render_hfov_deg", *_MODEL_KEYS.get(model, ())}
+        if model in ("polynomial", "division", "nuke", "brown"):
+            allowed.update(_BLENDER_KEYS)
+        stray = sorted(k for k in values if k in self.params and k not in allowed)
+        super().__init__(enabled, source, base_dir, **values)
+        if stray:
+            raise self.error(f"key '{stray[0]}' does not belong to the '{model}' lens model "
+                             f"(its keys: {', '.join(sorted(allowed - {'model'}))})")
+        self._maps: dict = {}
+
+    def model_for(self, width: int, height: int) -> LensModel:
+        """The lens model for an output frame of ``width`` x ``height`` pixels."""
+        if self.model == "fov":
+            return FovLens(width, height, self.fx, self.fy, self.cx, self.cy, self.w)
+        if self.model == "opencv":
+            return OpenCVLens(width, height, self.fx_px, self.fy_px, self.cx_px, self.cy_px,
+                              self.k1, self.k2, self.k3, self.p1, self.p2)
+        coefficients = {k: getattr(self, k) for k in _MODEL_KEYS[self.model]}
+        return BlenderLens(width, height, self.model, self.focal_length, self.sensor_width,
+                           tuple(self.principal_point), self.pixel_aspect, **coefficients)
+
+    def render_maps(self, state, render_shape):
+        """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""
+        key = (render_shape, state.geometry, self.enabled)
+        if key not in self._maps:
+            from ..pipeline import render_focal_px
+
+            u, v = state.geometry.working_pixel_centres(factor=2)
+            x, y = state.lens.undistort(u, v)
+            hr, wr = render_shape
+            focal = render_focal_px(state.profile, wr, hr)
+            map_x = (focal * x + wr / 2.0 - 0.5).astype(np.float32)
+            map_y = (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+            self._maps = {key: cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)}
+        return self._maps[key]
+
+    def apply(self, state):
+        m1, m2 = self.render_maps(state, state.render.shape[:2])
+        state.working = cv2.remap(state.render, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                  borderValue=0)

@@ -1,0 +1,57 @@
+"""Vignetting: multiplicative fall-off of the rendered light towards the corners (Klein & Murray 2010, sec. 4.1,
+Fig. 2; sec. 5.2 step 5)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import sample_texture
+from .base import Effect, Param
+
+
+def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 80)) -> np.ndarray:
+    """Gain map ``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) at the cell centres of a ``shape``
+    (rows, cols) texture over the frame, normalised to a maximum of 1."""
+    rows, cols = shape
+    u = (np.arange(cols) + 0.5) * width / cols - 0.5
+    v = (np.arange(rows) + 0.5) * height / rows - 0.5
+    uu, vv = np.meshgrid(u, v)
+    rho2 = ((uu - (width - 1) / 2) ** 2 + (vv - (height - 1) / 2) ** 2) / (np.hypot(width, height) / 2) ** 2
+    gain = np.clip(1 + k2 * rho2 + k4 * rho2**2, 0.0, None)
+    return (gain / gain.max()).astype(np.float32)
+
+
+class Vignetting(Effect):
+    """Multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1).
+
+    ``texture``: a greyscale PNG (80x60 in the paper; 16-bit recommended) covering the output frame, gain =
+    value / maximum code value, normalised so the brightest texel is 1. Without a texture the radial model of
+    :func:`radial_vignetting` with ``k2`` and ``k4`` is used.
+    """
+
+    name = "vignetting"
+    section = "4.1, 5.2 step 5"
+    writes = "bayer"
+    params = {
+        "texture": Param("", "path", doc="greyscale PNG gain map; empty: radial model"),
+        "k2": Param(0.0, low=-10.0, high=10.0),
+        "k4": Param(0.0, low=-10.0, high=10.0),
+    }
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._texture = None
+        if self.texture:
+            from ..io import read_gain_map
+
+            self._texture = read_gain_map(self.texture)
+
+    def gain_texture(self, width: int, height: int) -> np.ndarray:
+        if self._texture is not None:
+            return self._texture
+        return radial_vignetting(width, height, self.k2, self.k4)
+
+    def apply(self, state):
+        g = state.geometry
+        pos = g.sensel_positions
+        gain = sample_texture(self.gain_texture(g.width, g.height), g.frame_extent, pos[..., 0], pos[..., 1])
+        state.bayer *= gain

@@ -1,0 +1,284 @@
+"""The simulator: walk a profile's effects over one frame (Klein & Murray 2010, sec. 5.2 and 7).
+
+Conventions
+-----------
+- The render is premultiplied linear RGBA (H, W, 4) of an ideal pinhole camera looking down the same axis as the
+  simulated camera, covering its field of view (:func:`render_field_of_view`); any pixel size is accepted.
+- ``angular_velocity`` is the camera's rotation rate in rad/s, in the camera frame: x right, y down, z forward
+  (so positive y pans right, positive x tilts down, positive z rolls clockwise in the image). The render shows
+  the middle of the exposure.
+- Values are 8-bit digital numbers (DN) from Bayer sampling on; the output is an 8-bit RGB frame.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import LowcamError
+from .io import check_plate, check_render
+from .profile import Profile, load_profile
+
+
+@dataclass
+class SimState:
+    """Everything one frame's simulation carries from stage to stage (see :class:`lowcam.effects.Effect`)."""
+
+    profile: Profile
+    render: np.ndarray
+    plate: np.ndarray
+    plate_raw: np.ndarray | None
+    angular_velocity: tuple[float, float, float]
+    exposure_s: float | None
+    seed: int
+    frame: int
+    working: np.ndarray | None = None
+    ca_grid: np.ndarray | None = None
+    motion_taps: np.ndarray | None = None
+    motion_tap_spacing: np.ndarray | None = None
+    bayer: np.ndarray | None = None
+    bayer_alpha: np.ndarray | None = None
+    raw_touched: np.ndarray | None = None
+    rgb: np.ndarray | None = None
+    rgb_alpha: np.ndarray | None = None
+    delta_yuv: np.ndarray | None = None
+    chroma_group: int = 1
+    lens: object = None
+
+    def __post_init__(self):
+        self.lens = self.profile.lens
+
+    @property
+    def camera(self):
+        return self.profile.camera
+
+    @property
+    def geometry(self):
+        return self.profile.geometry
+
+
+@dataclass
+class Result:
+    """One simulated frame: ``frame`` (H, W, 3) uint8, ``footprint`` (H, W) bool marks pixels the graphics
+    changed (every other pixel is the plate's, bit for bit), ``stages`` maps ``"NN-effect"`` to each stage's
+    output when asked for."""
+
+    frame: np.ndarray
+    footprint: np.ndarray
+    stages: "OrderedDict[str, np.ndarray]" = field(default_factory=OrderedDict)
+
+
+def render_field_of_view(profile: Profile) -> tuple[float, float]:
+    """Pinhole half-extents (X, Y) = (tan of half the horizontal, vertical field) that the render must cover.
+
+    With ``render_hfov_deg`` = 0 in the lens stage the horizontal extent is chosen to just cover the working grid
+    (frame plus margin) for a render of the frame's aspect ratio, plus 2 %. Returns the extents the engine maps
+    the render's width onto (X) and the least vertical extent it needs (Y).
+    """
+    key = ("fov", profile.geometry)
+    if key not in profile._cache:
+        g = profile.geometry
+        u0, v0, u1, v1 = g.working_extent
+        t = np.linspace(0.0, 1.0, 257)
+        border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
+        border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
+        x, y = profile.lens.undistort(border_u, border_v)
+        need_x, need_y = float(np.abs(x).max()), float(np.abs(y).max())
+        hfov = profile.effect("lens_distortion").render_hfov_deg
+        if hfov > 0:
+            half_x = float(np.tan(np.radians(hfov) / 2))
+            if half_x < need_x:
+                raise LowcamError(f"{profile.source}: render_hfov_deg = {hfov} is narrower than the "
+                                  f"{np.degrees(2 * np.arctan(need_x)):.1f} deg the lens sees")
+        else:
+            half_x = 1.02 * max(need_x, need_y * g.width / g.height)
+        profile._cache[key] = (half_x, need_y)
+    return profile._cache[key]
+
+
+def render_focal_px(profile: Profile, width: int, height: int) -> float:
+    """Focal length in render pixels for a render of ``width`` x ``height`` (square pixels, centred)."""
+    half_x, need_y = render_field_of_view(profile)
+    focal = width / (2 * half_x)
+    if height / (2 * focal) < need_y * 0.999:
+        raise LowcamError(f"a {width}x{height} render covers too little vertically for this camera: use the "
+                          f"aspect ratio {profile.camera.width}:{profile.camera.height} or a taller one")
+    return focal
+
+
+def render_camera(profile, width: int | None = None, height: int | None = None) -> dict:
+    """The pinhole camera a renderer must use: horizontal field of view (deg), sensor fit and resolution.
+
+    >>> cam = render_camera("fire-i", 3000, 2250)
+    >>> round(cam["hfov_deg"]) > 90
+    True
+    """
+    profile = load_profile(profile)
+    half_x, _ = render_field_of_view(profile)
+    width = width or 3000
+    height = height or int(round(width * profile.camera.height / profile.camera.width))
+    return {"hfov_deg": float(np.degrees(2 * np.arctan(half_x))), "sensor_fit": "HORIZONTAL",
+            "width": width, "height": height, "focal_px": render_focal_px(profile, width, height)}
+
+
+def _prepare_plate(profile: Profile, plate) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    c = profile.camera
+    if plate is None:
+        u8 = np.zeros((c.height, c.width) if profile.is_raw else (c.height, c.width, 3), np.uint8)
+    else:
+        u8 = check_plate(plate, c.width, c.height, raw=profile.is_raw)
+    if profile.is_raw:
+        return u8, np.zeros((c.height, c.width, 3), np.float32), u8
+    return u8, u8.astype(np.float32), None
+
+
+def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 8-bit frame and its footprint from the current state."""
+    from .effects.bayer import mosaic
+    from .effects.yuv import yuv_to_rgb
+
+    if state.raw_touched is not None:
+        frame = np.clip(np.round(state.rgb), 0, 255).astype(np.uint8)
+        touched = mosaic(state.raw_touched, state.geometry)
+        import cv2
+
+        footprint = cv2.dilate(touched.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        return frame, footprint
+    if state.delta_yuv is not None:
+        out = state.plate + yuv_to_rgb(state.delta_yuv)
+        footprint = np.any(state.delta_yuv != 0, axis=-1)
+        n = state.chroma_group
+        if n > 1:
+            h, w = footprint.shape
+            pad = (-w) % n
+            groups = np.pad(footprint, ((0, 0), (0, pad))).reshape(h, -1, n).any(axis=2)
+            footprint = np.repeat(groups, n, axis=1)[:, :w]
+    else:
+        out = state.plate * (1 - state.rgb_alpha) + state.rgb
+        footprint = np.any(state.rgb_alpha != 0, axis=-1)
+    frame = np.where(footprint[..., None], np.clip(np.round(out), 0, 255).astype(np.uint8), plate_u8)
+    return frame, footprint
+
+
+def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, angular_velocity=(0.0, 0.0, 0.0),
+        exposure_s: float | None = None, seed: int = 0, frame: int = 0, keep_stages: bool = False,
+        stop_after: str | None = None) -> Result:
+    """Simulate the camera on one frame; see :func:`simulate`. ``keep_stages`` records every stage's output
+    (as displayable arrays, see :func:`stage_image`); ``stop_after`` ends the chain after that effect."""
+    profile = load_profile(profile)
+    render = check_render(render)
+    plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
+    w = tuple(float(x) for x in angular_velocity)
+    if len(w) != 3 or not all(np.isfinite(w)):
+        raise LowcamError(f"angular_velocity must be three finite numbers (rad/s), got {angular_velocity!r}")
+    if exposure_s is not None and not (0 <= exposure_s <= 10):
+        raise LowcamError(f"exposure_s = {exposure_s} is out of range [0, 10] s")
+    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame))
+    stages: OrderedDict = OrderedDict()
+    for i, effect in enumerate(profile.effects):
+        if not effect.enabled and not effect.always_runs:
+            continue
+        effect.apply(state)
+        if keep_stages:
+            stages[f"{i:02d}-{effect.name}"] = stage_image(state, effect.writes, plate_u8)
+        if stop_after == effect.name:
+            break
+    result_frame, footprint = _finish(state, plate_u8) if state.rgb is not None else (None, None)
+    return Result(result_frame, footprint, stages)
+
+
+def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,
+             angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None, seed: int = 0,
+             frame: int = 0) -> np.ndarray:
+    """The camera's 8-bit RGB frame (H, W, 3) for a premultiplied RGBA ``render`` composited over ``plate``.
+
+    Parameters
+    ----------
+    render : (H, W, 4) float array, premultiplied linear RGBA of an ideal pinhole camera.
+    profile : a profile name (``"fire-i"``, ``"ueye"``), a path to a TOML file, or a :class:`Profile`.
+    plate : (h, w, 3) uint8 video frame at the camera's size (a (h, w) Bayer frame for a raw profile); None: black.
+    angular_velocity : (wx, wy, wz) rad/s in the camera frame (x right, y down, z forward).
+    exposure_s : exposure time in seconds; None uses the profile's.
+    seed, frame : the noise of a frame depends on these two numbers only.
+
+    Examples
+    --------
+    >>> import numpy as np, lowcam
+    >>> render = np.zeros((600, 800, 4), np.float32)
+    >>> render[250:350, 350:450] = 1.0                      # an opaque white square
+    >>> out = lowcam.simulate(render, "fire-i", seed=1)
+    >>> out.shape, out.dtype
+    ((480, 640, 3), dtype('uint8'))
+    """
+    return run(render, profile, plate, angular_velocity, exposure_s, seed, frame).frame
+
+
+def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarray:
+    """A displayable picture of the state after a stage: float RGBA for the working image, a colour-coded
+    mosaic for the sensel planes, 8-bit RGB for the frame, and an arrow plot for sampling fields."""
+    from .effects.bayer import mosaic
+
+    if writes == "working":
+        return state.working.copy()
+    if writes == "bayer":
+        g = state.geometry
+        m = mosaic(state.bayer, g) / 255.0
+        rgb = np.zeros(m.shape + (3,), np.float32)
+        for name, (dy, dx) in g.cfa.items():
+            c = {"R": 0, "Gr": 1, "Gb": 1, "B": 2}[name]
+            rgb[dy::2, dx::2, c] = m[dy::2, dx::2]
+        return np.clip(rgb * 255, 0, 255).astype(np.uint8)
+    if writes in ("rgb", "output"):
+        return _finish(state, plate_u8)[0]
+    return _sampling_plot(state)
+
+
+def _sampling_plot(state: SimState) -> np.ndarray:
+    """Arrows of the chromatic-aberration offsets (x10; red and blue) and motion streaks (white)."""
+    import cv2
+
+    from .geometry import grid_points
+
+    g = state.geometry
+    img = np.full((g.height, g.width, 3), 40, np.uint8)
+    u, v = grid_points(g.frame_extent)
+    if state.ca_grid is not None:
+        from .geometry import sample_texture
+
+        ca = sample_texture(state.ca_grid, g.frame_extent, u, v)
+        for (uu, vv, d) in zip(u.ravel(), v.ravel(), ca.reshape(-1, 4)):
+            for c, colour in ((0, (255, 60, 60)), (2, (80, 120, 255))):
+                cv2.arrowedLine(img, (int(uu), int(vv)), (int(uu + 10 * d[c]), int(vv + 10 * d[c + 1])), colour, 1,
+                                tipLength=0.3)
+    if state.motion_taps is not None:
+        from .geometry import sample_texture
+
+        taps = sample_texture(state.motion_taps, g.working_extent, u, v).reshape(u.shape + (-1, 2))
+        for (uu, vv, t) in zip(u.ravel(), v.ravel(), taps.reshape(-1, taps.shape[-2], 2)):
+            pts = np.round(np.stack([uu + t[:, 0], vv + t[:, 1]], -1)).astype(np.int32)
+            cv2.polylines(img, [pts], False, (255, 255, 255), 1)
+    return img
+
+
+def plain_composite(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None) -> np.ndarray:
+    """The standard compositing the paper compares against: the render warped through the lens, resampled to the
+    frame and blended over the plate with its alpha, with none of the camera's degradations."""
+    import cv2
+
+    profile = load_profile(profile)
+    render = check_render(render)
+    plate_u8, plate_f, _ = _prepare_plate(profile, plate)
+    if profile.is_raw:
+        from .effects.bayer import demosaic_bilinear, unmosaic
+
+        plate_f = demosaic_bilinear(unmosaic(plate_u8, profile.geometry), profile.geometry)
+    state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0)
+    profile.effect("lens_distortion").apply(state)
+    profile.effect("half_sampling").apply(state)
+    g = profile.geometry
+    u, v = np.meshgrid(np.arange(g.width, dtype=np.float64), np.arange(g.height, dtype=np.float64))
+    x, y = g.output_to_working(u, v)
+    rgba = cv2.remap(state.working, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR)
+    out = plate_f * (1 - rgba[..., 3:]) + 255.0 * rgba[..., :3]
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)

@@ -1,0 +1,195 @@
+"""Camera profiles: TOML files that list the camera's frame and its ordered chain of effects.
+
+Layout (see ``profiles/fire-i.toml`` for a complete, commented example)::
+
+    [camera]
+    name = "Unibrain Fire-i, 2.1 mm lens"
+    width = 640
+    height = 480
+    bayer_pattern = "GBRG"
+    exposure_s = 0.033
+
+    [[effect]]
+    type = "lens_distortion"      # a bundled effect, or "package.module:Class" for a plug-in
+    enabled = true                # optional; a disabled effect is skipped (or takes its neutral form)
+    model = "fov"
+    ...
+
+Everything is validated on load: an unknown key, a wrong type or a value out of range is a one-line
+:class:`~lowcam.errors.ProfileError` naming the file and the key.
+"""
+from __future__ import annotations
+
+import copy
+import os
+import tomllib
+from functools import cached_property
+from pathlib import Path
+
+from .effects import Effect, Param, ParamSet, effect_class
+from .errors import ProfileError
+from .geometry import FrameGeometry
+
+#: Bundled profiles: the repository's ``profiles/`` folder.
+BUNDLED_PROFILES = Path(__file__).resolve().parent.parent / "profiles"
+
+
+class CameraSpec(ParamSet):
+    """The ``[camera]`` table: the delivered frame and global settings."""
+
+    name = "camera"
+    params = {
+        "name": Param("", str),
+        "description": Param("", str),
+        "width": Param(640, int, low=16, high=16384, unit="px"),
+        "height": Param(480, int, low=16, high=16384, unit="px"),
+        "bayer_pattern": Param("GBRG", str, choices=("GBRG", "GRBG", "RGGB", "BGGR")),
+        "exposure_s": Param(0.033, low=0.0, high=10.0, unit="s"),
+        "margin_px": Param(16.0, low=0.0, high=1024.0, unit="px", doc="working-grid margin around the frame"),
+        "oversample": Param(1.6, low=0.5, high=8.0, doc="working pixels per output pixel"),
+    }
+
+    def check(self):
+        if self.width % 4 or self.height % 2:
+            raise self.error(f"the frame must be a multiple of 4 wide and 2 high, got {self.width}x{self.height}")
+
+
+class Profile:
+    """A validated camera profile: :class:`CameraSpec` plus an ordered list of :class:`~lowcam.effects.Effect`."""
+
+    def __init__(self, camera: CameraSpec, effects: list[Effect], path: Path | None = None):
+        self.camera = camera
+        self.effects = list(effects)
+        self.path = Path(path) if path else None
+        names = [e.name for e in self.effects]
+        for needed in ("lens_distortion", "half_sampling", "bayer_sampling", "demosaic"):
+            if needed not in names:
+                raise ProfileError(f"{self.source}: the chain needs a '{needed}' effect")
+        if "yuv_blend" not in names and "raw_blend" not in names:
+            raise ProfileError(f"{self.source}: the chain needs a 'yuv_blend' or a 'raw_blend' effect")
+        self._cache: dict = {}
+
+    @property
+    def source(self) -> str:
+        return str(self.path) if self.path else "<profile>"
+
+    @property
+    def name(self) -> str:
+        return self.path.stem if self.path else (self.camera.name or "profile")
+
+    @property
+    def is_raw(self) -> bool:
+        """True for a raw-Bayer camera (sec. 7): the plate is the camera's Bayer frame."""
+        return self.effect("raw_blend") is not None
+
+    def effect(self, name: str) -> Effect | None:
+        """The first effect of type ``name``, or None."""
+        return next((e for e in self.effects if e.name == name), None)
+
+    @cached_property
+    def geometry(self) -> FrameGeometry:
+        c = self.camera
+        return FrameGeometry(c.width, c.height, c.margin_px, c.oversample, c.bayer_pattern)
+
+    @property
+    def lens(self):
+        """The lens model of the output frame (a pinhole if the lens-distortion stage is disabled)."""
+        effect = self.effect("lens_distortion")
+        model = effect.model_for(self.camera.width, self.camera.height)
+        return model if effect.enabled else model.pinhole()
+
+    def copy(self) -> "Profile":
+        """A deep copy whose effects can be changed without touching this profile."""
+        return copy.deepcopy(self)
+
+    def to_dict(self) -> dict:
+        out = {"camera": self.camera.values(), "effect": []}
+        for e in self.effects:
+            entry = {"type": e.name if type(e).__module__.startswith("lowcam.") else
+                     f"{type(e).__module__}:{type(e).__name__}"}
+            if not e.enabled:
+                entry["enabled"] = False
+            entry.update(e.values())
+            out["effect"].append(entry)
+        return out
+
+    def save(self, path) -> Path:
+        """Write the profile as TOML (atomically). Texture paths are written relative to the new file."""
+        import tomli_w
+
+        from .io import atomic_write_bytes
+
+        path = Path(path).resolve()
+        data = self.to_dict()
+        for entry, effect in zip(data["effect"], self.effects):
+            for key, spec in effect.params.items():
+                if spec.kind == "path" and getattr(effect, key):
+                    entry[key] = os.path.relpath(getattr(effect, key), path.parent)
+        atomic_write_bytes(path, tomli_w.dumps(data).encode())
+        return path
+
+    def __repr__(self) -> str:
+        return f"Profile({self.name!r}, effects=[{', '.join(e.name for e in self.effects)}])"
+
+
+def profile_search_path() -> list[Path]:
+    """Folders searched for profiles by name: ``$LOWCAM_PROFILE_PATH`` (os.pathsep-separated), then the bundled."""
+    extra = [Path(p) for p in os.environ.get("LOWCAM_PROFILE_PATH", "").split(os.pathsep) if p]
+    return extra + [BUNDLED_PROFILES]
+
+
+def list_profiles() -> list[tuple[str, Path]]:
+    """(name, path) of every profile on the search path."""
+    seen: dict[str, Path] = {}
+    for folder in profile_search_path():
+        for p in sorted(folder.glob("*.toml")):
+            seen.setdefault(p.stem, p)
+    return sorted(seen.items())
+
+
+def find_profile(name_or_path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or os.sep in str(name_or_path):
+        if not p.is_file():
+            raise ProfileError(f"{p}: no such profile file")
+        return p
+    for folder in profile_search_path():
+        if (folder / f"{name_or_path}.toml").is_file():
+            return folder / f"{name_or_path}.toml"
+    known = ", ".join(n for n, _ in list_profiles())
+    raise ProfileError(f"unknown profile '{name_or_path}' (bundled and on LOWCAM_PROFILE_PATH: {known})")
+
+
+def load_profile(name_or_path) -> Profile:
+    """Load and validate a profile by bundled name (``"fire-i"``) or path (``"my-camera.toml"``)."""
+    if isinstance(name_or_path, Profile):
+        return name_or_path
+    path = find_profile(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ProfileError(f"{path}: not valid TOML ({e})") from None
+    return profile_from_dict(data, path)
+
+
+def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
+    source = str(path) if path else "<profile>"
+    base_dir = path.parent if path else None
+    unknown = sorted(set(data) - {"camera", "effect"})
+    if unknown:
+        raise ProfileError(f"{source}: unknown top-level key '{unknown[0]}' (known: camera, effect)")
+    camera = CameraSpec(source, base_dir, **data.get("camera", {}))
+    entries = data.get("effect", [])
+    if not isinstance(entries, list) or not entries:
+        raise ProfileError(f"{source}: no [[effect]] entries")
+    effects = []
+    for i, entry in enumerate(entries):
+        entry = dict(entry)
+        if "type" not in entry:
+            raise ProfileError(f"{source}: [[effect]] number {i + 1} has no 'type'")
+        cls = effect_class(entry.pop("type"), source)
+        enabled = entry.pop("enabled", True)
+        if not isinstance(enabled, bool):
+            raise ProfileError(f"{source}: effect '{cls.name}': 'enabled' must be true or false")
+        effects.append(cls(enabled, source, base_dir, **entry))
+    return Profile(camera, effects, path)

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Create .venv (Python 3.11) and install Lowcam with everything the tests need. Idempotent: it reinstalls only
+# when pyproject.toml changed since the last successful install.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+py=""
+for cand in python3.11 python3; do
+  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+    py=$cand; break
+  fi
+done
+if [ -z "$py" ]; then
+  echo "setup: Python 3.11 is needed (bpy 5.0 exists only for 3.11); install it and rerun" >&2
+  exit 1
+fi
+
+stamp=.venv/.lowcam-installed
+want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  exit 0
+fi
+[ -x .venv/bin/python ] || "$py" -m venv .venv
+echo "setup: installing Lowcam and its dependencies into .venv (bpy is large: the first time takes a few minutes)"
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip >/dev/null
+.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test]"
+echo "$want" > "$stamp"
