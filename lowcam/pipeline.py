@@ -43,6 +43,7 @@ class SimState:
     rgb: np.ndarray | None = None
     rgb_alpha: np.ndarray | None = None
     delta_yuv: np.ndarray | None = None
+    colour_matrix: np.ndarray | None = None
     chroma_group: int = 1
     lens: object = None
 
@@ -62,11 +63,13 @@ class SimState:
 class Result:
     """One simulated frame: ``frame`` (H, W, 3) uint8, ``footprint`` (H, W) bool marks pixels the graphics
     changed (every other pixel is the plate's, bit for bit), ``stages`` maps ``"NN-effect"`` to each stage's
-    output when asked for."""
+    output when asked for, and ``state`` is the final :class:`SimState` (its raw arrays: ``working``,
+    ``bayer``, ``bayer_alpha``, ``rgb``, ``rgb_alpha``, ``delta_yuv``)."""
 
-    frame: np.ndarray
-    footprint: np.ndarray
+    frame: np.ndarray | None
+    footprint: np.ndarray | None
     stages: "OrderedDict[str, np.ndarray]" = field(default_factory=OrderedDict)
+    state: SimState | None = None
 
 
 def render_field_of_view(profile: Profile) -> tuple[float, float]:
@@ -133,31 +136,39 @@ def _prepare_plate(profile: Profile, plate) -> tuple[np.ndarray, np.ndarray, np.
     return u8, u8.astype(np.float32), None
 
 
+def _any_nonzero(a: np.ndarray) -> np.ndarray:
+    """(H, W) bool: any of the last axis's three values is non-zero (faster than ``.any(axis=-1)``)."""
+    return (a[..., 0] != 0) | (a[..., 1] != 0) | (a[..., 2] != 0)
+
+
+def _to_u8(a: np.ndarray) -> np.ndarray:
+    a = np.clip(a, 0, 255)
+    return np.rint(a, out=a).astype(np.uint8)
+
+
 def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state."""
+    import cv2
+
     from .effects.bayer import mosaic
     from .effects.yuv import yuv_to_rgb
 
     if state.raw_touched is not None:
-        frame = np.clip(np.round(state.rgb), 0, 255).astype(np.uint8)
-        touched = mosaic(state.raw_touched, state.geometry)
-        import cv2
-
-        footprint = cv2.dilate(touched.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        return frame, footprint
+        touched = mosaic(state.raw_touched, state.geometry).astype(np.uint8)
+        footprint = cv2.dilate(touched, np.ones((3, 3), np.uint8)).astype(bool)
+        return _to_u8(state.rgb.copy()), footprint
     if state.delta_yuv is not None:
-        out = state.plate + yuv_to_rgb(state.delta_yuv)
-        footprint = np.any(state.delta_yuv != 0, axis=-1)
+        out = cv2.add(state.plate, yuv_to_rgb(state.delta_yuv))
+        footprint = _any_nonzero(state.delta_yuv)
         n = state.chroma_group
         if n > 1:
             h, w = footprint.shape
-            pad = (-w) % n
-            groups = np.pad(footprint, ((0, 0), (0, pad))).reshape(h, -1, n).any(axis=2)
-            footprint = np.repeat(groups, n, axis=1)[:, :w]
+            footprint = np.repeat(footprint.reshape(h, w // n, n).any(axis=2), n, axis=1)
     else:
         out = state.plate * (1 - state.rgb_alpha) + state.rgb
-        footprint = np.any(state.rgb_alpha != 0, axis=-1)
-    frame = np.where(footprint[..., None], np.clip(np.round(out), 0, 255).astype(np.uint8), plate_u8)
+        footprint = _any_nonzero(state.rgb_alpha)
+    frame = plate_u8.copy()
+    cv2.copyTo(_to_u8(out), footprint.astype(np.uint8), frame)
     return frame, footprint
 
 
@@ -185,7 +196,7 @@ def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, a
         if stop_after == effect.name:
             break
     result_frame, footprint = _finish(state, plate_u8) if state.rgb is not None else (None, None)
-    return Result(result_frame, footprint, stages)
+    return Result(result_frame, footprint, stages, state)
 
 
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,

@@ -102,6 +102,17 @@ class Profile:
         """A deep copy whose effects can be changed without touching this profile."""
         return copy.deepcopy(self)
 
+    def without(self, *names: str) -> "Profile":
+        """A copy with the named effects disabled (e.g. ``profile.without("noise", "vignetting")``)."""
+        out = self.copy()
+        for name in names:
+            effect = out.effect(name)
+            if effect is None:
+                raise ProfileError(f"{self.source}: no effect '{name}' to disable")
+            effect.enabled = False
+        out._cache.clear()
+        return out
+
     def to_dict(self) -> dict:
         out = {"camera": self.camera.values(), "effect": []}
         for e in self.effects:

@@ -22,34 +22,44 @@ class BayerSampling(Effect):
     always_runs = True
     params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
 
+    def sample_positions(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """x and y, each (4, rows, cols, taps) float32: working-grid coordinates each sensel averages over.
+
+        Motion taps vary smoothly (24x18-cell grid), so they are looked up once per 2x2 cell for all four channels.
+        """
+        g = state.geometry
+        pos = g.sensel_positions.astype(np.float32)
+        su, sv = pos[..., 0].copy(), pos[..., 1].copy()
+        if state.ca_grid is not None:
+            ca = sample_texture(state.ca_grid, g.frame_extent, pos[..., 0], pos[..., 1])
+            for k, c in ((0, 0), (3, 2)):  # R and B; green is the reference
+                su[k] += ca[k, ..., c]
+                sv[k] += ca[k, ..., c + 1]
+        x, y = g.output_to_working(su, sv)
+        x, y = x.astype(np.float32)[..., None], y.astype(np.float32)[..., None]
+        if state.motion_taps is None:
+            return x, y
+        centre = pos.mean(axis=0)
+        taps = sample_texture(state.motion_taps, g.working_extent, centre[..., 0], centre[..., 1])
+        taps = taps.reshape(centre.shape[:2] + (-1, 2))
+        sx, sy = g.working_scale
+        tx = np.ascontiguousarray(taps[..., 0]) * np.float32(sx)
+        ty = np.ascontiguousarray(taps[..., 1]) * np.float32(sy)
+        return x + tx[None], y + ty[None]
+
     def apply(self, state):
         g = state.geometry
         hb, wb = g.bayer_shape
-        pos = g.sensel_positions
+        x, y = self.sample_positions(state)
+        n = x.shape[3]
+        sampled = cv2.remap(state.working, x.reshape(4 * hb, wb * n), y.reshape(4 * hb, wb * n), cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if n > 1:  # the mean over each sensel's n consecutive taps is an exact n:1 area resize
+            sampled = cv2.resize(sampled, (wb, 4 * hb), interpolation=cv2.INTER_AREA)
+        sampled = sampled.reshape(4, hb, wb, 4)
         scale = 255.0 / self.render_white
-        state.bayer = np.empty((4, hb, wb), np.float32)
-        state.bayer_alpha = np.empty((4, hb, wb), np.float32)
-        for k, name in enumerate(CFA_CHANNELS):
-            u, v = pos[k, ..., 0], pos[k, ..., 1]
-            su, sv = u, v
-            if state.ca_grid is not None and name in ("R", "B"):
-                ca = sample_texture(state.ca_grid, g.frame_extent, u, v)
-                c = 0 if name == "R" else 2
-                su, sv = u + ca[..., c], v + ca[..., c + 1]
-            if state.motion_taps is not None:
-                taps = sample_texture(state.motion_taps, g.working_extent, u, v).reshape(hb, wb, -1, 2)
-                su = su[..., None] + taps[..., 0]
-                sv = sv[..., None] + taps[..., 1]
-            else:
-                su, sv = su[..., None], sv[..., None]
-            n = su.shape[-1]
-            x, y = g.output_to_working(su, sv)
-            sampled = cv2.remap(state.working, x.reshape(hb, wb * n).astype(np.float32),
-                                y.reshape(hb, wb * n).astype(np.float32), cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            sampled = sampled.reshape(hb, wb, n, 4).mean(axis=2)
-            state.bayer[k] = sampled[..., COLOUR_INDEX[k]] * scale
-            state.bayer_alpha[k] = sampled[..., 3]
+        state.bayer = np.stack([sampled[k, ..., COLOUR_INDEX[k]] for k in range(4)]) * np.float32(scale)
+        state.bayer_alpha = np.ascontiguousarray(sampled[..., 3])
 
 
 def block_indices(geometry, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -74,7 +84,7 @@ def demosaic_block(planes: np.ndarray, geometry) -> np.ndarray:
 
     def block(k):
         r, c = idx[CFA_CHANNELS[k]]
-        return planes[k][np.ix_(r, c)]
+        return planes[k].take(r, axis=0).take(c, axis=1)
 
     out[..., 0] = block(0)
     out[..., 1] = 0.5 * (block(1) + block(2))

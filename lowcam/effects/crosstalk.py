@@ -60,7 +60,11 @@ def saturation_matrix(beta: float, luma=SATURATION_LUMA) -> np.ndarray:
 
 
 class Saturation(Effect):
-    """The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2)."""
+    """The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2).
+
+    The matrix is also recorded in the state, so blending can take it into account: the video frame already went
+    through it, and with per-channel alpha the camera mixes the channels of the light behind the graphics too.
+    """
 
     name = "saturation"
     section = "4.4.2"
@@ -71,5 +75,6 @@ class Saturation(Effect):
     }
 
     def apply(self, state):
-        s = saturation_matrix(self.saturation, self.luma).astype(np.float32)
-        state.rgb = cv2.transform(state.rgb, s)
+        s = saturation_matrix(self.saturation, self.luma)
+        state.rgb = cv2.transform(state.rgb, s.astype(np.float32))
+        state.colour_matrix = s if state.colour_matrix is None else s @ state.colour_matrix

@@ -1,6 +1,7 @@
 """Blending in YUV and YUV 4:1:1 chroma (Klein & Murray 2010, sec. 5.2 steps 8-10)."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .base import Effect, Param
@@ -13,11 +14,11 @@ YUV_TO_RGB = np.linalg.inv(RGB_TO_YUV)
 
 
 def rgb_to_yuv(rgb: np.ndarray) -> np.ndarray:
-    return (rgb @ RGB_TO_YUV.T.astype(np.float32)).astype(np.float32)
+    return cv2.transform(np.ascontiguousarray(rgb, np.float32), RGB_TO_YUV.astype(np.float32))
 
 
 def yuv_to_rgb(yuv: np.ndarray) -> np.ndarray:
-    return (yuv @ YUV_TO_RGB.T.astype(np.float32)).astype(np.float32)
+    return cv2.transform(np.ascontiguousarray(yuv, np.float32), YUV_TO_RGB.astype(np.float32))
 
 
 class YuvBlend(Effect):
@@ -26,6 +27,10 @@ class YuvBlend(Effect):
     The composite is ``video + delta`` with ``delta = rgb - alpha * video`` (premultiplied over), held in YUV.
     Arranging it as a difference keeps video pixels that no graphics touch bit-for-bit unchanged, which is the
     paper's stated aim for its rearranged blending.
+
+    When an in-camera colour matrix ``S`` (saturation) follows demosaicing, the video is ``S`` applied to the light
+    behind it, so ``delta = rgb - S (alpha * S^+ video)``: without this, channels with different alphas (at
+    chromatic-aberration edges) would be mixed wrongly and leave dark fringes.
     """
 
     name = "yuv_blend"
@@ -35,7 +40,13 @@ class YuvBlend(Effect):
     params = {}
 
     def apply(self, state):
-        state.delta_yuv = rgb_to_yuv(state.rgb - state.rgb_alpha * state.plate)
+        behind = state.plate
+        if state.colour_matrix is not None:
+            behind = cv2.transform(behind, np.linalg.pinv(state.colour_matrix).astype(np.float32))
+        covered = state.rgb_alpha * behind
+        if state.colour_matrix is not None:
+            covered = cv2.transform(covered, state.colour_matrix.astype(np.float32))
+        state.delta_yuv = rgb_to_yuv(state.rgb - covered)
 
 
 class ChromaSubsampling(Effect):
@@ -54,8 +65,8 @@ class ChromaSubsampling(Effect):
         d = state.delta_yuv
         h, w, _ = d.shape
         n = self.group
-        pad = (-w) % n
-        uv = np.pad(d[..., 1:], ((0, 0), (0, pad), (0, 0)), mode="edge") if pad else d[..., 1:]
-        mean = uv.reshape(h, -1, n, 2).mean(axis=2)
-        d[..., 1:] = np.repeat(mean, n, axis=1)[:, :w]
+        if w % n:
+            raise self.error(f"the frame width {w} is not a multiple of the chroma group {n}")
+        mean = cv2.resize(np.ascontiguousarray(d[..., 1:]), (w // n, h), interpolation=cv2.INTER_AREA)
+        d[..., 1:] = np.repeat(mean, n, axis=1)
         state.chroma_group = n

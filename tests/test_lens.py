@@ -1,0 +1,92 @@
+"""Lens models: exact inverses, agreement with OpenCV, continuity (paper sec. 4.1; PTAM's FOV model)."""
+import cv2
+import numpy as np
+import pytest
+
+from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens
+
+W, H = 640, 480
+
+
+def frame_grid(margin=16, step=1):
+    u, v = np.meshgrid(np.arange(-margin, W + margin, step, dtype=np.float64),
+                       np.arange(-margin, H + margin, step, dtype=np.float64))
+    return u, v
+
+
+@pytest.mark.parametrize("w", [0.0, 0.3, 0.93, 1.2])
+def test_fov_round_trip_within_1e6_px_over_the_frame(w):
+    lens = FovLens(W, H, 0.57, 0.76, 0.5, 0.5, w)
+    u, v = frame_grid()
+    x, y = lens.undistort(u, v)
+    u2, v2 = lens.distort(x, y)
+    assert np.abs(u2 - u).max() < 1e-6 and np.abs(v2 - v).max() < 1e-6
+
+
+def test_fov_is_continuous_through_the_centre():
+    # PTAM switches to factor 1 below r = 0.001, a jump of 2 tan(w/2)/w; the continuous limit has none.
+    lens = FovLens(W, H, 0.57, 0.76, 0.5, 0.5, 0.93)
+    r = np.array([0.0, 5e-5, 9.99e-5, 1.0001e-4, 2e-4, 1e-3])
+    u, _ = lens.distort(r, np.zeros_like(r))
+    slope = np.diff(u) / np.diff(r)
+    assert np.allclose(slope, lens.fx * lens.d / lens.w, rtol=1e-6)
+
+
+def test_fov_barrel_pulls_the_corners_in():
+    lens = FovLens(W, H, 0.57, 0.76, 0.5, 0.5, 0.93)
+    x, y = lens.undistort(np.array([0.0]), np.array([0.0]))  # a corner pixel
+    pin = lens.pinhole()
+    u_pin, v_pin = pin.distort(x, y)
+    assert u_pin[0] < -100 and v_pin[0] < -60  # the pinhole would put that ray far outside the frame
+
+
+def test_opencv_model_matches_cv2_projectpoints():
+    k = dict(k1=-0.26637, k2=-0.03859, p1=0.00178, p2=-0.00028, k3=0.23839)
+    lens = OpenCVLens(W, H, 535.916, 535.916, 342.283, 235.571, **k)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-0.6, 0.6, 200), rng.uniform(-0.45, 0.45, 200), np.ones(200)])
+    K = np.array([[535.916, 0, 342.283], [0, 535.916, 235.571], [0, 0, 1]])
+    dist = np.array([k["k1"], k["k2"], k["p1"], k["p2"], k["k3"]])
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, dist)
+    u, v = lens.distort(pts[:, 0], pts[:, 1])
+    assert np.abs(np.column_stack([u, v]) - ref[:, 0]).max() < 1e-9
+    # and undistortion agrees with cv2.undistortPoints
+    und = cv2.undistortPointsIter(ref.astype(np.float64), K, dist, None, None,
+                                  (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14))
+    x, y = lens.undistort(ref[:, 0, 0], ref[:, 0, 1])
+    assert np.abs(np.column_stack([x, y]) - pts[:, :2]).max() < 1e-8
+    assert np.abs(und[:, 0] - pts[:, :2]).max() < 1e-5
+
+
+@pytest.mark.parametrize("model, coefficients", [
+    ("polynomial", dict(k1=-0.12, k2=0.02, k3=-0.003)),
+    ("division", dict(division_k1=-0.08, division_k2=0.01)),
+    ("nuke", dict(nuke_k1=0.05, nuke_k2=-0.01)),
+    ("brown", dict(brown_k1=-0.1, brown_k2=0.01, brown_k3=0.0, brown_k4=0.0, brown_p1=0.002, brown_p2=-0.001)),
+])
+def test_blender_models_round_trip(model, coefficients):
+    lens = BlenderLens(W, H, model, focal_length=4.0, sensor_width=4.8, principal_point=(0.02, -0.03),
+                       pixel_aspect=1.0, **coefficients)
+    u, v = frame_grid(margin=0, step=8)
+    x, y = lens.undistort(u, v)
+    u2, v2 = lens.distort(x, y)
+    assert np.abs(u2 - u).max() < 1e-6 and np.abs(v2 - v).max() < 1e-6
+    # the principal point is where Blender says: (0.02, -0.03) normalised, y up
+    cu, cv = lens.distort(np.array([0.0]), np.array([0.0]))
+    assert cu[0] == pytest.approx((0.02 + 1) / 2 * W - 0.5) and cv[0] == pytest.approx(H - (-0.03 + 1) / 2 * H - 0.5)
+
+
+def test_blender_polynomial_agrees_with_opencv_radial_terms():
+    # libmv's polynomial radial terms are OpenCV's k1..k3 on the same normalised coordinates.
+    f = 4.0 / 4.8 * W
+    a = BlenderLens(W, H, "polynomial", 4.0, 4.8, (0.0, 0.0), 1.0, k1=-0.1, k2=0.01, k3=0.001)
+    b = OpenCVLens(W, H, f, f, W / 2 - 0.5, H / 2 - 0.5, k1=-0.1, k2=0.01, k3=0.001)
+    x = np.linspace(-0.5, 0.5, 11)
+    assert np.allclose(a.distort(x, x * 0.7), b.distort(x, x * 0.7), atol=1e-9)
+
+
+def test_lens_effect_rejects_keys_of_another_model():
+    from lowcam import ProfileError
+
+    with pytest.raises(ProfileError, match="does not belong to the 'fov' lens model"):
+        LensDistortion(model="fov", k1=0.1)
