@@ -301,11 +301,21 @@ class LensDistortion(Effect):
         "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg", doc="0: automatic"),
     }
 
-    def __init__(self, enabled=True, source="<python>", base_dir=None, **values):
-        model = values.get("model", "fov")
+    @staticmethod
+    def keys_of(model: str) -> set[str]:
+        """The parameter names that belong to a lens ``model``."""
         allowed = {"model", "render_hfov_deg", *_MODEL_KEYS.get(model, ())}
         if model in ("polynomial", "division", "nuke", "brown"):
             allowed.update(_BLENDER_KEYS)
+        return allowed
+
+    def values(self):
+        keys = self.keys_of(self.model)
+        return {k: v for k, v in super().values().items() if k in keys}
+
+    def __init__(self, enabled=True, source="<python>", base_dir=None, **values):
+        model = values.get("model", "fov")
+        allowed = self.keys_of(model)
         stray = sorted(k for k in values if k in self.params and k not in allowed)
         super().__init__(enabled, source, base_dir, **values)
         if stray:

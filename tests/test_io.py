@@ -1,0 +1,88 @@
+"""Reading and writing real files: OpenEXR through the OpenEXR package, PNG/JPEG through OpenCV; bad input."""
+import os
+
+import cv2
+import numpy as np
+import OpenEXR
+import pytest
+
+import lowcam
+from lowcam import LowcamError
+from lowcam.io import read_render, write_exr, write_png
+
+
+def test_single_layer_exr_round_trip(tmp_path, rng):
+    rgba = rng.random((40, 60, 4)).astype(np.float32)
+    rgba[..., :3] *= rgba[..., 3:]
+    write_exr(tmp_path / "r.exr", rgba)
+    assert np.array_equal(read_render(tmp_path / "r.exr"), rgba)
+
+
+def test_blender_multilayer_exr_is_read_from_its_combined_layer(tmp_path, rng):
+    rgba = rng.random((32, 48, 4)).astype(np.float32)
+    depth = rng.random((32, 48)).astype(np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    channels = {f"ViewLayer.Combined.{c}": rgba[..., i].copy() for i, c in enumerate("RGBA")}
+    channels["ViewLayer.Depth.Z"] = depth
+    OpenEXR.File(header, channels).write(str(tmp_path / "multi.exr"))
+    assert np.array_equal(read_render(tmp_path / "multi.exr"), rgba)
+
+
+def test_png_render_is_premultiplied_on_read(tmp_path):
+    img = np.zeros((20, 20, 4), np.uint8)
+    img[..., 0] = 255
+    img[..., 3] = 51  # straight red at alpha 0.2
+    cv2.imwrite(str(tmp_path / "r.png"), cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA))
+    r = read_render(tmp_path / "r.png")
+    assert r[0, 0, 0] == pytest.approx(0.2 * 1.0) and r[0, 0, 3] == pytest.approx(0.2)
+
+
+def _exr(path, rgba):
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"RGBA": rgba}).write(str(path))
+
+
+@pytest.mark.parametrize("problem, make, message", [
+    ("nan", lambda p: _exr(p, np.where(np.arange(64 * 64 * 4).reshape(64, 64, 4) == 77, np.nan, 0.5).astype(np.float32)),
+     "NaN or Inf"),
+    ("inf", lambda p: _exr(p, np.full((64, 64, 4), np.inf, np.float32)), "NaN or Inf"),
+    ("no alpha", lambda p: OpenEXR.File({"type": OpenEXR.scanlineimage},
+                                        {"RGB": np.zeros((64, 64, 3), np.float32)}).write(str(p)), "no alpha channel"),
+    ("corrupt", lambda p: p.write_bytes(b"v/1\x01" + os.urandom(300)), "not a readable OpenEXR file"),
+    ("truncated", lambda p: (_exr(p, np.zeros((64, 64, 4), np.float32)), p.write_bytes(p.read_bytes()[:200])),
+     "not a readable OpenEXR file"),
+    ("missing", lambda p: None, "no such file"),
+])
+def test_bad_renders_get_a_one_line_error_naming_the_file(tmp_path, problem, make, message):
+    path = tmp_path / f"{problem.replace(' ', '_')}.exr"
+    make(path)
+    with pytest.raises(LowcamError) as e:
+        read_render(path)
+    text = str(e.value)
+    assert message in text and str(path) in text and "\n" not in text
+
+
+def test_alpha_out_of_range_is_rejected():
+    r = np.zeros((64, 64, 4), np.float32)
+    r[..., 3] = 1.5
+    with pytest.raises(LowcamError, match="alpha must lie in"):
+        lowcam.simulate(r)
+
+
+def test_wrong_plate_size_is_rejected_naming_the_file(tmp_path):
+    cv2.imwrite(str(tmp_path / "plate.png"), np.zeros((600, 800, 3), np.uint8))
+    with pytest.raises(LowcamError, match=r"plate.png: the plate is 800x600, the camera delivers 640x480"):
+        lowcam.read_plate(tmp_path / "plate.png", 640, 480)
+    with pytest.raises(LowcamError, match="the camera delivers 640x480"):
+        lowcam.simulate(np.zeros((300, 400, 4), np.float32), "fire-i", np.zeros((600, 800, 3), np.uint8))
+
+
+def test_writes_are_atomic_and_leave_no_partial_file(tmp_path):
+    target = tmp_path / "frame.png"
+    write_png(target, np.full((8, 8, 3), 7, np.uint8))
+    before = target.read_bytes()
+    with pytest.raises(Exception):
+        write_png(target, np.zeros((8, 8, 5, 2), np.uint8))  # cannot be encoded
+    assert target.read_bytes() == before  # the old complete frame is still there
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.png"]
+    assert oct(target.stat().st_mode & 0o777) != oct(0o600)  # readable like a normal file
