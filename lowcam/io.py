@@ -39,6 +39,8 @@ def atomic_write_bytes(path, data: bytes) -> None:
 
 
 def _check_finite(path, image: np.ndarray) -> None:
+    if np.isfinite(image).all():
+        return
     bad = ~np.isfinite(image)
     if bad.any():
         y, x = np.argwhere(bad)[0][:2]
@@ -102,10 +104,7 @@ def read_render(path) -> np.ndarray:
         scale = 65535.0 if img.dtype == np.uint16 else 255.0
         rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / scale
         rgba[..., :3] *= rgba[..., 3:]
-    rgba = np.ascontiguousarray(rgba, np.float32)
-    _check_finite(path, rgba)
-    check_render(rgba, path)
-    return rgba
+    return check_render(rgba, path)
 
 
 def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
@@ -117,9 +116,9 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
         raise LowcamError(f"{name}: a render of {rgba.shape[1]}x{rgba.shape[0]} is too small")
     rgba = np.ascontiguousarray(rgba, np.float32)
     _check_finite(name, rgba)
-    a = rgba[..., 3]
-    if a.min() < -1e-4 or a.max() > 1 + 1e-4:
-        raise LowcamError(f"{name}: alpha must lie in [0, 1], found {a.min():.3g}..{a.max():.3g}")
+    lo, hi, _, _ = cv2.minMaxLoc(cv2.extractChannel(rgba, 3))
+    if lo < -1e-4 or hi > 1 + 1e-4:
+        raise LowcamError(f"{name}: alpha must lie in [0, 1], found {lo:.3g}..{hi:.3g}")
     return rgba
 
 

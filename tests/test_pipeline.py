@@ -143,3 +143,21 @@ def test_raw_pipeline_blends_into_the_bayer_frame(ueye):
     assert obj.footprint.mean() > 0.05
     assert np.array_equal(obj.frame[~obj.footprint], expected[~obj.footprint])
     assert np.abs(obj.frame[240, 376].astype(int) - 245).max() < 25  # white disk at the centre (vignetting ~1)
+
+
+@pytest.mark.parametrize("pattern", ["GBRG", "RGGB"])
+def test_block_demosaic_fills_the_2x2_block_with_the_sensel_at_its_top_right(pattern):
+    from lowcam.effects.bayer import demosaic_block
+    from lowcam.geometry import BAYER_BORDER, FrameGeometry
+
+    g = FrameGeometry(16, 8, bayer_pattern=pattern)
+    by, bx = BAYER_BORDER
+    for k, name in enumerate(("R", "Gr", "Gb", "B")):
+        planes = np.zeros((4,) + g.bayer_shape, np.float32)
+        planes[k, by + 1, bx + 2] = 1.0  # the sensel of cell (1, 2)
+        dy, dx = g.cfa[name]
+        sy, sx = 2 + dy, 4 + dx  # its output pixel
+        out = demosaic_block(planes, g)[..., (0, 1, 1, 2)[k]]
+        expected = np.zeros((8, 16), np.float32)
+        expected[sy:sy + 2, sx - 1:sx + 1] = 0.5 if name in ("Gr", "Gb") else 1.0
+        assert np.array_equal(out, expected), name

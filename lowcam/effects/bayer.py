@@ -23,7 +23,7 @@ class BayerSampling(Effect):
     params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
 
     def sample_positions(self, state) -> tuple[np.ndarray, np.ndarray]:
-        """x and y, each (4, rows, cols, taps) float32: working-grid coordinates each sensel averages over.
+        """x and y, each (4, taps, rows, cols) float32: working-grid coordinates each sensel averages over.
 
         Motion taps vary smoothly (24x18-cell grid), so they are looked up once per 2x2 cell for all four channels.
         """
@@ -36,60 +36,58 @@ class BayerSampling(Effect):
                 su[k] += ca[k, ..., c]
                 sv[k] += ca[k, ..., c + 1]
         x, y = g.output_to_working(su, sv)
-        x, y = x.astype(np.float32)[..., None], y.astype(np.float32)[..., None]
+        x, y = x.astype(np.float32)[:, None], y.astype(np.float32)[:, None]
         if state.motion_taps is None:
             return x, y
         centre = pos.mean(axis=0)
         taps = sample_texture(state.motion_taps, g.working_extent, centre[..., 0], centre[..., 1])
-        taps = taps.reshape(centre.shape[:2] + (-1, 2))
+        taps = taps.reshape(centre.shape[:2] + (-1, 2)).transpose(3, 2, 0, 1)  # (2, taps, rows, cols)
         sx, sy = g.working_scale
-        tx = np.ascontiguousarray(taps[..., 0]) * np.float32(sx)
-        ty = np.ascontiguousarray(taps[..., 1]) * np.float32(sy)
+        tx = np.multiply(taps[0], np.float32(sx), order="C")
+        ty = np.multiply(taps[1], np.float32(sy), order="C")
         return x + tx[None], y + ty[None]
 
     def apply(self, state):
         g = state.geometry
         hb, wb = g.bayer_shape
         x, y = self.sample_positions(state)
-        n = x.shape[3]
-        sampled = cv2.remap(state.working, x.reshape(4 * hb, wb * n), y.reshape(4 * hb, wb * n), cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        if n > 1:  # the mean over each sensel's n consecutive taps is an exact n:1 area resize
-            sampled = cv2.resize(sampled, (wb, 4 * hb), interpolation=cv2.INTER_AREA)
-        sampled = sampled.reshape(4, hb, wb, 4)
-        scale = 255.0 / self.render_white
-        state.bayer = np.stack([sampled[k, ..., COLOUR_INDEX[k]] for k in range(4)]) * np.float32(scale)
-        state.bayer_alpha = np.ascontiguousarray(sampled[..., 3])
-
-
-def block_indices(geometry, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Plane indices (rows, cols) that fill each output pixel under 2x2-block demosaicing.
-
-    Every sensel fills the 2x2 block that has it in its top-right corner (sec. 5.2 step 8, Fig. 5).
-    """
-    by, bx = BAYER_BORDER
-    dy, dx = geometry.cfa[name]
-    y = np.arange(geometry.height)
-    x = np.arange(geometry.width)
-    rows = np.floor_divide(y - dy, 2) + by
-    cols = np.floor_divide(x - dx + 1, 2) + bx
-    return rows, cols
+        n = x.shape[1]
+        # Each colour is sampled from a 2-channel (colour, alpha) image: half the memory traffic of RGBA.
+        h, w = state.working.shape[:2]
+        pairs = [np.empty((h, w, 2), np.float32) for _ in range(3)]
+        cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
+        state.bayer = np.empty((4, hb, wb), np.float32)
+        state.bayer_alpha = np.empty((4, hb, wb), np.float32)
+        for src, ks in zip(pairs, (slice(0, 1), slice(1, 3), slice(3, 4))):
+            count = ks.stop - ks.start
+            rows = count * n * hb
+            sampled = cv2.remap(src, x[ks].reshape(rows, wb), y[ks].reshape(rows, wb), cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            sampled = sampled.reshape(count, n, hb, wb, 2).mean(axis=1) if n > 1 else sampled.reshape(
+                count, hb, wb, 2)
+            state.bayer[ks] = sampled[..., 0]
+            state.bayer_alpha[ks] = sampled[..., 1]
+        state.bayer *= np.float32(255.0 / self.render_white)
 
 
 def demosaic_block(planes: np.ndarray, geometry) -> np.ndarray:
     """2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5): red and blue are nearest-neighbour blocks, green
-    is the mean of the Gr and Gb blocks. ``planes`` is (4, rows, cols) in R, Gr, Gb, B order; returns (H, W, 3)."""
-    out = np.empty((geometry.height, geometry.width, 3), np.float32)
-    idx = {name: block_indices(geometry, name) for name in CFA_CHANNELS}
+    is the mean of the Gr and Gb blocks. ``planes`` is (4, rows, cols) in R, Gr, Gb, B order; returns (H, W, 3).
 
-    def block(k):
-        r, c = idx[CFA_CHANNELS[k]]
-        return planes[k].take(r, axis=0).take(c, axis=1)
-
-    out[..., 0] = block(0)
-    out[..., 1] = 0.5 * (block(1) + block(2))
-    out[..., 2] = block(3)
-    return out
+    Every sensel fills the 2x2 block that has it in its top-right corner (sec. 5.2 step 8), so output pixel
+    (y, x) takes plane row ``floor((y - dy) / 2)`` and column ``floor((x - dx + 1) / 2)`` (plus borders).
+    """
+    by, bx = BAYER_BORDER
+    h, w = geometry.height, geometry.width
+    hb, wb = planes.shape[1:]
+    up = cv2.resize(np.ascontiguousarray(planes.transpose(1, 2, 0)), (2 * wb, 2 * hb),
+                    interpolation=cv2.INTER_NEAREST)
+    blocks = []
+    for k, name in enumerate(CFA_CHANNELS):
+        dy, dx = geometry.cfa[name]
+        y0, x0 = 2 * by - dy, 2 * bx - dx + 1
+        blocks.append(up[y0:y0 + h, x0:x0 + w, k])
+    return np.ascontiguousarray(np.stack([blocks[0], 0.5 * (blocks[1] + blocks[2]), blocks[3]], -1))
 
 
 def mosaic(planes: np.ndarray, geometry) -> np.ndarray:

@@ -49,14 +49,17 @@ def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray) -> np.ndarray:
     levels = blur_levels(lo, hi) if len(blur_levels(lo, hi)) > 1 else [lo, hi]
     weights = level_weights(sigma_grid, levels)
     h, w = image.shape[:2]
-    out = None
+    out = out_weight = None
     for s, wg in zip(levels, weights):
         if not wg.any():
             continue
         wmap = cv2.resize(wg, (w, h), interpolation=cv2.INTER_LINEAR)
         level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image
-        term = cv2.multiply(level, cv2.merge([wmap] * image.shape[2]))
-        out = term if out is None else cv2.add(out, term)
+        if out is None:
+            out, out_weight = level, wmap
+        else:  # (w_acc acc + w level) / (w_acc + w): the weights sum to 1, so this is the running sum
+            out = cv2.blendLinear(out, level, out_weight, wmap)
+            out_weight = out_weight + wmap
     return out
 
 

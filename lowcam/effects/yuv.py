@@ -63,10 +63,13 @@ class ChromaSubsampling(Effect):
 
     def apply(self, state):
         d = state.delta_yuv
-        h, w, _ = d.shape
+        h, w = d.shape[:2]
         n = self.group
         if w % n:
             raise self.error(f"the frame width {w} is not a multiple of the chroma group {n}")
-        mean = cv2.resize(np.ascontiguousarray(d[..., 1:]), (w // n, h), interpolation=cv2.INTER_AREA)
-        d[..., 1:] = np.repeat(mean, n, axis=1)
+        y, u, v = cv2.split(d)
+        # an exact n:1 box mean, then each mean repeated n times
+        u, v = (cv2.resize(cv2.resize(c, (w // n, h), interpolation=cv2.INTER_AREA), (w, h),
+                           interpolation=cv2.INTER_NEAREST) for c in (u, v))
+        state.delta_yuv = cv2.merge([y, u, v])
         state.chroma_group = n
