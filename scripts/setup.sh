@@ -22,6 +22,11 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
 fi
 [ -x .venv/bin/python ] || "$py" -m venv .venv
 echo "setup: installing Lowcam and its dependencies into .venv (bpy is large: the first time takes a few minutes)"
-.venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip >/dev/null
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test]"
+log=.venv/pip-install.log
+if ! .venv/bin/python -m pip install --disable-pip-version-check -e ".[test]" >"$log" 2>&1; then
+  grep -E "ERROR|error:" "$log" | tail -20 >&2
+  echo "setup: pip install failed; the whole log is in $log" >&2
+  exit 1
+fi
 echo "$want" > "$stamp"
+echo "setup: done"
