@@ -132,6 +132,34 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_batch(args) -> int:
+    from .batch import Shot, parse_frames, run_shot, summary
+    from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
+    from .profile import load_profile
+
+    frames = parse_frames(args.frames)
+    load_profile(args.profile)  # fail early on a bad profile
+    motion, require = {}, False
+    if args.motion:
+        motion, require = read_motion_json(args.motion), True
+    elif args.gyro:
+        if not args.fps or args.exposure_s is None:
+            raise LowcamError(f"{args.gyro}: a gyro log needs --fps and --exposure-s")
+        motion = gyro_to_motion(read_gyro_csv(args.gyro), frames, args.fps, args.exposure_s, args.gyro_t0,
+                                args.gyro_first_frame, source=args.gyro)
+        require = True
+    shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
+                args.video_first_frame)
+    t = time.perf_counter()
+    results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
+    done = sum(r.status == "written" for r in results)
+    elapsed = time.perf_counter() - t
+    rate = f" ({done / elapsed:.2f} frames/s written)" if done else ""
+    failed = any(r.status == "failed" for r in results)
+    print(f"{summary(results)}\n{len(frames)} frames in {elapsed:.1f} s{rate}", file=sys.stderr if failed else sys.stdout)
+    return 1 if any(r.status == "failed" for r in results) else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
                                      "(Klein & Murray 2010).")
@@ -156,6 +184,26 @@ def build_parser() -> argparse.ArgumentParser:
     frame_options(p, render_required=False)
     p.add_argument("-o", "--output", required=True, help="folder for the stage images")
     p.set_defaults(func=cmd_stages)
+
+    p = sub.add_parser("batch", help="run the camera over a shot (frame sequence), resumable, optionally on Dask")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--renders", required=True, help="render pattern, '#' for frame digits: renders/####.exr")
+    p.add_argument("--plates", help="plate pattern (plate/####.png) or one video file")
+    p.add_argument("--video-first-frame", type=int, default=1, help="shot frame shown by the video's first frame")
+    p.add_argument("--motion", help="motion.json: per-frame angular velocity and exposure")
+    p.add_argument("--gyro", help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
+    p.add_argument("--fps", type=float, help="frame rate, for --gyro")
+    p.add_argument("--exposure-s", type=float, help="exposure time, for --gyro")
+    p.add_argument("--gyro-t0", type=float, default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
+    p.add_argument("--gyro-first-frame", type=int, default=1)
+    p.add_argument("--frames", required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", required=True, help="output pattern: out/####.png")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--force", action="store_true", help="redo frames whose output exists")
+    p.add_argument("--workers", type=int, default=0, help="run on a Dask LocalCluster of N processes")
+    p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("profiles", help="list the bundled profiles")
     p.set_defaults(func=cmd_profiles)

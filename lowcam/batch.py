@@ -1,0 +1,200 @@
+"""Shots: run the camera over a frame sequence, serially or on Dask, resumable, with progress.
+
+A shot is described by file patterns in which a run of ``#`` stands for the zero-padded frame number
+(``renders/####.exr`` -> ``renders/0007.exr``; ``%04d`` works too). Plates may instead be one video file, read
+with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``.
+
+Every output is written atomically, so a frame file that exists is complete; a rerun skips those frames unless
+``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish. Noise is
+seeded per frame, so a serial run, a Dask run and a run split into chunks give the same bytes.
+"""
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import LowcamError
+from .motion import FrameMotion
+
+VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
+
+
+def expand_pattern(pattern: str, frame: int) -> str:
+    """``renders/####.exr`` or ``renders/%04d.exr`` with the frame number filled in."""
+    if "%" in pattern:
+        return pattern % frame
+    runs = list(re.finditer(r"#+", pattern))
+    if not runs:
+        raise LowcamError(f"{pattern}: the pattern has no '#' (or %d) for the frame number")
+    m = runs[-1]
+    return pattern[:m.start()] + f"{frame:0{len(m.group())}d}" + pattern[m.end():]
+
+
+def parse_frames(spec: str) -> list[int]:
+    """``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers."""
+    frames: set[int] = set()
+    for part in spec.split(","):
+        m = re.fullmatch(r"\s*(-?\d+)(?:\s*-\s*(-?\d+)(?:x(\d+))?)?\s*", part)
+        if not m:
+            raise LowcamError(f"frames '{spec}': cannot read '{part}' (use e.g. 1-240, 1-10,15 or 1-240x2)")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) else a
+        step = int(m.group(3) or 1)
+        if b < a or step < 1:
+            raise LowcamError(f"frames '{spec}': '{part}' is an empty range")
+        frames.update(range(a, b + 1, step))
+    return sorted(frames)
+
+
+@dataclass
+class Shot:
+    """Everything one frame's job needs; picklable, so Dask can ship it to workers."""
+
+    profile: str
+    renders: str
+    output: str
+    plates: str | None = None
+    motion: dict[int, FrameMotion] = field(default_factory=dict)
+    require_motion: bool = False
+    seed: int = 0
+    video_first_frame: int = 1
+
+    def output_path(self, frame: int) -> Path:
+        return Path(expand_pattern(self.output, frame))
+
+
+@dataclass
+class FrameResult:
+    frame: int
+    status: str  # "written", "skipped" or "failed"
+    message: str = ""
+    seconds: float = 0.0
+
+
+_PROFILES: dict = {}
+
+
+def _profile(name: str):
+    from .profile import load_profile
+
+    if name not in _PROFILES:
+        _PROFILES[name] = load_profile(name)
+    return _PROFILES[name]
+
+
+def read_video_frame(path: str, index: int):
+    """Frame ``index`` (0-based) of a video file as uint8 RGB."""
+    import cv2
+
+    if not Path(path).is_file():
+        raise LowcamError(f"{path}: no such file")
+    cap = cv2.VideoCapture(path)
+    try:
+        if not cap.isOpened():
+            raise LowcamError(f"{path}: not a readable video")
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        if index < 0 or (count > 0 and index >= count):
+            raise LowcamError(f"{path}: the video has {count} frames, frame {index} (0-based) does not exist")
+        cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, img = cap.read()
+        if not ok:
+            raise LowcamError(f"{path}: frame {index} (0-based) cannot be decoded")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    finally:
+        cap.release()
+
+
+def _read_plate(shot: Shot, frame: int, profile):
+    from .io import check_plate, read_plate
+
+    c = profile.camera
+    if Path(shot.plates).suffix.lower() in VIDEO_SUFFIXES:
+        img = read_video_frame(shot.plates, frame - shot.video_first_frame)
+        return check_plate(img, c.width, c.height, name=f"{shot.plates} frame {frame}", raw=profile.is_raw)
+    return read_plate(expand_pattern(shot.plates, frame), c.width, c.height, None if profile.is_raw else 3)
+
+
+def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
+    """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead."""
+    from .io import read_render, write_image
+    from .pipeline import simulate
+
+    t = time.perf_counter()
+    out = shot.output_path(frame)
+    if out.exists() and not force:
+        return FrameResult(frame, "skipped")
+    try:
+        profile = _profile(shot.profile)
+        motion = shot.motion.get(frame)
+        if motion is None and shot.require_motion:
+            raise LowcamError(f"frame {frame}: no entry in the motion file")
+        motion = motion or FrameMotion((0.0, 0.0, 0.0))
+        render = read_render(expand_pattern(shot.renders, frame))
+        plate = _read_plate(shot, frame, profile) if shot.plates else None
+        image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame)
+        write_image(out, image)
+    except LowcamError as e:
+        return FrameResult(frame, "failed", str(e), time.perf_counter() - t)
+    return FrameResult(frame, "written", "", time.perf_counter() - t)
+
+
+def _progress(total: int, quiet: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="frame", disable=quiet, dynamic_ncols=True,
+                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} frames [{elapsed}<{remaining}, {rate_fmt}]")
+
+
+def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 0, scheduler: str | None = None,
+             quiet: bool = False) -> list[FrameResult]:
+    """Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers`` processes,
+    or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
+    _profile(shot.profile)  # a bad profile fails here, once, before any frame
+    for folder in {shot.output_path(f).parent for f in frames}:
+        for stale in folder.glob(".*.part*"):  # temporaries of writes that a killed run left behind
+            stale.unlink(missing_ok=True)
+    results: list[FrameResult] = []
+    bar = _progress(len(frames), quiet)
+    if not workers and not scheduler:
+        for f in frames:
+            results.append(process_frame(shot, f, force))
+            bar.update()
+    else:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        if scheduler:
+            client = Client(scheduler, timeout="30s")
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None)
+            client = Client(cluster)
+        try:
+            client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
+            futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
+                       for f in frames]
+            for future in as_completed(futures):
+                results.append(future.result())
+                bar.update()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    bar.close()
+    return sorted(results, key=lambda r: r.frame)
+
+
+def _one_opencv_thread():
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def summary(results: list[FrameResult]) -> str:
+    written = sum(r.status == "written" for r in results)
+    skipped = sum(r.status == "skipped" for r in results)
+    failed = [r for r in results if r.status == "failed"]
+    line = f"{written} written, {skipped} already done, {len(failed)} failed"
+    return line + "".join(f"\n  frame {r.frame}: {r.message}" for r in failed)

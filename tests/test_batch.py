@@ -1,0 +1,162 @@
+"""Shots: serial, Dask (real workers on loopback) and chunked runs give the same bytes; resume; bad frames."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lowcam.batch import Shot, expand_pattern, parse_frames, run_shot
+from lowcam.io import write_exr
+from lowcam.motion import FrameMotion, read_motion_json, write_motion_json
+from lowcam.sample import sample_plate
+
+from helpers import disk_render
+
+FRAMES = list(range(1, 13))
+
+
+@pytest.fixture(scope="module")
+def shot_dir(tmp_path_factory, fire_i):
+    d = tmp_path_factory.mktemp("shot")
+    plate = sample_plate(fire_i)
+    motion = {}
+    for f in FRAMES:
+        write_exr(d / "renders" / f"{f:04d}.exr", disk_render(fire_i, 0.15, centre=(-0.5 + 0.08 * f, 0.1), width=800))
+        cv2.imwrite(str(d / "plates" / f"{f:04d}.png") if (d / "plates").mkdir(exist_ok=True) is None else "",
+                    cv2.cvtColor(np.roll(plate, 3 * f, axis=1), cv2.COLOR_RGB2BGR))
+        motion[f] = FrameMotion((0.02 * f, 0.5 - 0.05 * f, 0.0), 0.02 + 0.001 * f)
+    write_motion_json(d / "motion.json", motion, fps=30)
+    return d
+
+
+def lowcam_batch(d, out, *extra):
+    return subprocess.run([sys.executable, "-m", "lowcam.cli", "batch", "--profile", "fire-i",
+                           "--renders", str(d / "renders/####.exr"), "--plates", str(d / "plates/####.png"),
+                           "--motion", str(d / "motion.json"), "-o", str(out / "####.png"), *extra],
+                          capture_output=True, text=True, timeout=600)
+
+
+def frame_bytes(folder):
+    return {p.name: p.read_bytes() for p in sorted(Path(folder).glob("*.png"))}
+
+
+def test_patterns_and_frame_ranges():
+    assert expand_pattern("r/####.exr", 7) == "r/0007.exr" and expand_pattern("r/%03d.png", 7) == "r/007.png"
+    assert parse_frames("1-4,9,20-24x2") == [1, 2, 3, 4, 9, 20, 22, 24]
+
+
+def test_serial_dask_and_chunked_runs_give_the_same_bytes(shot_dir, tmp_path):
+    shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "serial/####.png"),
+                str(shot_dir / "plates/####.png"), read_motion_json(shot_dir / "motion.json"), True)
+    results = run_shot(shot, FRAMES, quiet=True)
+    assert [r.status for r in results] == ["written"] * 12
+    serial = frame_bytes(tmp_path / "serial")
+    assert len(serial) == 12 and len(set(serial.values())) == 12
+
+    shot.output = str(tmp_path / "dask/####.png")
+    results = run_shot(shot, FRAMES, workers=2, quiet=True)
+    assert [r.status for r in results] == ["written"] * 12
+    assert frame_bytes(tmp_path / "dask") == serial
+
+    for chunk in ("1-6", "7-12"):
+        r = lowcam_batch(shot_dir, tmp_path / "chunks", "--frames", chunk, "--quiet")
+        assert r.returncode == 0, r.stderr
+    assert frame_bytes(tmp_path / "chunks") == serial
+
+
+def test_a_killed_run_resumes_without_redoing_finished_frames(shot_dir, tmp_path):
+    out = tmp_path / "resume"
+    cmd = [sys.executable, "-m", "lowcam.cli", "batch", "--renders", str(shot_dir / "renders/####.exr"),
+           "--plates", str(shot_dir / "plates/####.png"), "--motion", str(shot_dir / "motion.json"),
+           "--frames", "1-12", "-o", str(out / "####.png"), "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while len(list(out.glob("*.png"))) < 3 and time.time() < deadline:
+        time.sleep(0.02)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")}
+    assert 3 <= len(done) < 12
+    for p in out.glob("*.png"):  # every frame that exists is complete
+        assert cv2.imread(str(p)).shape == (480, 640, 3)
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"{12 - len(done)} written, {len(done)} already done, 0 failed" in r.stdout
+    assert all((out / name).stat().st_mtime_ns == t for name, t in done.items())
+    assert len(list(out.glob("*.png"))) == 12 and not list(out.glob(".*"))
+
+
+def test_a_corrupt_frame_is_reported_by_name_and_the_others_are_written(shot_dir, tmp_path):
+    bad = tmp_path / "renders"
+    bad.mkdir()
+    for f in FRAMES:
+        os.symlink(shot_dir / "renders" / f"{f:04d}.exr", bad / f"{f:04d}.exr")
+    (bad / "0006.exr").unlink()
+    (bad / "0006.exr").write_bytes((shot_dir / "renders" / "0006.exr").read_bytes()[:300])
+    (bad / "0009.exr").unlink()  # a missing frame too
+    r = subprocess.run([sys.executable, "-m", "lowcam.cli", "batch", "--renders", str(bad / "####.exr"),
+                        "--frames", "1-12", "-o", str(tmp_path / "out/####.png"), "--quiet"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1
+    assert "10 written, 0 already done, 2 failed" in r.stderr
+    assert f"frame 6: {bad / '0006.exr'}: not a readable OpenEXR file" in r.stderr
+    assert f"frame 9: {bad / '0009.exr'}: no such file" in r.stderr
+    written = sorted(p.name for p in (tmp_path / "out").glob("*.png"))
+    assert written == [f"{f:04d}.png" for f in FRAMES if f not in (6, 9)]
+
+
+def test_plates_from_one_video_file(shot_dir, tmp_path, fire_i):
+    video = tmp_path / "plate.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (640, 480))
+    for f in FRAMES:
+        writer.write(cv2.imread(str(shot_dir / "plates" / f"{f:04d}.png")))
+    writer.release()
+    shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "v/####.png"), str(video))
+    results = run_shot(shot, [3, 4], quiet=True)
+    assert [r.status for r in results] == ["written", "written"]
+    out = cv2.imread(str(tmp_path / "v" / "0004.png")).astype(int)
+    plate4 = cv2.imread(str(shot_dir / "plates" / "0004.png")).astype(int)
+    plate3 = cv2.imread(str(shot_dir / "plates" / "0003.png")).astype(int)
+    corner = (slice(0, 60), slice(0, 60))  # far from the object: the (JPEG-coded) plate of the same frame
+    assert np.abs(out[corner] - plate4[corner]).mean() < 3 < np.abs(out[corner] - plate3[corner]).mean()
+    (tmp_path / "r").mkdir()
+    os.symlink(shot_dir / "renders" / "0001.exr", tmp_path / "r" / "0040.exr")
+    bad = run_shot(Shot("fire-i", str(tmp_path / "r/####.exr"), str(tmp_path / "w/####.png"), str(video)), [40],
+                   quiet=True)
+    assert bad[0].status == "failed" and "the video has 12 frames" in bad[0].message
+
+
+def test_motion_json_from_a_keyframed_blender_camera_round_trips(tmp_path):
+    import bpy
+
+    from addon.motion import camera_motion
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    scene.render.motion_blur_shutter = 0.5
+    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    scene.collection.objects.link(cam)
+    cam.rotation_mode = "XYZ"
+    yaw_rate = 0.6  # rad/s about world z; the camera looks level along +y
+    for f in (1, 49):
+        cam.rotation_euler = (np.pi / 2, 0.0, yaw_rate * (f - 1) / 24)
+        cam.keyframe_insert("rotation_euler", frame=f)
+    action = cam.animation_data.action
+    for fc in action.layers[0].strips[0].channelbag(cam.animation_data.action_slot).fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    motion = camera_motion(scene, cam, range(5, 41, 5))
+    for m in motion.values():
+        # turning left about the camera's up axis: Lowcam's y points down, so w_y = -0.6 rad/s
+        assert np.allclose(m.angular_velocity, (0.0, -yaw_rate, 0.0), atol=1e-5)
+        assert m.exposure_s == pytest.approx(0.5 / 24)
+    path = write_motion_json(tmp_path / "motion.json", motion, fps=24)
+    assert read_motion_json(path) == motion
+    assert json.loads(path.read_text())["frames"][0]["frame"] == 5
