@@ -79,7 +79,8 @@ def render_field_of_view(profile: Profile) -> tuple[float, float]:
     (frame plus margin) for a render of the frame's aspect ratio, plus 2 %. Returns the extents the engine maps
     the render's width onto (X) and the least vertical extent it needs (Y).
     """
-    key = ("fov", profile.geometry)
+    lens_effect = profile.effect("lens_distortion")
+    key = ("fov", profile.geometry, lens_effect.enabled, repr(lens_effect.values()))
     if key not in profile._cache:
         g = profile.geometry
         u0, v0, u1, v1 = g.working_extent
@@ -88,7 +89,7 @@ def render_field_of_view(profile: Profile) -> tuple[float, float]:
         border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
         x, y = profile.lens.undistort(border_u, border_v)
         need_x, need_y = float(np.abs(x).max()), float(np.abs(y).max())
-        hfov = profile.effect("lens_distortion").render_hfov_deg
+        hfov = lens_effect.render_hfov_deg
         if hfov > 0:
             half_x = float(np.tan(np.radians(hfov) / 2))
             if half_x < need_x:

@@ -92,3 +92,13 @@ def test_render_camera_reports_the_field_the_render_must_cover():
     assert 100 < cam["hfov_deg"] < 130  # a 2.1 mm lens on a 1/4" sensor sees very wide
     with pytest.raises(lowcam.LowcamError, match="covers too little vertically"):
         lowcam.simulate(np.zeros((300, 900, 4), np.float32), "fire-i")
+
+
+def test_changing_a_lens_parameter_in_place_takes_effect():
+    p = lowcam.load_profile("fire-i").without("noise")
+    render = np.zeros((600, 800, 4), np.float32)
+    render[280:320, 600:700] = 1.0
+    before = lowcam.simulate(render, p)
+    p.effect("lens_distortion").w = 0.3
+    after = lowcam.simulate(render, p)
+    assert np.abs(before.astype(int) - after.astype(int)).sum() > 1000

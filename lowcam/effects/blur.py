@@ -46,7 +46,7 @@ def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray) -> np.ndarray:
     lo, hi = float(sigma_grid.min()), float(sigma_grid.max())
     if hi - lo < 1e-3:
         return cv2.GaussianBlur(image, (0, 0), lo) if lo > 0 else image
-    levels = blur_levels(lo, hi) if len(blur_levels(lo, hi)) > 1 else [lo, hi]
+    levels = blur_levels(lo, hi)
     weights = level_weights(sigma_grid, levels)
     h, w = image.shape[:2]
     out = out_weight = None

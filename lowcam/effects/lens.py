@@ -336,7 +336,7 @@ class LensDistortion(Effect):
 
     def render_maps(self, state, render_shape):
         """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""
-        key = (render_shape, state.geometry, self.enabled)
+        key = (render_shape, state.geometry, self.enabled, repr(self.values()))
         if key not in self._maps:
             from ..pipeline import render_focal_px
 
