@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects.bayer import demosaic_bilinear, demosaic_block
+from lowcam.effects.bayer import block_correlations, predicted_correlations
 
 from helpers import flat_render
 
@@ -53,24 +53,6 @@ def test_noise_is_reproducible_from_seed_and_frame(fire_i):
     c = lowcam.run(render, profile, seed=3, frame=11, stop_after="noise").state.bayer
     assert np.array_equal(a, b)
     assert abs(np.corrcoef((a - a.mean()).ravel(), (c - c.mean()).ravel())[0, 1]) < 0.02  # frames independent
-
-
-def block_correlations(frames: np.ndarray, channel: int) -> np.ndarray:
-    """16x16 correlation of the pixels of aligned 4x4 blocks (paper Fig. 4), over all blocks and frames."""
-    x = frames[..., channel]
-    n, h, w = x.shape
-    x = x - x.mean(axis=0, keepdims=True)
-    blocks = x[:, : h // 4 * 4, : w // 4 * 4].reshape(n, h // 4, 4, w // 4, 4).transpose(0, 1, 3, 2, 4)
-    return np.corrcoef(blocks.reshape(-1, 16).T)
-
-
-def predicted_correlations(geometry, method: str, channel: int, frames: int = 40) -> np.ndarray:
-    """Correlations that independent sensel noise produces through a demosaicing method."""
-    rng = np.random.default_rng(99)
-    fn = demosaic_block if method == "block" else demosaic_bilinear
-    shape = (4,) + geometry.bayer_shape
-    out = np.stack([fn(rng.standard_normal(shape).astype(np.float32), geometry) for _ in range(frames)])
-    return block_correlations(out, channel)
 
 
 def test_noise_covariance_shows_2x2_block_cliques_not_the_bilinear_pattern(fire_i):

@@ -150,3 +150,69 @@ class Demosaic(Effect):
         fn = demosaic_block if self.method == "block" else demosaic_bilinear
         state.rgb = fn(state.bayer, state.geometry)
         state.rgb_alpha = fn(state.bayer_alpha, state.geometry)
+
+
+# --- demosaic identification (sec. 4.4.1, Fig. 4): noise covariances in 4x4 blocks --------------------------------
+
+DEMOSAIC_METHODS = ("block", "bilinear", "edge_aware")
+
+
+def block_correlations(frames: np.ndarray, channel: int) -> np.ndarray:
+    """16x16 correlation between the pixels of aligned 4x4 blocks (the paper's Fig. 4), from the temporal noise
+    of a stack (N, H, W, 3) of frames of a static scene, over all blocks and frames."""
+    x = np.asarray(frames, np.float64)[..., channel]
+    n, h, w = x.shape
+    x = x - x.mean(axis=0, keepdims=True)
+    blocks = x[:, : h // 4 * 4, : w // 4 * 4].reshape(n, h // 4, 4, w // 4, 4).transpose(0, 1, 3, 2, 4)
+    return np.corrcoef(blocks.reshape(-1, 16).T)
+
+
+def _opencv_demosaic(planes: np.ndarray, geometry, code_kind: str) -> np.ndarray:
+    """OpenCV's demosaicing of our planes (``code_kind`` "_EA": edge-aware, "_VNG"), with the Bayer code chosen
+    by test so that OpenCV's pattern naming matches ours."""
+    frame = mosaic(planes, geometry)
+    lo, hi = float(frame.min()), float(frame.max())
+    u16 = np.round((frame - lo) / max(hi - lo, 1e-9) * 60000 + 1000).astype(np.uint16)
+    code = _bayer_code(geometry, code_kind)
+    return cv2.cvtColor(u16, code).astype(np.float32)
+
+
+def _bayer_code(geometry, kind: str):
+    probe = np.zeros((4,) + geometry.bayer_shape, np.float32)
+    probe[0] = 1.0  # red sensels only
+    frame = np.round(mosaic(probe, geometry) * 1000).astype(np.uint16)
+    for name in ("BG", "GB", "RG", "GR"):
+        code = getattr(cv2, f"COLOR_Bayer{name}2RGB{kind}")
+        out = cv2.cvtColor(frame, code).astype(np.float32)
+        if out[4:-4, 4:-4, 0].mean() > 900 and out[4:-4, 4:-4, 2].mean() < 100:
+            return code
+    raise RuntimeError(f"no OpenCV Bayer code matches {geometry.bayer_pattern}")
+
+
+def predicted_correlations(geometry, method: str, channel: int, frames: int = 40, seed: int = 99) -> np.ndarray:
+    """The 4x4-block correlations that independent sensel noise produces through a demosaicing ``method``."""
+    rng = np.random.default_rng(seed)
+    shape = (4,) + geometry.bayer_shape
+    if method == "block":
+        fn = demosaic_block
+    elif method == "bilinear":
+        fn = demosaic_bilinear
+    else:
+        def fn(p, g):
+            return _opencv_demosaic(p, g, "_EA")
+    out = np.stack([fn(rng.standard_normal(shape).astype(np.float32), geometry) for _ in range(frames)])
+    return block_correlations(out, channel)
+
+
+def identify_demosaic(stack, geometry) -> dict:
+    """Score each method of :data:`DEMOSAIC_METHODS` against the measured noise correlations of a stack of frames
+    of a static scene; the lowest error (mean absolute difference of the off-diagonal correlations over the three
+    channels) wins. Returns ``{"best", "errors", "measured", "predicted"}``."""
+    off = ~np.eye(16, dtype=bool)
+    measured = [block_correlations(stack, c) for c in range(3)]
+    predicted, errors = {}, {}
+    for method in DEMOSAIC_METHODS:
+        predicted[method] = [predicted_correlations(geometry, method, c) for c in range(3)]
+        errors[method] = float(np.mean([np.abs(m - p)[off].mean() for m, p in zip(measured, predicted[method])]))
+    best = min(errors, key=errors.get)
+    return {"best": best, "errors": errors, "measured": measured, "predicted": predicted}

@@ -94,3 +94,64 @@ class ChromaticAberration(Effect):
     def apply(self, state):
         g = state.geometry
         state.ca_grid = self.grid(g.width, g.height).astype(np.float32)
+
+
+def lk_shift(ref: np.ndarray, grad_x: np.ndarray, grad_y: np.ndarray, moving: np.ndarray, centre, size: int,
+             iterations: int = 30) -> tuple[float, float]:
+    """Lucas-Kanade translation ``d`` such that ``moving(p) ~ ref(p + d)`` over a ``size`` x ``size`` patch at
+    ``centre`` (Gauss-Newton on bilinearly resampled ``ref``, sub-pixel)."""
+    import cv2
+
+    cx, cy = centre
+    half = (size - 1) / 2
+    ys, xs = np.mgrid[0:size, 0:size].astype(np.float32)
+    xs += np.float32(cx - half)
+    ys += np.float32(cy - half)
+    target = cv2.remap(moving, xs, ys, cv2.INTER_LINEAR)
+    d = np.zeros(2)
+    for _ in range(iterations):
+        mx, my = xs + np.float32(d[0]), ys + np.float32(d[1])
+        r = cv2.remap(ref, mx, my, cv2.INTER_LINEAR) - target
+        gx = cv2.remap(grad_x, mx, my, cv2.INTER_LINEAR)
+        gy = cv2.remap(grad_y, mx, my, cv2.INTER_LINEAR)
+        a = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]], np.float64)
+        if np.linalg.cond(a) > 1e8:
+            return float("nan"), float("nan")
+        step = -np.linalg.solve(a, [np.sum(gx * r), np.sum(gy * r)])
+        d += step
+        if np.hypot(*step) < 1e-4:
+            break
+    return float(d[0]), float(d[1])
+
+
+def fit_chromatic_aberration(frames, cells=(24, 18), patch: int = 30, smooth_cells: float = 0.7) -> np.ndarray:
+    """The lateral-colour grid from frames of a grey white-noise field (sec. 4.1).
+
+    In every cell of a ``cells`` grid, a ``patch`` x ``patch`` patch of red and of blue is aligned to green by
+    Lucas-Kanade; the shifts are averaged over frames, smoothed with a Gaussian of ``smooth_cells`` cells, and
+    returned as (rows, cols, 4) ``[red_du, red_dv, blue_du, blue_dv]`` in :func:`read_ca_grid`'s convention
+    (where red/blue sample relative to green). Frames are (H, W, 3) RGB.
+    """
+    import cv2
+
+    frames = [np.asarray(f, np.float32) for f in frames]
+    h, w = frames[0].shape[:2]
+    u, v = grid_points((-0.5, -0.5, w - 0.5, h - 0.5), cells)
+    margin = patch / 2 + 2
+    uc, vc = np.clip(u, margin, w - 1 - margin), np.clip(v, margin, h - 1 - margin)
+    shifts = np.zeros((len(frames),) + u.shape + (4,))
+    for n, frame in enumerate(frames):
+        green = np.ascontiguousarray(frame[..., 1])
+        gx = cv2.Sobel(green, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+        gy = cv2.Sobel(green, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+        for c, col in ((0, 0), (2, 2)):
+            moving = np.ascontiguousarray(frame[..., c])
+            for i in range(u.shape[0]):
+                for j in range(u.shape[1]):
+                    shifts[n, i, j, col:col + 2] = lk_shift(green, gx, gy, moving, (uc[i, j], vc[i, j]), patch)
+    grid = np.nanmean(shifts, axis=0)
+    if np.isnan(grid).any():
+        raise ValueError("the frames have too little texture to align the colour channels (use the noise field)")
+    if smooth_cells > 0:
+        grid = cv2.GaussianBlur(grid.astype(np.float32), (0, 0), smooth_cells, borderType=cv2.BORDER_REPLICATE)
+    return grid.astype(np.float32)

@@ -50,3 +50,58 @@ class Noise(Effect):
         mean = state.bayer / np.maximum(alpha, 1e-6)
         for k, channel in enumerate(("red", "green", "green", "blue")):
             state.bayer[k] += z[k] * np.clip(alpha[k], 0.0, 1.0) * self.sigma(channel, mean[k]).astype(np.float32)
+
+
+def fit_noise_law(mean_dn: np.ndarray, sigma_dn: np.ndarray, law: str, saturation_dn: float = 220.0,
+                  bins: int = 40) -> tuple[float, float]:
+    """Fit ``[a, b]`` of a noise law to per-pixel temporal means and standard deviations (sec. 4.3).
+
+    Means above ``saturation_dn`` are ignored (clipped pixels lose their noise), as are the darkest 2 DN. The
+    pixels are binned by mean; each bin's variance is the average of its pixels' variances (robust to the many
+    pixels of one brightness), and the law is fitted to the bins by weighted least squares.
+    """
+    mu = np.asarray(mean_dn, np.float64).ravel()
+    var = np.asarray(sigma_dn, np.float64).ravel() ** 2
+    keep = (mu < saturation_dn) & (mu > 2.0)
+    mu, var = mu[keep], var[keep]
+    if mu.size < 10:
+        raise ValueError("too few unsaturated pixels to fit a noise law")
+    edges = np.linspace(mu.min(), mu.max(), bins + 1)
+    idx = np.clip(np.digitize(mu, edges) - 1, 0, bins - 1)
+    count = np.bincount(idx, minlength=bins)
+    ok = count >= 20
+    if ok.sum() < 2:
+        raise ValueError("the captures span too narrow a range of brightness to fit a noise law")
+    bm = (np.bincount(idx, mu, bins) / np.maximum(count, 1))[ok]
+    bv = (np.bincount(idx, var, bins) / np.maximum(count, 1))[ok]
+    w = np.sqrt(count[ok])
+    if law == "variance_linear":
+        a, b = np.linalg.lstsq(np.column_stack([np.ones_like(bm), bm]) * w[:, None], bv * w, rcond=None)[0]
+    else:
+        a, b = np.linalg.lstsq(np.column_stack([np.ones_like(bm), bm]) * w[:, None], np.sqrt(bv) * w,
+                               rcond=None)[0]
+    return float(max(a, 0.0)), float(max(b, 0.0))
+
+
+def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> dict:
+    """Both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN.
+
+    Under 2x2-block demosaicing each green pixel averages two sensels, so green's per-sensel law is the measured
+    one scaled by sqrt 2 (sigma) or 2 (variance), as the paper corrects it (sec. 4.3); red and blue come from one
+    sensel each. Returns ``{law: {channel: [a, b]}}`` plus the per-pixel ``mean`` and ``sigma`` (H, W, 3).
+    """
+    x = np.asarray(stack, np.float64)
+    if x.ndim != 4 or x.shape[0] < 2:
+        raise ValueError("the noise calibration needs a stack of at least 2 frames of a static scene")
+    mean = x.mean(axis=0)
+    sigma = x.std(axis=0, ddof=1)
+    out = {"mean": mean, "sigma": sigma}
+    for law in ("sigma_linear", "variance_linear"):
+        out[law] = {}
+        for c, channel in enumerate(("red", "green", "blue")):
+            a, b = fit_noise_law(mean[..., c], sigma[..., c], law, saturation_dn)
+            if channel == "green" and demosaic == "block":
+                k = np.sqrt(2.0) if law == "sigma_linear" else 2.0
+                a, b = a * k, b * k
+            out[law][channel] = [a, b]
+    return out

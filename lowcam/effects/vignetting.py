@@ -55,3 +55,17 @@ class Vignetting(Effect):
         pos = g.sensel_positions
         gain = sample_texture(self.gain_texture(g.width, g.height), g.frame_extent, pos[..., 0], pos[..., 1])
         state.bayer *= gain
+
+
+def fit_vignetting(frames, shape=(60, 80), blur_fraction: float = 1 / 40) -> np.ndarray:
+    """The gain texture from flat-field frames (sec. 4.1): average them, blur away sensor and target
+    irregularities (Gaussian, sigma = ``blur_fraction`` of the frame width), subsample to ``shape`` (rows, cols)
+    and normalise the brightest texel to 1. Colour frames are averaged over their channels."""
+    import cv2
+
+    mean = np.mean([np.asarray(f, np.float32) for f in frames], axis=0)
+    if mean.ndim == 3:
+        mean = mean.mean(axis=2)
+    blurred = cv2.GaussianBlur(mean, (0, 0), blur_fraction * mean.shape[1])
+    small = cv2.resize(blurred, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return (small / small.max()).astype(np.float32)
