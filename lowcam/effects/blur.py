@@ -9,11 +9,11 @@ from ..geometry import grid_points, sample_texture
 from .base import Effect, Param
 
 
-def gaussian_taps(sigma: float, taps: int = 7) -> np.ndarray:
+def gaussian_taps(sigma: float, taps: int = 7, dtype=np.float32) -> np.ndarray:
     """A normalised ``taps``-tap sampled Gaussian of standard deviation ``sigma`` (px)."""
     x = np.arange(taps) - (taps - 1) / 2
     k = np.exp(-0.5 * (x / sigma) ** 2) if sigma > 0 else (x == 0).astype(float)
-    return (k / k.sum()).astype(np.float32)
+    return (k / k.sum()).astype(dtype)
 
 
 def blur_levels(lo: float, hi: float) -> list[float]:
@@ -132,3 +132,90 @@ def filter_rows(state, kernel: np.ndarray) -> None:
     for planes in (state.bayer, state.bayer_alpha):
         for i in range(planes.shape[0]):
             planes[i] = cv2.filter2D(planes[i], -1, k, borderType=cv2.BORDER_REPLICATE)
+
+
+# --- calibration from slanted edges (sec. 4.3) ---------------------------------------------------------------------
+
+def edge_sigma(image: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> tuple[float, float]:
+    """Gaussian sigma (px) of the edge spread across the one straight edge inside the box [x0:x1, y0:y1], and
+    the edge normal's angle (rad, 0 = the normal points along +x).
+
+    Slanted-edge method: the pixels are projected on the edge normal (the dominant gradient direction, through
+    the gradient-weighted centre), giving a finely sampled edge-spread function, to which
+    ``A + B Phi((s - s0) / sigma)`` is fitted.
+    """
+    from scipy.optimize import curve_fit
+    from scipy.special import ndtr
+
+    roi = np.asarray(image, np.float64)[y0:y1, x0:x1]
+    gy, gx = np.gradient(roi)
+    angle = np.arctan2(np.sum(gy * np.abs(gy)), np.sum(gx * np.abs(gx)))
+    # the edge normal: dominant gradient direction (sign-insensitive), refined by a line fit to the midpoints
+    ys, xs = np.mgrid[0:roi.shape[0], 0:roi.shape[1]]
+    g = np.hypot(gx, gy)
+    strong = g > 0.3 * g.max()
+    cx, cy = np.average(xs[strong], weights=g[strong]), np.average(ys[strong], weights=g[strong])
+    c, s = np.cos(angle), np.sin(angle)
+    dist = (xs - cx) * c + (ys - cy) * s
+    order = np.argsort(dist.ravel())
+    d, v = dist.ravel()[order], roi.ravel()[order]
+    p0 = [v.min(), v.max() - v.min(), 0.0, 1.0]
+    if v[: len(v) // 4].mean() > v[-len(v) // 4:].mean():
+        p0[1] = -p0[1]
+
+    def esf(x, a, b, s0, sigma):
+        return a + b * ndtr((x - s0) / sigma)
+
+    (a, b, s0, sigma), _ = curve_fit(esf, d, v, p0=p0, maxfev=5000)
+    return float(abs(sigma)), float(angle)
+
+
+def find_edges(image: np.ndarray, half_length: int = 12, half_width: int = 8):
+    """Boxes around the sides of every dark or bright slanted square in a greyscale image: returns a list of
+    ``(x0, y0, x1, y1, orientation)`` with orientation ``"vertical"`` or ``"horizontal"`` (the edge's)."""
+    import cv2
+
+    img = np.asarray(image, np.float32)
+    lo, hi = np.percentile(img, 2), np.percentile(img, 98)
+    binary = ((img - lo) / max(hi - lo, 1e-6) < 0.5).astype(np.uint8)
+    boxes = []
+    for mask in (binary, 1 - binary):
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        for cnt in contours:
+            if cv2.contourArea(cnt) < (4 * half_length) ** 2:
+                continue
+            (cx, cy), (w, h), ang = cv2.minAreaRect(cnt)
+            if min(w, h) < 4 * half_length or abs(w - h) > 0.2 * max(w, h):
+                continue
+            t = np.radians(ang)
+            for k in range(4):
+                a = t + k * np.pi / 2
+                nx, ny = np.cos(a), np.sin(a)
+                r = (w if k % 2 == 0 else h) / 2
+                px, py = cx + nx * r, cy + ny * r
+                vertical = abs(nx) > abs(ny)
+                hx, hy = (half_width, half_length) if vertical else (half_length, half_width)
+                x0, y0, x1, y1 = int(px - hx), int(py - hy), int(px + hx), int(py + hy)
+                if x0 >= 0 and y0 >= 0 and x1 <= img.shape[1] and y1 <= img.shape[0]:
+                    boxes.append((x0, y0, x1, y1, "vertical" if vertical else "horizontal"))
+    return boxes
+
+
+def fit_edge_blur(frames) -> dict:
+    """Horizontal and vertical edge-spread sigmas (px) from frames of slanted squares, and the extra horizontal
+    blur that makes them differ (sec. 4.3): ``sqrt(sigma_h^2 - sigma_v^2)``, also in sensels (half of it, since
+    each Bayer channel has half the frame's resolution)."""
+    grey = np.mean([np.asarray(f, np.float64).mean(axis=2) if np.ndim(f) == 3 else np.asarray(f, np.float64)
+                    for f in frames], axis=0)
+    per = {"vertical": [], "horizontal": []}
+    for x0, y0, x1, y1, orient in find_edges(grey):
+        try:
+            per[orient].append(edge_sigma(grey, x0, y0, x1, y1)[0])
+        except (RuntimeError, ValueError, ZeroDivisionError):  # no usable edge in that box
+            continue
+    if not per["vertical"] or not per["horizontal"]:
+        raise ValueError("no slanted edges found in both orientations (use the chart's slanted squares)")
+    sigma_h, sigma_v = float(np.median(per["vertical"])), float(np.median(per["horizontal"]))
+    extra = float(np.sqrt(max(sigma_h ** 2 - sigma_v ** 2, 0.0)))
+    return {"sigma_horizontal_px": sigma_h, "sigma_vertical_px": sigma_v, "extra_horizontal_px": extra,
+            "extra_horizontal_sensels": extra / 2, "edges": {k: len(v) for k, v in per.items()}}

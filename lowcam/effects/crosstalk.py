@@ -78,3 +78,16 @@ class Saturation(Effect):
         s = saturation_matrix(self.saturation, self.luma)
         state.rgb = cv2.transform(state.rgb, s.astype(np.float32))
         state.colour_matrix = s if state.colour_matrix is None else s @ state.colour_matrix
+
+
+def fit_colour_matrix(ideal: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """The 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches; both (N, 3), same units)."""
+    x, *_ = np.linalg.lstsq(np.asarray(ideal, np.float64), np.asarray(measured, np.float64), rcond=None)
+    return x.T
+
+
+def crosstalk_from_colour_matrix(total: np.ndarray, saturation: float, luma=SATURATION_LUMA) -> np.ndarray:
+    """Undo the camera's saturation setting: the sensor's own mixing ``S(beta)^-1 M``, rows renormalised to 1
+    (sec. 4.2, 4.4.2). Pass the setting the patches were captured at."""
+    m = np.linalg.solve(saturation_matrix(saturation, luma), total)
+    return m / m.sum(axis=1, keepdims=True)

@@ -58,3 +58,49 @@ class Quantisation(Effect):
     def apply(self, state):
         step = self.step_dn()
         state.bayer = (np.round(np.clip(state.bayer, -255.0, 510.0) / step) * step).astype(np.float32)
+
+
+# --- calibration (sec. 4.4.3, Figs. 6-8) -------------------------------------------------------------------------
+
+def fit_row_filter(soft: np.ndarray, sharp: np.ndarray, taps: int = 101) -> np.ndarray:
+    """The ``taps``-tap FIR filter h with ``sharp[row] = soft[row] * h`` in the least-squares sense over every
+    row of two 2-D images of the same static scene (the paper's 101-tap estimate, sec. 4.4.3)."""
+    soft = np.asarray(soft, np.float64)
+    sharp = np.asarray(sharp, np.float64)
+    half = taps // 2
+    rows, cols = soft.shape
+    ata = np.zeros((taps, taps))
+    atb = np.zeros(taps)
+    for r in range(rows):
+        x = soft[r]
+        a = np.lib.stride_tricks.sliding_window_view(x, taps)[:, ::-1]  # a[i, k] = x[i + half - (k - half)]
+        b = sharp[r, half:cols - half]
+        ata += a.T @ a
+        atb += a.T @ b
+    return np.linalg.solve(ata + 1e-9 * np.trace(ata) / taps * np.eye(taps), atb)
+
+
+def frequency_response(kernel: np.ndarray, n: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """|H(f)| of a symmetric-centred FIR kernel at ``n`` frequencies from 0 to Nyquist (cycles/sample)."""
+    f = np.linspace(0, 0.5, n)
+    k = np.arange(len(kernel)) - (len(kernel) - 1) / 2
+    return f, np.abs(np.exp(-2j * np.pi * np.outer(f, k)) @ kernel)
+
+
+def fit_sharpening_model(kernel: np.ndarray, taps: int = 7) -> tuple[float, float]:
+    """The ``F = I + a (I - L_sigma)`` model (``taps`` taps) closest in frequency response to a measured kernel:
+    returns (a, sigma)."""
+    from scipy.optimize import least_squares
+
+    from .blur import gaussian_taps
+
+    f, target = frequency_response(kernel)
+
+    def model(p):
+        a, sigma = p
+        identity = gaussian_taps(0.0, taps, np.float64)
+        return (1 + a) * identity - a * gaussian_taps(sigma, taps, np.float64)
+
+    sol = least_squares(lambda p: frequency_response(model(p))[1] - target, [1.0, 0.6],
+                        bounds=([0.0, 0.2], [20.0, 3.0]))
+    return float(sol.x[0]), float(sol.x[1])
