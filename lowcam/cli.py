@@ -160,6 +160,55 @@ def cmd_batch(args) -> int:
     return 1 if any(r.status == "failed" for r in results) else 0
 
 
+def cmd_chart(args) -> int:
+    from .calibrate.chart import write_chart
+
+    chart, layout = write_chart(args.output, args.size, args.dpi)
+    print(f"{chart}: {args.size.upper()} calibration chart at {args.dpi} dpi; layout in {layout}")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from . import calibrate as cal
+    from .profile import load_profile
+
+    out = Path(args.output)
+    plots = Path(args.plots) if args.plots else out.parent / f"{out.stem}-plots"
+    base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
+    what = args.what
+    if what == "lens":
+        models = ("fov", "opencv") if args.model == "both" else (args.model,)
+        results = [cal.calibrate_lens(args.frames, args.target, models, plots)]
+    elif what == "vignetting":
+        results = [cal.calibrate_vignetting(args.frames, plots)]
+    elif what == "ca":
+        results = [cal.calibrate_chromatic_aberration(args.frames, plots)]
+    elif what == "noise":
+        results = [cal.calibrate_noise(args.frames, args.demosaic, args.law, plots)]
+    elif what == "demosaic":
+        results = [cal.calibrate_demosaic(args.frames, base.geometry, plots)]
+    elif what == "blur":
+        results = [cal.calibrate_blur(args.frames, plots)]
+    elif what == "sharpening":
+        results = [cal.calibrate_sharpening(args.soft, args.sharp, args.sharpness, plots)]
+    elif what == "colour":
+        results = [cal.calibrate_colour(*cal.read_patches_csv(args.patches), args.saturation)]
+    else:  # all
+        base_from_manifest, results = cal.run_manifest(args.manifest, plots)
+        if not args.profile:
+            base = base_from_manifest
+    for r in results:
+        print(r.summary)
+        for note in r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []:
+            print(f"  {note}")
+    saved = cal.apply_to_profile(base, results, out).save(out)
+    figures = [f for r in results for f in r.figures]
+    print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
+    if args.report:
+        print(f"{cal.write_report(results, args.report)}: report")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
                                      "(Klein & Murray 2010).")
@@ -204,6 +253,52 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_batch)
+
+    p = sub.add_parser("chart", help="write the printable calibration chart and its layout")
+    p.add_argument("-o", "--output", required=True, help="chart.pdf or chart.png")
+    p.add_argument("--dpi", type=int, default=300)
+    p.add_argument("--size", choices=("a4", "a3"), default="a4")
+    p.set_defaults(func=cmd_chart)
+
+    p = sub.add_parser("calibrate", help="measure a camera: fit effects to captures and write a profile")
+    csub = p.add_subparsers(dest="what", required=True)
+
+    def common(q):
+        q.add_argument("-o", "--output", required=True, help="profile TOML to write (textures go beside it)")
+        q.add_argument("--profile", help="profile to start from (default: the output if it exists, else fire-i)")
+        q.add_argument("--report", help="folder for an HTML report with every plot and number")
+        q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
+        q.set_defaults(func=cmd_calibrate)
+
+    q = csub.add_parser("lens", help="FOV and Brown-Conrady from checkerboard or ChArUco frames")
+    q.add_argument("frames", nargs="+")
+    q.add_argument("--target", default="checkerboard:9x6:0.025", help="checkerboard:COLSxROWS:SQUARE_M or charuco")
+    q.add_argument("--model", choices=("fov", "opencv", "both"), default="both")
+    common(q)
+    for name, helptext in (("vignetting", "from flat-field frames"), ("ca", "chromatic aberration from frames "
+                           "of the noise field"), ("demosaic", "identify the demosaicing from a static stack"),
+                           ("blur", "horizontal/vertical blur from slanted edges")):
+        q = csub.add_parser(name, help=helptext)
+        q.add_argument("frames", nargs="+")
+        common(q)
+    q = csub.add_parser("noise", help="both noise laws from a stack of frames of a static scene")
+    q.add_argument("frames", nargs="+")
+    q.add_argument("--law", choices=("sigma_linear", "variance_linear"), default="sigma_linear",
+                   help="the law written into the profile (both are fitted and reported)")
+    q.add_argument("--demosaic", choices=("block", "bilinear"), default="block")
+    common(q)
+    q = csub.add_parser("sharpening", help="sharpening filter from captures at sharpness 0 and at a setting")
+    q.add_argument("--soft", nargs="+", required=True)
+    q.add_argument("--sharp", nargs="+", required=True)
+    q.add_argument("--sharpness", type=float, required=True, help="the camera setting of the --sharp captures")
+    common(q)
+    q = csub.add_parser("colour", help="crosstalk from patch colours")
+    q.add_argument("--patches", required=True, help="CSV: ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b")
+    q.add_argument("--saturation", type=float, default=65.0, help="the camera's saturation setting")
+    common(q)
+    q = csub.add_parser("all", help="every calibration a manifest lists, into one profile")
+    q.add_argument("manifest")
+    common(q)
 
     p = sub.add_parser("profiles", help="list the bundled profiles")
     p.set_defaults(func=cmd_profiles)
