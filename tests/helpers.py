@@ -26,3 +26,58 @@ def disk_render(profile, radius: float = 0.2, centre=(0.0, 0.0), colour=(1.0, 1.
     out[..., :3] = alpha[..., None] * np.asarray(colour, np.float32)
     out[..., 3] = alpha
     return out
+
+
+def opaque(grey: np.ndarray) -> np.ndarray:
+    """An opaque render from a greyscale (H, W) or colour (H, W, 3) image in 0..1."""
+    out = np.ones(grey.shape[:2] + (4,), np.float32)
+    out[..., :3] = grey[..., None] if grey.ndim == 2 else grey
+    return out
+
+
+def noise_field(width=1600, height=1200, cells=(400, 300), seed=0, crisp=False) -> np.ndarray:
+    """A grey white-noise field as an opaque render: smooth (cubic) in 0.2..0.8, or ``crisp`` square cells in
+    0..1 like the printed chart's."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    how = cv2.INTER_NEAREST if crisp else cv2.INTER_CUBIC
+    tex = cv2.resize(rng.random(cells[::-1]).astype(np.float32), (width, height), interpolation=how)
+    return opaque(tex if crisp else np.clip(0.2 + 0.6 * tex, 0, 1))
+
+
+def slanted_squares(width=1600, height=1200, supersample=4) -> np.ndarray:
+    """Dark squares rotated 5 degrees on light grey, anti-aliased by supersampling."""
+    import cv2
+
+    img = np.full((height * supersample, width * supersample), 0.8, np.float32)
+    for cx, cy in [(0.25, 0.3), (0.5, 0.5), (0.75, 0.7), (0.3, 0.72), (0.72, 0.28)]:
+        pts = cv2.boxPoints(((cx * width * supersample, cy * height * supersample),
+                             (0.12 * width * supersample, 0.12 * width * supersample), 5.0))
+        cv2.fillPoly(img, [np.round(pts).astype(np.int32)], 0.15)
+    return opaque(cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA))
+
+
+def chessboard_view(profile, rvec, tvec, width=1600, inner=(9, 6), square=0.025, px_per_square=60):
+    """A pinhole render of a printed chessboard (inner corners ``inner``, ``square`` m) at pose (rvec, tvec)."""
+    import cv2
+
+    half_x, _ = render_field_of_view(profile)
+    height = width * profile.camera.height // profile.camera.width
+    f = width / (2 * half_x)
+    cols, rows = inner[0] + 1, inner[1] + 1
+    border = 1
+    board = np.full(((rows + 2 * border) * px_per_square, (cols + 2 * border) * px_per_square), 0.9, np.float32)
+    for i in range(rows):
+        for j in range(cols):
+            if (i + j) % 2 == 0:
+                y0, x0 = (i + border) * px_per_square, (j + border) * px_per_square
+                board[y0:y0 + px_per_square, x0:x0 + px_per_square] = 0.1
+    k = np.array([[f, 0, width / 2 - 0.5], [0, f, height / 2 - 0.5], [0, 0, 1]])
+    r = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
+    # board pixel (u, v) -> board metres, with the first inner corner at the origin
+    s = square / px_per_square
+    to_m = np.array([[s, 0, -(border + 1) * square + 0.5 * s], [0, s, -(border + 1) * square + 0.5 * s], [0, 0, 1]])
+    h = k @ np.column_stack([r[:, 0], r[:, 1], np.asarray(tvec, np.float64)]) @ to_m
+    img = cv2.warpPerspective(board, h, (width, height), flags=cv2.INTER_AREA, borderValue=0.9)
+    return opaque(img)

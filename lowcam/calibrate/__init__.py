@@ -308,9 +308,10 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     """Sharpening from two captures of one static scene, at sharpness 0 and at ``sharpness`` (sec. 4.4.3).
 
     The filter is measured on the red channel at sensel resolution (every other pixel), where the paper found the
-    camera sharpens.
+    camera sharpens: the free 101-tap filter for the plot, and the 7-tap model fitted to the images themselves
+    (the free filter is poorly determined at frequencies the scene and the sensor's blur leave empty).
     """
-    from ..effects.sharpen import fit_row_filter, fit_sharpening_model, frequency_response
+    from ..effects.sharpen import fit_row_filter, fit_sharpening_to_images, frequency_response
 
     soft, _ = load_frames(soft_patterns, 1, "sharpening calibration (soft)")
     sharp, _ = load_frames(sharp_patterns, 1, "sharpening calibration (sharp)")
@@ -319,7 +320,7 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     s0 = np.mean(soft, axis=0)[::2, ::2, 0]
     s1 = np.mean(sharp, axis=0)[::2, ::2, 0]
     h = fit_row_filter(s0, s1, taps)
-    a, sigma = fit_sharpening_model(h)
+    a, sigma = fit_sharpening_to_images(s0, s1)
     figures = []
     if plot_dir:
         def draw(fig):

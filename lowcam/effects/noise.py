@@ -58,7 +58,8 @@ def fit_noise_law(mean_dn: np.ndarray, sigma_dn: np.ndarray, law: str, saturatio
 
     Means above ``saturation_dn`` are ignored (clipped pixels lose their noise), as are the darkest 2 DN. The
     pixels are binned by mean; each bin's variance is the average of its pixels' variances (robust to the many
-    pixels of one brightness), and the law is fitted to the bins by weighted least squares.
+    pixels of one brightness), less the 1/12 DN^2 that rounding to 8 bits adds (the simulator rounds its output
+    too), and the law is fitted to the bins by weighted least squares.
     """
     mu = np.asarray(mean_dn, np.float64).ravel()
     var = np.asarray(sigma_dn, np.float64).ravel() ** 2
@@ -73,7 +74,7 @@ def fit_noise_law(mean_dn: np.ndarray, sigma_dn: np.ndarray, law: str, saturatio
     if ok.sum() < 2:
         raise ValueError("the captures span too narrow a range of brightness to fit a noise law")
     bm = (np.bincount(idx, mu, bins) / np.maximum(count, 1))[ok]
-    bv = (np.bincount(idx, var, bins) / np.maximum(count, 1))[ok]
+    bv = np.maximum((np.bincount(idx, var, bins) / np.maximum(count, 1))[ok] - 1 / 12, 0.0)
     w = np.sqrt(count[ok])
     if law == "variance_linear":
         a, b = np.linalg.lstsq(np.column_stack([np.ones_like(bm), bm]) * w[:, None], bv * w, rcond=None)[0]

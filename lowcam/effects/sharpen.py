@@ -87,6 +87,30 @@ def frequency_response(kernel: np.ndarray, n: int = 256) -> tuple[np.ndarray, np
     return f, np.abs(np.exp(-2j * np.pi * np.outer(f, k)) @ kernel)
 
 
+def fit_sharpening_to_images(soft: np.ndarray, sharp: np.ndarray, taps: int = 7) -> tuple[float, float]:
+    """(a, sigma) of ``F = I + a (I - L_sigma)`` that best maps the rows of ``soft`` onto ``sharp`` (least
+    squares in the image, so only frequencies the scene actually contains decide the fit). Pixels clipped at 0
+    or 255 in ``sharp`` are left out: their overshoot is lost."""
+    from scipy.optimize import least_squares
+
+    from .blur import gaussian_taps
+
+    soft = np.asarray(soft, np.float64)
+    sharp = np.asarray(sharp, np.float64)
+    half = taps // 2
+    windows = np.lib.stride_tricks.sliding_window_view(soft, taps, axis=1)
+    target = sharp[:, half:soft.shape[1] - half]
+    valid = (target > 0.5) & (target < 254.5)
+
+    def residual(p):
+        a, sigma = p
+        k = (1 + a) * gaussian_taps(0.0, taps, np.float64) - a * gaussian_taps(sigma, taps, np.float64)
+        return (windows @ k[::-1] - target)[valid]
+
+    sol = least_squares(residual, [1.0, 0.6], bounds=([0.0, 0.2], [20.0, 3.0]))
+    return float(sol.x[0]), float(sol.x[1])
+
+
 def fit_sharpening_model(kernel: np.ndarray, taps: int = 7) -> tuple[float, float]:
     """The ``F = I + a (I - L_sigma)`` model (``taps`` taps) closest in frequency response to a measured kernel:
     returns (a, sigma)."""
