@@ -1,0 +1,176 @@
+"""Model against measurement: the noise-aware error, where it lives, and probes per physical effect.
+
+The error
+---------
+For a capture with ``n`` measured frames F and ``K`` simulated frames G (the profile with its noise, seeds
+1000.., so the model's own randomness is included), three families of statistics are compared:
+
+- ``mean``: the residual of the temporal means ``R = mean(F) - mean(G)`` against the noise that the two means
+  carry, ``e_mean^2 = sum R^2 / sum(var_F / n + var_G / K)`` over all pixels and channels (per-pixel temporal
+  variances). 1.0 means that the residual is as large as the noise alone would make it.
+- ``variance``: the temporal noise variance per channel and brightness bin, measured over model;
+  ``e_var = exp(rms |ln ratio|)`` (1.0: the model's noise has the measured strength at every brightness).
+- ``rows``: the variance of per-frame row means of the noise (row noise), measured over model, as ``e_var``.
+
+The error is ``sqrt((e_mean^2 + e_var^2 + e_rows^2) / 3)``, over all captures: 1.0 (the noise floor) when the
+model explains the frames down to their noise. The verdict is ``explained`` below 1.1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import LowcamError
+
+EXPLAINED_BELOW = 1.1
+SIM_SEED = 1000
+INTENSITY_BINS = np.linspace(0, 256, 17)
+
+
+@dataclass
+class CaptureStats:
+    name: str
+    measured: np.ndarray  # (n, H, W, 3) uint8
+    simulated: np.ndarray  # (K, H, W, 3) uint8
+    sums: dict = field(default_factory=dict)  # per family: (numerator, denominator) or list of log ratios
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.measured.astype(np.float64).mean(0) - self.simulated.astype(np.float64).mean(0)
+
+
+@dataclass
+class Comparison:
+    error: float
+    families: dict
+    captures: list
+    where: dict
+    noise_floor: float = 1.0
+
+    @property
+    def verdict(self) -> str:
+        return "explained" if self.error <= EXPLAINED_BELOW * self.noise_floor else "not explained"
+
+
+def capture_inputs(profile, capture):
+    """(ideal render, plate) for a capture, rendering the target's ideal view when needed."""
+    if capture.ideal is not None:
+        return capture.ideal, capture.plate
+    from .targets import ideal_from_target
+
+    return ideal_from_target(profile, capture)
+
+
+def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None) -> np.ndarray:
+    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``)."""
+    from ..pipeline import simulate
+
+    ideal, plate = inputs or capture_inputs(profile, capture)
+    return np.stack([simulate(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, seed, k)
+                     for k in range(count)])
+
+
+def _variance_log_ratios(F, G, min_pixels: int = 400) -> list[float]:
+    vF, vG = F.var(axis=0, ddof=1), G.var(axis=0, ddof=1)
+    level = G.mean(axis=0)
+    out = []
+    for c in range(3):
+        idx = np.digitize(level[..., c], INTENSITY_BINS) - 1
+        for b in range(len(INTENSITY_BINS) - 1):
+            sel = idx == b
+            if sel.sum() < min_pixels:
+                continue
+            mf, mg = vF[..., c][sel].mean(), vG[..., c][sel].mean()
+            if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
+                out.append(float(np.log(mf / mg)))
+    return out
+
+
+def _row_log_ratios(F, G) -> list[float]:
+    def rowvar(x):
+        d = x - x.mean(axis=0, keepdims=True)
+        return d.mean(axis=2).var(axis=(0, 1))  # per channel: variance of row means over rows and frames
+
+    rf, rg = rowvar(F), rowvar(G)
+    return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
+
+
+def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "") -> CaptureStats:
+    Ff, Gf = F.astype(np.float64), G.astype(np.float64)
+    n, k = len(F), len(G)
+    r = Ff.mean(0) - Gf.mean(0)
+    noise = np.maximum(Ff.var(0, ddof=1), 1 / 12) / n + np.maximum(Gf.var(0, ddof=1), 1 / 12) / k
+    sums = {"mean": (float((r ** 2).sum()), float(noise.sum())), "noise_map": noise,
+            "variance": _variance_log_ratios(Ff, Gf), "rows": _row_log_ratios(Ff, Gf)}
+    return CaptureStats(name, F, G, sums)
+
+
+def combine(stats: list[CaptureStats]) -> tuple[float, dict]:
+    num = sum(s.sums["mean"][0] for s in stats)
+    den = sum(s.sums["mean"][1] for s in stats)
+    e_mean = float(np.sqrt(num / den))
+    logs = [v for s in stats for v in s.sums["variance"]]
+    e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
+    rows = [v for s in stats for v in s.sums["rows"]]
+    e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 1.0
+    error = float(np.sqrt((e_mean ** 2 + e_var ** 2 + e_rows ** 2) / 3))
+    return error, {"mean": e_mean, "variance": e_var, "rows": e_rows}
+
+
+def where(stats: list[CaptureStats]) -> dict:
+    """Where the mean residual lives: per channel, per region (3x3), per spatial-frequency band, per brightness.
+    Each entry is the noise-normalised error of that subset (1.0 = noise)."""
+    def ratio(sel_r2, sel_noise):
+        return float(np.sqrt(sel_r2 / max(sel_noise, 1e-12)))
+
+    r2 = [s.residual ** 2 for s in stats]
+    noise = [s.sums["noise_map"] for s in stats]
+    out = {"channels": [], "regions": [], "bands": [], "intensities": []}
+    for c, name in enumerate(("red", "green", "blue")):
+        out["channels"].append({"channel": name, "error": ratio(sum(x[..., c].sum() for x in r2),
+                                                                sum(x[..., c].sum() for x in noise))})
+    h, w = r2[0].shape[:2]
+    for i in range(3):
+        for j in range(3):
+            sl = (slice(i * h // 3, (i + 1) * h // 3), slice(j * w // 3, (j + 1) * w // 3))
+            out["regions"].append({"region": ["top", "middle", "bottom"][i] + "-" + ["left", "centre", "right"][j],
+                                   "error": ratio(sum(x[sl].sum() for x in r2), sum(x[sl].sum() for x in noise))})
+    # bands: residual power by radial spatial frequency, against white noise of the same total noise power
+    bands = [(0.0, 0.05, "low"), (0.05, 0.2, "mid"), (0.2, 0.71, "high")]
+    power = np.zeros(3)
+    expected = np.zeros(3)
+    for s, nz in zip(stats, noise):
+        spec = np.abs(np.fft.fft2(s.residual, axes=(0, 1))) ** 2 / (h * w)
+        fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij")
+        f = np.hypot(fx, fy)
+        for k, (lo, hi, _) in enumerate(bands):
+            sel = (f >= lo) & (f < hi)
+            power[k] += spec[sel].sum()
+            expected[k] += nz.mean() * sel.sum() * 3
+    for k, (_, _, name) in enumerate(bands):
+        out["bands"].append({"band": name, "error": ratio(power[k], expected[k])})
+    for b in range(0, 16, 2):
+        lo, hi = INTENSITY_BINS[b], INTENSITY_BINS[b + 2]
+        num = den = 0.0
+        for s, x, nz in zip(stats, r2, noise):
+            level = s.simulated.mean(0)
+            sel = (level >= lo) & (level < hi)
+            num += x[sel].sum()
+            den += nz[sel].sum()
+        if den > 0:
+            out["intensities"].append({"range_dn": [float(lo), float(hi)], "error": ratio(num, den)})
+    return out
+
+
+def compare(mset, profile, sim_frames: int | None = None) -> Comparison:
+    """Compare a profile with a measurement set (see the module docstring for the error)."""
+    stats = []
+    for cap in mset.captures:
+        if cap.frames.shape[1:3] != (profile.camera.height, profile.camera.width):
+            raise LowcamError(f"capture {cap.name}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
+                              f"profile delivers {profile.camera.width}x{profile.camera.height}")
+        k = sim_frames or max(len(cap.frames), 4)
+        stats.append(capture_stats(cap.frames, simulate_capture(profile, cap, k), cap.name))
+    error, families = combine(stats)
+    return Comparison(error, families, stats, where(stats))

@@ -1,0 +1,134 @@
+"""Measurement sets: what an ideal camera saw, and what the real camera delivered (several frames each).
+
+A folder holds ``set.toml``::
+
+    [[capture]]
+    name = "chart-a"
+    ideal = "ideal/chart-a.exr"         # premultiplied linear RGBA, as for `lowcam apply --render`
+    frames = ["frames/chart-a-*.png"]   # 8-bit RGB at the profile's output size; several frames of a static scene
+    plate = "plates/chart-a.png"        # optional: the real background where the ideal is transparent
+    angular_velocity = [0.0, 0.0, 0.0]  # optional, rad/s in the camera frame
+    exposure_s = 0.033                  # optional
+
+Instead of ``ideal``, ``target = "checkerboard:9x6:0.025"`` makes Lowcam find the board in the frames, estimate
+its pose with the profile's lens, and render the board's ideal view itself (its white and black are taken from
+the frames); everything off the board is compared against the frames' own mean.
+"""
+from __future__ import annotations
+
+import glob
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LowcamError
+
+CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "angular_velocity", "exposure_s"}
+
+
+@dataclass
+class Capture:
+    name: str
+    frames: np.ndarray  # (n, H, W, 3) uint8
+    ideal: np.ndarray | None = None  # (h, w, 4) premultiplied RGBA
+    target: str | None = None
+    plate: np.ndarray | None = None
+    angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    exposure_s: float | None = None
+    frame_names: list[str] = field(default_factory=list)
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.frames.astype(np.float64).mean(axis=0)
+
+
+@dataclass
+class MeasurementSet:
+    path: Path
+    captures: list[Capture]
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+
+def load_set(folder, profile=None) -> MeasurementSet:
+    """Read and validate a measurement set; errors name the file and the problem."""
+    from ..io import read_plate, read_render
+
+    folder = Path(folder)
+    toml_path = folder / "set.toml" if folder.is_dir() else folder
+    folder = toml_path.parent
+    try:
+        doc = tomllib.loads(toml_path.read_text())
+    except FileNotFoundError:
+        raise LowcamError(f"{toml_path}: no such measurement set (a folder with set.toml)") from None
+    except tomllib.TOMLDecodeError as e:
+        raise LowcamError(f"{toml_path}: not valid TOML ({e})") from None
+    if set(doc) - {"capture"}:
+        raise LowcamError(f"{toml_path}: unknown key '{sorted(set(doc) - {'capture'})[0]}' (only [[capture]] tables)")
+    captures = []
+    for i, entry in enumerate(doc.get("capture", [])):
+        where = f"{toml_path}: capture {entry.get('name', i + 1)}"
+        unknown = sorted(set(entry) - CAPTURE_KEYS)
+        if unknown:
+            raise LowcamError(f"{where}: unknown key '{unknown[0]}'")
+        if ("ideal" in entry) == ("target" in entry):
+            raise LowcamError(f"{where}: give exactly one of 'ideal' and 'target'")
+        patterns = entry.get("frames") or []
+        names = sorted({p for pat in ([patterns] if isinstance(patterns, str) else patterns)
+                        for p in glob.glob(str(folder / pat))})
+        if len(names) < 2:
+            raise LowcamError(f"{where}: {len(names)} frame(s) found, at least 2 are needed to measure the noise")
+        from ..calibrate import load_frames
+
+        frames, _ = load_frames(names, 2, where)
+        frames = np.stack(frames)
+        if profile is not None and frames.shape[1:3] != (profile.camera.height, profile.camera.width):
+            raise LowcamError(f"{names[0]}: the frames are {frames.shape[2]}x{frames.shape[1]}, the profile's camera "
+                              f"delivers {profile.camera.width}x{profile.camera.height}")
+        cap = Capture(entry.get("name", f"capture-{i + 1}"), frames, frame_names=names)
+        if "ideal" in entry:
+            cap.ideal = read_render(folder / entry["ideal"])
+        else:
+            cap.target = entry["target"]
+        if "plate" in entry:
+            cap.plate = read_plate(folder / entry["plate"], frames.shape[2], frames.shape[1])
+        w = entry.get("angular_velocity", [0.0, 0.0, 0.0])
+        if not (isinstance(w, list) and len(w) == 3):
+            raise LowcamError(f"{where}: angular_velocity must be [wx, wy, wz] in rad/s")
+        cap.angular_velocity = tuple(float(v) for v in w)
+        cap.exposure_s = entry.get("exposure_s")
+        captures.append(cap)
+    if not captures:
+        raise LowcamError(f"{toml_path}: no [[capture]] entries")
+    return MeasurementSet(folder, captures)
+
+
+def write_set(folder, captures: list[dict]) -> Path:
+    """Write a measurement set. Each dict: ``name``, ``ideal`` (RGBA array), ``frames`` (list of uint8 RGB),
+    optional ``plate``, ``angular_velocity``, ``exposure_s``."""
+    import tomli_w
+
+    from ..io import atomic_write_bytes, write_exr, write_png
+
+    folder = Path(folder)
+    entries = []
+    for c in captures:
+        name = c["name"]
+        write_exr(folder / "ideal" / f"{name}.exr", c["ideal"])
+        for k, f in enumerate(c["frames"]):
+            write_png(folder / "frames" / f"{name}-{k:03d}.png", f)
+        entry = {"name": name, "ideal": f"ideal/{name}.exr", "frames": [f"frames/{name}-*.png"]}
+        if c.get("plate") is not None:
+            write_png(folder / "plates" / f"{name}.png", c["plate"])
+            entry["plate"] = f"plates/{name}.png"
+        if c.get("angular_velocity") is not None:
+            entry["angular_velocity"] = [float(v) for v in c["angular_velocity"]]
+        if c.get("exposure_s") is not None:
+            entry["exposure_s"] = float(c["exposure_s"])
+        entries.append(entry)
+    atomic_write_bytes(folder / "set.toml", tomli_w.dumps({"capture": entries}).encode())
+    return folder
