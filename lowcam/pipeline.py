@@ -44,6 +44,8 @@ class SimState:
     rgb_alpha: np.ndarray | None = None
     delta_yuv: np.ndarray | None = None
     colour_matrix: np.ndarray | None = None
+    sampling_offset: np.ndarray | None = None
+    jpeg_quality: int | None = None
     chroma_group: int = 1
     lens: object = None
 
@@ -170,6 +172,11 @@ def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarr
         footprint = _any_nonzero(state.rgb_alpha)
     frame = plate_u8.copy()
     cv2.copyTo(_to_u8(out), footprint.astype(np.uint8), frame)
+    if state.jpeg_quality is not None:
+        ok, data = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR),
+                                [cv2.IMWRITE_JPEG_QUALITY, int(state.jpeg_quality)])
+        frame = cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        footprint = np.ones_like(footprint)
     return frame, footprint
 
 

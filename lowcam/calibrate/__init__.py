@@ -18,9 +18,11 @@ import numpy as np
 from ..errors import LowcamError
 
 #: The order in which effects appear in a complete chain, used when a calibration adds a missing effect.
-CANONICAL_ORDER = ["lens_distortion", "half_sampling", "crosstalk", "motion_blur", "chromatic_aberration",
-                   "spatial_blur", "bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening",
-                   "quantisation", "raw_blend", "demosaic", "saturation", "yuv_blend", "chroma_subsampling"]
+CANONICAL_ORDER = ["lens_distortion", "half_sampling", "crosstalk", "motion_blur", "rolling_shutter",
+                   "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare", "bayer_sampling",
+                   "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur", "sharpening",
+                   "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
+                   "tone_curve", "yuv_blend", "chroma_subsampling", "jpeg"]
 
 
 @dataclass

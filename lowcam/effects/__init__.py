@@ -17,12 +17,22 @@ from .resample import HalfSampling
 from .sharpen import Quantisation, Sharpening
 from .vignetting import Vignetting
 from .yuv import ChromaSubsampling, YuvBlend
+from .blur import VerticalBlur
+from .defocus import Defocus
+from .fixed_pattern import DSNU, PRNU, HotPixels, RowNoise
+from .glare import VeilingGlare
+from .jpeg import Jpeg
+from .rolling_shutter import RollingShutter
+from .tone import ToneCurve
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (LensDistortion, HalfSampling, Crosstalk, MotionBlur, ChromaticAberration, SpatialBlur,
                 BayerSampling, Vignetting, Noise, HorizontalBlur, Sharpening, Quantisation, RawBlend, Demosaic,
-                Saturation, YuvBlend, ChromaSubsampling)
+                Saturation, YuvBlend, ChromaSubsampling,
+                # beyond the paper: candidates for what a camera does that a profile lacks
+                Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
+                Jpeg)
 }
 
 

@@ -35,6 +35,9 @@ class BayerSampling(Effect):
             for k, c in ((0, 0), (3, 2)):  # R and B; green is the reference
                 su[k] += ca[k, ..., c]
                 sv[k] += ca[k, ..., c + 1]
+        if state.sampling_offset is not None:  # e.g. rolling shutter
+            off = sample_texture(state.sampling_offset, g.working_extent, pos[..., 0], pos[..., 1])
+            su, sv = su + off[..., 0], sv + off[..., 1]
         x, y = g.output_to_working(su, sv)
         x, y = x.astype(np.float32)[:, None], y.astype(np.float32)[:, None]
         if state.motion_taps is None:

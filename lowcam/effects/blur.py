@@ -219,3 +219,21 @@ def fit_edge_blur(frames) -> dict:
     extra = float(np.sqrt(max(sigma_h ** 2 - sigma_v ** 2, 0.0)))
     return {"sigma_horizontal_px": sigma_h, "sigma_vertical_px": sigma_v, "extra_horizontal_px": extra,
             "extra_horizontal_sensels": extra / 2, "edges": {k: len(v) for k, v in per.items()}}
+
+
+class VerticalBlur(Effect):
+    """Vertical Gaussian blur of every sensel plane (sigma in sensels): blur the paper's camera did not show, as
+    a candidate for others (sec. 4.3 measured only a horizontal one)."""
+
+    name = "vertical_blur"
+    section = "4.3"
+    writes = "bayer"
+    params = {"sigma": Param(0.0, low=0.0, high=10.0, unit="sensels"), "taps": Param(7, int, low=1, high=31)}
+
+    def apply(self, state):
+        if self.sigma <= 0:
+            return
+        k = gaussian_taps(self.sigma, self.taps).reshape(-1, 1)
+        for planes in (state.bayer, state.bayer_alpha):
+            for i in range(planes.shape[0]):
+                planes[i] = cv2.filter2D(planes[i], -1, k, borderType=cv2.BORDER_REPLICATE)

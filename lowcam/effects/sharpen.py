@@ -24,6 +24,8 @@ class Sharpening(Effect):
         "gain_per_unit": Param(0.025, low=0.0, high=1.0),
         "sigma": Param(0.55, low=0.01, high=10.0, unit="sensels"),
         "taps": Param(7, int, low=3, high=31),
+        "shift": Param(0.0, low=-3.0, high=3.0, unit="sensels",
+                       doc="centre of L: non-zero makes the filter asymmetric, as the Fire-i's really is (Fig. 8)"),
     }
 
     def check(self):
@@ -33,7 +35,9 @@ class Sharpening(Effect):
     def kernel(self) -> np.ndarray:
         a = self.gain_per_unit * self.sharpness
         identity = gaussian_taps(0.0, self.taps)
-        return ((1 + a) * identity - a * gaussian_taps(self.sigma, self.taps)).astype(np.float32)
+        x = np.arange(self.taps) - (self.taps - 1) / 2 - self.shift
+        low = np.exp(-0.5 * (x / self.sigma) ** 2)
+        return ((1 + a) * identity - a * low / low.sum()).astype(np.float32)
 
     def apply(self, state):
         filter_rows(state, self.kernel())

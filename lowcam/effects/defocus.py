@@ -1,0 +1,30 @@
+"""Defocus: a uniform disc blur of the optical image (paper sec. 2 and 3 set it aside for fixed-focus lenses)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .base import Effect, Param
+
+
+def disc_kernel(radius_px: float) -> np.ndarray:
+    """A normalised, anti-aliased pillbox of ``radius_px``."""
+    r = int(np.ceil(radius_px)) + 1
+    y, x = np.mgrid[-r:r + 1, -r:r + 1]
+    k = np.clip(radius_px + 0.5 - np.hypot(x, y), 0.0, 1.0).astype(np.float32)
+    return k / k.sum()
+
+
+class Defocus(Effect):
+    """Out-of-focus blur: the working image convolved with a disc of ``radius_px`` output pixels."""
+
+    name = "defocus"
+    section = "2-3 (defocus; not simulated in the paper)"
+    writes = "working"
+    params = {"radius_px": Param(0.0, low=0.0, high=30.0, unit="px (output)")}
+
+    def apply(self, state):
+        if self.radius_px <= 0:
+            return
+        radius = self.radius_px * min(state.geometry.working_scale)
+        state.working = cv2.filter2D(state.working, -1, disc_kernel(radius), borderType=cv2.BORDER_CONSTANT)

@@ -1,0 +1,91 @@
+"""Fixed-pattern sensor defects: gain (PRNU), offset (DSNU) and hot pixels; row noise (Irie et al., cited in the
+paper's sec. 4.3, which found PRNU imperceptible on the Fire-i indoors)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Param
+
+
+class _PixelMap(Effect):
+    """A per-pixel, per-channel map over the output frame: from ``texture`` (a .npy array (H, W, 3)) or drawn
+    from ``pattern_seed`` with ``strength``."""
+
+    writes = "rgb"
+    params = {
+        "texture": Param("", "path", doc=".npy array (H, W, 3)"),
+        "strength": Param(0.0, low=0.0, high=255.0),
+        "pattern_seed": Param(1, int, low=0, high=2**31 - 1),
+    }
+
+    def pattern(self, shape) -> np.ndarray:
+        if self.texture:
+            m = np.load(self.texture)
+            if m.shape != shape:
+                raise self.error(f"texture {self.texture} is {m.shape}, the frame needs {shape}")
+            return m.astype(np.float32)
+        return self.draw(np.random.default_rng(self.pattern_seed), shape)
+
+    def draw(self, rng, shape) -> np.ndarray:
+        return (self.strength * rng.standard_normal(shape)).astype(np.float32)
+
+
+class PRNU(_PixelMap):
+    """Photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)."""
+
+    name = "prnu"
+    section = "4.3 (PRNU, after Irie et al.)"
+    params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=1.0))
+
+    def apply(self, state):
+        state.rgb *= 1.0 + self.pattern(state.rgb.shape)
+
+
+class DSNU(_PixelMap):
+    """Dark-signal non-uniformity: each pixel adds a fixed offset (DN; ``strength``: its sigma), where the
+    graphics cover it."""
+
+    name = "dsnu"
+    section = "4.3 (fixed-pattern offsets)"
+
+    def apply(self, state):
+        state.rgb += self.pattern(state.rgb.shape) * state.rgb_alpha
+
+
+class HotPixels(_PixelMap):
+    """A ``fraction`` of pixels with a large fixed offset (``strength`` DN, all channels)."""
+
+    name = "hot_pixels"
+    section = "4.3 (defective pixels)"
+    params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=255.0),
+                  fraction=Param(0.0005, low=0.0, high=0.1))
+
+    def draw(self, rng, shape):
+        hot = rng.random(shape[:2]) < self.fraction
+        return (self.strength * hot[..., None] * np.ones(shape, np.float32)).astype(np.float32)
+
+    def apply(self, state):
+        state.rgb += self.pattern(state.rgb.shape) * state.rgb_alpha
+
+
+class RowNoise(Effect):
+    """Temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``, all sensels of the
+    row), seeded per frame like the pixel noise."""
+
+    name = "row_noise"
+    section = "4.3 (read-out noise)"
+    writes = "bayer"
+    params = {"sigma_dn": Param(0.0, low=0.0, high=50.0, unit="DN")}
+
+    def apply(self, state):
+        from ..geometry import BAYER_BORDER
+        from .noise import frame_rng
+
+        g = state.geometry
+        rows = frame_rng(state.seed, state.frame ^ 0x5A5A).standard_normal(g.height + 4).astype(np.float32)
+        by = BAYER_BORDER[0]
+        hb = g.bayer_shape[0]
+        for k, name in enumerate(("R", "Gr", "Gb", "B")):
+            dy = g.cfa[name][0]
+            r = np.clip(2 * (np.arange(hb) - by) + dy + 2, 0, g.height + 3)
+            state.bayer[k] += self.sigma_dn * rows[r][:, None] * np.clip(state.bayer_alpha[k], 0, 1)

@@ -1,0 +1,35 @@
+"""Rolling shutter: rows exposed at different times while the camera turns (paper sec. 3, not simulated there)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import grid_points
+from .base import Effect, Param
+
+
+class RollingShutter(Effect):
+    """Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with the camera turning at
+    ``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches. Implemented as extra sampling
+    offsets on the 24x18-cell grid, added to every sensel's position."""
+
+    name = "rolling_shutter"
+    section = "3 (CMOS rolling shutter; not simulated in the paper)"
+    writes = "sampling"
+    params = {"readout_s": Param(0.0, low=0.0, high=1.0, unit="s", doc="time from first to last row")}
+
+    def apply(self, state):
+        w = np.asarray(state.angular_velocity, np.float64)
+        if not np.any(w) or self.readout_s <= 0:
+            return
+        import cv2
+
+        g = state.geometry
+        u, v = grid_points(g.working_extent)
+        t = (v / g.height - 0.5) * self.readout_s
+        x, y = state.lens.undistort(u, v)
+        d = np.stack([x, y, np.ones_like(x)], -1)
+        rot = np.stack([cv2.Rodrigues(w * tt)[0] for tt in t.ravel()]).reshape(t.shape + (3, 3))
+        d2 = np.einsum("...ij,...j->...i", rot, d)
+        u2, v2 = state.lens.distort(d2[..., 0] / d2[..., 2], d2[..., 1] / d2[..., 2])
+        offset = np.stack([u2 - u, v2 - v], -1).astype(np.float32)
+        state.sampling_offset = offset if state.sampling_offset is None else state.sampling_offset + offset
