@@ -207,6 +207,51 @@ def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, a
     return Result(result_frame, footprint, stages, state)
 
 
+def deterministic_prefix(profile, until: str | None = None) -> int:
+    """How many leading effects of ``profile`` do not depend on (seed, frame) (at most up to ``until``)."""
+    for i, effect in enumerate(profile.effects):
+        if effect.random and effect.enabled:
+            return i
+        if effect.name == until:
+            return i + 1
+    return len(profile.effects)
+
+
+def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
+            exposure_s: float | None = None, until: str | None = None):
+    """Run the chain up to its first random effect (noise), or through ``until``: that part is the same for
+    every frame of a static scene. Returns a token for :func:`resume`; ``resume(token, seed, frame)`` equals
+    ``simulate(render, profile, plate, angular_velocity, exposure_s, seed, frame)`` byte for byte."""
+    profile = load_profile(profile)
+    render = check_render(render)
+    plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
+    state = SimState(profile, render, plate_f, plate_raw, tuple(float(x) for x in angular_velocity), exposure_s, 0, 0)
+    start = deterministic_prefix(profile, until)
+    for effect in profile.effects[:start]:
+        if effect.enabled or effect.always_runs:
+            effect.apply(state)
+    return state, start, plate_u8
+
+
+def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None) -> np.ndarray:
+    """The 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token (which it leaves untouched).
+    ``profile`` may replace the token's for the remaining effects (its leading effects must be the same)."""
+    import copy
+
+    prefix, start, plate_u8 = token
+    state = copy.copy(prefix)
+    if profile is not None:
+        state.profile = profile
+    for name in ("bayer", "bayer_alpha", "rgb", "rgb_alpha", "delta_yuv", "working"):
+        if getattr(state, name) is not None:
+            setattr(state, name, getattr(state, name).copy())
+    state.seed, state.frame = int(seed), int(frame)
+    for effect in state.profile.effects[start:]:
+        if effect.enabled or effect.always_runs:
+            effect.apply(state)
+    return _finish(state, plate_u8)[0]
+
+
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,
              angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None, seed: int = 0,
              frame: int = 0) -> np.ndarray:

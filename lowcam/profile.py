@@ -30,6 +30,13 @@ from .effects import Effect, Param, ParamSet, effect_class
 from .errors import ProfileError
 from .geometry import FrameGeometry
 
+#: The order in which effects stand in a complete chain; an effect added to a profile goes to its place here.
+CANONICAL_ORDER = ["lens_distortion", "half_sampling", "crosstalk", "motion_blur", "rolling_shutter",
+                   "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare", "bayer_sampling",
+                   "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur", "sharpening",
+                   "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
+                   "tone_curve", "yuv_blend", "chroma_subsampling", "jpeg"]
+
 #: Bundled profiles: the repository's ``profiles/`` folder.
 BUNDLED_PROFILES = Path(__file__).resolve().parent.parent / "profiles"
 
@@ -101,6 +108,32 @@ class Profile:
     def copy(self) -> "Profile":
         """A deep copy whose effects can be changed without touching this profile."""
         return copy.deepcopy(self)
+
+    def with_effect(self, name: str, replace: bool = False, source: str | None = None, base_dir=None,
+                    **values) -> "Profile":
+        """A copy with effect ``name`` set to ``values`` (merged into the existing effect's, or all new with
+        ``replace``), enabled; an effect the chain lacks is inserted at its place in :data:`CANONICAL_ORDER`
+        (after every effect of the chain that comes before it). Plug-ins go at the end."""
+        from .effects import effect_class
+
+        out = self.copy()
+        cls = effect_class(name, self.source)
+        old = out.effect(cls.name)
+        merged = {} if old is None or replace else old.values()
+        merged.update(values)
+        src = source or (old.source if old is not None else self.source)
+        bdir = base_dir if base_dir is not None else (old.base_dir if old is not None else None)
+        new = cls(True, src, bdir, **merged)
+        if old is not None:
+            out.effects[out.effects.index(old)] = new
+        else:
+            rank = CANONICAL_ORDER.index(cls.name) if cls.name in CANONICAL_ORDER else len(CANONICAL_ORDER)
+            names = [e.name for e in out.effects]
+            pos = next((i for i, n in enumerate(names) if CANONICAL_ORDER.index(n) > rank), len(names)) \
+                if all(n in CANONICAL_ORDER for n in names) else len(names)
+            out.effects.insert(pos, new)
+        out._cache.clear()
+        return out
 
     def without(self, *names: str) -> "Profile":
         """A copy with the named effects disabled (e.g. ``profile.without("noise", "vignetting")``)."""

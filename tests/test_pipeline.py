@@ -161,3 +161,13 @@ def test_block_demosaic_fills_the_2x2_block_with_the_sensel_at_its_top_right(pat
         expected = np.zeros((8, 16), np.float32)
         expected[sy:sy + 2, sx - 1:sx + 1] = 0.5 if name in ("Gr", "Gb") else 1.0
         assert np.array_equal(out, expected), name
+
+
+def test_prepare_and_resume_give_the_bytes_of_simulate(fire_i, scene):
+    from lowcam.pipeline import prepare, resume
+
+    render, plate = scene
+    token = prepare(render, fire_i, plate, (0.1, 0.4, 0.0))
+    for frame in (0, 3):
+        assert resume(token, 5, frame).tobytes() == lowcam.simulate(render, fire_i, plate, (0.1, 0.4, 0.0), None, 5,
+                                                                    frame).tobytes()

@@ -17,14 +17,6 @@ import numpy as np
 
 from ..errors import LowcamError
 
-#: The order in which effects appear in a complete chain, used when a calibration adds a missing effect.
-CANONICAL_ORDER = ["lens_distortion", "half_sampling", "crosstalk", "motion_blur", "rolling_shutter",
-                   "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare", "bayer_sampling",
-                   "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur", "sharpening",
-                   "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
-                   "tone_curve", "yuv_blend", "chroma_subsampling", "jpeg"]
-
-
 @dataclass
 class Calibration:
     """One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect, ``numbers`` for the
@@ -366,13 +358,12 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float) -> Calibration:
 
 def apply_to_profile(profile, calibrations, out_path: Path):
     """A copy of ``profile`` with every calibration's values, textures written beside ``out_path``."""
-    from ..effects import EFFECTS
     from ..effects.chromatic_aberration import write_ca_grid
     from ..io import write_png
 
     out_path = Path(out_path).resolve()
     tex_dir = out_path.parent / out_path.stem
-    new = profile.copy()
+    new = profile
     for cal in calibrations:
         for name, values in cal.values.items():
             values = dict(values)
@@ -384,20 +375,10 @@ def apply_to_profile(profile, calibrations, out_path: Path):
                 path = tex_dir / "chromatic_aberration.csv"
                 write_ca_grid(path, values.pop("_grid"), new.camera.width, new.camera.height)
                 values["texture"] = str(path)
-            old = new.effect(name)
-            merged = {} if old is None or (name == "lens_distortion") else old.values()
-            merged.update(values)
-            effect = EFFECTS[name](True, str(out_path), out_path.parent, **merged)
-            if old is not None:
-                new.effects[new.effects.index(old)] = effect
-            else:
-                names = [e.name for e in new.effects]
-                rank = CANONICAL_ORDER.index(name)
-                pos = next((i for i, n in enumerate(names) if n in CANONICAL_ORDER and CANONICAL_ORDER.index(n) > rank),
-                           len(names))
-                new.effects.insert(pos, effect)
+            new = new.with_effect(name, replace=(name == "lens_distortion"), source=str(out_path),
+                                  base_dir=out_path.parent, **values)
+    new = new.copy()
     new.path = out_path
-    new._cache.clear()
     return new
 
 

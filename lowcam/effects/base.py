@@ -104,6 +104,9 @@ class Effect(ParamSet):
     writes: ClassVar[str] = ""
     #: True for a stage the chain cannot skip; disabling it selects its neutral form (the lens becomes a pinhole).
     always_runs: ClassVar[bool] = False
+    #: True for an effect whose result depends on (seed, frame): everything before the first one is the same for
+    #: every frame of a static scene, so it is computed once (:func:`lowcam.pipeline.prepare`).
+    random: ClassVar[bool] = False
 
     def __init__(self, enabled: bool = True, source: str = "<python>", base_dir: Path | None = None, **values):
         self.enabled = bool(enabled)

@@ -75,6 +75,7 @@ class RowNoise(Effect):
     name = "row_noise"
     section = "4.3 (read-out noise)"
     writes = "bayer"
+    random = True
     params = {"sigma_dn": Param(0.0, low=0.0, high=50.0, unit="DN")}
 
     def apply(self, state):

@@ -323,6 +323,15 @@ class LensDistortion(Effect):
                              f"(its keys: {', '.join(sorted(allowed - {'model'}))})")
         self._maps: dict = {}
 
+    def __deepcopy__(self, memo):
+        """Copies share the cache of render maps: its keys hold every parameter, so sharing is safe and saves
+        recomputing (and copying) maps of several million pixels whenever a profile is varied."""
+        import copy
+
+        new = copy.copy(self)
+        new.principal_point = list(self.principal_point)
+        return new
+
     def model_for(self, width: int, height: int) -> LensModel:
         """The lens model for an output frame of ``width`` x ``height`` pixels."""
         if self.model == "fov":
@@ -346,7 +355,9 @@ class LensDistortion(Effect):
             focal = render_focal_px(state.profile, wr, hr)
             map_x = (focal * x + wr / 2.0 - 0.5).astype(np.float32)
             map_y = (focal * y + hr / 2.0 - 0.5).astype(np.float32)
-            self._maps = {key: cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)}
+            if len(self._maps) > 8:
+                self._maps.clear()
+            self._maps[key] = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
         return self._maps[key]
 
     def apply(self, state):

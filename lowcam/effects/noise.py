@@ -24,6 +24,7 @@ class Noise(Effect):
     name = "noise"
     section = "4.3, 5.2 step 5"
     writes = "bayer"
+    random = True
     params = {
         "law": Param("sigma_linear", str, choices=("sigma_linear", "variance_linear")),
         "red": Param([1.5, 0.015], "vector", length=2),

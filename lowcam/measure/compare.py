@@ -45,8 +45,13 @@ class Comparison:
     error: float
     families: dict
     captures: list
-    where: dict
     noise_floor: float = 1.0
+
+    @property
+    def where(self) -> dict:
+        if not hasattr(self, "_where"):
+            self._where = where(self.captures)
+        return self._where
 
     @property
     def verdict(self) -> str:
@@ -62,26 +67,39 @@ def capture_inputs(profile, capture):
     return ideal_from_target(profile, capture)
 
 
-def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None) -> np.ndarray:
-    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``)."""
-    from ..pipeline import simulate
+def prefix_key(profile, count: int) -> str:
+    """Identifies the first ``count`` effects of a profile (and its camera) for caching their output."""
+    return repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects[:count]]))
+
+
+def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
+                     until: str | None = None) -> np.ndarray:
+    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``); the
+    deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it."""
+    from ..pipeline import deterministic_prefix, prepare, resume
 
     ideal, plate = inputs or capture_inputs(profile, capture)
-    return np.stack([simulate(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, seed, k)
-                     for k in range(count)])
+    key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
+    token = cache.get(key) if cache is not None else None
+    if token is None:
+        token = prepare(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, until)
+        if cache is not None:
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = token
+    return np.stack([resume(token, seed, k, profile) for k in range(count)])
 
 
-def _variance_log_ratios(F, G, min_pixels: int = 400) -> list[float]:
-    vF, vG = F.var(axis=0, ddof=1), G.var(axis=0, ddof=1)
-    level = G.mean(axis=0)
+def _variance_log_ratios(vF, vG, level, min_pixels: int = 400) -> list[float]:
     out = []
+    nb = len(INTENSITY_BINS) - 1
     for c in range(3):
-        idx = np.digitize(level[..., c], INTENSITY_BINS) - 1
-        for b in range(len(INTENSITY_BINS) - 1):
-            sel = idx == b
-            if sel.sum() < min_pixels:
-                continue
-            mf, mg = vF[..., c][sel].mean(), vG[..., c][sel].mean()
+        idx = np.clip(np.digitize(level[..., c].ravel(), INTENSITY_BINS) - 1, 0, nb - 1)
+        count = np.bincount(idx, minlength=nb)
+        sf = np.bincount(idx, vF[..., c].ravel(), nb)
+        sg = np.bincount(idx, vG[..., c].ravel(), nb)
+        for b in np.nonzero(count >= min_pixels)[0]:
+            mf, mg = sf[b] / count[b], sg[b] / count[b]
             if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
                 out.append(float(np.log(mf / mg)))
     return out
@@ -97,12 +115,15 @@ def _row_log_ratios(F, G) -> list[float]:
 
 
 def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "") -> CaptureStats:
-    Ff, Gf = F.astype(np.float64), G.astype(np.float64)
+    Ff, Gf = F.astype(np.float32), G.astype(np.float32)
     n, k = len(F), len(G)
-    r = Ff.mean(0) - Gf.mean(0)
-    noise = np.maximum(Ff.var(0, ddof=1), 1 / 12) / n + np.maximum(Gf.var(0, ddof=1), 1 / 12) / k
-    sums = {"mean": (float((r ** 2).sum()), float(noise.sum())), "noise_map": noise,
-            "variance": _variance_log_ratios(Ff, Gf), "rows": _row_log_ratios(Ff, Gf)}
+    mF, mG = Ff.mean(0), Gf.mean(0)
+    vF = ((Ff - mF) ** 2).sum(0) / (n - 1)
+    vG = ((Gf - mG) ** 2).sum(0) / (k - 1)
+    r = mF - mG
+    noise = np.maximum(vF, 1 / 12) / n + np.maximum(vG, 1 / 12) / k
+    sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
+            "noise_map": noise, "variance": _variance_log_ratios(vF, vG, mG), "rows": _row_log_ratios(Ff, Gf)}
     return CaptureStats(name, F, G, sums)
 
 
@@ -163,14 +184,16 @@ def where(stats: list[CaptureStats]) -> dict:
     return out
 
 
-def compare(mset, profile, sim_frames: int | None = None) -> Comparison:
-    """Compare a profile with a measurement set (see the module docstring for the error)."""
+def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=None) -> Comparison:
+    """Compare a profile with a measurement set (see the module docstring for the error). ``cache`` (a dict)
+    keeps the deterministic front of the chain between calls that share it."""
     stats = []
-    for cap in mset.captures:
+    for i, cap in enumerate(mset.captures):
         if cap.frames.shape[1:3] != (profile.camera.height, profile.camera.width):
             raise LowcamError(f"capture {cap.name}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
                               f"profile delivers {profile.camera.width}x{profile.camera.height}")
         k = sim_frames or max(len(cap.frames), 4)
-        stats.append(capture_stats(cap.frames, simulate_capture(profile, cap, k), cap.name))
+        sim = simulate_capture(profile, cap, k, inputs=inputs[i] if inputs else None, cache=cache)
+        stats.append(capture_stats(cap.frames, sim, cap.name))
     error, families = combine(stats)
-    return Comparison(error, families, stats, where(stats))
+    return Comparison(error, families, stats)

@@ -1,0 +1,89 @@
+"""Synthetic measurement sets: bundled ideal scenes through a profile with hidden changes (``lowcam synth``)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..errors import LowcamError
+
+PAN = (0.05, 0.6, 0.1)  # rad/s: the camera turns during the "pan" capture
+
+
+def _opaque(rgb: np.ndarray) -> np.ndarray:
+    out = np.ones(rgb.shape[:2] + (4,), np.float32)
+    out[..., :3] = rgb if rgb.ndim == 3 else rgb[..., None]
+    return out
+
+
+def scenes(profile, width: int = 640) -> dict:
+    """Ideal scenes framed for ``profile``: name -> (premultiplied RGBA render, angular velocity)."""
+    from skimage import data
+
+    from ..calibrate.chart import make_chart
+    from ..pipeline import render_field_of_view
+
+    render_field_of_view(profile)  # validates that the profile can be rendered for
+    height = width * profile.camera.height // profile.camera.width
+    size = (width, height)
+
+    def fit(img):
+        img = np.asarray(img, np.float32) / 255.0
+        h, w = img.shape[:2]
+        if w / h > width / height:
+            cw = int(h * width / height)
+            img = img[:, (w - cw) // 2:(w - cw) // 2 + cw]
+        else:
+            ch = int(w * height / width)
+            img = img[(h - ch) // 2:(h - ch) // 2 + ch]
+        return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+
+    chart, _ = make_chart("a4", 100)
+    rng = np.random.default_rng(3)
+    noise = cv2.resize(rng.random((height // 6, width // 6)).astype(np.float32), size,
+                       interpolation=cv2.INTER_NEAREST)
+    photo = 0.05 + 0.85 * fit(data.astronaut())
+    out = {
+        "chart": (_opaque(0.05 + 0.85 * fit(chart)), (0.0, 0.0, 0.0)),
+        "photo": (_opaque(photo), (0.0, 0.0, 0.0)),
+        "noise-field": (_opaque(0.1 + 0.8 * noise), (0.0, 0.0, 0.0)),
+        "flat-bright": (_opaque(np.full(size[::-1], 0.7, np.float32)), (0.0, 0.0, 0.0)),
+        "flat-dark": (_opaque(np.full(size[::-1], 0.15, np.float32)), (0.0, 0.0, 0.0)),
+        "pan": (_opaque(0.05 + 0.85 * fit(data.coffee())), PAN),
+    }
+    return out
+
+
+def parse_change(spec: str):
+    """``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value})."""
+    name, _, rest = spec.partition(":")
+    values = {}
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise LowcamError(f"--add {spec}: use EFFECT:key=value,key=value")
+        try:
+            values[key.strip()] = int(value) if value.strip().lstrip("-").isdigit() else float(value)
+        except ValueError:
+            values[key.strip()] = value.strip()
+    return name.strip(), values
+
+
+def hidden_profile(profile, add=(), remove=()):
+    """``profile`` with effects added or changed (``add``: (name, values)) and others switched off."""
+    p = profile
+    for name, values in add:
+        p = p.with_effect(name, **values)
+    return p.without(*remove) if remove else p
+
+
+def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int = 640, seed: int = 7):
+    """Write a measurement set made by ``profile`` with hidden changes; returns its folder."""
+    from ..pipeline import simulate
+    from .sets import write_set
+
+    camera = hidden_profile(profile, add, remove)
+    captures = []
+    for name, (ideal, omega) in scenes(profile, width).items():
+        shots = [simulate(ideal, camera, None, omega, None, seed, k) for k in range(frames)]
+        captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
+    return write_set(folder, captures)
