@@ -209,6 +209,85 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _progress_line(i, n, name):
+    print(f"\r[{i + 1}/{n}] fitting {name:<24s}", end="", file=sys.stderr, flush=True)
+
+
+def cmd_compare(args) -> int:
+    from .measure.compare import compare
+    from .measure.report import record_history, write_compare_report
+    from .measure.sets import load_set
+    from .profile import load_profile
+
+    profile = load_profile(args.profile)
+    mset = load_set(args.set, profile)
+    print(f"comparing {len(mset.captures)} captures with {profile.name} ...", file=sys.stderr, flush=True)
+    cmp = compare(mset, profile)
+    history = record_history(mset.path, str(profile.path or profile.name), cmp)
+    print(f"{mset.path}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
+          ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()))
+    if args.json:
+        import json
+
+        from .io import atomic_write_bytes
+
+        atomic_write_bytes(args.json, json.dumps({"error": cmp.error, "noise_floor": 1.0, "verdict": cmp.verdict,
+                                                  "families": cmp.families, "where": cmp.where}, indent=1).encode())
+    if args.report:
+        page = write_compare_report(cmp, args.report, f"{profile.name} against {mset.path}", history)
+        print(f"{page}: report")
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    import json
+
+    from .io import atomic_write_bytes
+    from .measure.diagnose import CANDIDATES, diagnose, save_candidate_profile
+    from .measure.report import write_compare_report
+    from .measure.sets import load_set
+    from .profile import load_profile
+
+    profile = load_profile(args.profile)
+    mset = load_set(args.set, profile)
+    only = args.only.split(",") if args.only else None
+    for name in only or []:
+        if name not in CANDIDATES:
+            raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(CANDIDATES)})")
+    d = diagnose(mset, profile, only, progress=_progress_line)
+    print("", file=sys.stderr)
+    doc = d.as_json()
+    atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
+    print(f"{mset.path}: error {d.error:.3f}, verdict {d.verdict}")
+    for c in d.candidates[:5]:
+        print(f"  {c.effect:24s} error after {c.error_after:.3f}  {c.evidence}")
+    if args.report:
+        page = write_compare_report(d.comparison, args.report, f"Diagnosis of {profile.name} against {mset.path}",
+                                    extra={"candidates": doc["candidates"]})
+        print(f"{page}: report")
+    if args.add_best:
+        if not args.output:
+            raise LowcamError("--add-best needs -o NEW.toml")
+        if not d.candidates:
+            raise LowcamError("no candidate could be fitted to this set")
+        saved = save_candidate_profile(d.candidates[0], args.output)
+        print(f"{saved}: {profile.name} with {d.candidates[0].effect} added")
+    return 0
+
+
+def cmd_synth(args) -> int:
+    from .measure.synth import parse_change, synthesise
+    from .profile import load_profile
+
+    profile = load_profile(args.profile)
+    folder = synthesise(profile, args.output, [parse_change(a) for a in args.add or []], args.remove or [],
+                        args.frames, args.width, args.seed)
+    print(f"{folder}: measurement set of 6 captures x {args.frames} frames from {profile.name}"
+          + (f" with {', '.join(args.add)}" if args.add else "")
+          + (f" without {', '.join(args.remove)}" if args.remove else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
                                      "(Klein & Murray 2010).")
@@ -299,6 +378,33 @@ def build_parser() -> argparse.ArgumentParser:
     q = csub.add_parser("all", help="every calibration a manifest lists, into one profile")
     q.add_argument("manifest")
     common(q)
+
+    p = sub.add_parser("compare", help="the model against measured frames: error, where it fails, probes")
+    p.add_argument("set", help="measurement-set folder (with set.toml)")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--report", help="folder for the HTML report and its pictures")
+    p.add_argument("--json", help="write the numbers as JSON")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("diagnose", help="rank the effects the profile may lack, fitted to the measurements")
+    p.add_argument("set")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--json", required=True, help="the ranked candidates as JSON")
+    p.add_argument("--report", help="folder for an HTML report")
+    p.add_argument("--only", help="comma-separated candidates to try (default: all)")
+    p.add_argument("--add-best", action="store_true", help="write the profile with the best candidate added")
+    p.add_argument("-o", "--output", help="profile to write with --add-best")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("synth", help="make a measurement set from bundled scenes, with hidden effects")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--add", action="append", metavar="EFFECT[:k=v,...]", help="hide an effect (or change one)")
+    p.add_argument("--remove", action="append", metavar="EFFECT", help="switch one of the profile's effects off")
+    p.add_argument("--frames", type=int, default=5)
+    p.add_argument("--width", type=int, default=640, help="render width of the ideal scenes")
+    p.add_argument("--seed", type=int, default=7)
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("profiles", help="list the bundled profiles")
     p.set_defaults(func=cmd_profiles)

@@ -3,7 +3,11 @@
 Every candidate is an effect the profile lacks, or one whose parameters may be wrong. Each is fitted to the
 measured frames (most by a bounded search on a noise-free simulation against the measured temporal means; the
 fixed-pattern maps in closed form; noise-shaped candidates against the full error), then the full noise-aware
-error (:mod:`lowcam.measure.compare`) is computed with it. Candidates are ranked by that error, best first.
+error (:mod:`lowcam.measure.compare`) is computed with it. Candidates are ranked by that error, best first,
+after correcting per-pixel maps for what they absorb of the noise (:attr:`Candidate.score`).
+
+Verdict: ``explained`` when the profile's own error is below 1.1; ``missing-effect`` when the best candidate's
+score is at most 1.25; ``unexplained`` otherwise (``where`` then still says where the residual lives).
 """
 from __future__ import annotations
 
@@ -25,9 +29,21 @@ class Candidate:
     params: dict
     evidence: str
     profile: object = field(repr=False, default=None)
+    per_pixel: bool = False  # fitted as a map with one value per pixel and channel
+    captures: int = 1
+
+    @property
+    def score(self) -> float:
+        """The error expected on new frames, by which candidates are ranked. A per-pixel map fitted to C captures
+        absorbs 1/C of the noise of the means it was fitted to, so its in-sample error is inflated by
+        ``sqrt((1 + 1/C) / (1 - 1/C))``; effects with a handful of parameters keep their error."""
+        if not self.per_pixel:
+            return self.error_after
+        f = 1.0 / max(self.captures, 2)
+        return self.error_after * float(np.sqrt((1 + f) / (1 - f)))
 
     def as_json(self) -> dict:
-        return {"effect": self.effect, "error_after": round(self.error_after, 4),
+        return {"effect": self.effect, "error_after": round(self.error_after, 4), "score": round(self.score, 4),
                 "params": {k: (v if not isinstance(v, float) else round(v, 6)) for k, v in self.params.items()},
                 "evidence": self.evidence}
 
@@ -319,7 +335,7 @@ class Diagnosis:
     def verdict(self) -> str:
         if self.error <= EXPLAINED_BELOW:
             return "explained"
-        if self.candidates and self.candidates[0].error_after <= UNEXPLAINED_ABOVE:
+        if self.candidates and self.candidates[0].score <= UNEXPLAINED_ABOVE:
             return "missing-effect"
         return "unexplained"
 
@@ -347,6 +363,28 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None) -> Diagnosis
         after = ctx.compare(cand_profile).error
         out.append(Candidate(name, after, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
                                            for k, v in params.items()},
-                             f"{evidence}; error {base.error:.2f} -> {after:.2f}", cand_profile))
-    out.sort(key=lambda c: c.error_after)
+                             f"{evidence}; error {base.error:.2f} -> {after:.2f}", cand_profile,
+                             name in ("prnu", "dsnu"), len(mset.captures)))
+    out.sort(key=lambda c: c.score)
     return Diagnosis(base, out)
+
+
+def save_candidate_profile(candidate: Candidate, path) -> Path:
+    """Write the candidate's profile; fitted maps (.npy) are copied into a folder beside it."""
+    import shutil
+
+    path = Path(path).resolve()
+    profile = candidate.profile
+    effect = profile.effect(CANDIDATE_EFFECT.get(candidate.effect, candidate.effect))
+    if effect is not None and getattr(effect, "texture", None) and Path(effect.texture).suffix == ".npy":
+        target = path.parent / path.stem / Path(effect.texture).name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(effect.texture, target)
+        profile = profile.with_effect(effect.name, texture=str(target), source=str(path), base_dir=path.parent)
+    return profile.save(path)
+
+
+#: The profile effect each candidate adds or changes.
+CANDIDATE_EFFECT = {"radial_distortion": "lens_distortion", "gamma": "tone_curve",
+                    "asymmetric_sharpening": "sharpening", "bilinear_demosaic": "demosaic",
+                    "colour_matrix": "crosstalk", "quantisation_bits": "quantisation"}

@@ -1,0 +1,289 @@
+"""Pictures of a comparison: residual maps, where the error lives, and measured-versus-model probes for each
+physical effect; the error history of a measurement set."""
+from __future__ import annotations
+
+import html
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..calibrate import _figure
+
+
+def _rgb2yuv(x):
+    from ..effects.yuv import rgb_to_yuv
+
+    return rgb_to_yuv(np.asarray(x, np.float32))
+
+
+def _pick(stats, key):
+    """The capture with the most of something: texture ('texture'), flatness ('flat'), motion (None)."""
+    scores = [float(s.measured.mean(0).std()) for s in stats]
+    return stats[int(np.argmax(scores) if key == "texture" else np.argmin(scores))]
+
+
+def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
+    """Every probe as (title, PNG path)."""
+    from ..effects.bayer import block_correlations
+    from ..effects.blur import edge_sigma, find_edges
+    from ..effects.chromatic_aberration import lk_shift
+
+    stats = cmp.captures
+    out = []
+
+    def fig(name, title, draw, size=(7, 4)):
+        out.append((title, _figure(folder / f"{name}.png", draw, size)))
+
+    # residual maps, in units of the noise of the means
+    def residual_maps(f):
+        n = len(stats)
+        for k, s in enumerate(stats):
+            ax = f.add_subplot(1, n, k + 1)
+            z = np.sqrt((s.residual ** 2).sum(-1) / s.sums["noise_map"].sum(-1))
+            im = ax.imshow(z, cmap="magma", vmin=0, vmax=max(3.0, float(np.percentile(z, 99))))
+            ax.set_title(s.name, fontsize=8)
+            ax.axis("off")
+        f.colorbar(im, ax=f.axes, shrink=0.6, label="|residual| / noise")
+    fig("residual_maps", "Residual maps", residual_maps, (3 * len(stats), 3))
+
+    w = cmp.where
+
+    def where_bars(f):
+        for k, (key, label) in enumerate((("channels", "channel"), ("regions", "region"), ("bands", "band"),
+                                          ("intensities", "range_dn"))):
+            ax = f.add_subplot(1, 4, k + 1)
+            names = [str(e[label]) if label != "range_dn" else f"{e[label][0]:.0f}-{e[label][1]:.0f}" for e in w[key]]
+            ax.barh(names, [e["error"] for e in w[key]], color="tab:blue")
+            ax.axvline(1.0, color="k", lw=0.8)
+            ax.set_title(f"error by {label}", fontsize=9)
+            ax.tick_params(labelsize=7)
+    fig("where", "Per channel, region, band and intensity", where_bars, (14, 4))
+
+    def spectra(f):
+        for k, axis in enumerate((1, 0)):
+            ax = f.add_subplot(1, 2, k + 1)
+            p = np.zeros(0)
+            for s in stats:
+                r = s.residual.mean(-1)
+                spec = (np.abs(np.fft.rfft(r, axis=axis)) ** 2).mean(axis=1 - axis)
+                p = spec if p.size == 0 else p + spec
+            freq = np.fft.rfftfreq(stats[0].residual.shape[axis])
+            ax.semilogy(freq[1:], p[1:] / len(stats))
+            ax.set_xlabel("cycles / pixel")
+            ax.set_title(["horizontal", "vertical"][k] + " residual power", fontsize=9)
+    fig("spectrum", "Residual power spectrum", spectra, (10, 3.5))
+
+    flat = _pick(stats, "flat")
+
+    def falloff(f):
+        ax = f.add_subplot(1, 1, 1)
+        h, wd = flat.residual.shape[:2]
+        yy, xx = np.mgrid[0:h, 0:wd]
+        rad = np.hypot(xx - wd / 2, yy - h / 2) / np.hypot(wd / 2, h / 2)
+        bins = np.clip((rad * 20).astype(int), 0, 19)
+        for data, label in ((flat.measured, "measured"), (flat.simulated, "model")):
+            m = data.astype(np.float64).mean(0).mean(-1)
+            prof = np.bincount(bins.ravel(), m.ravel(), 20) / np.maximum(np.bincount(bins.ravel(), minlength=20), 1)
+            ax.plot((np.arange(20) + 0.5) / 20, prof / max(prof[0], 1e-6), "o-", label=label)
+        ax.set_xlabel("radius / corner radius")
+        ax.set_ylabel("brightness / centre")
+        ax.set_title(f"radial fall-off ({flat.name})", fontsize=9)
+        ax.legend()
+    fig("probe_vignetting", "Radial brightness fall-off", falloff)
+
+    tex = _pick(stats, "texture")
+
+    def lateral(f):
+        ax = f.add_subplot(1, 1, 1)
+        for data, label, mk in ((tex.measured, "measured", "o"), (tex.simulated, "model", "x")):
+            img = data.astype(np.float32).mean(0)
+            g = np.ascontiguousarray(img[..., 1])
+            gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+            gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+            h, wd = g.shape
+            rs, ds = [], []
+            for cy in np.linspace(40, h - 40, 6):
+                for cx in np.linspace(40, wd - 40, 8):
+                    d = lk_shift(g, gx, gy, np.ascontiguousarray(img[..., 0]), (cx, cy), 30)
+                    if np.isfinite(d[0]):
+                        rs.append(np.hypot(cx - wd / 2, cy - h / 2))
+                        ds.append(np.hypot(*d))
+            ax.plot(rs, ds, mk, label=f"{label}: red vs green")
+        ax.set_xlabel("radius (px)")
+        ax.set_ylabel("shift (px)")
+        ax.set_title(f"lateral colour shift ({tex.name})", fontsize=9)
+        ax.legend()
+    fig("probe_chromatic_aberration", "Lateral colour shift against radius", lateral)
+
+    def edges(f):
+        ax = f.add_subplot(1, 1, 1)
+        for data, label, off in ((tex.measured, "measured", -0.2), (tex.simulated, "model", 0.2)):
+            grey = data.astype(np.float64).mean(0).mean(-1)
+            found = {"vertical": [], "horizontal": []}
+            for x0, y0, x1, y1, o in find_edges(grey):
+                try:
+                    found[o].append(edge_sigma(grey, x0, y0, x1, y1)[0])
+                except (RuntimeError, ValueError, ZeroDivisionError):
+                    pass
+            for k, o in enumerate(("vertical", "horizontal")):
+                if found[o]:
+                    ax.bar(k + off, np.median(found[o]), 0.4, label=f"{label}" if k == 0 else None,
+                           color="tab:orange" if label == "model" else "tab:blue")
+        ax.set_xticks([0, 1], ["across vertical edges (x)", "across horizontal edges (y)"])
+        ax.set_ylabel("edge-spread sigma (px)")
+        ax.set_title("edge spread by direction", fontsize=9)
+        ax.legend()
+    fig("probe_edges", "Edge spread by direction", edges)
+
+    def noise_mean(f):
+        for c, channel in enumerate(("red", "green", "blue")):
+            ax = f.add_subplot(1, 3, c + 1)
+            for key, label in (("measured", "measured"), ("simulated", "model")):
+                mu, sd = [], []
+                for s in stats:
+                    d = getattr(s, key).astype(np.float32)
+                    mu.append(d.mean(0)[..., c].ravel())
+                    sd.append(d.std(0, ddof=1)[..., c].ravel())
+                mu, sd = np.concatenate(mu), np.concatenate(sd)
+                bins = np.clip((mu / 16).astype(int), 0, 15)
+                cnt = np.bincount(bins, minlength=16)
+                ok = cnt > 50
+                m = np.bincount(bins, sd ** 2, 16)[ok] / cnt[ok]
+                ax.plot((np.arange(16)[ok] + 0.5) * 16, np.sqrt(m), "o-", label=label)
+            ax.set_title(channel, fontsize=9)
+            ax.set_xlabel("mean (DN)")
+            ax.legend(fontsize=7)
+        f.axes[0].set_ylabel("sigma (DN)")
+    fig("probe_noise", "Noise against mean, per channel", noise_mean, (11, 3.5))
+
+    def covariance(f):
+        for k, (key, label) in enumerate((("measured", "measured"), ("simulated", "model"))):
+            ax = f.add_subplot(1, 2, k + 1)
+            ax.imshow(block_correlations(getattr(flat, key), 0), vmin=-1, vmax=1, cmap="RdBu_r")
+            ax.set_title(f"{label}: red noise correlation, 4x4 block", fontsize=9)
+    fig("probe_covariance", "Noise covariance in 4x4 blocks", covariance, (8, 4))
+
+    def tone(f):
+        ax = f.add_subplot(1, 1, 1)
+        m = np.concatenate([s.measured.astype(np.float32).mean(0).ravel() for s in stats])
+        s_ = np.concatenate([s.simulated.astype(np.float32).mean(0).ravel() for s in stats])
+        bins = np.clip(s_.astype(int) // 8, 0, 31)
+        cnt = np.bincount(bins, minlength=32)
+        ok = cnt > 20
+        ax.plot((np.arange(32)[ok] + 0.5) * 8, np.bincount(bins, m, 32)[ok] / cnt[ok], "o-", label="measured")
+        ax.plot([0, 255], [0, 255], "k--", lw=0.8, label="model")
+        ax.set_xlabel("model (DN)")
+        ax.set_ylabel("measured (DN)")
+        ax.set_title("tone curve", fontsize=9)
+        ax.legend()
+    fig("probe_tone", "Tone curve", tone, (5, 4.5))
+
+    def chroma(f):
+        ax = f.add_subplot(1, 1, 1)
+        for key, label in (("measured", "measured"), ("simulated", "model")):
+            yuv = _rgb2yuv(getattr(tex, key).astype(np.float32).mean(0))
+            spec = (np.abs(np.fft.rfft(yuv[..., 1], axis=1)) ** 2).mean(0)
+            ax.semilogy(np.fft.rfftfreq(yuv.shape[1])[1:], spec[1:], label=label)
+        ax.set_xlabel("cycles / pixel (horizontal)")
+        ax.set_title("chroma (U) bandwidth", fontsize=9)
+        ax.legend()
+    fig("probe_chroma", "Chroma bandwidth", chroma)
+
+    def levels(f):
+        ax = f.add_subplot(1, 1, 1)
+        for key, label in (("measured", "measured"), ("simulated", "model")):
+            hist = np.bincount(getattr(tex, key)[..., 1].ravel(), minlength=256)
+            ax.plot(hist, label=f"{label} ({int((hist > 0).sum())} levels)")
+        ax.set_xlabel("green value (DN)")
+        ax.set_title("quantisation levels", fontsize=9)
+        ax.legend()
+    fig("probe_levels", "Quantisation levels", levels)
+
+    def fixed(f):
+        ax = f.add_subplot(1, 1, 1)
+        names = [s.name for s in stats]
+        hp = []
+        for s in stats:
+            r = s.residual.astype(np.float32)
+            hp.append(float(np.sqrt(((r - cv2.GaussianBlur(r, (0, 0), 3)) ** 2).mean() / s.sums["noise_map"].mean())))
+        ax.barh(names, hp)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xlabel("high-pass residual of the means / noise")
+        ax.set_title("fixed pattern over frames", fontsize=9)
+    fig("probe_fixed_pattern", "Fixed pattern over frames", fixed)
+
+    def rows(f):
+        ax = f.add_subplot(1, 1, 1)
+        for key, label in (("measured", "measured"), ("simulated", "model")):
+            vals = []
+            for s in stats:
+                d = getattr(s, key).astype(np.float32)
+                vals.append((d - d.mean(0, keepdims=True)).mean(axis=2).std(axis=(0, 1)))
+            ax.bar(np.arange(3) + (-0.2 if label == "measured" else 0.2), np.mean(vals, 0), 0.4, label=label)
+        ax.set_xticks(range(3), ["red", "green", "blue"])
+        ax.set_ylabel("std of row means of the noise (DN)")
+        ax.set_title("row statistics", fontsize=9)
+        ax.legend()
+    fig("probe_rows", "Row statistics", rows)
+    return out
+
+
+def history_path(mset_path) -> Path:
+    return Path(mset_path) / ".lowcam" / "history.json"
+
+
+def record_history(mset_path, profile_name: str, cmp) -> list[dict]:
+    """Append this comparison to the set's history (``<set>/.lowcam/history.json``) and return it."""
+    from ..io import atomic_write_bytes
+
+    path = history_path(mset_path)
+    entries = json.loads(path.read_text()) if path.is_file() else []
+    entries.append({"time": time.strftime("%Y-%m-%d %H:%M:%S"), "profile": profile_name,
+                    "error": round(cmp.error, 4), "families": {k: round(v, 4) for k, v in cmp.families.items()}})
+    atomic_write_bytes(path, json.dumps(entries, indent=1).encode())
+    return entries
+
+
+def history_figure(entries, folder: Path) -> Path:
+    def draw(f):
+        ax = f.add_subplot(1, 1, 1)
+        ax.plot(range(len(entries)), [e["error"] for e in entries], "o-")
+        ax.axhline(1.0, color="k", lw=0.8, label="noise floor")
+        ax.axhline(1.1, color="grey", lw=0.8, ls="--", label="explained")
+        ax.set_xticks(range(len(entries)), [Path(e["profile"]).stem for e in entries], rotation=30, ha="right",
+                      fontsize=7)
+        ax.set_ylabel("error (1 = noise)")
+        ax.set_title("error against model version", fontsize=9)
+        ax.legend()
+    return _figure(folder / "history.png", draw, (7, 4))
+
+
+def write_compare_report(cmp, folder, title: str, history=None, extra: dict | None = None) -> Path:
+    from ..io import atomic_write_bytes
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    figures = probe_figures(cmp, folder)
+    if history:
+        figures.insert(0, ("Error history", history_figure(history, folder)))
+    numbers = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict,
+               "families": cmp.families, "where": cmp.where}
+    if extra:
+        numbers.update(extra)
+    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>Lowcam comparison</title><style>"
+             "body{font-family:sans-serif;max-width:1200px;margin:auto}img{max-width:100%}pre{background:#f4f4f4;"
+             "padding:8px;overflow:auto}</style></head><body>",
+             f"<h1>{html.escape(title)}</h1>",
+             f"<p><b>error {cmp.error:.3f}</b> (1.0 = the noise floor; explained below 1.1): "
+             f"{html.escape(cmp.verdict)}. Families: " +
+             ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()) + "</p>"]
+    for name, path in figures:
+        parts.append(f"<h2>{html.escape(name)}</h2><img src='{html.escape(path.name)}' alt='{html.escape(name)}'>")
+    parts.append("<h2>Numbers</h2><pre>" + html.escape(json.dumps(numbers, indent=1, default=float)) + "</pre>")
+    parts.append("</body></html>")
+    page = folder / "index.html"
+    atomic_write_bytes(page, "\n".join(parts).encode())
+    return page
