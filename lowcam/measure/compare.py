@@ -118,12 +118,13 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "") -> CaptureStats:
     Ff, Gf = F.astype(np.float32), G.astype(np.float32)
     n, k = len(F), len(G)
     mF, mG = Ff.mean(0), Gf.mean(0)
-    vF = ((Ff - mF) ** 2).sum(0) / (n - 1)
     vG = ((Gf - mG) ** 2).sum(0) / (k - 1)
+    vF = ((Ff - mF) ** 2).sum(0) / (n - 1) if n > 1 else vG  # one frame: its noise is the model's
     r = mF - mG
     noise = np.maximum(vF, 1 / 12) / n + np.maximum(vG, 1 / 12) / k
     sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
-            "noise_map": noise, "variance": _variance_log_ratios(vF, vG, mG), "rows": _row_log_ratios(Ff, Gf)}
+            "noise_map": noise, "variance": _variance_log_ratios(vF, vG, mG) if n > 1 else [],
+            "rows": _row_log_ratios(Ff, Gf) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 

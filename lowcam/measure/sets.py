@@ -6,6 +6,7 @@ A folder holds ``set.toml``::
     name = "chart-a"
     ideal = "ideal/chart-a.exr"         # premultiplied linear RGBA, as for `lowcam apply --render`
     frames = ["frames/chart-a-*.png"]   # 8-bit RGB at the profile's output size; several frames of a static scene
+                                        # (one frame works too: its noise is then taken from the model)
     plate = "plates/chart-a.png"        # optional: the real background where the ideal is transparent
     angular_velocity = [0.0, 0.0, 0.0]  # optional, rad/s in the camera frame
     exposure_s = 0.033                  # optional
@@ -80,11 +81,11 @@ def load_set(folder, profile=None) -> MeasurementSet:
         patterns = entry.get("frames") or []
         names = sorted({p for pat in ([patterns] if isinstance(patterns, str) else patterns)
                         for p in glob.glob(str(folder / pat))})
-        if len(names) < 2:
-            raise LowcamError(f"{where}: {len(names)} frame(s) found, at least 2 are needed to measure the noise")
+        if not names:
+            raise LowcamError(f"{where}: no frames match {patterns}")
         from ..calibrate import load_frames
 
-        frames, _ = load_frames(names, 2, where)
+        frames, _ = load_frames(names, 1, where)
         frames = np.stack(frames)
         if profile is not None and frames.shape[1:3] != (profile.camera.height, profile.camera.width):
             raise LowcamError(f"{names[0]}: the frames are {frames.shape[2]}x{frames.shape[1]}, the profile's camera "
