@@ -192,7 +192,15 @@ def cmd_calibrate(args) -> int:
     elif what == "sharpening":
         results = [cal.calibrate_sharpening(args.soft, args.sharp, args.sharpness, plots)]
     elif what == "colour":
-        results = [cal.calibrate_colour(*cal.read_patches_csv(args.patches), args.saturation)]
+        if args.patches:
+            ideal, measured = cal.read_patches_csv(args.patches)
+        elif args.frames and args.chart:
+            ideal, measured, notes = cal.chart_patch_colours(args.frames, args.chart)
+            for note in notes:
+                print(f"  {note}")
+        else:
+            raise LowcamError("colour calibration needs --patches CSV, or frames of the chart with --chart chart.json")
+        results = [cal.calibrate_colour(ideal, measured, args.saturation, plots)]
     else:  # all
         base_from_manifest, results = cal.run_manifest(args.manifest, plots)
         if not args.profile:
@@ -371,8 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--sharp", nargs="+", required=True)
     q.add_argument("--sharpness", type=float, required=True, help="the camera setting of the --sharp captures")
     common(q)
-    q = csub.add_parser("colour", help="crosstalk from patch colours")
-    q.add_argument("--patches", required=True, help="CSV: ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b")
+    q = csub.add_parser("colour", help="crosstalk from the chart's colour patches (or a table of patch colours)")
+    q.add_argument("frames", nargs="*", help="frames showing the whole chart")
+    q.add_argument("--chart", help="the chart's layout JSON (written by lowcam chart)")
+    q.add_argument("--patches", help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b")
     q.add_argument("--saturation", type=float, default=65.0, help="the camera's saturation setting")
     common(q)
     q = csub.add_parser("all", help="every calibration a manifest lists, into one profile")

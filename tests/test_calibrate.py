@@ -226,3 +226,27 @@ def test_chart_has_every_element_and_its_charuco_board_is_detectable(tmp_path):
         from lowcam.calibrate.chart import make_chart
 
         make_chart("a5")
+
+
+def test_colour_from_a_photographed_chart_is_found_automatically(fire_i, tmp_path):
+    from lowcam.calibrate import chart_patch_colours, srgb_to_linear
+    from lowcam.calibrate.chart import write_chart
+
+    chart_png, layout = write_chart(tmp_path / "chart.png", dpi=150)
+    page = cv2.cvtColor(cv2.imread(str(chart_png)), cv2.COLOR_BGR2RGB)
+    linear = srgb_to_linear(page).astype(np.float32)
+    profile = quiet(fire_i, "noise", "vignetting", "chromatic_aberration", "quantisation", "lens_distortion")
+    profile.effect("saturation").saturation = 90.0
+    # the page seen square-on, filling most of a 1600-wide pinhole render
+    w, h = 1600, 1200
+    scale = 0.85 * w / page.shape[1]
+    m = np.array([[scale, 0, (w - scale * page.shape[1]) / 2], [0, scale, (h - scale * page.shape[0]) / 2]])
+    view = cv2.warpAffine(linear, m, (w, h), flags=cv2.INTER_AREA, borderValue=(0.5, 0.5, 0.5))
+    frames = [lowcam.simulate(opaque(view), profile, seed=s) for s in range(2)]
+    paths = save(frames, tmp_path / "frames")
+    ideal, measured, notes = chart_patch_colours(paths, layout)
+    assert len(ideal) == 24 and not notes
+    cal = calibrate_colour(ideal, measured, 90.0, tmp_path)
+    truth = profile.effect("crosstalk").total_matrix()
+    assert np.abs(np.array(cal.values["crosstalk"]["matrix"]) - truth).max() < 0.03
+    assert (tmp_path / "colour.png").is_file()

@@ -292,9 +292,25 @@ def calibrate_blur(patterns, plot_dir: Path | None = None) -> Calibration:
 
     frames, _ = load_frames(patterns, 1, "blur calibration")
     r = fit_edge_blur(frames)
+    figures = []
+    if plot_dir:
+        def draw(fig):
+            from scipy.special import ndtr
+
+            ax = fig.add_subplot(1, 1, 1)
+            x = np.linspace(-4, 4, 200)
+            for key, label in (("sigma_horizontal_px", "across vertical edges (horizontal)"),
+                               ("sigma_vertical_px", "across horizontal edges (vertical)")):
+                ax.plot(x, ndtr(x / r[key]), label=f"{label}: sigma {r[key]:.3f} px")
+            ax.set_xlabel("distance from the edge (px)")
+            ax.set_ylabel("edge spread (fitted)")
+            ax.set_title(f"extra horizontal blur {r['extra_horizontal_sensels']:.3f} sensels "
+                         f"({r['edges']['vertical']} + {r['edges']['horizontal']} edges)")
+            ax.legend(fontsize=8)
+        figures.append(_figure(Path(plot_dir) / "blur.png", draw))
     return Calibration("blur", f"blur: edge sigma horizontal {r['sigma_horizontal_px']:.3f} px, vertical "
                                f"{r['sigma_vertical_px']:.3f} px -> horizontal blur {r['extra_horizontal_sensels']:.3f} sensels",
-                       {"horizontal_blur": {"sigma": r["extra_horizontal_sensels"]}}, r, [])
+                       {"horizontal_blur": {"sigma": r["extra_horizontal_sensels"]}}, r, figures)
 
 
 def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_dir: Path | None = None,
@@ -341,17 +357,41 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
                        {"a": a, "sigma": sigma, "filter": h.tolist()}, figures)
 
 
-def calibrate_colour(ideal_rgb, measured_rgb, saturation: float) -> Calibration:
+def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path | None = None) -> Calibration:
     """Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255), ``measured_rgb`` the
     camera's mean patch colours (DN) at saturation setting ``saturation``."""
     from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
 
+    ideal_rgb, measured_rgb = np.asarray(ideal_rgb, np.float64), np.asarray(measured_rgb, np.float64)
+    unclipped = (measured_rgb.min(axis=1) > 3) & (measured_rgb.max(axis=1) < 250)  # clipping breaks linearity
+    if unclipped.sum() < 4:
+        raise LowcamError(f"colour calibration: only {int(unclipped.sum())} patches are free of clipping, 4 needed")
+    ideal_rgb, measured_rgb = ideal_rgb[unclipped], measured_rgb[unclipped]
     total = fit_colour_matrix(ideal_rgb, measured_rgb)
     crosstalk = crosstalk_from_colour_matrix(total, saturation)
+    figures = []
+    if plot_dir:
+        def draw(fig):
+            ax = fig.add_subplot(1, 2, 1)
+            predicted = np.asarray(ideal_rgb) @ total.T
+            for c, colour in enumerate(("red", "green", "blue")):
+                ax.plot(np.asarray(measured_rgb)[:, c], predicted[:, c], "o", color=colour, ms=4)
+            ax.plot([0, 255], [0, 255], "k--", lw=0.8)
+            ax.set_xlabel("measured (DN)")
+            ax.set_ylabel("fitted matrix x ideal (DN)")
+            ax = fig.add_subplot(1, 2, 2)
+            ax.imshow(crosstalk, cmap="viridis")
+            for i in range(3):
+                for j in range(3):
+                    ax.text(j, i, f"{crosstalk[i, j]:.3f}", ha="center", va="center", color="w")
+            ax.set_xticks(range(3), ["r", "g", "b"])
+            ax.set_yticks(range(3), ["r^", "g^", "b^"])
+            ax.set_title("crosstalk (saturation divided out)")
+        figures.append(_figure(Path(plot_dir) / "colour.png", draw, (9, 4)))
     return Calibration("colour", "colour: crosstalk rows " + "; ".join(" ".join(f"{v:.3f}" for v in row)
                                                                       for row in crosstalk),
                        {"crosstalk": {"matrix": crosstalk.tolist(), "extra_mixing": 0.0},
-                        "saturation": {"saturation": saturation}}, {"total_matrix": total.tolist()}, [])
+                        "saturation": {"saturation": saturation}}, {"total_matrix": total.tolist()}, figures)
 
 
 # --- profiles and reports --------------------------------------------------------------------------------------------
@@ -482,7 +522,56 @@ def run_manifest(path, plot_dir: Path | None = None):
                                          float(doc["sharpening"].get("sharpness", 80)), plot_dir))
     if "colour" in doc:
         ideal, measured = read_patches_csv(path.parent / doc["colour"]["patches"])
-        cals.append(calibrate_colour(ideal, measured, float(doc["colour"].get("saturation", 65))))
+        cals.append(calibrate_colour(ideal, measured, float(doc["colour"].get("saturation", 65)), plot_dir))
     if not cals:
         raise LowcamError(f"{path}: the manifest lists no calibration")
     return base, cals
+
+
+def srgb_to_linear(v):
+    v = np.asarray(v, np.float64) / 255.0
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def chart_patch_colours(patterns, layout_path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Find the chart (its ChArUco board) in each frame and read the mean colour of every colour patch and grey
+    step. Returns (ideal linear colours x 255 from the printed sRGB, measured DN averaged over frames, notes)."""
+    from .chart import charuco_board
+
+    layout = json.loads(Path(layout_path).read_text())
+    if layout.get("format") != "lowcam-chart":
+        raise LowcamError(f"{layout_path}: not a lowcam chart layout")
+    board = next(e for e in layout["elements"] if e["type"] == "charuco")
+    patches = [(p["rect_mm"], p["srgb"]) for e in layout["elements"] if e["type"] == "colour_patches"
+               for p in e["patches"]]
+    patches += [(p["rect_mm"], [p["value"]] * 3) for e in layout["elements"] if e["type"] == "grey_steps"
+                for p in e["patches"]]
+    frames, names = load_frames(patterns, 1, "colour calibration")
+    spec = parse_target("charuco")
+    sums, count, notes = np.zeros((len(patches), 3)), 0, []
+    for f, n in zip(frames, names):
+        found = detect_target(f, spec)
+        if found is None:
+            notes.append(f"{n}: the chart's ChArUco board not found, frame skipped")
+            continue
+        obj, img = found
+        # board metres (origin at the board's outer top-left corner, y down) -> page millimetres
+        x0, y0 = board["rect_mm"][:2]
+        scale = board["square_mm"] / (1000.0 * charuco_board().getSquareLength())
+        mm = obj[:, :2] * 1000.0 * scale + [x0, y0]
+        h, _ = cv2.findHomography(mm.astype(np.float32), img.astype(np.float32))
+        for k, (rect, _) in enumerate(patches):
+            x, y, w, hh = rect
+            inner = np.array([[x + 0.3 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.7 * hh],
+                              [x + 0.3 * w, y + 0.7 * hh]], np.float32)
+            poly = cv2.perspectiveTransform(inner[None], h)[0]
+            mask = np.zeros(f.shape[:2], np.uint8)
+            cv2.fillConvexPoly(mask, np.round(poly).astype(np.int32), 1)
+            if mask.sum() < 4:
+                raise LowcamError(f"{n}: the chart's patches are too small in the frame (move closer)")
+            sums[k] += f[mask > 0].reshape(-1, 3).mean(axis=0)
+        count += 1
+    if count == 0:
+        raise LowcamError("colour calibration: the chart was found in none of the frames")
+    ideal = srgb_to_linear([c for _, c in patches]) * 255.0
+    return ideal, sums / count, notes
