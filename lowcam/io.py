@@ -54,6 +54,19 @@ def _exists(path) -> Path:
     return path
 
 
+def read_toml(path, what: str = "file") -> dict:
+    """A TOML file as a dict; a missing or malformed file is a one-line error naming it."""
+    import tomllib
+
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise LowcamError(f"{path}: no such {what}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise LowcamError(f"{path}: not valid TOML ({e})") from None
+
+
 def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays)."""

@@ -477,17 +477,11 @@ def run_manifest(path, plot_dir: Path | None = None):
         [sharpening]           soft = ["soft/*.png"], sharp = ["sharp/*.png"], sharpness = 80
         [colour]               patches = "patches.csv", saturation = 90
     """
-    import tomllib
-
+    from ..io import read_toml
     from ..profile import load_profile
 
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise LowcamError(f"{path}: no such manifest") from None
-    except tomllib.TOMLDecodeError as e:
-        raise LowcamError(f"{path}: not valid TOML ({e})") from None
+    doc = read_toml(path, "manifest")
     known = {"profile", "lens", "vignetting", "chromatic_aberration", "noise", "demosaic", "blur", "sharpening",
              "colour"}
     unknown = sorted(set(doc) - known)

@@ -97,6 +97,13 @@ def _search(ctx, build, bounds, x0, evals: int = 30, subset=None):
     return np.clip(r.x, [b[0] for b in bounds], [b[1] for b in bounds])
 
 
+def _fit_one(ctx, effect: str, key: str, bounds, subset=None, evals: int = 20):
+    """Fit one parameter of one effect: (profile with it, {key: value}, value)."""
+    p = ctx.profile
+    x = float(_search(ctx, lambda v: p.with_effect(effect, **{key: v[0]}), [bounds], None, evals, subset)[0])
+    return p.with_effect(effect, **{key: x}), {key: x}, x
+
+
 def _grid(ctx, build, values, full: bool = False):
     scores = [(ctx.compare(build(v)).error if full else ctx.sse(build(v))) for v in values]
     return values[int(np.argmin(scores))]
@@ -126,37 +133,29 @@ def c_chromatic_aberration(ctx):
 
 
 def c_radial_distortion(ctx):
-    p = ctx.profile
-    lens = p.effect("lens_distortion")
+    lens = ctx.profile.effect("lens_distortion")
     key, bounds = ("w", (0.0, 1.6)) if lens.model == "fov" else ("k1", (-1.0, 1.0))
-    x = _search(ctx, lambda x: p.with_effect("lens_distortion", **{key: x[0]}), [bounds], None, 20, ctx.textured)
-    return p.with_effect("lens_distortion", **{key: x[0]}), {key: x[0]}, f"lens {key} = {x[0]:.4f} (was {getattr(lens, key):.4f})"
+    p, params, x = _fit_one(ctx, "lens_distortion", key, bounds, ctx.textured)
+    return p, params, f"lens {key} = {x:.4f} (was {getattr(lens, key):.4f})"
 
 
 def c_motion_blur(ctx):
     if not ctx.moving:
         return None
-    p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("motion_blur", exposure_s=x[0]), [(0.0005, 0.1)], None, 20,
-                ctx.moving_ones)
-    return p.with_effect("motion_blur", exposure_s=x[0]), {"exposure_s": x[0]}, \
-        f"moving captures are smeared as by a {1e3 * x[0]:.1f} ms exposure"
+    p, params, x = _fit_one(ctx, "motion_blur", "exposure_s", (0.0005, 0.1), ctx.moving_ones)
+    return p, params, f"moving captures are smeared as by a {1e3 * x:.1f} ms exposure"
 
 
 def c_rolling_shutter(ctx):
     if not ctx.moving:
         return None
-    p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("rolling_shutter", readout_s=x[0]), [(0.0, 0.1)], None, 20,
-                ctx.moving_ones)
-    return p.with_effect("rolling_shutter", readout_s=x[0]), {"readout_s": x[0]}, \
-        f"moving captures skew as with a {1e3 * x[0]:.1f} ms row read-out"
+    p, params, x = _fit_one(ctx, "rolling_shutter", "readout_s", (0.0, 0.1), ctx.moving_ones)
+    return p, params, f"moving captures skew as with a {1e3 * x:.1f} ms row read-out"
 
 
 def c_gamma(ctx):
-    p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("tone_curve", gamma=x[0]), [(0.3, 4.0)], None, 20)
-    return p.with_effect("tone_curve", gamma=x[0]), {"gamma": x[0]}, f"mid-tones follow a gamma of {x[0]:.2f}"
+    p, params, x = _fit_one(ctx, "tone_curve", "gamma", (0.3, 4.0))
+    return p, params, f"mid-tones follow a gamma of {x:.2f}"
 
 
 def _pixel_maps(ctx):
@@ -220,35 +219,27 @@ def c_row_noise(ctx):
 
 
 def c_vertical_blur(ctx):
-    p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("vertical_blur", sigma=x[0]), [(0.0, 3.0)], None, 20, ctx.textured)
-    return p.with_effect("vertical_blur", sigma=x[0]), {"sigma": x[0]}, \
-        f"edges are soft vertically as by a {x[0]:.2f}-sensel Gaussian"
+    p, params, x = _fit_one(ctx, "vertical_blur", "sigma", (0.0, 3.0), ctx.textured)
+    return p, params, f"edges are soft vertically as by a {x:.2f}-sensel Gaussian"
 
 
 def c_horizontal_blur(ctx):
-    p = ctx.profile
-    if p.effect("horizontal_blur") is None:
+    if ctx.profile.effect("horizontal_blur") is None:
         return None
-    x = _search(ctx, lambda x: p.with_effect("horizontal_blur", sigma=x[0]), [(0.0, 4.0)], None, 20, ctx.textured)
-    return p.with_effect("horizontal_blur", sigma=x[0]), {"sigma": x[0]}, \
-        f"horizontal blur sigma {x[0]:.3f} sensels (profile: {p.effect('horizontal_blur').sigma:.3f})"
+    p, params, x = _fit_one(ctx, "horizontal_blur", "sigma", (0.0, 4.0), ctx.textured)
+    return p, params, f"horizontal blur sigma {x:.3f} sensels (profile: {ctx.profile.effect('horizontal_blur').sigma:.3f})"
 
 
 def c_defocus(ctx):
-    p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("defocus", radius_px=x[0]), [(0.0, 8.0)], None, 20, ctx.textured)
-    return p.with_effect("defocus", radius_px=x[0]), {"radius_px": x[0]}, \
-        f"everything is blurred as by a {x[0]:.2f} px defocus disc"
+    p, params, x = _fit_one(ctx, "defocus", "radius_px", (0.0, 8.0), ctx.textured)
+    return p, params, f"everything is blurred as by a {x:.2f} px defocus disc"
 
 
 def c_asymmetric_sharpening(ctx):
-    p = ctx.profile
-    if p.effect("sharpening") is None:
+    if ctx.profile.effect("sharpening") is None:
         return None
-    x = _search(ctx, lambda x: p.with_effect("sharpening", shift=x[0]), [(-2.0, 2.0)], None, 20, ctx.textured)
-    return p.with_effect("sharpening", shift=x[0]), {"shift": x[0]}, \
-        f"sharpening halos are lopsided: its low-pass sits {x[0]:+.2f} sensels off centre"
+    p, params, x = _fit_one(ctx, "sharpening", "shift", (-2.0, 2.0), ctx.textured)
+    return p, params, f"sharpening halos are lopsided: its low-pass sits {x:+.2f} sensels off centre"
 
 
 def c_jpeg(ctx):

@@ -18,7 +18,6 @@ the frames); everything off the board is compared against the frames' own mean.
 from __future__ import annotations
 
 import glob
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,17 +56,12 @@ class MeasurementSet:
 
 def load_set(folder, profile=None) -> MeasurementSet:
     """Read and validate a measurement set; errors name the file and the problem."""
-    from ..io import read_plate, read_render
+    from ..io import read_plate, read_render, read_toml
 
     folder = Path(folder)
     toml_path = folder / "set.toml" if folder.is_dir() else folder
     folder = toml_path.parent
-    try:
-        doc = tomllib.loads(toml_path.read_text())
-    except FileNotFoundError:
-        raise LowcamError(f"{toml_path}: no such measurement set (a folder with set.toml)") from None
-    except tomllib.TOMLDecodeError as e:
-        raise LowcamError(f"{toml_path}: not valid TOML ({e})") from None
+    doc = read_toml(toml_path, "measurement set (a folder with set.toml)")
     if set(doc) - {"capture"}:
         raise LowcamError(f"{toml_path}: unknown key '{sorted(set(doc) - {'capture'})[0]}' (only [[capture]] tables)")
     captures = []
