@@ -167,7 +167,8 @@ def block_correlations(frames: np.ndarray, channel: int) -> np.ndarray:
     n, h, w = x.shape
     x = x - x.mean(axis=0, keepdims=True)
     blocks = x[:, : h // 4 * 4, : w // 4 * 4].reshape(n, h // 4, 4, w // 4, 4).transpose(0, 1, 3, 2, 4)
-    return np.corrcoef(blocks.reshape(-1, 16).T)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a noise-free stack has no correlations: NaN
+        return np.corrcoef(blocks.reshape(-1, 16).T)
 
 
 def _opencv_demosaic(planes: np.ndarray, geometry, code_kind: str) -> np.ndarray:
