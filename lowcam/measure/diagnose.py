@@ -187,9 +187,14 @@ def c_dsnu(ctx):
 
 def c_hot_pixels(ctx):
     s, m = _pixel_maps(ctx)
-    offset = (m - s).min(0)  # bright in every capture
-    spread = 1.4826 * np.median(np.abs(offset - np.median(offset)))
-    hot = offset > max(8 * spread, 10.0)
+    unclipped = m < 250  # a hot pixel over a bright area clips: its offset shows only where there is headroom
+    diff = np.where(unclipped, m - s, np.nan)
+    with np.errstate(all="ignore"):
+        low = np.nanmin(diff, axis=0)  # bright in every capture that can show it
+        offset = np.nanmean(diff, axis=0)
+    low, offset = np.nan_to_num(low), np.nan_to_num(offset)
+    spread = 1.4826 * np.median(np.abs(low - np.median(low)))
+    hot = low > max(8 * spread, 10.0)
     if not hot.any():
         return None
     sparse = np.where(hot, offset, 0.0).astype(np.float32)
@@ -336,14 +341,9 @@ class Diagnosis:
                 "candidates": [c.as_json() for c in self.candidates], "where": self.comparison.where}
 
 
-def diagnose(mset, profile, only=None, workdir=None, progress=None) -> Diagnosis:
-    """Rank the candidates (all of :data:`CANDIDATES`, or ``only``) for a measurement set."""
-    workdir = Path(workdir or tempfile.mkdtemp(prefix="lowcam-diagnose-"))
-    workdir.mkdir(parents=True, exist_ok=True)
-    ctx = Context(mset, profile, workdir)
-    base = ctx.compare(profile)
+def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
+    """Fit every named candidate on ``ctx.profile`` and rank them by score."""
     out = []
-    names = list(only or CANDIDATES)
     for i, name in enumerate(names):
         if progress:
             progress(i, len(names), name)
@@ -354,10 +354,37 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None) -> Diagnosis
         after = ctx.compare(cand_profile).error
         out.append(Candidate(name, after, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
                                            for k, v in params.items()},
-                             f"{evidence}; error {base.error:.2f} -> {after:.2f}", cand_profile,
-                             name in ("prnu", "dsnu"), len(mset.captures)))
+                             f"{evidence}; error {base_error:.2f} -> {after:.2f}", cand_profile,
+                             name in ("prnu", "dsnu"), len(ctx.mset.captures)))
     out.sort(key=lambda c: c.score)
-    return Diagnosis(base, out)
+    return out
+
+
+def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2) -> Diagnosis:
+    """Rank the candidates (all of :data:`CANDIDATES`, or ``only``) for a measurement set.
+
+    Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
+    with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
+    later candidate's ``error_after`` then includes the ones before it.
+    """
+    workdir = Path(workdir or tempfile.mkdtemp(prefix="lowcam-diagnose-"))
+    ctx = Context(mset, profile, workdir)
+    base = ctx.compare(profile)
+    names = list(only or CANDIDATES)
+    ranked = rank(ctx, base.error, names, progress)
+    chosen: list[Candidate] = []
+    for _ in range(rounds - 1):
+        if not ranked or ranked[0].error_after <= EXPLAINED_BELOW:
+            break
+        best = ranked[0]
+        chosen.append(best)
+        ctx = Context(mset, best.profile, workdir / f"after-{best.effect}")
+        remaining = [n for n in names if n not in {c.effect for c in chosen}]
+        again = rank(ctx, best.error_after, remaining, progress)
+        for c in again:
+            c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
+        ranked = again
+    return Diagnosis(base, chosen + ranked)
 
 
 def save_candidate_profile(candidate: Candidate, path) -> Path:
