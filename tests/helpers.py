@@ -58,26 +58,12 @@ def slanted_squares(width=1600, height=1200, supersample=4) -> np.ndarray:
     return opaque(cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA))
 
 
-def chessboard_view(profile, rvec, tvec, width=1600, inner=(9, 6), square=0.025, px_per_square=60):
-    """A pinhole render of a printed chessboard (inner corners ``inner``, ``square`` m) at pose (rvec, tvec)."""
-    import cv2
+def chessboard_view(profile, rvec, tvec, width=1600):
+    """A pinhole render of a printed 9x6 chessboard (25 mm squares) at pose (rvec, tvec), on a light wall."""
+    from lowcam.measure.targets import render_board_view
 
-    half_x, _ = render_field_of_view(profile)
-    height = width * profile.camera.height // profile.camera.width
-    f = width / (2 * half_x)
-    cols, rows = inner[0] + 1, inner[1] + 1
-    border = 1
-    board = np.full(((rows + 2 * border) * px_per_square, (cols + 2 * border) * px_per_square), 0.9, np.float32)
-    for i in range(rows):
-        for j in range(cols):
-            if (i + j) % 2 == 0:
-                y0, x0 = (i + border) * px_per_square, (j + border) * px_per_square
-                board[y0:y0 + px_per_square, x0:x0 + px_per_square] = 0.1
-    k = np.array([[f, 0, width / 2 - 0.5], [0, f, height / 2 - 0.5], [0, 0, 1]])
-    r = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
-    # board pixel (u, v) -> board metres, with the first inner corner at the origin
-    s = square / px_per_square
-    to_m = np.array([[s, 0, -(border + 1) * square + 0.5 * s], [0, s, -(border + 1) * square + 0.5 * s], [0, 0, 1]])
-    h = k @ np.column_stack([r[:, 0], r[:, 1], np.asarray(tvec, np.float64)]) @ to_m
-    img = cv2.warpPerspective(board, h, (width, height), flags=cv2.INTER_AREA, borderValue=0.9)
-    return opaque(img)
+    board = render_board_view(profile, rvec, tvec, width=width)
+    out = board.copy()
+    out[..., :3] += 0.9 * (1 - board[..., 3:])
+    out[..., 3] = 1.0
+    return out
