@@ -302,22 +302,18 @@ def _sampling_plot(state: SimState) -> np.ndarray:
     """Arrows of the chromatic-aberration offsets (x10; red and blue) and motion streaks (white)."""
     import cv2
 
-    from .geometry import grid_points
+    from .geometry import grid_points, sample_texture
 
     g = state.geometry
     img = np.full((g.height, g.width, 3), 40, np.uint8)
     u, v = grid_points(g.frame_extent)
     if state.ca_grid is not None:
-        from .geometry import sample_texture
-
         ca = sample_texture(state.ca_grid, g.frame_extent, u, v)
         for (uu, vv, d) in zip(u.ravel(), v.ravel(), ca.reshape(-1, 4)):
             for c, colour in ((0, (255, 60, 60)), (2, (80, 120, 255))):
                 cv2.arrowedLine(img, (int(uu), int(vv)), (int(uu + 10 * d[c]), int(vv + 10 * d[c + 1])), colour, 1,
                                 tipLength=0.3)
     if state.motion_taps is not None:
-        from .geometry import sample_texture
-
         taps = sample_texture(state.motion_taps, g.working_extent, u, v).reshape(u.shape + (-1, 2))
         for (uu, vv, t) in zip(u.ravel(), v.ravel(), taps.reshape(-1, taps.shape[-2], 2)):
             pts = np.round(np.stack([uu + t[:, 0], vv + t[:, 1]], -1)).astype(np.int32)

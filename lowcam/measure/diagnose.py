@@ -165,24 +165,25 @@ def _pixel_maps(ctx):
     return s, m
 
 
+def _with_map(ctx, effect: str, values: np.ndarray, **params):
+    """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy), and its params."""
+    path = ctx.workdir / f"{effect}.npy"
+    np.save(path, values.astype(np.float32))
+    return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path), **params}
+
+
 def c_prnu(ctx):
     s, m = _pixel_maps(ctx)
     gain = ((m - s) * s).sum(0) / np.maximum((s * s).sum(0), 1e-6)
-    path = ctx.workdir / "prnu.npy"
-    np.save(path, gain.astype(np.float32))
-    return ctx.profile.with_effect("prnu", replace=True, texture=str(path)), {"texture": str(path),
-                                                                             "sigma": float(gain.std())}, \
-        f"a fixed per-pixel gain pattern, sigma {100 * gain.std():.2f} %, proportional to brightness"
+    return (*_with_map(ctx, "prnu", gain, sigma=float(gain.std())),
+            f"a fixed per-pixel gain pattern, sigma {100 * gain.std():.2f} %, proportional to brightness")
 
 
 def c_dsnu(ctx):
     s, m = _pixel_maps(ctx)
     offset = (m - s).mean(0)
-    path = ctx.workdir / "dsnu.npy"
-    np.save(path, offset.astype(np.float32))
-    return ctx.profile.with_effect("dsnu", replace=True, texture=str(path)), {"texture": str(path),
-                                                                             "sigma_dn": float(offset.std())}, \
-        f"a fixed per-pixel offset pattern, sigma {offset.std():.2f} DN, the same at every brightness"
+    return (*_with_map(ctx, "dsnu", offset, sigma_dn=float(offset.std())),
+            f"a fixed per-pixel offset pattern, sigma {offset.std():.2f} DN, the same at every brightness")
 
 
 def c_hot_pixels(ctx):
@@ -197,13 +198,9 @@ def c_hot_pixels(ctx):
     hot = low > max(8 * spread, 10.0)
     if not hot.any():
         return None
-    sparse = np.where(hot, offset, 0.0).astype(np.float32)
-    path = ctx.workdir / "hot_pixels.npy"
-    np.save(path, sparse)
     n = int(hot.any(axis=-1).sum())
-    return ctx.profile.with_effect("hot_pixels", replace=True, texture=str(path)), {"texture": str(path),
-                                                                                   "count": n}, \
-        f"{n} pixels stay bright by {np.median(offset[hot]):.0f} DN or more in every capture"
+    return (*_with_map(ctx, "hot_pixels", np.where(hot, offset, 0.0), count=n),
+            f"{n} pixels stay bright by {np.median(offset[hot]):.0f} DN or more in every capture")
 
 
 def c_row_noise(ctx):
