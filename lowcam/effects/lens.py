@@ -343,21 +343,24 @@ class LensDistortion(Effect):
         return BlenderLens(width, height, self.model, self.focal_length, self.sensor_width,
                            tuple(self.principal_point), self.pixel_aspect, **coefficients)
 
+    def render_coordinates(self, state, render_shape) -> tuple[np.ndarray, np.ndarray]:
+        """Render pixel coordinates (x, y), float32, of every supersampled working-grid pixel: where each one
+        looks in a render of ``render_shape`` (rows, cols); pixel centres are integers."""
+        from ..pipeline import render_focal_px
+
+        u, v = state.geometry.working_pixel_centres(factor=2)
+        x, y = state.lens.undistort(u, v)
+        hr, wr = render_shape
+        focal = render_focal_px(state.profile, wr, hr)
+        return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+
     def render_maps(self, state, render_shape):
         """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""
         key = (render_shape, state.geometry, self.enabled, repr(self.values()))
         if key not in self._maps:
-            from ..pipeline import render_focal_px
-
-            u, v = state.geometry.working_pixel_centres(factor=2)
-            x, y = state.lens.undistort(u, v)
-            hr, wr = render_shape
-            focal = render_focal_px(state.profile, wr, hr)
-            map_x = (focal * x + wr / 2.0 - 0.5).astype(np.float32)
-            map_y = (focal * y + hr / 2.0 - 0.5).astype(np.float32)
             if len(self._maps) > 8:
                 self._maps.clear()
-            self._maps[key] = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
+            self._maps[key] = cv2.convertMaps(*self.render_coordinates(state, render_shape), cv2.CV_16SC2)
         return self._maps[key]
 
     def apply(self, state):

@@ -1,0 +1,389 @@
+"""Build the "Lowcam Camera" compositor node group, one node group per stage, from built-in nodes only.
+
+Python-defined nodes crash Blender's compositor at render time, so every pixel operation here is a built-in node:
+Map UV (lens, half-sampling, Bayer sampling with chromatic aberration and motion taps, demosaicing, chroma),
+Convolve (half-sampling box, spatial blur levels, horizontal blur, sharpening, 4-pixel chroma boxes), Image
+Coordinates with floored modulo (Bayer masks), White Noise driven by the scene frame (sensor noise), and Math
+nodes (matrices, quantisation, YUV, blending). The images come from :mod:`nodes.maps`, i.e. from the engine.
+
+Units inside the group: the working image is the render (premultiplied, linear); from Bayer sampling on values
+are DN / 255; the group's output is linear light that the Standard view transform turns back into those codes.
+"""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
+
+from .maps import CameraBake, bake
+
+PREFIX = "Lowcam"
+STAGE_LABELS = {
+    "lens_distortion": "Lens Distortion", "half_sampling": "Half Sampling", "crosstalk": "Crosstalk",
+    "spatial_blur": "Spatial Blur", "bayer_sampling": "Bayer Sampling", "vignetting": "Vignetting",
+    "noise": "Noise", "horizontal_blur": "Horizontal Blur", "sharpening": "Sharpening",
+    "quantisation": "Quantisation", "demosaic": "Demosaic", "saturation": "Saturation", "yuv_blend": "YUV Blend",
+    "chroma_subsampling": "Chroma Subsampling", "plate_blend": "Plate Blend",
+}
+#: Stages whose effect is baked into a later stage's maps (motion taps and aberration live in Bayer sampling).
+BAKED_INTO_MAPS = ("motion_blur", "chromatic_aberration")
+#: What each stage's sockets carry: "image" RGBA, "mosaic" (R value, G alpha), "rgb" (+ "Alpha"), "yuv" delta.
+STAGE_INPUT = {"lens_distortion": "image", "half_sampling": "image", "crosstalk": "image", "spatial_blur": "image",
+               "bayer_sampling": "image", "vignetting": "mosaic", "noise": "mosaic", "horizontal_blur": "mosaic",
+               "sharpening": "mosaic", "quantisation": "mosaic", "demosaic": "mosaic", "saturation": "rgb",
+               "yuv_blend": "rgb", "chroma_subsampling": "yuv", "plate_blend": "yuv"}
+
+
+def image_from_array(name: str, array: np.ndarray) -> bpy.types.Image:
+    """A float, non-colour Blender image holding ``array`` ((rows, cols), (rows, cols, 4); top row first),
+    packed into the .blend so the group travels as an asset. A 2-D array fills all four channels (so a
+    convolution kernel filters alpha too)."""
+    a = np.asarray(array, np.float32)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 4, axis=-1)
+    h, w = a.shape[:2]
+    image = bpy.data.images.get(name)
+    if image is not None and tuple(image.size) != (w, h):
+        bpy.data.images.remove(image)
+        image = None
+    if image is None:
+        image = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True, is_data=True)
+    image.colorspace_settings.is_data = True
+    image.pixels.foreach_set(np.ascontiguousarray(a[::-1]).ravel())
+    image.pack()
+    image.use_fake_user = True
+    return image
+
+
+class Tree:
+    """Small helpers over a compositor node tree: each returns an output socket."""
+
+    def __init__(self, tree):
+        self.tree = tree
+        self.nodes, self.links = tree.nodes, tree.links
+
+    def node(self, kind, **inputs):
+        n = self.nodes.new(kind)
+        for key, value in inputs.items():
+            self.set(n.inputs[key], value)
+        return n
+
+    def set(self, socket, value):
+        if isinstance(value, bpy.types.NodeSocket):
+            self.links.new(value, socket)
+        else:
+            socket.default_value = value
+
+    def math(self, op, a, b=0.0, c=0.0):
+        n = self.nodes.new("ShaderNodeMath")
+        n.operation = op
+        for socket, value in zip(n.inputs, (a, b, c)):
+            self.set(socket, value)
+        return n.outputs[0]
+
+    def add(self, *terms):
+        out = terms[0]
+        for t in terms[1:]:
+            out = self.math("ADD", out, t)
+        return out
+
+    def lerp(self, a, b, t):
+        return self.math("MULTIPLY_ADD", self.math("SUBTRACT", b, a), t, a)
+
+    def separate(self, image):
+        n = self.node("CompositorNodeSeparateColor", Image=image)
+        return list(n.outputs[:4])
+
+    def combine(self, r, g, b, a=1.0):
+        n = self.nodes.new("CompositorNodeCombineColor")
+        for socket, value in zip(n.inputs, (r, g, b, a)):
+            self.set(socket, value)
+        return n.outputs[0]
+
+    def image(self, bpy_image):
+        n = self.nodes.new("CompositorNodeImage")
+        n.image = bpy_image
+        return n.outputs[0]
+
+    def map_uv(self, image, uv_image):
+        return self.node("CompositorNodeMapUV", Image=image, UV=self.image(uv_image)).outputs[0]
+
+    def convolve(self, image, kernel_image):
+        n = self.node("CompositorNodeConvolve", Image=image)
+        n.inputs["Kernel Data Type"].default_value = "Color"
+        n.inputs["Normalize Kernel"].default_value = False
+        self.links.new(self.image(kernel_image), n.inputs[3])
+        return n.outputs[0]
+
+    def matrix(self, m, vector):
+        """3x3 ``m`` (row-major list) times the three sockets ``vector``."""
+        rows = []
+        for r in range(3):
+            acc = self.math("MULTIPLY", vector[0], m[3 * r])
+            for c in (1, 2):
+                acc = self.math("MULTIPLY_ADD", vector[c], m[3 * r + c], acc)
+            rows.append(acc)
+        return rows
+
+    def per_channel(self, image, fn, alpha_too=False):
+        r, g, b, a = self.separate(image)
+        return self.combine(fn(r), fn(g), fn(b), fn(a) if alpha_too else a)
+
+
+def _new_group(name: str, inputs, outputs):
+    group = bpy.data.node_groups.get(name)
+    if group is not None:
+        bpy.data.node_groups.remove(group)
+    group = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    for socket_name, kind in inputs:
+        group.interface.new_socket(name=socket_name, in_out="INPUT", socket_type=kind)
+    for socket_name, kind in outputs:
+        group.interface.new_socket(name=socket_name, in_out="OUTPUT", socket_type=kind)
+    group.use_fake_user = True
+    t = Tree(group)
+    t.inp = t.nodes.new("NodeGroupInput")
+    t.out = t.nodes.new("NodeGroupOutput")
+    return group, t
+
+
+# --- one function per stage: (tree, input sockets, bake, image namer) -> output sockets ---------------------------
+
+def _lens_distortion(t, s, b, img):
+    return {"Image": t.map_uv(s["Image"], img("lens_uv"))}
+
+
+def _half_sampling(t, s, b, img):
+    return {"Image": t.convolve(t.map_uv(s["Image"], img("half_uv")), img("half_kernel"))}
+
+
+def _crosstalk(t, s, b, img):
+    r, g, bl, a = t.separate(s["Image"])
+    return {"Image": t.combine(*t.matrix(b.values["crosstalk_matrix"], (r, g, bl)), a)}
+
+
+def _spatial_blur(t, s, b, img):
+    out = None
+    for i, _ in enumerate(b.values["blur_levels"]):
+        level = t.convolve(s["Image"], img(f"blur_kernel_{i}"))
+        if out is None:
+            out = level
+            continue
+        mix = t.separate(t.image(img(f"blur_mix_{i}")))[0]
+        ca, cb = t.separate(out), t.separate(level)
+        out = t.combine(*(t.lerp(x, y, mix) for x, y in zip(ca, cb)))
+    return {"Image": out}
+
+
+def _bayer_masks(t, mosaic, cfa):
+    """Per-pixel masks of the red, green and blue sensels of the mosaic (Image Coordinates, floored modulo 2)."""
+    coords = t.node("CompositorNodeImageCoordinates", Image=mosaic).outputs["Pixel"]
+    xyz = t.node("ShaderNodeSeparateXYZ", Vector=coords).outputs
+    col = t.math("FLOORED_MODULO", t.math("FLOOR", xyz[0]), 2.0)
+    row_from_bottom = t.math("FLOORED_MODULO", t.math("FLOOR", xyz[1]), 2.0)
+    row = t.math("SUBTRACT", 1.0, row_from_bottom)     # the mosaic has an even number of rows
+    masks = {"R": 0.0, "G": 0.0, "B": 0.0}
+    for name, (dy, dx) in cfa.items():
+        on = t.math("MULTIPLY", t.math("COMPARE", col, float(dx), 0.25), t.math("COMPARE", row, float(dy), 0.25))
+        key = name[0]
+        masks[key] = on if isinstance(masks[key], float) else t.math("ADD", masks[key], on)
+    return masks
+
+
+def _bayer_sampling(t, s, b, img):
+    taps = [t.map_uv(s["Image"], img(f"bayer_uv_{i}")) for i in range(b.values["bayer_taps"])]
+    sums = [t.separate(x) for x in taps]
+    channels = [t.add(*(c[k] for c in sums)) for k in range(4)]
+    scale = 1.0 / (len(taps) * b.values["render_white"])
+    m = _bayer_masks(t, taps[0], b.values["cfa"])
+    value = t.add(*(t.math("MULTIPLY", channels[k], m[key]) for k, key in enumerate("RGB")))
+    return {"Image": t.combine(t.math("MULTIPLY", value, scale), t.math("MULTIPLY", channels[3], 1.0 / len(taps)),
+                               0.0, 1.0)}
+
+
+def _vignetting(t, s, b, img):
+    v, a, _, _ = t.separate(s["Image"])
+    gain = t.separate(t.image(img("vignetting_gain")))[0]
+    return {"Image": t.combine(t.math("MULTIPLY", v, gain), a, 0.0, 1.0)}
+
+
+def _noise(t, s, b, img):
+    """Gaussian noise per sensel by Box-Muller from two White Noise values of (pixel, frame + 1000 seed)."""
+    v, a, _, _ = t.separate(s["Image"])
+    coords = t.node("CompositorNodeImageCoordinates", Image=s["Image"]).outputs["Pixel"]
+    frame = t.nodes.new("CompositorNodeSceneTime").outputs["Frame"]
+    w = t.math("MULTIPLY_ADD", s["Seed"], 1000.0, frame)
+    white = t.nodes.new("ShaderNodeTexWhiteNoise")
+    white.noise_dimensions = "4D"
+    t.set(white.inputs["Vector"], coords)
+    t.set(white.inputs["W"], w)
+    u1 = t.math("MAXIMUM", white.outputs["Value"], 1e-7)
+    u2 = t.separate(white.outputs["Color"])[0]
+    z = t.math("MULTIPLY", t.math("SQRT", t.math("MULTIPLY", t.math("LOGARITHM", u1, np.e), -2.0)),
+               t.math("COSINE", t.math("MULTIPLY", u2, 2 * np.pi)))
+    m = _bayer_masks(t, s["Image"], b.values["cfa"])
+    coeff = b.values["noise"]
+    pick = lambda i: t.add(*(t.math("MULTIPLY", m[k], coeff[c][i])  # noqa: E731
+                             for k, c in zip("RGB", ("red", "green", "blue"))))
+    mean_dn = t.math("MINIMUM", t.math("MAXIMUM", t.math("MULTIPLY", t.math("DIVIDE", v, t.math("MAXIMUM", a, 1e-6)),
+                                                                      255.0), 0.0), 255.0)
+    law = t.math("MULTIPLY_ADD", pick(1), mean_dn, pick(0))
+    sigma_dn = law if b.values["noise_law"] == "sigma_linear" else t.math("SQRT", law)
+    alpha = t.math("MINIMUM", t.math("MAXIMUM", a, 0.0), 1.0)
+    noise = t.math("MULTIPLY", t.math("MULTIPLY", z, alpha), t.math("DIVIDE", sigma_dn, 255.0))
+    return {"Image": t.combine(t.math("MULTIPLY_ADD", noise, s["Strength"], v), a, 0.0, 1.0)}
+
+
+def _kernel_stage(name):
+    def stage(t, s, b, img):
+        return {"Image": t.convolve(s["Image"], img(f"{name}_kernel"))}
+    return stage
+
+
+def _quantisation(t, s, b, img):
+    v, a, _, _ = t.separate(s["Image"])
+    step = b.values["quantisation_step_dn"] / 255.0
+    clipped = t.math("MINIMUM", t.math("MAXIMUM", v, -1.0), 2.0)
+    q = t.math("MULTIPLY", t.math("ROUND", t.math("DIVIDE", clipped, step)), step)
+    return {"Image": t.combine(q, a, 0.0, 1.0)}
+
+
+def _demosaic(t, s, b, img):
+    picked = {name: t.separate(t.map_uv(s["Image"], img(f"demosaic_uv_{name}"))) for name in ("R", "Gr", "Gb", "B")}
+    green = [t.math("MULTIPLY", t.math("ADD", picked["Gr"][i], picked["Gb"][i]), 0.5) for i in (0, 1)]
+    return {"Image": t.combine(picked["R"][0], green[0], picked["B"][0], 1.0),
+            "Alpha": t.combine(picked["R"][1], green[1], picked["B"][1], 1.0)}
+
+
+def _saturation(t, s, b, img):
+    rgb = t.separate(s["Image"])[:3]
+    return {"Image": t.combine(*t.matrix(b.values["saturation_matrix"], rgb), 1.0), "Alpha": s["Alpha"]}
+
+
+def _linear_to_code(t, x):
+    """sRGB encoding (what Blender's Standard view applies to the plate), rounded to 8-bit codes (as DN / 255)."""
+    lo = t.math("MULTIPLY", x, 12.92)
+    hi = t.math("SUBTRACT", t.math("MULTIPLY", t.math("POWER", t.math("MAXIMUM", x, 0.0), 1 / 2.4), 1.055), 0.055)
+    c = t.lerp(hi, lo, t.math("LESS_THAN", x, 0.0031308))
+    return t.math("DIVIDE", t.math("ROUND", t.math("MULTIPLY", c, 255.0)), 255.0)
+
+
+def _code_to_linear(t, c):
+    lo = t.math("DIVIDE", c, 12.92)
+    hi = t.math("POWER", t.math("DIVIDE", t.math("ADD", c, 0.055), 1.055), 2.4)
+    return t.lerp(hi, lo, t.math("LESS_THAN", c, 0.04045))
+
+
+def _yuv_blend(t, s, b, img):
+    """``delta = rgb - S (alpha * S^+ plate)`` in YUV (lowcam.effects.yuv.YuvBlend)."""
+    plate = [_linear_to_code(t, x) for x in t.separate(s["Plate"])[:3]]
+    rgb = t.separate(s["Image"])[:3]
+    alpha = t.separate(s["Alpha"])[:3]
+    if "saturation_inverse" in b.values:
+        plate = t.matrix(b.values["saturation_inverse"], plate)
+    covered = [t.math("MULTIPLY", a, p) for a, p in zip(alpha, plate)]
+    if "saturation_matrix" in b.values:
+        covered = t.matrix(b.values["saturation_matrix"], covered)
+    delta = [t.math("SUBTRACT", x, c) for x, c in zip(rgb, covered)]
+    return {"Image": t.combine(*t.matrix(RGB_TO_YUV.ravel().tolist(), delta), 1.0)}
+
+
+def _chroma_subsampling(t, s, b, img):
+    y = t.separate(s["Image"])[0]
+    boxed = t.separate(t.map_uv(t.convolve(s["Image"], img("chroma_kernel")), img("chroma_uv")))
+    return {"Image": t.combine(y, boxed[1], boxed[2], 1.0)}
+
+
+def _plate_blend(t, s, b, img):
+    """``frame = plate + YUV^-1 delta``, rounded to 8-bit codes and returned as linear light."""
+    plate = [_linear_to_code(t, x) for x in t.separate(s["Plate"])[:3]]
+    delta = t.matrix(YUV_TO_RGB.ravel().tolist(), t.separate(s["Image"])[:3])
+    out = []
+    for p, d in zip(plate, delta):
+        c = t.math("MINIMUM", t.math("MAXIMUM", t.math("ADD", p, d), 0.0), 1.0)
+        out.append(_code_to_linear(t, t.math("DIVIDE", t.math("ROUND", t.math("MULTIPLY", c, 255.0)), 255.0)))
+    return {"Image": t.combine(*out, 1.0)}
+
+
+STAGE_BUILDERS = {
+    "lens_distortion": _lens_distortion, "half_sampling": _half_sampling, "crosstalk": _crosstalk,
+    "spatial_blur": _spatial_blur, "bayer_sampling": _bayer_sampling, "vignetting": _vignetting, "noise": _noise,
+    "horizontal_blur": _kernel_stage("horizontal_blur"), "sharpening": _kernel_stage("sharpening"),
+    "quantisation": _quantisation, "demosaic": _demosaic, "saturation": _saturation, "yuv_blend": _yuv_blend,
+    "chroma_subsampling": _chroma_subsampling, "plate_blend": _plate_blend,
+}
+
+
+def stage_sockets(stage: str):
+    """(inputs, outputs) of a stage's group as (name, socket type) pairs."""
+    colour = "NodeSocketColor"
+    inputs = [("Image", colour)]
+    if STAGE_INPUT[stage] == "rgb":
+        inputs.append(("Alpha", colour))
+    if stage in ("yuv_blend", "plate_blend"):
+        inputs.append(("Plate", colour))
+    if stage == "noise":
+        inputs += [("Seed", "NodeSocketFloat"), ("Strength", "NodeSocketFloat")]
+    outputs = [("Image", colour)] + ([("Alpha", colour)] if stage in ("demosaic", "saturation") else [])
+    return inputs, outputs
+
+
+def group_name(stage: str) -> str:
+    return f"{PREFIX} {STAGE_LABELS[stage]}"
+
+
+def build_stage_group(stage: str, camera: CameraBake):
+    """The node group of one stage, its images named ``Lowcam <stage>: <what>``."""
+    inputs, outputs = stage_sockets(stage)
+    group, t = _new_group(group_name(stage), inputs, outputs)
+    if stage == "noise":
+        group.interface.items_tree["Strength"].default_value = 1.0
+    images = {}
+
+    def img(key):
+        if key not in images:
+            images[key] = image_from_array(f"{PREFIX} {STAGE_LABELS[stage]}: {key}", camera.images[key])
+        return images[key]
+
+    s = {name: t.inp.outputs[name] for name, _ in inputs}
+    result = STAGE_BUILDERS[stage](t, s, camera, img)
+    for name, _ in outputs:
+        t.links.new(result[name], t.out.inputs[name])
+    return group
+
+
+def node_stages(camera: CameraBake) -> list[str]:
+    """The stages of the group in order: the profile's, less those baked into maps, plus the plate blend."""
+    return [s for s in camera.stages if s not in BAKED_INTO_MAPS] + ["plate_blend"]
+
+
+def build_camera_group(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0, 0.0),
+                       exposure_s=None, name: str = "Lowcam Camera", until: str | None = None):
+    """Build "Lowcam Camera": inputs Image (the render, premultiplied), Plate, Seed, Noise; output Image.
+
+    ``until`` ends the chain after that stage (its raw output goes to the group's output), for parity checks.
+    Returns the group; its stage groups are ``group["lowcam_stages"]``.
+    """
+    camera = bake(profile, render_shape, angular_velocity, exposure_s)
+    stages = node_stages(camera)
+    if until is not None:
+        stages = stages[:stages.index(until) + 1]
+    group, t = _new_group(name, [("Image", "NodeSocketColor"), ("Plate", "NodeSocketColor"),
+                                 ("Seed", "NodeSocketFloat"), ("Noise", "NodeSocketFloat")],
+                          [("Image", "NodeSocketColor")])
+    group.interface.items_tree["Noise"].default_value = 1.0
+    current = {"Image": t.inp.outputs["Image"]}
+    for i, stage in enumerate(stages):
+        node = t.nodes.new("CompositorNodeGroup")
+        node.node_tree = build_stage_group(stage, camera)
+        node.location = (200 * (i + 1), 0)
+        for name, _ in stage_sockets(stage)[0]:
+            source = {"Plate": t.inp.outputs["Plate"], "Seed": t.inp.outputs["Seed"],
+                      "Strength": t.inp.outputs["Noise"]}.get(name, current.get(name))
+            t.links.new(source, node.inputs[name])
+        current = {name: node.outputs[name] for name, _ in stage_sockets(stage)[1]}
+    t.links.new(current["Image"], t.out.inputs["Image"])
+    t.out.location = (200 * (len(stages) + 1), 0)
+    group["lowcam_stages"] = stages
+    group["lowcam_profile"] = str(camera.profile.source)
+    return group

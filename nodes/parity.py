@@ -1,0 +1,122 @@
+"""Node group against engine: render each stage of "Lowcam Camera" with Blender's compositor and compare it with
+the engine's state after the same effect, noise off. Mean absolute differences are in DN (1/255)."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from lowcam.io import read_exr, read_image
+from lowcam.pipeline import run
+from lowcam.profile import load_profile
+
+from .build import build_camera_group, image_from_array
+from .maps import planes_to_mosaic
+
+
+def _engine_stage(state, stage: str, frame: np.ndarray) -> np.ndarray:
+    """The engine's state after ``stage`` in the node group's units (DN from Bayer sampling on)."""
+    if stage in ("lens_distortion", "half_sampling", "crosstalk", "spatial_blur"):
+        return state.working * 255.0
+    if stage in ("bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening", "quantisation"):
+        mosaic = planes_to_mosaic(np.stack([state.bayer, state.bayer_alpha * 255.0], -1), state.geometry)
+        return mosaic
+    if stage in ("demosaic", "saturation"):
+        return state.rgb
+    if stage in ("yuv_blend", "chroma_subsampling"):
+        return state.delta_yuv
+    return frame.astype(np.float32)
+
+
+def _compositor_scene(width: int, height: int):
+    scene = bpy.data.scenes.get("Lowcam parity") or bpy.data.scenes.new("Lowcam parity")
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.view_settings.view_transform = "Standard"
+    scene.render.dither_intensity = 0.0
+    scene.render.film_transparent = True
+    return scene
+
+
+def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
+    """Composite ``group`` fed by the images in ``inputs`` (socket name -> bpy image or value) at ``shape``
+    (rows, cols); EXR paths give the float output, PNG paths the 8-bit codes after the Standard view."""
+    scene = _compositor_scene(shape[1], shape[0])
+    tree = bpy.data.node_groups.new("Lowcam parity tree", "CompositorNodeTree")
+    tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    node = tree.nodes.new("CompositorNodeGroup")
+    node.node_tree = group
+    for name, value in inputs.items():
+        if isinstance(value, bpy.types.Image):
+            src = tree.nodes.new("CompositorNodeImage")
+            src.image = value
+            tree.links.new(src.outputs[0], node.inputs[name])
+        else:
+            node.inputs[name].default_value = value
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(node.outputs["Image"], out.inputs[0])
+    scene.compositing_node_group = tree
+    settings = scene.render.image_settings
+    if path.suffix == ".exr":
+        settings.file_format, settings.color_depth, settings.color_mode = "OPEN_EXR", "32", "RGBA"
+    else:
+        settings.file_format, settings.color_depth, settings.color_mode = "PNG", "8", "RGB"
+    scene.render.filepath = str(path)
+    with bpy.context.temp_override(scene=scene):
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+    bpy.data.node_groups.remove(tree)
+    if path.suffix == ".exr":
+        return next(iter(read_exr(path).values()))
+    return read_image(path)
+
+
+def plate_image(plate_u8: np.ndarray) -> bpy.types.Image:
+    """The plate as Blender loads a video frame: an sRGB 8-bit image file."""
+    from lowcam.io import write_png
+
+    folder = Path(tempfile.mkdtemp(prefix="lowcam-plate-"))
+    path = write_png(folder / "plate.png", plate_u8)
+    image = bpy.data.images.load(str(path), check_existing=False)
+    image.colorspace_settings.name = "sRGB"
+    return image
+
+
+def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_velocity=(0.0, 0.0, 0.0),
+           exposure_s=None, stages=None, out_dir=None) -> dict:
+    """{stage: {"mad": mean |node - engine| over the frame (DN), "mad_object": the same where the render
+    reaches, "max": the largest difference}} for each stage of the node group, noise off."""
+    profile = load_profile(profile)
+    quiet = profile.copy()             # the engine without noise; the group keeps its noise stage at strength 0
+    for effect in quiet.effects:
+        if effect.random:
+            effect.enabled = False
+    out_dir = Path(out_dir or tempfile.mkdtemp(prefix="lowcam-parity-"))
+    render_image = image_from_array("Lowcam parity render", render)
+    render_image.alpha_mode = "PREMUL"
+    plate = plate_image(plate_u8)
+    camera = build_camera_group(profile, render.shape[:2], angular_velocity, exposure_s, name="Lowcam parity camera")
+    all_stages = list(camera["lowcam_stages"])
+    results = {}
+    for stage in stages or all_stages:
+        engine_stop = {"plate_blend": None, "noise": all_stages[all_stages.index(stage) - 1]}.get(stage, stage)
+        result = run(render, quiet, plate_u8, angular_velocity, exposure_s, stop_after=engine_stop)
+        engine = _engine_stage(result.state, stage, result.frame if stage == "plate_blend" else None)
+        group = build_camera_group(profile, render.shape[:2], angular_velocity, exposure_s,
+                                   name="Lowcam parity camera", until=stage)
+        suffix = ".png" if stage == "plate_blend" else ".exr"
+        node = render_group(group, {"Image": render_image, "Plate": plate, "Noise": 0.0}, engine.shape[:2],
+                            out_dir / f"{stage}{suffix}")
+        node = node.astype(np.float32)
+        if stage in ("bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening", "quantisation"):
+            node = np.stack([node[..., 0], node[..., 1]], -1) * 255.0
+        elif stage != "plate_blend":
+            node = node[..., :engine.shape[-1]] * 255.0
+        diff = np.abs(node - engine)
+        reach = (np.abs(engine) > 1e-6).any(axis=-1) if stage != "plate_blend" else result.footprint
+        results[stage] = {"mad": float(diff.mean()), "max": float(diff.max()),
+                          "mad_object": float(diff[reach].mean()) if reach.any() else 0.0}
+    return results
