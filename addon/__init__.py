@@ -1,18 +1,31 @@
-"""Blender glue: properties, operators, panels, handlers. It calls the engine in ``lowcam``; it reimplements
-nothing. (The full add-on is the Blender issue; this registers cleanly so the extension installs.)"""
+"""Blender glue: properties, operators, panels, handlers and the compositor nodes. It calls the engine in
+``lowcam``; it reimplements nothing."""
 
-_classes = ()
+
+def _modules():
+    from . import handlers, operators, panels, properties
+    from ..nodes import custom  # the extension's root package holds addon/ and nodes/ (lowcam.extension)
+
+    return properties, operators, panels, handlers, custom
 
 
 def register():
     import bpy
 
-    for cls in _classes:
+    properties, operators, panels, handlers, custom = _modules()
+    for cls in properties.classes + operators.classes + panels.classes:
         bpy.utils.register_class(cls)
+    properties.register()
+    handlers.register()
+    custom.register()
 
 
 def unregister():
     import bpy
 
-    for cls in reversed(_classes):
+    properties, operators, panels, handlers, custom = _modules()
+    custom.unregister()
+    handlers.unregister()
+    properties.unregister()
+    for cls in reversed(properties.classes + operators.classes + panels.classes):
         bpy.utils.unregister_class(cls)

@@ -105,30 +105,67 @@ def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_lab
 
 
 def cmd_demo(args) -> int:
-    from .io import read_plate, read_render, write_exr, write_png
-    from .pipeline import plain_composite, run
+    """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
+    and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
+    from .io import read_plate, write_png
+    from .pipeline import plain_composite
     from .profile import load_profile
-    from .sample import sample_plate, sample_render
 
-    out = Path(args.output)
+    out = Path(args.output).resolve()
     profile = load_profile(args.profile)
-    steps = ["making the sample scene", "simulating the camera", "writing the composites"]
+    steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
     say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
     say(0)
-    write_exr(out / "sample_render.exr", sample_render(profile, args.render_width))
-    write_png(out / "sample_plate.png", sample_plate(profile))
-    render = read_render(out / "sample_render.exr")
-    plate = read_plate(out / "sample_plate.png", profile.camera.width, profile.camera.height)
-    say(1)
-    w = args.angular_velocity
-    result = run(render, profile, plate, w, None, args.seed, 0)
-    plain = plain_composite(render, profile, plate)
+    if args.synthetic:
+        from .io import write_exr
+        from .pipeline import run
+        from .sample import sample_plate, sample_render
+
+        render = sample_render(profile, args.render_width)
+        write_exr(out / "sample_render.exr", render)
+        plate = sample_plate(profile)
+        say(1)
+        frame = run(render, profile, plate, args.angular_velocity, None, args.seed, 0).frame
+        title = f"lowcam ({profile.name}), w = {args.angular_velocity} rad/s"
+    else:
+        from .extension import submodule
+        from .scene import OVERLAY_LAYER, over_frame, overlay_in_frame, read_layers
+
+        blend = submodule("addon.sample").build_sample_scene(out, args.profile, args.render_width)
+        say(1)
+        t0 = time.perf_counter()
+        composite = submodule("addon.render").render(blend, [1], str(out / "lowcam" / "####.png"), force=True,
+                                                     keep_renders=str(out / "render"))[0]
+        print(f"      rendered and simulated in {time.perf_counter() - t0:.1f} s", flush=True)
+        from .io import read_image
+
+        frame = read_image(composite)
+        render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
+        plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
+        title = f"lowcam ({profile.name}), camera panning"
     say(2)
-    write_png(out / "lowcam.png", result.frame)
+    plain = plain_composite(render, profile, plate)
+    if not args.synthetic:
+        plain = over_frame(plain, overlay_in_frame(overlay, profile))
+    write_png(out / "lowcam.png", frame)
     write_png(out / "plain.png", plain)
-    write_png(out / "side_by_side.png", side_by_side(plain, result.frame, "plain composite",
-                                                     f"lowcam ({profile.name}), w = {w} rad/s"))
+    write_png(out / "side_by_side.png", side_by_side(plain, frame, "plain composite", title))
     print(f"{out / 'side_by_side.png'}: plain composite (left) next to the {profile.name} camera (right)")
+    return 0
+
+
+def cmd_render(args) -> int:
+    from tqdm import tqdm
+
+    from .batch import parse_frames
+    from .extension import submodule
+
+    frames = parse_frames(args.frames)
+    bar = tqdm(total=len(frames), unit="frame", desc="lowcam render")
+    written = submodule("addon.render").render(args.blend, frames, args.output, args.force,
+                                               progress=lambda f, p: bar.update(1))
+    bar.close()
+    print(f"{len(written)} composites in {written[0].parent if written else args.output}")
     return 0
 
 
@@ -424,8 +461,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
     p.add_argument("--angular-velocity", type=_vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--render-width", type=int, default=1600, help="width of the sample render (px)")
+    p.add_argument("--render-width", type=int, default=800, help="width of the sample render (px)")
+    p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
+    p.add_argument("blend", help="the .blend file (its scene's Lowcam settings are used)")
+    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
+    p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
+    p.set_defaults(func=cmd_render)
     return parser
 
 

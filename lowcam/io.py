@@ -74,8 +74,8 @@ def read_exr(path) -> dict[str, np.ndarray]:
 
     path = _exists(path)
     try:
-        with OpenEXR.File(str(path)) as f:
-            return {name: np.asarray(ch.pixels, np.float32) for name, ch in f.channels().items()}
+        with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
+            return {name: np.asarray(ch.pixels, np.float32) for part in f.parts for name, ch in part.channels.items()}
     except Exception as e:  # OpenEXR raises bare RuntimeErrors for corrupt files
         raise LowcamError(f"{path}: not a readable OpenEXR file ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
 

@@ -113,6 +113,15 @@ def render_focal_px(profile: Profile, width: int, height: int) -> float:
     return focal
 
 
+def render_pixel_coordinates(profile: Profile, u, v, render_shape) -> tuple[np.ndarray, np.ndarray]:
+    """Where output-frame points (u, v) (output pixels, through the lens) lie in a render of ``render_shape``
+    (rows, cols): float32 render pixel coordinates, centres at integers (cv2.remap maps)."""
+    x, y = profile.lens.undistort(u, v)
+    hr, wr = render_shape
+    focal = render_focal_px(profile, wr, hr)
+    return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+
+
 def render_camera(profile, width: int | None = None, height: int | None = None) -> dict:
     """The pinhole camera a renderer must use: horizontal field of view (deg), sensor fit and resolution.
 

@@ -133,9 +133,10 @@ class Tree:
 
 def _new_group(name: str, inputs, outputs):
     group = bpy.data.node_groups.get(name)
-    if group is not None:
-        bpy.data.node_groups.remove(group)
-    group = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    if group is None:
+        group = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    group.nodes.clear()                 # rebuilt in place, so nodes that use the group keep it
+    group.interface.clear()
     for socket_name, kind in inputs:
         group.interface.new_socket(name=socket_name, in_out="INPUT", socket_type=kind)
     for socket_name, kind in outputs:
@@ -332,17 +333,18 @@ def group_name(stage: str) -> str:
     return f"{PREFIX} {STAGE_LABELS[stage]}"
 
 
-def build_stage_group(stage: str, camera: CameraBake):
-    """The node group of one stage, its images named ``Lowcam <stage>: <what>``."""
+def build_stage_group(stage: str, camera: CameraBake, name: str | None = None):
+    """The node group of one stage (named ``name``, default "Lowcam <Stage>"), its images ``<name>: <what>``."""
     inputs, outputs = stage_sockets(stage)
-    group, t = _new_group(group_name(stage), inputs, outputs)
+    name = name or group_name(stage)
+    group, t = _new_group(name, inputs, outputs)
     if stage == "noise":
         group.interface.items_tree["Strength"].default_value = 1.0
     images = {}
 
     def img(key):
         if key not in images:
-            images[key] = image_from_array(f"{PREFIX} {STAGE_LABELS[stage]}: {key}", camera.images[key])
+            images[key] = image_from_array(f"{name}: {key}", camera.images[key])
         return images[key]
 
     s = {name: t.inp.outputs[name] for name, _ in inputs}
@@ -375,7 +377,7 @@ def build_camera_group(profile="fire-i", render_shape=(1200, 1600), angular_velo
     current = {"Image": t.inp.outputs["Image"]}
     for i, stage in enumerate(stages):
         node = t.nodes.new("CompositorNodeGroup")
-        node.node_tree = build_stage_group(stage, camera)
+        node.node_tree = build_stage_group(stage, camera, f"{name}: {STAGE_LABELS[stage]}")
         node.location = (200 * (i + 1), 0)
         for name, _ in stage_sockets(stage)[0]:
             source = {"Plate": t.inp.outputs["Plate"], "Seed": t.inp.outputs["Seed"],

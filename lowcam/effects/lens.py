@@ -346,13 +346,10 @@ class LensDistortion(Effect):
     def render_coordinates(self, state, render_shape) -> tuple[np.ndarray, np.ndarray]:
         """Render pixel coordinates (x, y), float32, of every supersampled working-grid pixel: where each one
         looks in a render of ``render_shape`` (rows, cols); pixel centres are integers."""
-        from ..pipeline import render_focal_px
+        from ..pipeline import render_pixel_coordinates
 
         u, v = state.geometry.working_pixel_centres(factor=2)
-        x, y = state.lens.undistort(u, v)
-        hr, wr = render_shape
-        focal = render_focal_px(state.profile, wr, hr)
-        return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+        return render_pixel_coordinates(state.profile, u, v, render_shape)
 
     def render_maps(self, state, render_shape):
         """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""

@@ -1,0 +1,188 @@
+"""From a Blender scene to the engine's inputs: render set-up, profile with the scene's settings, plate, motion.
+
+Render set-up (:func:`setup_scene`): a transparent film, the Standard view transform without dither (plates pass
+unchanged), a multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
+"Lowcam Overlay" view layer that renders only that collection; the scene camera gets the pinhole field of view
+the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`).
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import bpy
+
+from lowcam.errors import LowcamError
+from lowcam.motion import FrameMotion
+from lowcam.scene import OVERLAY_LAYER
+
+#: Blender tracking-camera models -> lowcam's BlenderLens models and their coefficient names.
+CLIP_LENS_KEYS = {
+    "POLYNOMIAL": ("polynomial", ("k1", "k2", "k3")),
+    "DIVISION": ("division", ("division_k1", "division_k2")),
+    "NUKE": ("nuke", ("nuke_k1", "nuke_k2")),
+    "BROWN": ("brown", ("brown_k1", "brown_k2", "brown_k3", "brown_k4", "brown_p1", "brown_p2")),
+}
+
+
+def settings(scene):
+    return scene.lowcam
+
+
+def scene_profile(scene):
+    """The chosen profile with the scene's sharpness, saturation and (optionally) the clip's lens."""
+    from lowcam.profile import load_profile
+
+    s = settings(scene)
+    profile = load_profile(s.profile)
+    if profile.effect("sharpening") is not None:
+        profile = profile.with_effect("sharpening", sharpness=s.sharpness)
+    if profile.effect("saturation") is not None:
+        profile = profile.with_effect("saturation", saturation=s.saturation)
+    if s.use_clip_lens:
+        if s.plate_clip is None:
+            raise LowcamError("Clip Lens is on but no Movie Clip is chosen as the plate")
+        profile = profile.with_effect("lens_distortion", replace=True, **clip_lens(s.plate_clip))
+    return profile
+
+
+def clip_lens(clip) -> dict:
+    """The Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)."""
+    cam = clip.tracking.camera
+    model, keys = CLIP_LENS_KEYS[cam.distortion_model]
+    values = {k: float(getattr(cam, k)) for k in keys}
+    return dict(model=model, focal_length=float(cam.focal_length), sensor_width=float(cam.sensor_width),
+                principal_point=[float(x) for x in cam.principal_point], pixel_aspect=float(cam.pixel_aspect),
+                **values)
+
+
+def setup_scene(scene, render_width: int | None = None) -> dict:
+    """Prepare ``scene`` for the render handler; returns the render camera (field of view, size)."""
+    from lowcam.pipeline import render_camera
+
+    s = settings(scene)
+    profile = scene_profile(scene)
+    width = render_width or scene.render.resolution_x * scene.render.resolution_percentage // 100
+    cam = render_camera(profile, width)
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = cam["width"], cam["height"], 100
+    r.film_transparent = True
+    r.dither_intensity = 0.0
+    r.use_compositing = False
+    scene.view_settings.view_transform = "Standard"
+    settings_ = r.image_settings
+    settings_.media_type = "MULTI_LAYER_IMAGE"
+    settings_.file_format = "OPEN_EXR_MULTILAYER"
+    settings_.color_depth = "32"
+    settings_.exr_codec = "ZIP"
+    if scene.camera is not None:
+        scene.camera.data.sensor_fit = "HORIZONTAL"
+        scene.camera.data.angle = math.radians(cam["hfov_deg"])
+        scene.camera.data.shift_x = scene.camera.data.shift_y = 0.0
+    _setup_overlay_layer(scene, s.exclude_collection)
+    return cam
+
+
+def _layer_collections(layer_collection):
+    yield layer_collection
+    for child in layer_collection.children:
+        yield from _layer_collections(child)
+
+
+def _setup_overlay_layer(scene, excluded):
+    overlay = scene.view_layers.get(OVERLAY_LAYER)
+    if excluded is None:
+        if overlay is not None:
+            scene.view_layers.remove(overlay)
+        return
+    if overlay is None:
+        overlay = scene.view_layers.new(OVERLAY_LAYER)
+    for layer in scene.view_layers:
+        for lc in list(_layer_collections(layer.layer_collection))[1:]:
+            is_excluded = lc.collection == excluded
+            lc.exclude = (not is_excluded) if layer == overlay else is_excluded
+    for layer in scene.view_layers:
+        layer.use = True
+
+
+def main_layer(scene) -> str:
+    return next(layer.name for layer in scene.view_layers if layer.name != OVERLAY_LAYER)
+
+
+def plate(scene, frame: int, profile):
+    """The plate for ``frame`` as uint8 RGB at the camera's size, or None."""
+    from lowcam.batch import expand_pattern, read_video_frame
+    from lowcam.io import check_plate, read_plate
+
+    s = settings(scene)
+    c = profile.camera
+    if s.plate_source == "NONE":
+        return None
+    if s.plate_source == "SEQUENCE":
+        pattern = bpy.path.abspath(s.plate_pattern)
+        still = "#" not in pattern and "%" not in pattern       # one still image behind every frame
+        return read_plate(pattern if still else expand_pattern(pattern, frame), c.width, c.height)
+    clip = s.plate_clip
+    if clip is None:
+        raise LowcamError("the plate source is Movie Clip but no clip is chosen")
+    path = bpy.path.abspath(clip.filepath)
+    index = frame - clip.frame_start + clip.frame_offset
+    if clip.source == "MOVIE":
+        img = read_video_frame(path, index)
+        return check_plate(img, c.width, c.height, name=f"{path} frame {frame}")
+    # an image sequence clip: its file names number the frames from the first file's number
+    p = Path(path)
+    m = re.search(r"(\d+)(?=\.[^.]+$)", p.name)
+    if m is None:
+        raise LowcamError(f"{path}: cannot find the frame number in the clip's file name")
+    name = p.name[:m.start()] + str(int(m.group(1)) + index).zfill(len(m.group(1))) + p.name[m.end():]
+    return read_plate(p.with_name(name), c.width, c.height)
+
+
+_MOTION_FILE_CACHE: dict = {}
+
+
+def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
+    """The camera's angular velocity over ``frame``'s exposure from the chosen motion source."""
+    from lowcam.motion import gyro_to_motion, read_gyro_csv, read_motion_json
+
+    from .motion import camera_motion
+
+    s = settings(scene)
+    if s.motion_source == "NONE" or exposure_s <= 0:
+        return FrameMotion((0.0, 0.0, 0.0), exposure_s)
+    fps = scene.render.fps / scene.render.fps_base
+    if s.motion_source == "CAMERA":
+        if scene.camera is None:
+            raise LowcamError(f"scene '{scene.name}' has no camera to take the motion from")
+        return camera_motion(scene, scene.camera, [frame], exposure_s * fps)[frame]
+    path = bpy.path.abspath(s.motion_file)
+    if path.lower().endswith(".json"):
+        key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
+        if key not in _MOTION_FILE_CACHE:
+            _MOTION_FILE_CACHE[key] = read_motion_json(path)
+        table = _MOTION_FILE_CACHE[key]
+        if frame not in table:
+            raise LowcamError(f"{path}: no entry for frame {frame}")
+        return table[frame]
+    return gyro_to_motion(read_gyro_csv(path), [frame], fps, exposure_s, first_frame=scene.frame_start,
+                          source=path)[frame]
+
+
+def output_path(scene, frame: int) -> Path:
+    from lowcam.batch import expand_pattern
+
+    return Path(expand_pattern(bpy.path.abspath(settings(scene).output), frame))
+
+
+def degrade(scene, render_path, frame: int) -> Path:
+    """Simulate the camera on the frame Blender wrote to ``render_path``; returns the composite's path."""
+    from lowcam.scene import degrade_frame
+
+    s = settings(scene)
+    profile = scene_profile(scene)
+    m = motion(scene, frame, s.exposure_s)
+    overlay = OVERLAY_LAYER if s.exclude_collection is not None else None
+    return degrade_frame(render_path, output_path(scene, frame), profile, plate(scene, frame, profile),
+                         m.angular_velocity, s.exposure_s, s.seed, frame, main_layer(scene), overlay)

@@ -1,0 +1,53 @@
+"""Render handlers: with ``scene.lowcam.enabled``, every frame Blender writes (``blender -b scene.blend -a``) gets
+its degraded composite written to ``scene.lowcam.output`` with no extra step."""
+from __future__ import annotations
+
+import sys
+
+import bpy
+from bpy.app.handlers import persistent
+
+from lowcam.errors import LowcamError
+
+suspended = False  # set while an operator degrades frames itself
+
+
+@persistent
+def on_render_init(scene, *args):
+    if scene.lowcam.enabled and not suspended:
+        from .frames import setup_scene
+
+        try:
+            setup_scene(scene, scene.render.resolution_x)
+        except LowcamError as e:
+            print(f"lowcam: {e}", file=sys.stderr)
+
+
+@persistent
+def on_render_write(scene, *args):
+    if not scene.lowcam.enabled or suspended:
+        return
+    from .frames import degrade
+
+    frame = scene.frame_current
+    written = bpy.path.abspath(scene.render.frame_path(frame=frame))
+    try:
+        path = degrade(scene, written, frame)
+        print(f"lowcam: frame {frame} -> {path}", flush=True)
+    except LowcamError as e:
+        print(f"lowcam: frame {frame}: {e}", file=sys.stderr, flush=True)
+
+
+HANDLERS = ((bpy.app.handlers.render_init, on_render_init), (bpy.app.handlers.render_write, on_render_write))
+
+
+def register():
+    for handler_list, fn in HANDLERS:
+        if fn not in handler_list:
+            handler_list.append(fn)
+
+
+def unregister():
+    for handler_list, fn in HANDLERS:
+        while fn in handler_list:
+            handler_list.remove(fn)

@@ -1,0 +1,101 @@
+"""Operators: set the scene up for Lowcam, apply the camera to the current frame, add the node group."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import bpy
+
+from lowcam.errors import LowcamError
+
+from . import frames
+
+
+class LOWCAM_OT_setup_scene(bpy.types.Operator):
+    """Transparent film, Standard view, multilayer EXR output and the render camera's field of view"""
+
+    bl_idname = "lowcam.setup_scene"
+    bl_label = "Set Up Scene"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        try:
+            cam = frames.setup_scene(context.scene)
+        except LowcamError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"render {cam['width']}x{cam['height']}, horizontal field {cam['hfov_deg']:.1f} deg")
+        return {"FINISHED"}
+
+
+def render_and_degrade(scene, frame: int) -> Path:
+    """Render ``frame`` of ``scene`` to a temporary multilayer EXR and write its degraded composite."""
+    from .render import render_frame
+
+    frames.setup_scene(scene, scene.render.resolution_x)
+    folder = Path(tempfile.mkdtemp(prefix="lowcam-render-"))
+    current = scene.frame_current
+    try:
+        return render_frame(scene, frame, folder / "frame.exr")
+    finally:
+        scene.frame_set(current)
+
+
+class LOWCAM_OT_apply(bpy.types.Operator):
+    """Render the current frame and apply the camera to it and the plate; the result opens as "Lowcam Result\""""
+
+    bl_idname = "lowcam.apply"
+    bl_label = "Apply Camera"
+
+    def execute(self, context):
+        scene = context.scene
+        try:
+            path = render_and_degrade(scene, scene.frame_current)
+        except LowcamError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        image = bpy.data.images.get("Lowcam Result")
+        if image is not None:
+            bpy.data.images.remove(image)
+        image = bpy.data.images.load(str(path))
+        image.name = "Lowcam Result"
+        for area in getattr(context.screen, "areas", []):
+            if area.type == "IMAGE_EDITOR":
+                area.spaces.active.image = image
+        self.report({"INFO"}, f"wrote {path}")
+        return {"FINISHED"}
+
+
+class LOWCAM_OT_add_camera_node(bpy.types.Operator):
+    """Add a "Lowcam Camera" node between the Render Layers and the output of the scene's compositor"""
+
+    bl_idname = "lowcam.add_camera_node"
+    bl_label = "Add Camera Node"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        scene = context.scene
+        tree = scene.compositing_node_group
+        if tree is None:
+            tree = bpy.data.node_groups.new(f"{scene.name} Compositor", "CompositorNodeTree")
+            tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+            scene.compositing_node_group = tree
+        layers = next((n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers"), None) or \
+            tree.nodes.new("CompositorNodeRLayers")
+        out = next((n for n in tree.nodes if n.bl_idname == "NodeGroupOutput"), None) or tree.nodes.new("NodeGroupOutput")
+        node = tree.nodes.new("LowcamCameraNode")
+        node.profile = scene.lowcam.profile
+        tree.links.new(layers.outputs["Image"], node.inputs["Image"])
+        s = scene.lowcam
+        if s.plate_source == "CLIP" and s.plate_clip is not None:
+            clip = tree.nodes.new("CompositorNodeMovieClip")
+            clip.clip = s.plate_clip
+            tree.links.new(clip.outputs["Image"], node.inputs["Plate"])
+        node.inputs["Seed"].default_value = s.seed
+        tree.links.new(node.outputs["Image"], out.inputs[0])
+        scene.view_settings.view_transform = "Standard"
+        scene.render.dither_intensity = 0.0
+        return {"FINISHED"}
+
+
+classes = (LOWCAM_OT_setup_scene, LOWCAM_OT_apply, LOWCAM_OT_add_camera_node)

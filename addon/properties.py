@@ -1,0 +1,77 @@
+"""Scene settings of the add-on (``scene.lowcam``)."""
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+
+def _profile_items(self, context):
+    from lowcam.profile import list_profiles
+
+    items = [(name, name, str(path)) for name, path in list_profiles()]
+    return items or [("fire-i", "fire-i", "bundled")]
+
+
+def _load_profile_defaults(self, context):
+    """When the profile changes, show its own sharpness, saturation and exposure."""
+    from lowcam.errors import LowcamError
+    from lowcam.profile import load_profile
+
+    try:
+        p = load_profile(self.profile)
+    except LowcamError:
+        return
+    sharp, sat = p.effect("sharpening"), p.effect("saturation")
+    if sharp is not None:
+        self.sharpness = sharp.sharpness
+    if sat is not None:
+        self.saturation = sat.saturation
+    self.exposure_s = p.camera.exposure_s
+
+
+class LowcamSettings(bpy.types.PropertyGroup):
+    enabled: BoolProperty(name="Simulate Camera", default=False,
+                          description="Write a degraded composite of every rendered frame (render handler)")
+    profile: EnumProperty(name="Profile", items=_profile_items, update=_load_profile_defaults,
+                          description="Camera profile (bundled, or in $LOWCAM_PROFILE_PATH)")
+    sharpness: FloatProperty(name="Sharpness", default=80.0, min=0.0, max=255.0,
+                             description="The camera's sharpness setting (sec. 4.4.3)")
+    saturation: FloatProperty(name="Saturation", default=90.0, min=0.0, max=255.0,
+                              description="The camera's saturation setting; 65 is the identity (sec. 4.4.2)")
+    exposure_s: FloatProperty(name="Exposure (s)", default=0.033, min=0.0, max=10.0, precision=4,
+                              description="Exposure time in seconds: the length of the motion blur")
+    seed: IntProperty(name="Seed", default=0, min=0, description="Noise seed; each frame's noise depends on "
+                      "(seed, frame) only")
+    exclude_collection: PointerProperty(
+        name="Excluded", type=bpy.types.Collection,
+        description="Objects the camera does not degrade (UI overlays, crosshairs): rendered in their own view "
+                    "layer and laid over the composite through the lens geometry only")
+    plate_source: EnumProperty(name="Plate", items=[
+        ("NONE", "None", "Black background"),
+        ("CLIP", "Movie Clip", "The video frames of a Movie Clip"),
+        ("SEQUENCE", "Image Sequence", "Files named by a pattern with #### for the frame number")],
+        default="NONE")
+    plate_clip: PointerProperty(name="Clip", type=bpy.types.MovieClip)
+    plate_pattern: StringProperty(name="Pattern", subtype="FILE_PATH", default="//plates/####.png",
+                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    motion_source: EnumProperty(name="Motion", items=[
+        ("CAMERA", "Scene Camera", "Angular velocity of the scene camera (e.g. the solved camera) over the shutter"),
+        ("FILE", "File", "A motion.json or gyro CSV file"),
+        ("NONE", "None", "No camera motion blur")], default="CAMERA")
+    motion_file: StringProperty(name="Motion File", subtype="FILE_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    use_clip_lens: BoolProperty(name="Clip Lens", default=False,
+                                description="Use the Movie Clip's tracking camera lens model instead of the profile's")
+    output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
+                           options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                           description="Degraded composites; #### is the frame number")
+
+
+classes = (LowcamSettings,)
+
+
+def register():
+    bpy.types.Scene.lowcam = PointerProperty(type=LowcamSettings)
+
+
+def unregister():
+    del bpy.types.Scene.lowcam

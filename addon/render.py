@@ -1,0 +1,59 @@
+"""``lowcam render``: render frames of a .blend with the bpy module and write their degraded composites."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import bpy
+
+from lowcam.errors import LowcamError
+
+from . import frames, handlers
+
+
+def open_scene(blend) -> "bpy.types.Scene":
+    path = Path(blend)
+    if not path.is_file():
+        raise LowcamError(f"{path}: no such .blend file")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(path.resolve()))
+    except RuntimeError as e:
+        raise LowcamError(f"{path}: Blender cannot open it ({str(e).splitlines()[0]})") from None
+    return bpy.context.scene
+
+
+def render_frame(scene, frame: int, render_path: Path) -> Path:
+    """Render ``frame`` to ``render_path`` (multilayer EXR) and write its degraded composite."""
+    old_path = scene.render.filepath
+    handlers.suspended = True
+    try:
+        scene.frame_set(frame)
+        scene.render.filepath = str(render_path)
+        with bpy.context.temp_override(scene=scene):
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+        return frames.degrade(scene, render_path, frame)
+    finally:
+        handlers.suspended = False
+        scene.render.filepath = old_path
+
+
+def render(blend, frame_list, output: str | None = None, force: bool = False, keep_renders: str | None = None,
+           progress=None) -> list[Path]:
+    """Render and degrade ``frame_list`` of ``blend``'s scene; frames whose composite exists are skipped unless
+    ``force`` (so an interrupted job resumes). ``output`` (a #### pattern) overrides the scene's setting."""
+    scene = open_scene(blend)
+    if output:
+        scene.lowcam.output = str(Path(output).resolve()) if "#" in output or "%" in output else \
+            str(Path(output).resolve() / "####.png")
+    frames.setup_scene(scene, scene.render.resolution_x)
+    renders = Path(keep_renders) if keep_renders else Path(tempfile.mkdtemp(prefix="lowcam-render-"))
+    written = []
+    for frame in frame_list:
+        out = frames.output_path(scene, frame)
+        if out.exists() and not force:
+            written.append(out)
+        else:
+            written.append(render_frame(scene, frame, renders / f"{frame:04d}.exr"))
+        if progress:
+            progress(frame, written[-1])
+    return written

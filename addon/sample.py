@@ -1,0 +1,100 @@
+"""The sample scene: a real photograph as the plate, inserted objects, and a camera that pans, so motion blur
+shows. ``sample_scenes/build_sample_scene.py`` runs this; ``lowcam demo`` renders it."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import bpy
+
+
+def _material(name, colour, emission=0.0):
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    bsdf = m.node_tree.nodes.get("Principled BSDF")
+    bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
+    if emission:
+        bsdf.inputs["Emission Color"].default_value = (*colour, 1.0)
+        bsdf.inputs["Emission Strength"].default_value = emission
+    return m
+
+
+def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800, frames: int = 2,
+                       pan_rad_s: float = 0.6, samples: int = 16) -> Path:
+    """Write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns the .blend path.
+
+    The plate is the bundled photograph (``lowcam.sample.sample_plate``); a cube and a sphere stand in front of
+    it; a green crosshair in the "Overlays" collection is excluded from the camera simulation; the camera pans
+    at ``pan_rad_s`` about its vertical axis. Cycles on the CPU with ``samples`` samples.
+    """
+    from lowcam.io import write_png
+    from lowcam.sample import sample_plate
+
+    from .frames import setup_scene
+
+    folder = Path(folder).resolve()
+    folder.mkdir(parents=True, exist_ok=True)
+    plate_path = write_png(folder / "plate.png", sample_plate(profile))
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.name = "Lowcam sample"
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.use_denoising = False
+    scene.frame_start, scene.frame_end = 1, frames
+    scene.render.fps = 24
+
+    stage = bpy.data.collections.new("Scene Objects")
+    scene.collection.children.link(stage)
+    bpy.context.view_layer.active_layer_collection = bpy.context.view_layer.layer_collection.children[stage.name]
+    bpy.ops.mesh.primitive_cube_add(size=0.8, location=(-0.5, 3.0, 0.0), rotation=(0.4, 0.3, 0.6))
+    bpy.context.object.data.materials.append(_material("Red", (0.8, 0.1, 0.05)))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(0.6, 2.6, -0.2), segments=48, ring_count=24)
+    bpy.ops.object.shade_smooth()
+    bpy.context.object.data.materials.append(_material("White", (0.9, 0.9, 0.85)))
+    bpy.ops.object.light_add(type="SUN", rotation=(0.6, 0.2, 0.8))
+    bpy.context.object.data.energy = 6.0
+    world = bpy.data.worlds.new("World")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
+    scene.world = world
+
+    overlays = bpy.data.collections.new("Overlays")
+    scene.collection.children.link(overlays)
+    green = _material("HUD", (0.0, 1.0, 0.0), emission=1.0)
+    for size in ((0.5, 0.02, 0.02), (0.02, 0.02, 0.5)):
+        bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 2.0, 0.0))
+        ob = bpy.context.object
+        ob.scale = size
+        ob.data.materials.append(green)
+        for c in list(ob.users_collection):
+            c.objects.unlink(ob)
+        overlays.objects.link(ob)
+
+    bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0), rotation=(math.pi / 2, 0.0, 0.0))
+    camera = bpy.context.object
+    scene.camera = camera
+    # pan: rotate about the world's vertical axis, linear in time
+    for f in (scene.frame_start - 1, scene.frame_end + 1):
+        camera.rotation_euler = (math.pi / 2, 0.0, pan_rad_s * (f - 1) / scene.render.fps)
+        camera.keyframe_insert("rotation_euler", frame=f)
+    slot = camera.animation_data.action_slot
+    for fc in camera.animation_data.action.layers[0].strips[0].channelbag(slot).fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+
+    s = scene.lowcam
+    s.profile = profile
+    s.enabled = True
+    s.plate_source = "SEQUENCE"
+    s.plate_pattern = bpy.path.relpath(str(plate_path), start=str(folder))
+    s.motion_source = "CAMERA"
+    s.exclude_collection = overlays
+    s.output = "//lowcam/####.png"
+    scene.render.filepath = "//render/####.exr"
+    setup_scene(scene, render_width)
+    path = folder / "sample_scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), relative_remap=True)
+    return path

@@ -1,0 +1,63 @@
+"""Degrade one frame written by Blender: a multilayer EXR with the graphics' view layer (and optionally an overlay
+layer of excluded objects), simulated with the engine and blended onto the plate. No bpy here; ``addon/`` calls it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import LowcamError
+from .io import _rgba_from_exr, check_render, read_exr, write_image
+from .pipeline import run
+
+OVERLAY_LAYER = "Lowcam Overlay"
+
+
+def read_layers(path, layer: str, overlay_layer: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(render, overlay) premultiplied RGBA from a Blender multilayer EXR: view layer ``layer``'s Combined pass
+    and, when asked, ``overlay_layer``'s."""
+    channels = read_exr(path)
+
+    def combined(name):
+        key = f"{name}.Combined"
+        if key not in channels:
+            layers = sorted({k.split(".")[0] for k in channels if "." in k})
+            raise LowcamError(f"{path}: no view layer '{name}' (layers: {', '.join(layers) or 'none'})")
+        return check_render(_rgba_from_exr(path, {key: channels[key]}), f"{path} layer {name}")
+
+    if not any("." in k for k in channels):  # a single-layer file: the whole render
+        return check_render(_rgba_from_exr(path, channels), path), None
+    return combined(layer), (combined(overlay_layer) if overlay_layer else None)
+
+
+def overlay_in_frame(overlay: np.ndarray, profile) -> np.ndarray:
+    """Resample a render-sized ``overlay`` into the output frame through the lens geometry only (bilinear), so
+    excluded objects land where the camera sees them but get no blur, noise or colour processing."""
+    import cv2
+
+    from .pipeline import render_pixel_coordinates
+    from .profile import load_profile
+
+    profile = load_profile(profile)
+    g = profile.geometry
+    u, v = np.meshgrid(np.arange(g.width, dtype=np.float64), np.arange(g.height, dtype=np.float64))
+    map_x, map_y = render_pixel_coordinates(profile, u, v, overlay.shape[:2])
+    return cv2.remap(overlay, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def over_frame(frame: np.ndarray, overlay: np.ndarray) -> np.ndarray:
+    """Premultiplied ``overlay`` (frame-sized, linear, 1.0 = 255 DN like renders) over an 8-bit ``frame``."""
+    a = np.clip(overlay[..., 3:], 0.0, 1.0)
+    out = overlay[..., :3] * 255.0 + (1.0 - a) * frame.astype(np.float32)
+    return np.rint(np.clip(out, 0, 255)).astype(np.uint8)
+
+
+def degrade_frame(render_path, output_path, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
+                  exposure_s=None, seed: int = 0, frame: int = 0, layer: str = "ViewLayer",
+                  overlay_layer: str | None = None) -> Path:
+    """Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite (atomically)."""
+    render, overlay = read_layers(render_path, layer, overlay_layer)
+    result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame)
+    image = result.frame if overlay is None else over_frame(result.frame, overlay_in_frame(overlay, profile))
+    return write_image(output_path, image)

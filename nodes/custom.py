@@ -1,0 +1,238 @@
+"""Lowcam's nodes in the compositor's Add menu: ``CompositorNodeCustomGroup`` containers of built-in nodes.
+
+"Lowcam Camera" holds the whole chain; one node per stage holds that stage alone. Each node's properties mirror
+its profile parameters (and the profile it starts from); changing one rebakes the maps and rebuilds the node's
+inner group from the engine. Python nodes that compute pixels would crash the compositor; these only contain.
+"""
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
+
+from lowcam.effects import EFFECTS
+
+from .build import STAGE_LABELS, build_camera_group, build_stage_group
+from .maps import bake
+
+RENDER_SIZE = (1200, 1600)  # (rows, cols) the maps assume until the node sees a scene
+
+
+def _scene_render_shape(context):
+    scene = getattr(context, "scene", None)
+    if scene is None:
+        return RENDER_SIZE
+    r = scene.render
+    return (r.resolution_y * r.resolution_percentage // 100, r.resolution_x * r.resolution_percentage // 100)
+
+
+def _profile_items(self, context):
+    from lowcam.profile import list_profiles
+
+    return [(name, name, str(path)) for name, path in list_profiles()] or [("fire-i", "fire-i", "")]
+
+
+def _param_property(key, param):
+    """A Blender property mirroring one effect parameter (same default, range and description)."""
+    doc = (param.doc or key) + (f" ({param.unit})" if param.unit else "")
+    update = _rebuild
+    if param.kind == "matrix":
+        flat = [float(x) for row in param.default for x in row]
+        return FloatVectorProperty(name=key, size=len(flat), default=flat, description=doc, update=update)
+    if param.kind == "vector":
+        return FloatVectorProperty(name=key, size=len(param.default), default=[float(x) for x in param.default],
+                                   description=doc, update=update)
+    if param.kind in (str, "path"):
+        if param.choices:
+            return EnumProperty(name=key, items=[(c, c, "") for c in param.choices], default=param.default,
+                                description=doc, update=update)
+        return StringProperty(name=key, default=str(param.default or ""), description=doc, update=update)
+    if param.kind is bool:
+        return BoolProperty(name=key, default=bool(param.default), description=doc, update=update)
+    limits = {k: v for k, v in (("min", param.low), ("max", param.high)) if v is not None}
+    if param.kind is int:
+        return IntProperty(name=key, default=int(param.default), description=doc, update=update,
+                           **{k: int(v) for k, v in limits.items()})
+    return FloatProperty(name=key, default=float(param.default), description=doc, update=update, **limits)
+
+
+def _param_values(node, effect_name):
+    values = {}
+    for key, param in EFFECTS[effect_name].params.items():
+        value = getattr(node, key)
+        if param.kind == "matrix":
+            n = int(len(value) ** 0.5)
+            value = [list(value[i * n:(i + 1) * n]) for i in range(n)]
+        elif param.kind == "vector":
+            value = list(value)
+        elif param.kind == "path" and not value:
+            continue
+        values[key] = value
+    return values
+
+
+def _rebuild(node, context):
+    node.rebuild(context)
+
+
+class LowcamNodeBase:
+    bl_width_default = 200
+
+    @classmethod
+    def poll(cls, tree):
+        return tree.bl_idname == "CompositorNodeTree"
+
+    def group_name(self):
+        return f"{self.bl_label} ({self.name})"
+
+    def init(self, context):
+        self.node_tree = bpy.data.node_groups.new(self.group_name(), "CompositorNodeTree")
+        self.load_profile_values()
+        self.rebuild(context)
+
+    def copy(self, node):
+        self.node_tree = None
+        self.rebuild(bpy.context)
+
+    def free(self):
+        if self.node_tree is not None and self.node_tree.users <= 1:
+            bpy.data.node_groups.remove(self.node_tree)
+
+    def draw_buttons(self, context, layout):
+        layout.prop(self, "profile")
+        for key in self.mirrored:
+            layout.prop(self, key)
+
+    def profile_with_values(self):
+        from lowcam.profile import load_profile
+
+        profile = load_profile(self.profile)
+        return profile.with_effect(self.effect, **_param_values(self, self.effect)) if self.effect else profile
+
+
+class LowcamStageNode(LowcamNodeBase):
+    effect = ""
+    mirrored: tuple = ()
+
+    def load_profile_values(self):
+        from lowcam.profile import load_profile
+
+        effect = load_profile(self.profile).effect(self.effect)
+        if effect is None:
+            return
+        self["_loading"] = True
+        for key, param in EFFECTS[self.effect].params.items():
+            value = getattr(effect, key)
+            if param.kind == "matrix":
+                value = [float(x) for row in value for x in row]
+            try:
+                setattr(self, key, value)
+            except (TypeError, ValueError):
+                pass
+        self["_loading"] = False
+
+    def rebuild(self, context):
+        if self.get("_loading"):
+            return
+        from lowcam.errors import LowcamError
+
+        try:
+            camera = bake(self.profile_with_values(), _scene_render_shape(context))
+        except LowcamError as e:
+            self.report_error(str(e))
+            return
+        self.node_tree = build_stage_group(self.stage, camera, self.group_name())
+
+    def report_error(self, message):
+        print(f"lowcam: {self.name}: {message}")
+
+
+class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
+    """The whole camera: render (premultiplied) and plate in, the camera's frame out."""
+
+    bl_idname = "LowcamCameraNode"
+    bl_label = "Lowcam Camera"
+    effect = ""
+    mirrored = ("sharpness", "saturation", "exposure_s", "angular_velocity")
+    profile: EnumProperty(name="Profile", items=_profile_items, update=lambda self, c: self.on_profile(c))
+    sharpness: FloatProperty(name="Sharpness", default=80.0, min=0.0, max=255.0, update=_rebuild)
+    saturation: FloatProperty(name="Saturation", default=90.0, min=0.0, max=255.0, update=_rebuild)
+    exposure_s: FloatProperty(name="Exposure (s)", default=0.033, min=0.0, max=10.0, update=_rebuild)
+    angular_velocity: FloatVectorProperty(name="Angular Velocity (rad/s)", size=3, update=_rebuild,
+                                          description="Camera rotation rate (x right, y down, z forward)")
+
+    def on_profile(self, context):
+        self.load_profile_values()
+        self.rebuild(context)
+
+    def load_profile_values(self):
+        from lowcam.profile import load_profile
+
+        p = load_profile(self.profile)
+        self["_loading"] = True
+        if p.effect("sharpening") is not None:
+            self.sharpness = p.effect("sharpening").sharpness
+        if p.effect("saturation") is not None:
+            self.saturation = p.effect("saturation").saturation
+        self.exposure_s = p.camera.exposure_s
+        self["_loading"] = False
+
+    def rebuild(self, context):
+        if self.get("_loading"):
+            return
+        from lowcam.profile import load_profile
+
+        profile = load_profile(self.profile)
+        if profile.effect("sharpening") is not None:
+            profile = profile.with_effect("sharpening", sharpness=self.sharpness)
+        if profile.effect("saturation") is not None:
+            profile = profile.with_effect("saturation", saturation=self.saturation)
+        self.node_tree = build_camera_group(profile, _scene_render_shape(context), tuple(self.angular_velocity),
+                                            self.exposure_s, name=self.group_name())
+
+
+def _stage_class(stage: str):
+    effect_cls = EFFECTS.get(stage)
+    annotations = {"profile": EnumProperty(name="Profile", items=_profile_items,
+                                           update=lambda self, c: (self.load_profile_values(), self.rebuild(c)))}
+    params = effect_cls.params if effect_cls is not None else {}
+    for key, param in params.items():
+        annotations[key] = _param_property(key, param)
+    label = STAGE_LABELS[stage]
+    return type(f"Lowcam{label.replace(' ', '')}Node", (LowcamStageNode, bpy.types.CompositorNodeCustomGroup), {
+        "__annotations__": annotations, "bl_idname": f"Lowcam{label.replace(' ', '')}Node",
+        "bl_label": f"Lowcam {label}", "stage": stage, "effect": stage if effect_cls is not None else "",
+        "mirrored": tuple(params), "__doc__": (effect_cls.__doc__ or label).splitlines()[0] if effect_cls else label,
+    })
+
+
+#: Stages with a node of their own (the plate blend is part of the camera node only).
+STAGE_NODES = tuple(s for s in STAGE_LABELS if s != "plate_blend")
+classes = [LowcamCameraNode] + [_stage_class(s) for s in STAGE_NODES]
+
+
+class NODE_MT_lowcam_add(bpy.types.Menu):
+    bl_idname = "NODE_MT_lowcam_add"
+    bl_label = "Lowcam"
+
+    def draw(self, context):
+        for cls in classes:
+            op = self.layout.operator("node.add_node", text=cls.bl_label)
+            op.type = cls.bl_idname
+            op.use_transform = True
+
+
+def draw_add_menu(self, context):
+    if getattr(context.space_data, "tree_type", "") == "CompositorNodeTree":
+        self.layout.menu(NODE_MT_lowcam_add.bl_idname)
+
+
+def register():
+    for cls in classes + [NODE_MT_lowcam_add]:
+        bpy.utils.register_class(cls)
+    bpy.types.NODE_MT_add.append(draw_add_menu)
+
+
+def unregister():
+    bpy.types.NODE_MT_add.remove(draw_add_menu)
+    for cls in reversed(classes + [NODE_MT_lowcam_add]):
+        bpy.utils.unregister_class(cls)
