@@ -9,9 +9,21 @@ def _modules():
     return properties, operators, panels, handlers, custom
 
 
+def _bundled_profiles():
+    """The extension ships profiles/ beside addon/; the engine wheel finds them through LOWCAM_PROFILE_PATH."""
+    import os
+    from pathlib import Path
+
+    folder = str(Path(__file__).resolve().parent.parent / "profiles")
+    paths = [p for p in os.environ.get("LOWCAM_PROFILE_PATH", "").split(os.pathsep) if p]
+    if folder not in paths and Path(folder).is_dir():
+        os.environ["LOWCAM_PROFILE_PATH"] = os.pathsep.join(paths + [folder])
+
+
 def register():
     import bpy
 
+    _bundled_profiles()
     properties, operators, panels, handlers, custom = _modules()
     for cls in properties.classes + operators.classes + panels.classes:
         bpy.utils.register_class(cls)

@@ -64,7 +64,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     overlays = bpy.data.collections.new("Overlays")
     scene.collection.children.link(overlays)
     green = _material("HUD", (0.0, 1.0, 0.0), emission=1.0)
-    for size in ((0.5, 0.02, 0.02), (0.02, 0.02, 0.5)):
+    for size in ((0.5, 0.06, 0.06), (0.06, 0.06, 0.5)):
         bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 2.0, 0.0))
         ob = bpy.context.object
         ob.scale = size

@@ -88,7 +88,8 @@ def plate_image(plate_u8: np.ndarray) -> bpy.types.Image:
 def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_velocity=(0.0, 0.0, 0.0),
            exposure_s=None, stages=None, out_dir=None) -> dict:
     """{stage: {"mad": mean |node - engine| over the frame (DN), "mad_object": the same where the render
-    reaches, "max": the largest difference}} for each stage of the node group, noise off."""
+    reaches, "max": the largest difference, "max_outside": the largest where it does not}} for each stage of the
+    node group, noise off."""
     profile = load_profile(profile)
     quiet = profile.copy()             # the engine without noise; the group keeps its noise stage at strength 0
     for effect in quiet.effects:
@@ -118,5 +119,6 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
         diff = np.abs(node - engine)
         reach = (np.abs(engine) > 1e-6).any(axis=-1) if stage != "plate_blend" else result.footprint
         results[stage] = {"mad": float(diff.mean()), "max": float(diff.max()),
-                          "mad_object": float(diff[reach].mean()) if reach.any() else 0.0}
+                          "mad_object": float(diff[reach].mean()) if reach.any() else 0.0,
+                          "max_outside": float(diff[~reach].max()) if (~reach).any() else 0.0}
     return results
