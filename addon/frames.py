@@ -35,11 +35,7 @@ def scene_profile(scene):
     from lowcam.profile import load_profile
 
     s = settings(scene)
-    profile = load_profile(s.profile)
-    if profile.effect("sharpening") is not None:
-        profile = profile.with_effect("sharpening", sharpness=s.sharpness)
-    if profile.effect("saturation") is not None:
-        profile = profile.with_effect("saturation", saturation=s.saturation)
+    profile = load_profile(s.profile).with_controls(s.sharpness, s.saturation)
     if s.use_clip_lens:
         if s.plate_clip is None:
             raise LowcamError("Clip Lens is on but no Movie Clip is chosen as the plate")

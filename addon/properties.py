@@ -18,15 +18,11 @@ def _load_profile_defaults(self, context):
     from lowcam.profile import load_profile
 
     try:
-        p = load_profile(self.profile)
+        controls = load_profile(self.profile).controls()
     except LowcamError:
         return
-    sharp, sat = p.effect("sharpening"), p.effect("saturation")
-    if sharp is not None:
-        self.sharpness = sharp.sharpness
-    if sat is not None:
-        self.saturation = sat.saturation
-    self.exposure_s = p.camera.exposure_s
+    for key, value in controls.items():
+        setattr(self, key, value)
 
 
 class LowcamSettings(bpy.types.PropertyGroup):

@@ -135,6 +135,24 @@ class Profile:
         out._cache.clear()
         return out
 
+    def controls(self) -> dict:
+        """The camera's user controls: ``sharpness`` and ``saturation`` (when the chain has those effects) and
+        ``exposure_s`` (s). The Blender add-on and nodes show these."""
+        out = {"exposure_s": self.camera.exposure_s}
+        for name in ("sharpness", "saturation"):
+            effect = self.effect("sharpening" if name == "sharpness" else name)
+            if effect is not None:
+                out[name] = getattr(effect, name)
+        return out
+
+    def with_controls(self, sharpness: float | None = None, saturation: float | None = None) -> "Profile":
+        """A copy with the sharpness and saturation settings changed, where the chain has those effects."""
+        out = self
+        for name, effect, value in (("sharpness", "sharpening", sharpness), ("saturation", "saturation", saturation)):
+            if value is not None and out.effect(effect) is not None:
+                out = out.with_effect(effect, **{name: value})
+        return out
+
     def without(self, *names: str) -> "Profile":
         """A copy with the named effects disabled (e.g. ``profile.without("noise", "vignetting")``)."""
         out = self.copy()

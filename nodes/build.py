@@ -16,7 +16,7 @@ import numpy as np
 
 from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
 
-from .maps import CameraBake, bake
+from .maps import CameraBake
 
 PREFIX = "Lowcam"
 STAGE_LABELS = {
@@ -359,14 +359,13 @@ def node_stages(camera: CameraBake) -> list[str]:
     return [s for s in camera.stages if s not in BAKED_INTO_MAPS] + ["plate_blend"]
 
 
-def build_camera_group(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0, 0.0),
-                       exposure_s=None, name: str = "Lowcam Camera", until: str | None = None):
-    """Build "Lowcam Camera": inputs Image (the render, premultiplied), Plate, Seed, Noise; output Image.
+def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: str | None = None):
+    """Build "Lowcam Camera" from a :func:`nodes.maps.bake`: inputs Image (the render, premultiplied), Plate,
+    Seed, Noise; output Image.
 
     ``until`` ends the chain after that stage (its raw output goes to the group's output), for parity checks.
     Returns the group; its stage groups are ``group["lowcam_stages"]``.
     """
-    camera = bake(profile, render_shape, angular_velocity, exposure_s)
     stages = node_stages(camera)
     if until is not None:
         stages = stages[:stages.index(until) + 1]

@@ -102,16 +102,15 @@ class LowcamNodeBase:
         for key in self.mirrored:
             layout.prop(self, key)
 
-    def profile_with_values(self):
-        from lowcam.profile import load_profile
-
-        profile = load_profile(self.profile)
-        return profile.with_effect(self.effect, **_param_values(self, self.effect)) if self.effect else profile
-
 
 class LowcamStageNode(LowcamNodeBase):
     effect = ""
     mirrored: tuple = ()
+
+    def profile_with_values(self):
+        from lowcam.profile import load_profile
+
+        return load_profile(self.profile).with_effect(self.effect, **_param_values(self, self.effect))
 
     def load_profile_values(self):
         from lowcam.profile import load_profile
@@ -167,13 +166,9 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
     def load_profile_values(self):
         from lowcam.profile import load_profile
 
-        p = load_profile(self.profile)
         self["_loading"] = True
-        if p.effect("sharpening") is not None:
-            self.sharpness = p.effect("sharpening").sharpness
-        if p.effect("saturation") is not None:
-            self.saturation = p.effect("saturation").saturation
-        self.exposure_s = p.camera.exposure_s
+        for key, value in load_profile(self.profile).controls().items():
+            setattr(self, key, value)
         self["_loading"] = False
 
     def rebuild(self, context):
@@ -181,13 +176,9 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
             return
         from lowcam.profile import load_profile
 
-        profile = load_profile(self.profile)
-        if profile.effect("sharpening") is not None:
-            profile = profile.with_effect("sharpening", sharpness=self.sharpness)
-        if profile.effect("saturation") is not None:
-            profile = profile.with_effect("saturation", saturation=self.saturation)
-        self.node_tree = build_camera_group(profile, _scene_render_shape(context), tuple(self.angular_velocity),
-                                            self.exposure_s, name=self.group_name())
+        profile = load_profile(self.profile).with_controls(self.sharpness, self.saturation)
+        camera = bake(profile, _scene_render_shape(context), tuple(self.angular_velocity), self.exposure_s)
+        self.node_tree = build_camera_group(camera, name=self.group_name())
 
 
 def _stage_class(stage: str):

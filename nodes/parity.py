@@ -12,8 +12,8 @@ from lowcam.io import read_exr, read_image
 from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
-from .build import build_camera_group, image_from_array
-from .maps import planes_to_mosaic
+from .build import build_camera_group, image_from_array, node_stages
+from .maps import bake, planes_to_mosaic
 
 
 def _engine_stage(state, stage: str, frame: np.ndarray) -> np.ndarray:
@@ -99,15 +99,14 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
     render_image = image_from_array("Lowcam parity render", render)
     render_image.alpha_mode = "PREMUL"
     plate = plate_image(plate_u8)
-    camera = build_camera_group(profile, render.shape[:2], angular_velocity, exposure_s, name="Lowcam parity camera")
-    all_stages = list(camera["lowcam_stages"])
+    camera = bake(profile, render.shape[:2], angular_velocity, exposure_s)
+    all_stages = node_stages(camera)
     results = {}
     for stage in stages or all_stages:
         engine_stop = {"plate_blend": None, "noise": all_stages[all_stages.index(stage) - 1]}.get(stage, stage)
         result = run(render, quiet, plate_u8, angular_velocity, exposure_s, stop_after=engine_stop)
         engine = _engine_stage(result.state, stage, result.frame if stage == "plate_blend" else None)
-        group = build_camera_group(profile, render.shape[:2], angular_velocity, exposure_s,
-                                   name="Lowcam parity camera", until=stage)
+        group = build_camera_group(camera, name="Lowcam parity camera", until=stage)
         suffix = ".png" if stage == "plate_blend" else ".exr"
         node = render_group(group, {"Image": render_image, "Plate": plate, "Noise": 0.0}, engine.shape[:2],
                             out_dir / f"{stage}{suffix}")

@@ -102,3 +102,13 @@ def test_changing_a_lens_parameter_in_place_takes_effect():
     p.effect("lens_distortion").w = 0.3
     after = lowcam.simulate(render, p)
     assert np.abs(before.astype(int) - after.astype(int)).sum() > 1000
+
+
+def test_controls_read_and_set_the_cameras_user_settings():
+    p = lowcam.load_profile("fire-i")
+    assert p.controls() == {"exposure_s": 0.033, "sharpness": 80.0, "saturation": 90.0}
+    q = p.with_controls(sharpness=25.0, saturation=65.0)
+    assert q.effect("sharpening").sharpness == 25.0 and q.effect("saturation").saturation == 65.0
+    assert p.effect("sharpening").sharpness == 80.0                      # the original is untouched
+    raw = lowcam.load_profile("ueye")
+    assert "saturation" not in raw.controls() and raw.with_controls(saturation=80.0).to_dict() == raw.to_dict()
