@@ -1,5 +1,4 @@
 """Scene settings of the add-on (``scene.lowcam``)."""
-from __future__ import annotations
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty

@@ -4,7 +4,6 @@
 its profile parameters (and the profile it starts from); changing one rebakes the maps and rebuilds the node's
 inner group from the engine. Python nodes that compute pixels would crash the compositor; these only contain.
 """
-from __future__ import annotations
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty

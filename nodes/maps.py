@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from lowcam.effects.blur import blur_levels, gaussian_taps, level_weights
+from lowcam.effects.blur import blur_levels, level_weights
 from lowcam.errors import LowcamError
 from lowcam.geometry import BAYER_BORDER, CFA_CHANNELS, sample_texture
 from lowcam.pipeline import run
