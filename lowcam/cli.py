@@ -107,7 +107,7 @@ def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_lab
 def cmd_demo(args) -> int:
     """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
     and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
-    from .io import read_plate, write_png
+    from .io import read_image, read_plate, write_png
     from .pipeline import plain_composite
     from .profile import load_profile
 
@@ -137,8 +137,6 @@ def cmd_demo(args) -> int:
         composite = submodule("addon.render").render(blend, [1], str(out / "lowcam" / "####.png"), force=True,
                                                      keep_renders=str(out / "render"))[0]
         print(f"      rendered and simulated in {time.perf_counter() - t0:.1f} s", flush=True)
-        from .io import read_image
-
         frame = read_image(composite)
         render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
         plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
@@ -459,7 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="the main job on the bundled sample scene")
     p.add_argument("--profile", default="fire-i")
     p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
-    p.add_argument("--angular-velocity", type=_vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ")
+    p.add_argument("--angular-velocity", type=_vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
+                   help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--render-width", type=int, default=800, help="width of the sample render (px)")
     p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
