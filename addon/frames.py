@@ -31,7 +31,8 @@ def settings(scene):
 
 
 def scene_profile(scene):
-    """The chosen profile with the scene's sharpness, saturation and (optionally) the clip's lens."""
+    """The chosen profile with the scene's sharpness, saturation, object motion and defocus from depth and
+    (optionally) the clip's lens."""
     from lowcam.profile import load_profile
 
     s = settings(scene)
@@ -40,6 +41,13 @@ def scene_profile(scene):
         if s.plate_clip is None:
             raise LowcamError("Clip Lens is on but no Movie Clip is chosen as the plate")
         profile = profile.with_effect("lens_distortion", replace=True, **clip_lens(s.plate_clip))
+    for name, on, values in (("object_motion", s.use_object_motion, {}),
+                             ("depth_of_field", s.use_depth_of_field,
+                              {"focus_distance_m": s.focus_distance_m, "aperture_mm": s.aperture_mm})):
+        if on:
+            profile = profile.with_effect(name, **values)
+        elif profile.effect(name) is not None:
+            profile = profile.without(name)
     return profile
 
 
@@ -66,6 +74,7 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
     r.film_transparent = True
     r.dither_intensity = 0.0
     r.use_compositing = False
+    r.use_motion_blur = False           # lowcam blurs; Cycles writes no Vector pass with its own motion blur on
     scene.view_settings.view_transform = "Standard"
     settings_ = r.image_settings
     settings_.media_type = "MULTI_LAYER_IMAGE"
@@ -77,6 +86,9 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
         scene.camera.data.angle = math.radians(cam["hfov_deg"])
         scene.camera.data.shift_x = scene.camera.data.shift_y = 0.0
     _setup_overlay_layer(scene, s.exclude_collection)
+    layer = scene.view_layers[main_layer(scene)]
+    layer.use_pass_vector = s.use_object_motion
+    layer.use_pass_z = s.use_depth_of_field
     return cam
 
 
@@ -181,4 +193,6 @@ def degrade(scene, render_path, frame: int) -> Path:
     m = motion(scene, frame, s.exposure_s)
     overlay = OVERLAY_LAYER if s.exclude_collection is not None else None
     return degrade_frame(render_path, output_path(scene, frame), profile, plate(scene, frame, profile),
-                         m.angular_velocity, s.exposure_s, s.seed, frame, main_layer(scene), overlay)
+                         m.angular_velocity, s.exposure_s, s.seed, frame, main_layer(scene), overlay,
+                         fps=scene.render.fps / scene.render.fps_base,
+                         metres_per_unit=scene.unit_settings.scale_length)

@@ -23,6 +23,12 @@ def draw_settings(layout, scene):
     layout.prop(s, "motion_source")
     if s.motion_source == "FILE":
         layout.prop(s, "motion_file")
+    layout.prop(s, "use_object_motion")
+    layout.prop(s, "use_depth_of_field")
+    if s.use_depth_of_field:
+        col = layout.column(align=True)
+        col.prop(s, "focus_distance_m")
+        col.prop(s, "aperture_mm")
     layout.prop(s, "exclude_collection")
     layout.prop(s, "output")
     row = layout.row(align=True)

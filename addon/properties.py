@@ -54,6 +54,17 @@ class LowcamSettings(bpy.types.PropertyGroup):
         ("FILE", "File", "A motion.json or gyro CSV file"),
         ("NONE", "None", "No camera motion blur")], default="CAMERA")
     motion_file: StringProperty(name="Motion File", subtype="FILE_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    use_object_motion: BoolProperty(
+        name="Object Motion", default=True,
+        description="Blur what moves relative to the camera's rotation (objects, camera translation) over the "
+                    "shutter, from the Vector pass (Cycles' own motion blur is turned off)")
+    use_depth_of_field: BoolProperty(name="Defocus from Depth", default=False,
+                                     description="Blur each point by its distance from the focus plane (Z pass)")
+    focus_distance_m: FloatProperty(name="Focus Distance (m)", default=2.0, min=0.01, max=1e4,
+                                    description="Distance of the sharp plane from the camera, in metres")
+    aperture_mm: FloatProperty(name="Aperture (mm)", default=1.0, min=0.0, max=200.0,
+                               description="Entrance pupil diameter: focal length / f-number (a 2.1 mm f/2 "
+                                           "webcam lens: about 1 mm)")
     use_clip_lens: BoolProperty(name="Clip Lens", default=False,
                                 description="Use the Movie Clip's tracking camera lens model instead of the profile's")
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",

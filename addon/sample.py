@@ -20,12 +20,13 @@ def _material(name, colour, emission=0.0):
 
 
 def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800, frames: int = 2,
-                       pan_rad_s: float = 0.6, samples: int = 16) -> Path:
+                       pan_rad_s: float = 0.6, samples: int = 16, sphere_m_s: float = 3.0) -> Path:
     """Write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns the .blend path.
 
     The plate is the bundled photograph (``lowcam.sample.sample_plate``); a cube and a sphere stand in front of
-    it; a green crosshair in the "Overlays" collection is excluded from the camera simulation; the camera pans
-    at ``pan_rad_s`` about its vertical axis. Cycles on the CPU with ``samples`` samples.
+    it, the sphere moving sideways at ``sphere_m_s`` (object motion); a green crosshair in the "Overlays"
+    collection is excluded from the camera simulation; the camera pans at ``pan_rad_s`` about its vertical axis.
+    Cycles on the CPU with ``samples`` samples.
     """
     from lowcam.io import write_png
     from lowcam.sample import sample_plate
@@ -53,7 +54,8 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     bpy.context.object.data.materials.append(_material("Red", (0.8, 0.1, 0.05)))
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(0.6, 2.6, -0.2), segments=48, ring_count=24)
     bpy.ops.object.shade_smooth()
-    bpy.context.object.data.materials.append(_material("White", (0.9, 0.9, 0.85)))
+    sphere = bpy.context.object
+    sphere.data.materials.append(_material("White", (0.9, 0.9, 0.85)))
     bpy.ops.object.light_add(type="SUN", rotation=(0.6, 0.2, 0.8))
     bpy.context.object.data.energy = 6.0
     world = bpy.data.worlds.new("World")
@@ -76,14 +78,18 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0), rotation=(math.pi / 2, 0.0, 0.0))
     camera = bpy.context.object
     scene.camera = camera
-    # pan: rotate about the world's vertical axis, linear in time
+    # pan: rotate about the world's vertical axis, linear in time; the sphere moves along x
+    x0 = sphere.location.x
     for f in (scene.frame_start - 1, scene.frame_end + 1):
-        camera.rotation_euler = (math.pi / 2, 0.0, pan_rad_s * (f - 1) / scene.render.fps)
+        t = (f - 1) / scene.render.fps
+        camera.rotation_euler = (math.pi / 2, 0.0, pan_rad_s * t)
         camera.keyframe_insert("rotation_euler", frame=f)
-    slot = camera.animation_data.action_slot
-    for fc in camera.animation_data.action.layers[0].strips[0].channelbag(slot).fcurves:
-        for k in fc.keyframe_points:
-            k.interpolation = "LINEAR"
+        sphere.location.x = x0 + sphere_m_s * t
+        sphere.keyframe_insert("location", index=0, frame=f)
+    for ob in (camera, sphere):
+        for fc in ob.animation_data.action.layers[0].strips[0].channelbag(ob.animation_data.action_slot).fcurves:
+            for k in fc.keyframe_points:
+                k.interpolation = "LINEAR"
 
     s = scene.lowcam
     s.profile = profile

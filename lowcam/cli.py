@@ -140,7 +140,7 @@ def cmd_demo(args) -> int:
         frame = read_image(composite)
         render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
         plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
-        title = f"lowcam ({profile.name}), camera panning"
+        title = f"lowcam ({profile.name}), camera panning, sphere moving"
     say(2)
     plain = plain_composite(render, profile, plate)
     if not args.synthetic:
@@ -164,6 +164,14 @@ def cmd_render(args) -> int:
                                                progress=lambda f, p: bar.update(1))
     bar.close()
     print(f"{len(written)} composites in {written[0].parent if written else args.output}")
+    return 0
+
+
+def cmd_node_asset(args) -> int:
+    from .extension import submodule
+
+    path = submodule("nodes.asset").write_asset(args.output, args.profile, args.render_width, args.angular_velocity)
+    print(f"{path}: \"Lowcam Camera ({args.profile})\" asset ({path.stat().st_size / 1e6:.0f} MB)")
     return 0
 
 
@@ -470,6 +478,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
+    p.add_argument("-o", "--output", required=True, help="the .blend to write")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--render-width", type=int, default=1600, help="width of the renders it will take (px)")
+    p.add_argument("--angular-velocity", type=_vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+                   help="camera rotation baked into the maps (rad/s, camera frame)")
+    p.set_defaults(func=cmd_node_asset)
     return parser
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from .errors import LowcamError
 from .io import check_plate, check_render
+from .passes import RenderPasses, check_passes
 from .profile import Profile, load_profile
 
 
@@ -33,6 +34,7 @@ class SimState:
     exposure_s: float | None
     seed: int
     frame: int
+    passes: RenderPasses | None = None
     working: np.ndarray | None = None
     ca_grid: np.ndarray | None = None
     motion_taps: np.ndarray | None = None
@@ -59,6 +61,15 @@ class SimState:
     @property
     def geometry(self):
         return self.profile.geometry
+
+    def render_focal_px(self) -> float:
+        """The render's focal length in its pixels (:func:`render_focal_px`)."""
+        rows, cols = self.render.shape[:2]
+        return render_focal_px(self.profile, cols, rows)
+
+    def render_pass(self, effect) -> np.ndarray:
+        """The render pass ``effect`` needs (``effect.needs_pass``); a clear error when it was not given."""
+        return (self.passes or RenderPasses()).get(effect.needs_pass, effect)
 
 
 @dataclass
@@ -191,18 +202,19 @@ def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, angular_velocity=(0.0, 0.0, 0.0),
         exposure_s: float | None = None, seed: int = 0, frame: int = 0, keep_stages: bool = False,
-        stop_after: str | None = None) -> Result:
+        stop_after: str | None = None, passes: RenderPasses | None = None) -> Result:
     """Simulate the camera on one frame; see :func:`simulate`. ``keep_stages`` records every stage's output
     (as displayable arrays, see :func:`stage_image`); ``stop_after`` ends the chain after that effect."""
     profile = load_profile(profile)
     render = check_render(render)
+    passes = check_passes(passes, render.shape)
     plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
     w = tuple(float(x) for x in angular_velocity)
     if len(w) != 3 or not all(np.isfinite(w)):
         raise LowcamError(f"angular_velocity must be three finite numbers (rad/s), got {angular_velocity!r}")
     if exposure_s is not None and not (0 <= exposure_s <= 10):
         raise LowcamError(f"exposure_s = {exposure_s} is out of range [0, 10] s")
-    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame))
+    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes)
     stages: OrderedDict = OrderedDict()
     for i, effect in enumerate(profile.effects):
         if not effect.enabled and not effect.always_runs:
@@ -227,14 +239,15 @@ def deterministic_prefix(profile, until: str | None = None) -> int:
 
 
 def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
-            exposure_s: float | None = None, until: str | None = None):
+            exposure_s: float | None = None, until: str | None = None, passes: RenderPasses | None = None):
     """Run the chain up to its first random effect (noise), or through ``until``: that part is the same for
     every frame of a static scene. Returns a token for :func:`resume`; ``resume(token, seed, frame)`` equals
     ``simulate(render, profile, plate, angular_velocity, exposure_s, seed, frame)`` byte for byte."""
     profile = load_profile(profile)
     render = check_render(render)
     plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
-    state = SimState(profile, render, plate_f, plate_raw, tuple(float(x) for x in angular_velocity), exposure_s, 0, 0)
+    state = SimState(profile, render, plate_f, plate_raw, tuple(float(x) for x in angular_velocity), exposure_s, 0, 0,
+                     check_passes(passes, render.shape))
     start = deterministic_prefix(profile, until)
     for effect in profile.effects[:start]:
         if effect.enabled or effect.always_runs:
@@ -263,7 +276,7 @@ def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None)
 
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,
              angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None, seed: int = 0,
-             frame: int = 0) -> np.ndarray:
+             frame: int = 0, passes: RenderPasses | None = None) -> np.ndarray:
     """The camera's 8-bit RGB frame (H, W, 3) for a premultiplied RGBA ``render`` composited over ``plate``.
 
     Parameters
@@ -274,6 +287,8 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
     angular_velocity : (wx, wy, wz) rad/s in the camera frame (x right, y down, z forward).
     exposure_s : exposure time in seconds; None uses the profile's.
     seed, frame : the noise of a frame depends on these two numbers only.
+    passes : the render's velocity and depth (:class:`lowcam.passes.RenderPasses`), for the ``object_motion`` and
+        ``depth_of_field`` effects.
 
     Examples
     --------
@@ -284,7 +299,7 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
     >>> out.shape, out.dtype
     ((480, 640, 3), dtype('uint8'))
     """
-    return run(render, profile, plate, angular_velocity, exposure_s, seed, frame).frame
+    return run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes).frame
 
 
 def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarray:
@@ -292,8 +307,8 @@ def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarra
     mosaic for the sensel planes, 8-bit RGB for the frame, and an arrow plot for sampling fields."""
     from .effects.bayer import mosaic
 
-    if writes == "working":
-        return state.working.copy()
+    if writes in ("render", "working"):
+        return getattr(state, writes).copy()
     if writes == "bayer":
         g = state.geometry
         m = mosaic(state.bayer, g) / 255.0

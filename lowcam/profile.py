@@ -31,10 +31,10 @@ from .errors import ProfileError
 from .geometry import FrameGeometry
 
 #: The order in which effects stand in a complete chain; an effect added to a profile goes to its place here.
-CANONICAL_ORDER = ["lens_distortion", "half_sampling", "crosstalk", "motion_blur", "rolling_shutter",
-                   "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare", "bayer_sampling",
-                   "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur", "sharpening",
-                   "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
+CANONICAL_ORDER = ["object_motion", "depth_of_field", "lens_distortion", "half_sampling", "crosstalk", "motion_blur",
+                   "rolling_shutter", "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare",
+                   "bayer_sampling", "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur",
+                   "sharpening", "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
                    "tone_curve", "yuv_blend", "chroma_subsampling", "jpeg"]
 
 #: Bundled profiles: the repository's ``profiles/`` folder.

@@ -9,15 +9,18 @@ import numpy as np
 
 from .errors import LowcamError
 from .io import _rgba_from_exr, check_render, read_exr, write_image
+from .passes import BLENDER_PASS, RenderPasses, from_blender
 from .pipeline import run
+from .profile import load_profile
 
 OVERLAY_LAYER = "Lowcam Overlay"
 
 
-def read_layers(path, layer: str, overlay_layer: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def read_layers(path, layer: str, overlay_layer: str | None = None,
+                channels: dict | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """(render, overlay) premultiplied RGBA from a Blender multilayer EXR: view layer ``layer``'s Combined pass
-    and, when asked, ``overlay_layer``'s."""
-    channels = read_exr(path)
+    and, when asked, ``overlay_layer``'s. ``channels``: the file's already read."""
+    channels = read_exr(path) if channels is None else channels
 
     def combined(name):
         key = f"{name}.Combined"
@@ -31,13 +34,29 @@ def read_layers(path, layer: str, overlay_layer: str | None = None) -> tuple[np.
     return combined(layer), (combined(overlay_layer) if overlay_layer else None)
 
 
+def read_passes(path, layer: str, fps: float, metres_per_unit: float = 1.0, needs: tuple[str, ...] = (),
+                channels: dict | None = None) -> RenderPasses:
+    """View layer ``layer``'s Vector and Depth passes (those present) as :class:`RenderPasses`, for a scene at
+    ``fps`` whose length unit is ``metres_per_unit``; ``needs`` names the passes that must be there
+    (``"Vector"``, ``"Depth"``)."""
+    channels = read_exr(path) if channels is None else channels
+    found = {}
+    for name, axes in (("Vector", "XYZW"), ("Depth", "Z")):
+        keys = [f"{layer}.{name}.{a}" for a in axes]
+        if all(k in channels for k in keys):
+            found[name] = np.stack([channels[k] for k in keys], -1) if len(keys) > 1 else channels[keys[0]]
+        elif name in needs:
+            raise LowcamError(f"{path}: view layer '{layer}' has no {name} pass (turn it on, or run Lowcam's "
+                              "Set Up Scene)")
+    return from_blender(found.get("Vector"), found.get("Depth"), fps, metres_per_unit)
+
+
 def overlay_in_frame(overlay: np.ndarray, profile) -> np.ndarray:
     """Resample a render-sized ``overlay`` into the output frame through the lens geometry only (bilinear), so
     excluded objects land where the camera sees them but get no blur, noise or colour processing."""
     import cv2
 
     from .pipeline import render_pixel_coordinates
-    from .profile import load_profile
 
     profile = load_profile(profile)
     g = profile.geometry
@@ -55,9 +74,15 @@ def over_frame(frame: np.ndarray, overlay: np.ndarray) -> np.ndarray:
 
 def degrade_frame(render_path, output_path, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
                   exposure_s=None, seed: int = 0, frame: int = 0, layer: str = "ViewLayer",
-                  overlay_layer: str | None = None) -> Path:
-    """Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite (atomically)."""
-    render, overlay = read_layers(render_path, layer, overlay_layer)
-    result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame)
+                  overlay_layer: str | None = None, fps: float = 24.0, metres_per_unit: float = 1.0) -> Path:
+    """Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite (atomically).
+    The view layer's Vector and Depth passes (a scene at ``fps``, ``metres_per_unit``) feed the effects that
+    need them (``object_motion``, ``depth_of_field``)."""
+    profile = load_profile(profile)
+    channels = read_exr(render_path)
+    render, overlay = read_layers(render_path, layer, overlay_layer, channels)
+    needs = tuple(BLENDER_PASS[e.needs_pass] for e in profile.effects if e.enabled and e.needs_pass)
+    passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)
+    result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes)
     image = result.frame if overlay is None else over_frame(result.frame, overlay_in_frame(overlay, profile))
     return write_image(output_path, image)

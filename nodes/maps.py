@@ -94,6 +94,9 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
     ((1536, 2016, 4), (480, 640, 4))
     """
     profile = load_profile(profile)
+    needs_passes = [e.name for e in profile.effects if e.enabled and e.needs_pass]
+    if needs_passes:  # object motion, defocus from depth: the render handler's (Blender's Vector Blur, Defocus)
+        profile = profile.without(*needs_passes)
     if profile.is_raw:
         raise LowcamError(f"{profile.source}: the compositor node group simulates YUV cameras; "
                           "use the engine (the add-on's render handler) for raw Bayer profiles")

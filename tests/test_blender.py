@@ -11,17 +11,33 @@ from lowcam.extension import submodule
 from lowcam.io import read_image, read_plate
 from lowcam.pipeline import plain_composite
 from lowcam.profile import BUNDLED_PROFILES
-from lowcam.scene import OVERLAY_LAYER, overlay_in_frame, read_layers
+from lowcam.scene import OVERLAY_LAYER, overlay_in_frame, read_layers, read_passes
 
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    """The sample scene at 400 px, frames 1-2 rendered with the handler on (bpy.ops.render.render(animation))."""
+    """The sample scene at 400 px, frames 1-2 rendered with the handler on (bpy.ops.render.render(animation)),
+    object motion on (the default) and defocus from depth on, focused on the cube with a small aperture."""
     folder = tmp_path_factory.mktemp("sample")
     blend = submodule("addon.sample").build_sample_scene(folder, render_width=400, samples=8)
-    submodule("addon.render").open_scene(blend)
+    scene = submodule("addon.render").open_scene(blend)
+    s = scene.lowcam
+    s.use_depth_of_field, s.focus_distance_m, s.aperture_mm = True, 3.0, 1.0
+    submodule("addon.frames").setup_scene(scene, 400)
+    bpy.ops.wm.save_mainfile()
     bpy.ops.render.render(animation=True)
     return folder
+
+
+def _objects(render):
+    """(cube, sphere) masks of the sample scene's opaque, not-edge pixels: the cube stands left of the sphere."""
+    import cv2
+
+    solid = cv2.erode((render[..., 3] > 0.999).astype(np.uint8), np.ones((5, 5), np.uint8))
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(solid)
+    biggest = sorted(range(1, n), key=lambda i: -stats[i, cv2.CC_STAT_AREA])[:2]
+    cube, sphere = sorted(biggest, key=lambda i: centroids[i][0])
+    return labels == cube, labels == sphere
 
 
 def _frame_data(folder, frame):
@@ -34,13 +50,16 @@ def _frame_data(folder, frame):
 def test_handler_writes_composites_that_keep_the_plate_and_degrade_the_object(rendered):
     import cv2
 
+    for frame in (1, 2):
+        out, render, overlay, plate = _frame_data(rendered, frame)
+        plain = plain_composite(render, "fire-i", plate)
+        reach = (plain != plate).any(axis=2) | (overlay_in_frame(overlay, "fire-i")[..., 3] > 0)
+        far = ~cv2.dilate(reach.astype(np.uint8), np.ones((41, 41), np.uint8)).astype(bool)
+        assert far.mean() > 0.3
+        assert np.array_equal(out[far], plate[far])
     out1, render, overlay, plate = _frame_data(rendered, 1)
     out2 = read_image(rendered / "lowcam" / "0002.png")
     plain = plain_composite(render, "fire-i", plate)
-    reach = (plain != plate).any(axis=2) | (overlay_in_frame(overlay, "fire-i")[..., 3] > 0)
-    far = ~cv2.dilate(reach.astype(np.uint8), np.ones((41, 41), np.uint8)).astype(bool)
-    assert far.mean() > 0.3
-    assert np.array_equal(out1[far], plate[far]) and np.array_equal(out2[far], plate[far])
     core = cv2.erode((plain != plate).any(axis=2).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     assert core.sum() > 500
     # degraded, not the plain composite, and the noise differs between frames
@@ -76,7 +95,8 @@ def test_object_shows_6_bit_levels(tmp_path):
     (tmp_path / "fire-i-6bit.toml").write_text(text)
     os.environ["LOWCAM_PROFILE_PATH"] = str(tmp_path)
     try:
-        blend = submodule("addon.sample").build_sample_scene(tmp_path, "fire-i-6bit", render_width=400, samples=8)
+        blend = submodule("addon.sample").build_sample_scene(tmp_path, "fire-i-6bit", render_width=400, samples=8,
+                                                             sphere_m_s=0.0)   # no streaks over the plate
         out = read_image(submodule("addon.render").render(blend, [1], str(tmp_path / "out"),
                                                           keep_renders=str(tmp_path / "render"))[0])
     finally:
@@ -116,6 +136,91 @@ def test_angular_velocity_from_the_panning_camera(rendered):
     assert m.exposure_s == pytest.approx(0.033)
 
 
+def test_vector_pass_reads_as_image_velocity(tmp_path):
+    """A plane moving diagonally in front of a still camera: the Vector pass, read by ``read_passes``, is its
+    projected velocity in px/s with y down."""
+    import math
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine, scene.cycles.samples, scene.cycles.device = "CYCLES", 1, "CPU"
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.fps = 200, 150, 25
+    scene.render.film_transparent, scene.render.use_motion_blur = True, False
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    scene.camera, camera.location = camera, (0.0, 0.0, 10.0)                  # looking down -z, image x = world x
+    camera.data.sensor_fit, camera.data.angle = "HORIZONTAL", math.radians(60)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.object
+    for frame, x in ((1, 0.0), (3, 1.0)):                                    # 0.5 m per frame right, 0.25 up
+        plane.location = (x, 0.5 * x, 0.0)
+        plane.keyframe_insert("location", frame=frame)
+    for fc in plane.animation_data.action.layers[0].strips[0].channelbag(plane.animation_data.action_slot).fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    scene.view_layers[0].use_pass_vector = scene.view_layers[0].use_pass_z = True
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format, settings.color_depth = "MULTI_LAYER_IMAGE", "OPEN_EXR_MULTILAYER", "32"
+    scene.frame_set(2)
+    scene.render.filepath = str(tmp_path / "plane.exr")
+    bpy.ops.render.render(write_still=True)
+
+    passes = read_passes(tmp_path / "plane.exr", "ViewLayer", fps=25.0, needs=("Vector", "Depth"))
+    render, _ = read_layers(tmp_path / "plane.exr", "ViewLayer")
+    inside = render[..., 3] > 0.999
+    focal = 100.0 / math.tan(math.radians(30))                                 # px
+    expected = np.array([0.5, -0.25]) * 25.0 * focal / 10.0                    # m/frame -> px/s at 10 m
+    assert np.allclose(np.median(passes.velocity_px_s[inside], axis=0), expected, rtol=0.01)
+    assert np.allclose(passes.depth_m[inside], 10.0, rtol=1e-4)
+
+
+def test_object_motion_is_what_the_camera_rotation_leaves(rendered):
+    """In the sample scene the camera pans and the sphere moves 3 m/s along x: after taking out the rotation's
+    velocity the cube is still and the sphere moves at f 3 / z px/s, z from the Depth pass."""
+    from lowcam.effects.object_motion import rotation_velocity
+    from lowcam.pipeline import render_focal_px
+
+    frames = submodule("addon.frames")
+    scene = submodule("addon.render").open_scene(rendered / "sample_scene.blend")
+    w = frames.motion(scene, 1, 0.033).angular_velocity
+    render, _ = read_layers(rendered / "render" / "0001.exr", "ViewLayer")
+    passes = read_passes(rendered / "render" / "0001.exr", "ViewLayer", fps=24.0, needs=("Vector", "Depth"))
+    focal = render_focal_px(frames.scene_profile(scene), render.shape[1], render.shape[0])
+    camera = rotation_velocity(w, focal, render.shape[:2])
+    residual = passes.velocity_px_s - camera
+    cube, sphere = _objects(render)
+    assert cube.sum() > 300 and sphere.sum() > 300
+    assert np.percentile(np.abs(camera[cube][:, 0]), 5) > 50                 # the pan moves it 50+ px/s ...
+    assert np.percentile(np.abs(residual[cube]), 95) < 1.0                   # ... and explains all of it
+    expected = focal * 3.0 / passes.depth_m[sphere]
+    assert np.median(np.abs(residual[sphere][:, 0] / expected - 1)) < 0.02
+    assert np.percentile(np.abs(residual[sphere][:, 1]), 95) < 0.05 * expected.min()
+    assert passes.depth_m[sphere].min() == pytest.approx(2.6 - 0.35, rel=0.01)   # the sphere's nearest point
+
+
+def test_object_motion_changes_the_frame_only_around_the_moving_sphere(rendered, tmp_path):
+    """Degrading frame 1 again gives the handler's bytes; without object motion only the sphere's surroundings
+    change (the noise is the same: it depends on seed and frame only)."""
+    import cv2
+
+    frames = submodule("addon.frames")
+    scene = submodule("addon.render").open_scene(rendered / "sample_scene.blend")
+    scene.lowcam.output = str(tmp_path / "####.png")
+    exr = rendered / "render" / "0001.exr"
+    again = read_image(frames.degrade(scene, exr, 1))
+    assert np.array_equal(again, read_image(rendered / "lowcam" / "0001.png"))
+    scene.lowcam.use_object_motion = False
+    still = read_image(frames.degrade(scene, exr, 1))
+    changed = (still != again).any(axis=2)
+    render, _ = read_layers(exr, "ViewLayer")
+    cube, sphere = _objects(render)
+    sphere = cv2.dilate(sphere.astype(np.uint8), np.ones((7, 7), np.uint8))      # its edge back
+    sphere_frame = plain_composite(np.repeat(sphere[..., None].astype(np.float32), 4, -1), "fire-i")[..., 0] > 0
+    near_sphere = cv2.dilate(sphere_frame.astype(np.uint8), np.ones((31, 31), np.uint8)).astype(bool)
+    assert changed.sum() > 200
+    assert not changed[~near_sphere].any()
+
+
 def test_node_group_matches_the_engine(fire_i):
     """Blender's compositor running "Lowcam Camera" against the engine, noise off: every stage within 2/255."""
     from lowcam.sample import sample_plate, sample_render
@@ -129,3 +234,34 @@ def test_node_group_matches_the_engine(fire_i):
     assert all(r["mad"] <= 2.0 for r in results.values()), results
     assert results["plate_blend"]["mad_object"] <= 2.0
     assert results["plate_blend"]["max_outside"] == 0.0          # the plate passes bit for bit
+
+
+def test_node_asset_appends_into_a_new_file_and_matches_the_engine(fire_i, tmp_path):
+    """The asset .blend written by ``lowcam node-asset``: appended into an empty file, the group is an asset with
+    its maps packed, and its composite is the engine's frame (noise off) within 2 DN, the plate exact."""
+    from lowcam.cli import main
+    from lowcam.pipeline import run
+    from lowcam.sample import sample_plate, sample_render
+
+    path = tmp_path / "lowcam-camera.blend"
+    assert main(["node-asset", "-o", str(path), "--render-width", "800", "--angular-velocity", "0,0.3,0.1"]) == 0
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    with bpy.data.libraries.load(str(path), assets_only=True) as (source, target):
+        assert source.node_groups == ["Lowcam Camera (fire-i)"]
+        target.node_groups = source.node_groups
+    group = bpy.data.node_groups["Lowcam Camera (fire-i)"]
+    assert group.asset_data is not None and "lowcam" in [t.name for t in group.asset_data.tags]
+    maps = [im for im in bpy.data.images if im.name.startswith("Lowcam")]
+    assert maps and all(im.packed_file is not None for im in maps)
+
+    parity = submodule("nodes.parity")
+    render, plate = sample_render(fire_i, 800), sample_plate(fire_i)
+    image = parity.image_from_array("render", render)
+    image.alpha_mode = "PREMUL"
+    node = parity.render_group(group, {"Image": image, "Plate": parity.plate_image(plate), "Noise": 0.0},
+                               plate.shape[:2], tmp_path / "asset.png")
+    quiet = fire_i.without("noise")
+    engine = run(render, quiet, plate, (0.0, 0.3, 0.1))
+    diff = np.abs(node.astype(float) - engine.frame)
+    assert diff.mean() <= 2.0
+    assert diff[~engine.footprint].max() == 0

@@ -11,6 +11,7 @@ from .chromatic_aberration import ChromaticAberration
 from .crosstalk import Crosstalk, Saturation
 from .lens import LensDistortion
 from .motion_blur import MotionBlur
+from .object_motion import ObjectMotion
 from .noise import Noise
 from .raw import RawBlend
 from .resample import HalfSampling
@@ -19,6 +20,7 @@ from .vignetting import Vignetting
 from .yuv import ChromaSubsampling, YuvBlend
 from .blur import VerticalBlur
 from .defocus import Defocus
+from .depth_of_field import DepthOfField
 from .fixed_pattern import DSNU, PRNU, HotPixels, RowNoise
 from .glare import VeilingGlare
 from .jpeg import Jpeg
@@ -32,7 +34,9 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                Jpeg)
+                Jpeg,
+                # need render passes (velocity, depth): added by the Blender add-on when asked for
+                ObjectMotion, DepthOfField)
 }
 
 

@@ -94,7 +94,8 @@ class Effect(ParamSet):
     section : str
         Where the paper describes it.
     writes : str
-        Which part of the simulation state the effect changes: ``"working"`` (the distorted RGBA image),
+        Which part of the simulation state the effect changes: ``"render"`` (the pinhole render, before the
+        lens), ``"working"`` (the distorted RGBA image),
         ``"sampling"`` (where the Bayer sensels look), ``"bayer"`` (the per-channel sensel planes), ``"rgb"``
         (the demosaiced frame) or ``"output"`` (the blended frame).
     params : dict[str, Param]
@@ -107,6 +108,8 @@ class Effect(ParamSet):
     #: True for an effect whose result depends on (seed, frame): everything before the first one is the same for
     #: every frame of a static scene, so it is computed once (:func:`lowcam.pipeline.prepare`).
     random: ClassVar[bool] = False
+    #: The render pass the effect reads (``"velocity"`` or ``"depth"``, see :mod:`lowcam.passes`), or "".
+    needs_pass: ClassVar[str] = ""
 
     def __init__(self, enabled: bool = True, source: str = "<python>", base_dir: Path | None = None, **values):
         self.enabled = bool(enabled)

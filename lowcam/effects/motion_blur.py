@@ -36,6 +36,15 @@ def tap_offsets(lens, u, v, angular_velocity, exposure_s: float, taps: int) -> n
     return off
 
 
+def shutter_s(state) -> float:
+    """The exposure (s) the motion effects integrate over: the frame's own, else the ``motion_blur`` effect's
+    ``exposure_s``, else the camera's."""
+    if state.exposure_s is not None:
+        return state.exposure_s
+    effect = state.profile.effect("motion_blur")
+    return (effect.exposure_s if effect is not None else 0.0) or state.camera.exposure_s
+
+
 class MotionBlur(Effect):
     """``taps``-tap motion blur along the flow that the camera's rotation produces over the exposure.
 
@@ -56,7 +65,7 @@ class MotionBlur(Effect):
 
     def apply(self, state):
         w = np.asarray(state.angular_velocity, np.float64)
-        exposure = state.exposure_s if state.exposure_s is not None else (self.exposure_s or state.camera.exposure_s)
+        exposure = shutter_s(state)
         if not np.any(w) or exposure <= 0:
             return
         u, v = grid_points(state.geometry.working_extent, tuple(int(c) for c in self.grid))

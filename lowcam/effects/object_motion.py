@@ -1,0 +1,95 @@
+"""Motion blur from everything the camera's rotation does not explain: moving objects and the camera's translation
+(beyond the paper, which blurs camera rotation only; its Fig. 15 lists this as a drawback).
+
+The renderer's velocity pass (:class:`lowcam.passes.RenderPasses`) gives each pixel's image velocity. The part a
+static scene would have under the camera's angular velocity, :func:`rotation_velocity`, is left to
+:class:`~lowcam.effects.MotionBlur`; what remains is spread over the exposure here, in the render's pixel grid
+before the lens. The two blurs are applied one after the other, so a moving object seen by a turning camera gets
+the convolution of both streaks: its extent is right, its profile a trapezoid instead of a box.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Param
+from .motion_blur import shutter_s
+
+
+def rotation_velocity(angular_velocity, focal_px: float, shape) -> np.ndarray:
+    """(rows, cols, 2) image velocity (px/s, x right, y down) of a static scene seen by a pinhole camera of
+    ``focal_px`` (centred, ``shape`` = (rows, cols)) turning at ``angular_velocity`` (rad/s, camera frame).
+
+    A static direction ``d`` is seen at ``R(-t) d`` (:func:`~lowcam.effects.motion_blur.tap_offsets`), so
+    ``d' = -w x d`` and, for ``d = (x, y, 1)``, ``x' = d'_x - x d'_z``, ``y' = d'_y - y d'_z``.
+    """
+    wx, wy, wz = (float(c) for c in angular_velocity)
+    rows, cols = shape
+    x = ((np.arange(cols) - cols / 2 + 0.5) / focal_px)[None, :]
+    y = ((np.arange(rows) - rows / 2 + 0.5) / focal_px)[:, None]
+    dx, dy, dz = -(wy - wz * y), -(wz * x - wx), -(wx * y - wy * x)
+    return (focal_px * np.stack(np.broadcast_arrays(dx - x * dz, dy - y * dz), -1)).astype(np.float32)
+
+
+def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0.5) -> np.ndarray:
+    """Spread each pixel of premultiplied RGBA ``image`` evenly along the segment ``[-shift/2, +shift/2]``
+    around it (``shift_px`` (H, W, 2): the pixel's path over the exposure, px).
+
+    Pixels that move less than ``min_shift_px`` stay as they are; the moving ones are scattered with bilinear
+    weights at taps at most 1 px apart and laid over the still ones (premultiplied "over").
+    """
+    length = np.hypot(shift_px[..., 0], shift_px[..., 1])
+    moving = (length >= min_shift_px) & (np.abs(image) > 0).any(axis=-1)
+    if not moving.any():
+        return image
+    rows, cols = image.shape[:2]
+    ys, xs = np.nonzero(moving)
+    reach = int(np.ceil(length[moving].max() / 2)) + 2
+    y0, y1 = max(ys.min() - reach, 0), min(ys.max() + reach + 1, rows)
+    x0, x1 = max(xs.min() - reach, 0), min(xs.max() + reach + 1, cols)
+    h, w = y1 - y0, x1 - x0
+    values = image[ys, xs].astype(np.float64)
+    shift = shift_px[ys, xs].astype(np.float64)
+    taps = max(2, int(np.ceil(length[moving].max())) + 1)
+    acc = np.zeros((h * w, image.shape[2]), np.float64)
+    for k in range(taps):
+        t = (k + 0.5) / taps - 0.5
+        x = xs - x0 + shift[:, 0] * t
+        y = ys - y0 + shift[:, 1] * t
+        xi, yi = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+        fx, fy = x - xi, y - yi
+        for ox, oy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                               (1, 1, fx * fy)):
+            cx, cy = xi + ox, yi + oy
+            inside = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+            index = cy[inside] * w + cx[inside]
+            for c in range(image.shape[2]):
+                acc[:, c] += np.bincount(index, weight[inside] * values[inside, c], minlength=h * w)
+    spread = (acc / taps).reshape(h, w, -1).astype(np.float32)
+    alpha = spread[..., 3:]
+    spread /= np.maximum(alpha, 1.0)                    # paths that cross add up; keep alpha <= 1
+    out = np.where(moving[..., None], 0.0, image).astype(np.float32)
+    window = out[y0:y1, x0:x1]
+    out[y0:y1, x0:x1] = spread + (1.0 - spread[..., 3:]) * window
+    return out
+
+
+class ObjectMotion(Effect):
+    """Blur along each pixel's image velocity minus the camera rotation's, over the shutter (needs a velocity
+    pass: Blender's Vector pass through the add-on or ``lowcam render``)."""
+
+    name = "object_motion"
+    section = "beyond the paper (Fig. 15: object motion)"
+    writes = "render"
+    needs_pass = "velocity"
+    params = {
+        "min_shift_px": Param(0.5, low=0.0, high=100.0, unit="px (render)",
+                              doc="pixels whose path over the exposure is shorter stay sharp"),
+    }
+
+    def apply(self, state):
+        velocity = state.render_pass(self)
+        exposure = shutter_s(state)
+        if exposure <= 0:
+            return
+        camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), state.render.shape[:2])
+        state.render = splat_along(state.render, (velocity - camera) * exposure, self.min_shift_px)

@@ -1,0 +1,107 @@
+"""Object motion from a velocity pass and defocus from a depth pass (beyond the paper, Fig. 15), on the engine."""
+import numpy as np
+import pytest
+
+import lowcam
+from lowcam.effects.lens import PinholeLens
+from lowcam.effects.motion_blur import tap_offsets
+from lowcam.effects.object_motion import rotation_velocity
+from lowcam.errors import LowcamError
+from lowcam.passes import RenderPasses
+from lowcam.pipeline import render_focal_px
+
+ROWS, COLS = 600, 800
+
+
+def _square(top=250, left=350, size=100):
+    render = np.zeros((ROWS, COLS, 4), np.float32)
+    render[top:top + size, left:left + size] = 1.0
+    return render
+
+
+def _render_stage(profile, render, passes, stage, **kw):
+    return lowcam.run(render, profile, passes=passes, stop_after=stage, **kw).state.render
+
+
+def test_rotation_velocity_is_how_fast_static_points_cross_the_image():
+    """Minus the rate at which a pixel's line of sight sweeps over the mid-exposure image (motion_blur's taps)."""
+    focal = 262.0
+    lens = PinholeLens(COLS, ROWS, focal, focal, COLS / 2 - 0.5, ROWS / 2 - 0.5)
+    w = (0.2, 0.6, 0.3)
+    u, v = np.meshgrid(np.arange(0, COLS, 100.0), np.arange(0, ROWS, 100.0))
+    dt = 1e-4
+    taps = tap_offsets(lens, u, v, w, dt, 2)                       # at -dt/4 and +dt/4
+    sweep = (taps[..., 1, :] - taps[..., 0, :]) / (dt / 2)
+    velocity = rotation_velocity(w, focal, (ROWS, COLS))[v.astype(int), u.astype(int)]
+    assert np.abs(velocity + sweep).max() < 1e-3 * np.abs(sweep).max()
+    assert rotation_velocity((0, 0.6, 0), focal, (ROWS, COLS))[ROWS // 2, COLS // 2, 0] < 0   # pan right: moves left
+
+
+def test_a_moving_square_is_smeared_over_its_path_during_the_exposure(fire_i):
+    render = _square()
+    render[100:140, 100:140] = 0.5                                  # a still object
+    velocity = np.zeros((ROWS, COLS, 2), np.float32)
+    velocity[250:350, 350:450] = (1500.0, 0.0)                      # px/s: 49.5 px over 0.033 s
+    out = _render_stage(fire_i.with_effect("object_motion"), render, RenderPasses(velocity), "object_motion")
+    row = out[300, :, 3]
+    covered = np.nonzero(row > 1e-6)[0]
+    assert covered.min() == 350 - 25 and covered.max() == 449 + 25   # half the path each way
+    assert row.sum() == pytest.approx(100.0, rel=1e-5)               # nothing is lost or made
+    ramp = row[326:374]
+    assert np.allclose(np.diff(ramp), 1 / 49.5, atol=2e-3)           # a box over the path: linear edges
+    assert np.array_equal(out[100:140, 100:140], render[100:140, 100:140])
+    swept = np.zeros((ROWS, COLS), bool)
+    swept[250:350, 325:475] = True
+    assert np.array_equal(out[~swept], render[~swept])              # nothing else moves
+
+
+def test_velocity_the_camera_rotation_explains_is_left_to_motion_blur(fire_i):
+    """A static scene's velocity pass under a turning camera is all rotation: object motion changes nothing."""
+    w = (0.1, 0.6, 0.2)
+    velocity = rotation_velocity(w, render_focal_px(fire_i, COLS, ROWS), (ROWS, COLS))
+    render = _square()
+    profile = fire_i.with_effect("object_motion")
+    assert np.array_equal(_render_stage(profile, render, RenderPasses(velocity), "object_motion", angular_velocity=w),
+                          render)
+    moved = _render_stage(profile, render, RenderPasses(velocity), "object_motion")   # camera still: it moved
+    assert not np.array_equal(moved, render)
+
+
+def test_defocus_grows_with_distance_from_the_focus_plane(fire_i):
+    render = _square(top=200, left=200, size=60) + _square(top=300, left=500, size=60)
+    depth = np.full((ROWS, COLS), np.inf, np.float32)
+    depth[200:260, 200:260] = 2.0                                   # in focus
+    depth[300:360, 500:560] = 0.5                                   # near
+    profile = fire_i.with_effect("depth_of_field", focus_distance_m=2.0, aperture_mm=20.0)
+    out = _render_stage(profile, render, RenderPasses(None, depth), "depth_of_field")
+    assert np.array_equal(out[190:270, 190:270], render[190:270, 190:270])
+    radius = 0.5 * 20e-3 * (1 / 0.5 - 1 / 2.0) * render_focal_px(fire_i, COLS, ROWS)   # 3.9 px
+    row = out[330, :, 3]
+    covered = np.nonzero(row > 1e-6)[0]
+    assert abs((covered.max() - covered.min() + 1) - (60 + 2 * radius)) <= 2
+    assert out[..., 3].sum() == pytest.approx(render[..., 3].sum(), rel=1e-4)
+    assert row[500] == pytest.approx(0.5, abs=0.1)                   # the edge is half covered
+
+
+def test_pass_effects_need_their_pass_and_sane_values(fire_i):
+    render = _square()
+    with pytest.raises(LowcamError, match="object_motion.*velocity pass"):
+        lowcam.run(render, fire_i.with_effect("object_motion"))
+    with pytest.raises(LowcamError, match="depth_of_field.*depth pass"):
+        lowcam.run(render, fire_i.with_effect("depth_of_field"))
+    with pytest.raises(LowcamError, match="velocity pass must be"):
+        lowcam.run(render, fire_i, passes=RenderPasses(np.zeros((ROWS, COLS, 3))))
+    with pytest.raises(LowcamError, match="depth pass has NaN"):
+        lowcam.run(render, fire_i, passes=RenderPasses(None, np.full((ROWS, COLS), np.nan)))
+    with pytest.raises(LowcamError, match="aperture_mm.*out of range"):
+        fire_i.with_effect("depth_of_field", aperture_mm=-1.0)
+
+
+def test_the_node_group_leaves_pass_effects_to_the_handler(fire_i):
+    from lowcam.extension import submodule
+
+    bake = submodule("nodes.maps").bake
+    with_passes = bake(fire_i.with_effect("object_motion").with_effect("depth_of_field"), (300, 400))
+    plain = bake(fire_i, (300, 400))
+    assert with_passes.stages == plain.stages
+    assert np.array_equal(with_passes.images["lens_uv"], plain.images["lens_uv"])
