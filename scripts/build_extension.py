@@ -3,6 +3,7 @@
 The zip holds addon/, nodes/, profiles/, the manifest and the wheels the add-on needs at run time: Lowcam's
 engine itself (built from pyproject.toml) and its imports that Blender lacks (OpenCV, OpenEXR, tomli-w), at the
 versions installed in this environment. Blender's own builder (shipped in the bpy wheel) validates and zips it.
+Beside the zip it writes the compositor node group as an asset .blend (``lowcam-camera-fire-i.blend``).
 """
 from __future__ import annotations
 
@@ -62,5 +63,15 @@ def build(out_dir: Path) -> Path:
     return zips[-1]
 
 
+def build_asset(out_dir: Path, profile: str = "fire-i") -> Path:
+    """The node group as an asset .blend beside the zip (``lowcam node-asset`` with its defaults)."""
+    sys.path.insert(0, str(ROOT))
+    from lowcam.extension import submodule
+
+    return submodule("nodes.asset").write_asset(out_dir / f"lowcam-camera-{profile}.blend", profile)
+
+
 if __name__ == "__main__":
-    print(build(Path(sys.argv[1] if len(sys.argv) > 1 else ROOT / "dist").resolve()))
+    out = Path(sys.argv[1] if len(sys.argv) > 1 else ROOT / "dist").resolve()
+    print(build(out))
+    print(build_asset(out))

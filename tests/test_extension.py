@@ -58,7 +58,8 @@ def test_extension_builds_installs_and_registers_twice(tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), str(tmp_path / "dist")],
                          capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
-    zip_path = Path(out.stdout.strip().splitlines()[-1])
+    zip_path = next((tmp_path / "dist").glob("lowcam-*.zip"))
+    assert (tmp_path / "dist" / "lowcam-camera-fire-i.blend").stat().st_size > 1e6     # the node-group asset
     import zipfile
 
     names = zipfile.ZipFile(zip_path).namelist()

@@ -43,33 +43,33 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
         return image
     rows, cols = image.shape[:2]
     ys, xs = np.nonzero(moving)
-    reach = int(np.ceil(length[moving].max() / 2)) + 2
-    y0, y1 = max(ys.min() - reach, 0), min(ys.max() + reach + 1, rows)
-    x0, x1 = max(xs.min() - reach, 0), min(xs.max() + reach + 1, cols)
-    h, w = y1 - y0, x1 - x0
-    values = image[ys, xs].astype(np.float64)
+    longest = float(length[moving].max())
+    reach = int(np.ceil(longest / 2)) + 2               # a canvas the paths stay inside, cropped to the image later
+    y0, x0 = ys.min() - reach, xs.min() - reach
+    h, w = ys.max() + reach + 1 - y0, xs.max() + reach + 1 - x0
+    values = image[ys, xs].astype(np.float64).T         # (channels, moving pixels)
     shift = shift_px[ys, xs].astype(np.float64)
-    taps = max(2, int(np.ceil(length[moving].max())) + 1)
-    acc = np.zeros((h * w, image.shape[2]), np.float64)
-    for k in range(taps):
-        t = (k + 0.5) / taps - 0.5
-        x = xs - x0 + shift[:, 0] * t
-        y = ys - y0 + shift[:, 1] * t
-        xi, yi = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    taps = max(2, int(np.ceil(longest)) + 1)
+    acc = np.zeros((image.shape[2], h * w), np.float64)
+    chunk = max(1, 1_000_000 // len(xs))                # taps per bincount: about a million entries
+    for first in range(0, taps, chunk):
+        t = ((np.arange(first, min(first + chunk, taps)) + 0.5) / taps - 0.5)[:, None]
+        x = (xs - x0) + shift[:, 0] * t                  # (taps in chunk, moving pixels)
+        y = (ys - y0) + shift[:, 1] * t
+        xi, yi = np.floor(x), np.floor(y)
         fx, fy = x - xi, y - yi
-        for ox, oy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
-                               (1, 1, fx * fy)):
-            cx, cy = xi + ox, yi + oy
-            inside = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
-            index = cy[inside] * w + cx[inside]
+        index = (yi * w + xi).astype(np.int64)
+        for offset, weight in ((0, (1 - fx) * (1 - fy)), (1, fx * (1 - fy)), (w, (1 - fx) * fy), (w + 1, fx * fy)):
+            flat = (index + offset).ravel()
             for c in range(image.shape[2]):
-                acc[:, c] += np.bincount(index, weight[inside] * values[inside, c], minlength=h * w)
-    spread = (acc / taps).reshape(h, w, -1).astype(np.float32)
-    alpha = spread[..., 3:]
-    spread /= np.maximum(alpha, 1.0)                    # paths that cross add up; keep alpha <= 1
+                acc[c] += np.bincount(flat, (weight * values[c]).ravel(), minlength=h * w)
+    spread = (acc.T / taps).reshape(h, w, -1).astype(np.float32)
+    spread /= np.maximum(spread[..., 3:], 1.0)         # paths that cross add up; keep alpha <= 1
     out = np.where(moving[..., None], 0.0, image).astype(np.float32)
-    window = out[y0:y1, x0:x1]
-    out[y0:y1, x0:x1] = spread + (1.0 - spread[..., 3:]) * window
+    top, left = max(y0, 0), max(x0, 0)
+    bottom, right = min(y0 + h, rows), min(x0 + w, cols)
+    spread = spread[top - y0:bottom - y0, left - x0:right - x0]
+    out[top:bottom, left:right] = spread + (1.0 - spread[..., 3:]) * out[top:bottom, left:right]
     return out
 
 
