@@ -2,8 +2,9 @@
 
 Render set-up (:func:`setup_scene`): a transparent film, the Standard view transform without dither (plates pass
 unchanged), a multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
-"Lowcam Overlay" view layer that renders only that collection; the scene camera gets the pinhole field of view
-the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`).
+"Lowcam Overlay" view layer that renders only that collection; the Vector pass for object motion and the Z pass
+for defocus from depth when those are on, with Cycles' own motion blur off; the scene camera gets the pinhole field
+of view the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`).
 """
 from __future__ import annotations
 

@@ -105,3 +105,15 @@ def test_the_node_group_leaves_pass_effects_to_the_handler(fire_i):
     plain = bake(fire_i, (300, 400))
     assert with_passes.stages == plain.stages
     assert np.array_equal(with_passes.images["lens_uv"], plain.images["lens_uv"])
+
+
+def test_a_frame_without_the_pass_an_effect_needs_names_the_file(fire_i, tmp_path):
+    from lowcam.io import write_exr
+    from lowcam.scene import degrade_frame
+
+    path = write_exr(tmp_path / "0001.exr", _square())
+    with pytest.raises(LowcamError, match=r"0001\.exr: view layer 'ViewLayer' has no Vector pass"):
+        degrade_frame(path, tmp_path / "out.png", fire_i.with_effect("object_motion"))
+    assert not (tmp_path / "out.png").exists()
+    degrade_frame(path, tmp_path / "out.png", fire_i)                 # without the effect the frame is made
+    assert (tmp_path / "out.png").stat().st_size > 0
