@@ -199,8 +199,9 @@ def cmd_batch(args) -> int:
     elapsed = time.perf_counter() - t
     rate = f" ({done / elapsed:.2f} frames/s written)" if done else ""
     failed = any(r.status == "failed" for r in results)
-    print(f"{summary(results)}\n{len(frames)} frames in {elapsed:.1f} s{rate}", file=sys.stderr if failed else sys.stdout)
-    return 1 if any(r.status == "failed" for r in results) else 0
+    print(f"{summary(results)}\n{len(frames)} frames in {elapsed:.1f} s{rate}",
+          file=sys.stderr if failed else sys.stdout)
+    return 1 if failed else 0
 
 
 def cmd_chart(args) -> int:
