@@ -222,16 +222,29 @@ def find_profile(name_or_path) -> Path:
     raise ProfileError(f"unknown profile '{name_or_path}' (bundled and on LOWCAM_PROFILE_PATH: {known})")
 
 
+_LOADED: dict = {}
+
+
 def load_profile(name_or_path) -> Profile:
-    """Load and validate a profile by bundled name (``"fire-i"``) or path (``"my-camera.toml"``)."""
+    """Load and validate a profile by bundled name (``"fire-i"``) or path (``"my-camera.toml"``).
+
+    Each call returns a copy of the file's last parse (kept while the file is unchanged); copies share the lens
+    maps (:class:`~lowcam.effects.LensDistortion`), so a render handler that loads the profile every frame does
+    not rebuild them."""
     if isinstance(name_or_path, Profile):
         return name_or_path
     path = find_profile(name_or_path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ProfileError(f"{path}: not valid TOML ({e})") from None
-    return profile_from_dict(data, path)
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if key not in _LOADED:
+        try:
+            data = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+            raise ProfileError(f"{path}: not valid TOML ({e})") from None
+        if len(_LOADED) > 16:
+            _LOADED.clear()
+        _LOADED[key] = profile_from_dict(data, path)
+    return _LOADED[key].copy()
 
 
 def profile_from_dict(data: dict, path: Path | None = None) -> Profile:

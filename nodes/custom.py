@@ -101,6 +101,17 @@ class LowcamNodeBase:
         for key in self.mirrored:
             layout.prop(self, key)
 
+    def rebuild(self, context):
+        """Rebake the maps and rebuild the inner group; a profile the group cannot simulate is reported."""
+        if self.get("_loading"):
+            return
+        from lowcam.errors import LowcamError
+
+        try:
+            self.node_tree = self.build(_scene_render_shape(context))
+        except LowcamError as e:
+            print(f"lowcam: {self.name}: {e}")
+
 
 class LowcamStageNode(LowcamNodeBase):
     effect = ""
@@ -128,20 +139,8 @@ class LowcamStageNode(LowcamNodeBase):
                 pass
         self["_loading"] = False
 
-    def rebuild(self, context):
-        if self.get("_loading"):
-            return
-        from lowcam.errors import LowcamError
-
-        try:
-            camera = bake(self.profile_with_values(), _scene_render_shape(context))
-        except LowcamError as e:
-            self.report_error(str(e))
-            return
-        self.node_tree = build_stage_group(self.stage, camera, self.group_name())
-
-    def report_error(self, message):
-        print(f"lowcam: {self.name}: {message}")
+    def build(self, render_shape):
+        return build_stage_group(self.stage, bake(self.profile_with_values(), render_shape), self.group_name())
 
 
 class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
@@ -170,14 +169,12 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
             setattr(self, key, value)
         self["_loading"] = False
 
-    def rebuild(self, context):
-        if self.get("_loading"):
-            return
+    def build(self, render_shape):
         from lowcam.profile import load_profile
 
         profile = load_profile(self.profile).with_controls(self.sharpness, self.saturation)
-        camera = bake(profile, _scene_render_shape(context), tuple(self.angular_velocity), self.exposure_s)
-        self.node_tree = build_camera_group(camera, name=self.group_name())
+        camera = bake(profile, render_shape, tuple(self.angular_velocity), self.exposure_s)
+        return build_camera_group(camera, name=self.group_name())
 
 
 def _stage_class(stage: str):

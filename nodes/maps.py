@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from lowcam.effects.blur import blur_levels, level_weights
+from lowcam.effects.blur import blur_level_maps
 from lowcam.errors import LowcamError
 from lowcam.geometry import BAYER_BORDER, CFA_CHANNELS, sample_texture
 from lowcam.pipeline import run
@@ -134,21 +134,14 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
     if "spatial_blur" in stages:
         blur = profile.effect("spatial_blur")
         sigma_grid = blur.sigma_grid(state) * min(g.working_scale)
-        lo, hi = float(sigma_grid.min()), float(sigma_grid.max())
-        levels = blur_levels(lo, hi) if hi - lo >= 1e-3 else [lo]
-        weights = level_weights(sigma_grid, levels) if len(levels) > 1 else np.ones((1,) + sigma_grid.shape)
         total = np.zeros((hw, ww), np.float32)
         out.values["blur_levels"] = []
-        for s, wg in zip(levels, weights):
-            if not wg.any():
-                continue
-            wmap = cv2.resize(wg.astype(np.float32), (ww, hw), interpolation=cv2.INTER_LINEAR)
-            total += wmap
-            i = len(out.values["blur_levels"])
+        for i, (s, wmap) in enumerate(blur_level_maps(sigma_grid, (hw, ww))):
+            total += 1.0 if wmap is None else wmap
             out.values["blur_levels"].append(float(s))
             out.images[f"blur_kernel_{i}"] = gaussian_blur_kernel(s) if s > 0 else np.ones((1, 1), np.float32)
-            # sequential blending as cv2.blendLinear does: acc = acc + t (level - acc), t = w / running sum
-            out.images[f"blur_mix_{i}"] = np.divide(wmap, total, out=np.zeros_like(wmap), where=total > 0)
+            if i:  # sequential blending as cv2.blendLinear does: acc = acc + t (level - acc), t = w / running sum
+                out.images[f"blur_mix_{i}"] = np.divide(wmap, total, out=np.zeros_like(wmap), where=total > 0)
 
     # Bayer sampling: each mosaic pixel reads its own sensel's position (aberration and motion taps included)
     sx, sy = profile.effect("bayer_sampling").sample_positions(state)     # (4, taps, hb, wb)

@@ -36,24 +36,28 @@ def level_weights(sigma: np.ndarray, levels: list[float]) -> np.ndarray:
     return w
 
 
+def blur_level_maps(sigma_grid: np.ndarray, shape) -> list[tuple[float, np.ndarray | None]]:
+    """The uniform Gaussian blurs (sigma, px) a blur varying as ``sigma_grid`` blends, each with its weight map
+    over an image of ``shape`` (rows, cols), bilinear from the grid; the maps sum to 1. A uniform sigma gives one
+    level and no map."""
+    lo, hi = float(sigma_grid.min()), float(sigma_grid.max())
+    if hi - lo < 1e-3:
+        return [(lo, None)]
+    levels = blur_levels(lo, hi)
+    rows, cols = shape
+    return [(s, cv2.resize(wg, (cols, rows), interpolation=cv2.INTER_LINEAR))
+            for s, wg in zip(levels, level_weights(sigma_grid, levels)) if wg.any()]
+
+
 def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray) -> np.ndarray:
     """Blur ``image`` with a Gaussian whose sigma (px) varies smoothly as given by ``sigma_grid``.
 
     ``sigma_grid`` holds sigma at the cell centres of a coarse grid over the image (the paper's 24x18 cells, with
     bilinear interpolation between). The result blends a stack of uniform blurs with weights interpolated from
-    the grid, so the cost is a few separable blurs whatever the grid.
+    the grid (:func:`blur_level_maps`), so the cost is a few separable blurs whatever the grid.
     """
-    lo, hi = float(sigma_grid.min()), float(sigma_grid.max())
-    if hi - lo < 1e-3:
-        return cv2.GaussianBlur(image, (0, 0), lo) if lo > 0 else image
-    levels = blur_levels(lo, hi)
-    weights = level_weights(sigma_grid, levels)
-    h, w = image.shape[:2]
     out = out_weight = None
-    for s, wg in zip(levels, weights):
-        if not wg.any():
-            continue
-        wmap = cv2.resize(wg, (w, h), interpolation=cv2.INTER_LINEAR)
+    for s, wmap in blur_level_maps(sigma_grid, image.shape[:2]):
         level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image
         if out is None:
             out, out_weight = level, wmap
