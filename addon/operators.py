@@ -33,10 +33,10 @@ def render_and_degrade(scene, frame: int) -> Path:
     from .render import render_frame
 
     frames.setup_scene(scene, scene.render.resolution_x)
-    folder = Path(tempfile.mkdtemp(prefix="lowcam-render-"))
     current = scene.frame_current
     try:
-        return render_frame(scene, frame, folder / "frame.exr")
+        with tempfile.TemporaryDirectory(prefix="lowcam-render-") as scratch:
+            return render_frame(scene, frame, Path(scratch) / "frame.exr")
     finally:
         scene.frame_set(current)
 

@@ -46,14 +46,15 @@ def render(blend, frame_list, output: str | None = None, force: bool = False, ke
         scene.lowcam.output = str(Path(output).resolve()) if "#" in output or "%" in output else \
             str(Path(output).resolve() / "####.png")
     frames.setup_scene(scene, scene.render.resolution_x)
-    renders = Path(keep_renders) if keep_renders else Path(tempfile.mkdtemp(prefix="lowcam-render-"))
     written = []
-    for frame in frame_list:
-        out = frames.output_path(scene, frame)
-        if out.exists() and not force:
-            written.append(out)
-        else:
-            written.append(render_frame(scene, frame, renders / f"{frame:04d}.exr"))
-        if progress:
-            progress(frame, written[-1])
+    with tempfile.TemporaryDirectory(prefix="lowcam-render-") as scratch:   # renders not kept are removed
+        renders = Path(keep_renders or scratch)
+        for frame in frame_list:
+            out = frames.output_path(scene, frame)
+            if out.exists() and not force:
+                written.append(out)
+            else:
+                written.append(render_frame(scene, frame, renders / f"{frame:04d}.exr"))
+            if progress:
+                progress(frame, written[-1])
     return written

@@ -265,3 +265,26 @@ def test_node_asset_appends_into_a_new_file_and_matches_the_engine(fire_i, tmp_p
     diff = np.abs(node.astype(float) - engine.frame)
     assert diff.mean() <= 2.0
     assert diff[~engine.footprint].max() == 0
+
+
+def test_lowcam_render_resumes_and_leaves_no_scratch_renders(tmp_path, monkeypatch, capsys):
+    """``lowcam render``: two composites; a second run redoes only the missing one; renders that are not kept
+    go to a scratch folder that is removed."""
+    import tempfile
+
+    from lowcam.cli import main
+
+    blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=400, samples=4)
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    out = tmp_path / "out"
+    assert main(["render", str(blend), "--frames", "1-2", "-o", str(out)]) == 0
+    first, second = out / "0001.png", out / "0002.png"
+    assert read_image(first).shape == (480, 640, 3) and second.is_file()
+    before = first.stat().st_mtime_ns
+    second.unlink()
+    assert main(["render", str(blend), "--frames", "1-2", "-o", str(out)]) == 0
+    assert first.stat().st_mtime_ns == before and second.is_file()
+    assert "2 composites in" in capsys.readouterr().out
+    assert list(scratch.iterdir()) == []
