@@ -62,30 +62,39 @@ def clip_lens(clip) -> dict:
                 **values)
 
 
-def setup_scene(scene, render_width: int | None = None) -> dict:
-    """Prepare ``scene`` for the render handler; returns the render camera (field of view, size)."""
+def setup_render_camera(scene, render_width: int | None = None) -> dict:
+    """Give ``scene`` the render the engine and the node group take: the pinhole field of view and size of
+    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width), a transparent film and
+    the Standard view without dither (plates pass unchanged). Returns the render camera."""
     from lowcam.pipeline import render_camera
 
-    s = settings(scene)
-    profile = scene_profile(scene)
     width = render_width or scene.render.resolution_x * scene.render.resolution_percentage // 100
-    cam = render_camera(profile, width)
+    cam = render_camera(scene_profile(scene), width)
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = cam["width"], cam["height"], 100
     r.film_transparent = True
     r.dither_intensity = 0.0
+    scene.view_settings.view_transform = "Standard"
+    if scene.camera is not None:
+        scene.camera.data.sensor_fit = "HORIZONTAL"
+        scene.camera.data.angle = math.radians(cam["hfov_deg"])
+        scene.camera.data.shift_x = scene.camera.data.shift_y = 0.0
+    return cam
+
+
+def setup_scene(scene, render_width: int | None = None) -> dict:
+    """Prepare ``scene`` for the render handler (:func:`setup_render_camera`, multilayer EXR output, the passes
+    and the overlay view layer); returns the render camera (field of view, size)."""
+    s = settings(scene)
+    cam = setup_render_camera(scene, render_width)
+    r = scene.render
     r.use_compositing = False
     r.use_motion_blur = False           # lowcam blurs; Cycles writes no Vector pass with its own motion blur on
-    scene.view_settings.view_transform = "Standard"
     settings_ = r.image_settings
     settings_.media_type = "MULTI_LAYER_IMAGE"
     settings_.file_format = "OPEN_EXR_MULTILAYER"
     settings_.color_depth = "32"
     settings_.exr_codec = "ZIP"
-    if scene.camera is not None:
-        scene.camera.data.sensor_fit = "HORIZONTAL"
-        scene.camera.data.angle = math.radians(cam["hfov_deg"])
-        scene.camera.data.shift_x = scene.camera.data.shift_y = 0.0
     _setup_overlay_layer(scene, s.exclude_collection)
     layer = scene.view_layers[main_layer(scene)]
     layer.use_pass_vector = s.use_object_motion

@@ -67,7 +67,8 @@ class LOWCAM_OT_apply(bpy.types.Operator):
 
 
 class LOWCAM_OT_add_camera_node(bpy.types.Operator):
-    """Add a "Lowcam Camera" node between the Render Layers and the output of the scene's compositor"""
+    """Add a "Lowcam Camera" node between the Render Layers and the output of the scene's compositor, and give the
+    scene the render camera it needs"""
 
     bl_idname = "lowcam.add_camera_node"
     bl_label = "Add Camera Node"
@@ -75,6 +76,12 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
 
     def execute(self, context):
         scene = context.scene
+        try:
+            frames.setup_render_camera(scene)        # the render the node's maps are baked for
+        except LowcamError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        scene.render.use_compositing = True
         tree = scene.compositing_node_group
         if tree is None:
             tree = bpy.data.node_groups.new(f"{scene.name} Compositor", "CompositorNodeTree")
@@ -93,8 +100,6 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             tree.links.new(clip.outputs["Image"], node.inputs["Plate"])
         node.inputs["Seed"].default_value = s.seed
         tree.links.new(node.outputs["Image"], out.inputs[0])
-        scene.view_settings.view_transform = "Standard"
-        scene.render.dither_intensity = 0.0
         return {"FINISHED"}
 
 

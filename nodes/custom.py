@@ -13,15 +13,18 @@ from lowcam.effects import EFFECTS
 from .build import STAGE_LABELS, build_camera_group, build_stage_group
 from .maps import bake
 
-RENDER_SIZE = (1200, 1600)  # (rows, cols) the maps assume until the node sees a scene
+RENDER_WIDTH = 1600  # px the maps assume until the node sees a scene
 
 
-def _scene_render_shape(context):
+def _render_shape(context, profile):
+    """(rows, cols) of the render the maps are baked for: the scene's width at the render camera's aspect ratio
+    (what Set Up Scene gives the scene, :func:`lowcam.pipeline.render_camera`)."""
+    from lowcam.pipeline import render_camera
+
     scene = getattr(context, "scene", None)
-    if scene is None:
-        return RENDER_SIZE
-    r = scene.render
-    return (r.resolution_y * r.resolution_percentage // 100, r.resolution_x * r.resolution_percentage // 100)
+    width = RENDER_WIDTH if scene is None else scene.render.resolution_x * scene.render.resolution_percentage // 100
+    cam = render_camera(profile, width)
+    return cam["height"], cam["width"]
 
 
 def _profile_items(self, context):
@@ -108,7 +111,7 @@ class LowcamNodeBase:
         from lowcam.errors import LowcamError
 
         try:
-            self.node_tree = self.build(_scene_render_shape(context))
+            self.node_tree = self.build(context)
         except LowcamError as e:
             print(f"lowcam: {self.name}: {e}")
 
@@ -139,8 +142,9 @@ class LowcamStageNode(LowcamNodeBase):
                 pass
         self["_loading"] = False
 
-    def build(self, render_shape):
-        return build_stage_group(self.stage, bake(self.profile_with_values(), render_shape), self.group_name())
+    def build(self, context):
+        profile = self.profile_with_values()
+        return build_stage_group(self.stage, bake(profile, _render_shape(context, profile)), self.group_name())
 
 
 class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
@@ -169,11 +173,11 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
             setattr(self, key, value)
         self["_loading"] = False
 
-    def build(self, render_shape):
+    def build(self, context):
         from lowcam.profile import load_profile
 
         profile = load_profile(self.profile).with_controls(self.sharpness, self.saturation)
-        camera = bake(profile, render_shape, tuple(self.angular_velocity), self.exposure_s)
+        camera = bake(profile, _render_shape(context, profile), tuple(self.angular_velocity), self.exposure_s)
         return build_camera_group(camera, name=self.group_name())
 
 

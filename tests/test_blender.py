@@ -288,3 +288,26 @@ def test_lowcam_render_resumes_and_leaves_no_scratch_renders(tmp_path, monkeypat
     assert first.stat().st_mtime_ns == before and second.is_file()
     assert "2 composites in" in capsys.readouterr().out
     assert list(scratch.iterdir()) == []
+
+
+def test_add_camera_node_gives_the_scene_the_render_the_node_is_baked_for(fire_i):
+    """From Blender's default 1920x1080 scene: the render camera's field of view and 4:3 size, the compositor on,
+    and a built "Lowcam Camera" between Render Layers and the output."""
+    import math
+
+    from lowcam.pipeline import render_camera
+
+    submodule("addon.render")
+    bpy.ops.wm.read_homefile(use_empty=False)
+    scene = bpy.context.scene
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (1920, 1080)
+    assert bpy.ops.lowcam.add_camera_node() == {"FINISHED"}
+    cam = render_camera(fire_i, 1920 * scene.render.resolution_percentage // 100)
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (cam["width"], cam["height"])
+    assert scene.camera.data.angle == pytest.approx(math.radians(cam["hfov_deg"]), rel=1e-6)
+    assert scene.render.use_compositing and scene.render.film_transparent
+    tree = scene.compositing_node_group
+    node = next(n for n in tree.nodes if n.bl_idname == "LowcamCameraNode")
+    assert list(node.node_tree["lowcam_stages"])[-1] == "plate_blend"          # the group was built
+    assert node.inputs["Image"].links[0].from_node.bl_idname == "CompositorNodeRLayers"
+    assert node.outputs["Image"].links[0].to_node.bl_idname == "NodeGroupOutput"

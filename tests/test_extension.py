@@ -43,8 +43,13 @@ assert abs(scene.lowcam.exposure_s - __import__("lowcam").load_profile("ueye").c
 tree = bpy.data.node_groups.new("C", "CompositorNodeTree")
 node = tree.nodes.new("LowcamSharpeningNode")
 assert node.node_tree is not None and node.sharpness == 80.0 and node.taps == 7
-node.sharpness = 25.0
-assert len(node.node_tree.nodes) > 2
+def kernel():
+    image = next(n.image for n in node.node_tree.nodes if n.bl_idname == "CompositorNodeImage")
+    return [round(x, 6) for x in image.pixels[:]]
+before = kernel()
+node.sharpness = 25.0                   # rebakes the kernel from the engine: a weaker centre tap
+after = kernel()
+assert len(after) == len(before) and after != before and max(after) < max(before), (before, after)
 addon_utils.disable(module)
 print("EXTENSION-OK")
 '''
