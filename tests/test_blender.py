@@ -131,8 +131,9 @@ def test_angular_velocity_from_the_panning_camera(rendered):
     frames = submodule("addon.frames")
     scene = submodule("addon.render").open_scene(rendered / "sample_scene.blend")
     m = frames.motion(scene, 1, 0.033)
-    # the sample camera pans at 0.6 rad/s about the world's vertical, its own up axis: our y (down) axis
-    assert np.allclose(np.abs(m.angular_velocity), (0.0, 0.6, 0.0), atol=1e-4)
+    # the sample camera turns left (counter-clockwise seen from above) at 0.6 rad/s about the world's vertical,
+    # its own up axis: a rotation about our y (down) axis, negative because positive y pans right
+    assert np.allclose(m.angular_velocity, (0.0, -0.6, 0.0), atol=1e-4)
     assert m.exposure_s == pytest.approx(0.033)
 
 
