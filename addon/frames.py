@@ -176,16 +176,16 @@ def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
             raise LowcamError(f"scene '{scene.name}' has no camera to take the motion from")
         return camera_motion(scene, scene.camera, [frame], exposure_s * fps)[frame]
     path = bpy.path.abspath(s.motion_file)
-    if path.lower().endswith(".json"):
-        key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
-        if key not in _MOTION_FILE_CACHE:
-            _MOTION_FILE_CACHE[key] = read_motion_json(path)
-        table = _MOTION_FILE_CACHE[key]
-        if frame not in table:
+    is_json = path.lower().endswith(".json")
+    key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
+    if key not in _MOTION_FILE_CACHE:                   # read once, not once per frame
+        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_csv(path)
+    data = _MOTION_FILE_CACHE[key]
+    if is_json:
+        if frame not in data:
             raise LowcamError(f"{path}: no entry for frame {frame}")
-        return table[frame]
-    return gyro_to_motion(read_gyro_csv(path), [frame], fps, exposure_s, first_frame=scene.frame_start,
-                          source=path)[frame]
+        return data[frame]
+    return gyro_to_motion(data, [frame], fps, exposure_s, first_frame=scene.frame_start, source=path)[frame]
 
 
 def output_path(scene, frame: int) -> Path:

@@ -22,6 +22,17 @@ def open_scene(blend) -> "bpy.types.Scene":
     return bpy.context.scene
 
 
+def write_motion(blend, frame_list, path) -> Path:
+    """``lowcam motion``: each frame's camera motion from ``blend``'s scene (its motion source, e.g. the solved
+    camera) as a motion.json for ``lowcam batch`` on renders made elsewhere."""
+    from lowcam.motion import write_motion_json
+
+    scene = open_scene(blend)
+    exposure = scene.lowcam.exposure_s
+    table = {f: frames.motion(scene, f, exposure) for f in frame_list}
+    return write_motion_json(path, table, fps=scene.render.fps / scene.render.fps_base)
+
+
 def render_frame(scene, frame: int, render_path: Path) -> Path:
     """Render ``frame`` to ``render_path`` (multilayer EXR) and write its degraded composite."""
     old_path = scene.render.filepath

@@ -167,6 +167,15 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_motion(args) -> int:
+    from .batch import parse_frames
+    from .extension import submodule
+
+    path = submodule("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
+    print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
+    return 0
+
+
 def cmd_node_asset(args) -> int:
     from .extension import submodule
 
@@ -479,6 +488,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
+    p.add_argument("blend", help="the .blend file (its Lowcam motion source and exposure are used)")
+    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", required=True, help="the motion.json to write")
+    p.set_defaults(func=cmd_motion)
 
     p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
     p.add_argument("-o", "--output", required=True, help="the .blend to write")

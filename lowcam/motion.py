@@ -12,8 +12,8 @@
     }
 
 ``angular_velocity`` is in rad/s in the camera frame (x right, y down, z forward), averaged over that frame's
-exposure; ``exposure_s`` is the exposure time in seconds (optional; the profile's when absent). The Blender add-on
-and ``lowcam render`` write it from the scene camera.
+exposure; ``exposure_s`` is the exposure time in seconds (optional; the profile's when absent). ``lowcam motion``
+writes it from a Blender scene's camera.
 
 Gyro CSV: a header naming the columns ``t`` (s), ``wx``, ``wy``, ``wz`` (rad/s, camera frame) in any order,
 commas or whitespace between values. Frame ``f`` is exposed from ``t0 + (f - first_frame) / fps`` for

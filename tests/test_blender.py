@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lowcam.effects.yuv import rgb_to_yuv
+from lowcam.errors import LowcamError
 from lowcam.extension import submodule
 from lowcam.io import read_image, read_plate
 from lowcam.pipeline import plain_composite
@@ -312,3 +313,33 @@ def test_add_camera_node_gives_the_scene_the_render_the_node_is_baked_for(fire_i
     assert list(node.node_tree["lowcam_stages"])[-1] == "plate_blend"          # the group was built
     assert node.inputs["Image"].links[0].from_node.bl_idname == "CompositorNodeRLayers"
     assert node.outputs["Image"].links[0].to_node.bl_idname == "NodeGroupOutput"
+
+
+def test_lowcam_motion_writes_the_scene_cameras_motion_for_batch(rendered, tmp_path):
+    from lowcam.cli import main
+    from lowcam.motion import read_motion_json
+
+    path = tmp_path / "motion.json"
+    assert main(["motion", str(rendered / "sample_scene.blend"), "--frames", "1-2", "-o", str(path)]) == 0
+    table = read_motion_json(path)
+    assert sorted(table) == [1, 2]
+    for m in table.values():
+        assert np.allclose(m.angular_velocity, (0.0, -0.6, 0.0), atol=1e-4) and m.exposure_s == pytest.approx(0.033)
+
+
+def test_motion_from_a_file_json_or_gyro_csv(rendered, tmp_path):
+    from lowcam.motion import FrameMotion, write_motion_json
+
+    frames = submodule("addon.frames")
+    scene = submodule("addon.render").open_scene(rendered / "sample_scene.blend")
+    scene.lowcam.motion_source = "FILE"
+    gyro = tmp_path / "gyro.csv"
+    gyro.write_text("t,wx,wy,wz\n" + "".join(f"{t / 100},0.1,{0.2 + t / 1000},0.3\n" for t in range(100)))
+    scene.lowcam.motion_file = str(gyro)
+    # frame 2 is exposed over [1/24, 1/24 + 0.033] s: wy averages 0.2 + 10 (1/24 + 0.0165) / 100
+    assert np.allclose(frames.motion(scene, 2, 0.033).angular_velocity, (0.1, 0.2 + (1 / 24 + 0.0165) / 10, 0.3))
+    path = write_motion_json(tmp_path / "motion.json", {1: FrameMotion((0.0, 0.5, 0.0), 0.02)})
+    scene.lowcam.motion_file = str(path)
+    assert frames.motion(scene, 1, 0.033).angular_velocity == (0.0, 0.5, 0.0)
+    with pytest.raises(LowcamError, match="no entry for frame 2"):
+        frames.motion(scene, 2, 0.033)
