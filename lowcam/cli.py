@@ -304,17 +304,22 @@ def cmd_diagnose(args) -> int:
     import json
 
     from .io import atomic_write_bytes
-    from .measure.diagnose import CANDIDATES, diagnose, save_candidate_profile
+    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, save_candidate_profile
     from .measure.report import write_compare_report
     from .measure.sets import load_set
     from .profile import load_profile
 
+    from .effects import effect_class
+
     profile = load_profile(args.profile)
+    for plugin in args.plugin:
+        effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
-    only = args.only.split(",") if args.only else None
+    known = candidates()
+    only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
     for name in only or []:
-        if name not in CANDIDATES:
-            raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(CANDIDATES)})")
+        if name not in known:
+            raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(known)})")
     d = diagnose(mset, profile, only, progress=_progress_line)
     print("", file=sys.stderr)
     doc = d.as_json()
@@ -455,6 +460,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", required=True, help="the ranked candidates as JSON")
     p.add_argument("--report", help="folder for an HTML report")
     p.add_argument("--only", help="comma-separated candidates to try (default: all)")
+    p.add_argument("--plugin", action="append", default=[], metavar="MODULE:CLASS",
+                   help="also try this plug-in effect's declared searches (repeatable)")
     p.add_argument("--add-best", action="store_true", help="write the profile with the best candidate added")
     p.add_argument("-o", "--output", help="profile to write with --add-best")
     p.set_defaults(func=cmd_diagnose)

@@ -35,6 +35,7 @@ class SimState:
     seed: int
     frame: int
     passes: RenderPasses | None = None
+    applied: list = field(default_factory=list)  # the effects applied so far, in order
     working: np.ndarray | None = None
     ca_grid: np.ndarray | None = None
     motion_taps: np.ndarray | None = None
@@ -47,8 +48,6 @@ class SimState:
     delta_yuv: np.ndarray | None = None
     colour_matrix: np.ndarray | None = None
     sampling_offset: np.ndarray | None = None
-    jpeg_quality: int | None = None
-    chroma_group: int = 1
     lens: object = None
 
     def __post_init__(self):
@@ -86,51 +85,14 @@ class Result:
 
 
 def render_field_of_view(profile: Profile) -> tuple[float, float]:
-    """Pinhole half-extents (X, Y) = (tan of half the horizontal, vertical field) that the render must cover.
-
-    With ``render_hfov_deg`` = 0 in the lens stage the horizontal extent is chosen to just cover the working grid
-    (frame plus margin) for a render of the frame's aspect ratio, plus 2 %. Returns the extents the engine maps
-    the render's width onto (X) and the least vertical extent it needs (Y).
-    """
-    lens_effect = profile.effect("lens_distortion")
-    key = ("fov", profile.geometry, lens_effect.enabled, repr(lens_effect.values()))
-    if key not in profile._cache:
-        g = profile.geometry
-        u0, v0, u1, v1 = g.working_extent
-        t = np.linspace(0.0, 1.0, 257)
-        border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
-        border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
-        x, y = profile.lens.undistort(border_u, border_v)
-        need_x, need_y = float(np.abs(x).max()), float(np.abs(y).max())
-        hfov = lens_effect.render_hfov_deg
-        if hfov > 0:
-            half_x = float(np.tan(np.radians(hfov) / 2))
-            if half_x < need_x:
-                raise LowcamError(f"{profile.source}: render_hfov_deg = {hfov} is narrower than the "
-                                  f"{np.degrees(2 * np.arctan(need_x)):.1f} deg the lens sees")
-        else:
-            half_x = 1.02 * max(need_x, need_y * g.width / g.height)
-        profile._cache[key] = (half_x, need_y)
-    return profile._cache[key]
+    """Pinhole half-extents (X, Y) the render must cover (:meth:`LensDistortion.render_field_of_view
+    <lowcam.effects.LensDistortion.render_field_of_view>`)."""
+    return profile.effect("lens_distortion").render_field_of_view(profile.geometry)
 
 
 def render_focal_px(profile: Profile, width: int, height: int) -> float:
     """Focal length in render pixels for a render of ``width`` x ``height`` (square pixels, centred)."""
-    half_x, need_y = render_field_of_view(profile)
-    focal = width / (2 * half_x)
-    if height / (2 * focal) < need_y * 0.999:
-        raise LowcamError(f"a {width}x{height} render covers too little vertically for this camera: use the "
-                          f"aspect ratio {profile.camera.width}:{profile.camera.height} or a taller one")
-    return focal
-
-
-def render_pixel_coordinates(profile: Profile, u, v, render_shape) -> tuple[np.ndarray, np.ndarray]:
-    """Where output-frame points (u, v) (output pixels, through the lens) lie in a render of ``render_shape``
-    (rows, cols): float32 render pixel coordinates, centres at integers (cv2.remap maps)."""
-    x, y = profile.lens.undistort(u, v)
-    hr, wr = render_shape
-    focal = render_focal_px(profile, wr, hr)
-    return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+    return profile.effect("lens_distortion").render_focal_px(profile.geometry, width, height)
 
 
 def render_camera(profile, width: int | None = None, height: int | None = None) -> dict:
@@ -170,41 +132,27 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
 
 
 def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The 8-bit frame and its footprint from the current state."""
+    """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
+    effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order."""
     import cv2
 
-    from .effects.bayer import mosaic
     from .effects.yuv import yuv_to_rgb
 
-    if state.raw_touched is not None:
-        touched = mosaic(state.raw_touched, state.geometry).astype(np.uint8)
-        footprint = cv2.dilate(touched, np.ones((3, 3), np.uint8)).astype(bool)
-        return _to_u8(state.rgb.copy()), footprint
     if state.delta_yuv is not None:
         out = cv2.add(state.plate, yuv_to_rgb(state.delta_yuv))
         footprint = _any_nonzero(state.delta_yuv)
-        n = state.chroma_group
-        if n > 1:
-            h, w = footprint.shape
-            footprint = np.repeat(footprint.reshape(h, w // n, n).any(axis=2), n, axis=1)
     else:
         out = state.plate * (1 - state.rgb_alpha) + state.rgb
         footprint = _any_nonzero(state.rgb_alpha)
     frame = plate_u8.copy()
     cv2.copyTo(_to_u8(out), footprint.astype(np.uint8), frame)
-    if state.jpeg_quality is not None:
-        ok, data = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR),
-                                [cv2.IMWRITE_JPEG_QUALITY, int(state.jpeg_quality)])
-        frame = cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-        footprint = np.ones_like(footprint)
+    for effect in state.applied:
+        frame, footprint = effect.finish(state, frame, footprint)
     return frame, footprint
 
 
-def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, angular_velocity=(0.0, 0.0, 0.0),
-        exposure_s: float | None = None, seed: int = 0, frame: int = 0, keep_stages: bool = False,
-        stop_after: str | None = None, passes: RenderPasses | None = None) -> Result:
-    """Simulate the camera on one frame; see :func:`simulate`. ``keep_stages`` records every stage's output
-    (as displayable arrays, see :func:`stage_image`); ``stop_after`` ends the chain after that effect."""
+def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes):
+    """A validated :class:`SimState` at the start of the chain, and the plate's bytes."""
     profile = load_profile(profile)
     render = check_render(render)
     passes = check_passes(passes, render.shape)
@@ -214,16 +162,34 @@ def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, a
         raise LowcamError(f"angular_velocity must be three finite numbers (rad/s), got {angular_velocity!r}")
     if exposure_s is not None and not (0 <= exposure_s <= 10):
         raise LowcamError(f"exposure_s = {exposure_s} is out of range [0, 10] s")
-    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes)
-    stages: OrderedDict = OrderedDict()
-    for i, effect in enumerate(profile.effects):
+    return SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes), plate_u8
+
+
+def _walk(state: SimState, start: int = 0, stop: int | None = None, stages=None, plate_u8=None,
+          stop_after: str | None = None) -> None:
+    """The one effect loop: apply the profile's effects ``start:stop`` to ``state`` (skipping disabled ones
+    that may be skipped), recording each stage's picture in ``stages`` when given."""
+    effects = state.profile.effects
+    for i in range(start, len(effects) if stop is None else stop):
+        effect = effects[i]
         if not effect.enabled and not effect.always_runs:
             continue
         effect.apply(state)
-        if keep_stages:
+        state.applied.append(effect)
+        if stages is not None:
             stages[f"{i:02d}-{effect.name}"] = stage_image(state, effect.writes, plate_u8)
         if stop_after == effect.name:
             break
+
+
+def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, angular_velocity=(0.0, 0.0, 0.0),
+        exposure_s: float | None = None, seed: int = 0, frame: int = 0, keep_stages: bool = False,
+        stop_after: str | None = None, passes: RenderPasses | None = None) -> Result:
+    """Simulate the camera on one frame; see :func:`simulate`. ``keep_stages`` records every stage's output
+    (as displayable arrays, see :func:`stage_image`); ``stop_after`` ends the chain after that effect."""
+    state, plate_u8 = _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes)
+    stages: OrderedDict = OrderedDict()
+    _walk(state, stages=stages if keep_stages else None, plate_u8=plate_u8, stop_after=stop_after)
     result_frame, footprint = _finish(state, plate_u8) if state.rgb is not None else (None, None)
     return Result(result_frame, footprint, stages, state)
 
@@ -243,15 +209,9 @@ def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0,
     """Run the chain up to its first random effect (noise), or through ``until``: that part is the same for
     every frame of a static scene. Returns a token for :func:`resume`; ``resume(token, seed, frame)`` equals
     ``simulate(render, profile, plate, angular_velocity, exposure_s, seed, frame)`` byte for byte."""
-    profile = load_profile(profile)
-    render = check_render(render)
-    plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
-    state = SimState(profile, render, plate_f, plate_raw, tuple(float(x) for x in angular_velocity), exposure_s, 0, 0,
-                     check_passes(passes, render.shape))
-    start = deterministic_prefix(profile, until)
-    for effect in profile.effects[:start]:
-        if effect.enabled or effect.always_runs:
-            effect.apply(state)
+    state, plate_u8 = _start(render, profile, plate, angular_velocity, exposure_s, 0, 0, passes)
+    start = deterministic_prefix(state.profile, until)
+    _walk(state, stop=start)
     return state, start, plate_u8
 
 
@@ -267,10 +227,9 @@ def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None)
     for name in ("bayer", "bayer_alpha", "rgb", "rgb_alpha", "delta_yuv", "working"):
         if getattr(state, name) is not None:
             setattr(state, name, getattr(state, name).copy())
+    state.applied = list(prefix.applied)
     state.seed, state.frame = int(seed), int(frame)
-    for effect in state.profile.effects[start:]:
-        if effect.enabled or effect.always_runs:
-            effect.apply(state)
+    _walk(state, start=start)
     return _finish(state, plate_u8)[0]
 
 

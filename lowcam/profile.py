@@ -30,13 +30,6 @@ from .effects import Effect, Param, ParamSet, effect_class
 from .errors import ProfileError
 from .geometry import FrameGeometry
 
-#: The order in which effects stand in a complete chain; an effect added to a profile goes to its place here.
-CANONICAL_ORDER = ["object_motion", "depth_of_field", "lens_distortion", "half_sampling", "crosstalk", "motion_blur",
-                   "rolling_shutter", "chromatic_aberration", "spatial_blur", "defocus", "veiling_glare",
-                   "bayer_sampling", "vignetting", "noise", "row_noise", "horizontal_blur", "vertical_blur",
-                   "sharpening", "quantisation", "raw_blend", "demosaic", "prnu", "dsnu", "hot_pixels", "saturation",
-                   "tone_curve", "yuv_blend", "chroma_subsampling", "jpeg"]
-
 #: Bundled profiles: the repository's ``profiles/`` folder.
 BUNDLED_PROFILES = Path(__file__).resolve().parent.parent / "profiles"
 
@@ -74,7 +67,6 @@ class Profile:
                 raise ProfileError(f"{self.source}: the chain needs a '{needed}' effect")
         if "yuv_blend" not in names and "raw_blend" not in names:
             raise ProfileError(f"{self.source}: the chain needs a 'yuv_blend' or a 'raw_blend' effect")
-        self._cache: dict = {}
 
     @property
     def source(self) -> str:
@@ -101,9 +93,7 @@ class Profile:
     @property
     def lens(self):
         """The lens model of the output frame (a pinhole if the lens-distortion stage is disabled)."""
-        effect = self.effect("lens_distortion")
-        model = effect.model_for(self.camera.width, self.camera.height)
-        return model if effect.enabled else model.pinhole()
+        return self.effect("lens_distortion").lens_model(self.geometry)
 
     def copy(self) -> "Profile":
         """A deep copy whose effects can be changed without touching this profile."""
@@ -112,8 +102,8 @@ class Profile:
     def with_effect(self, name: str, replace: bool = False, source: str | None = None, base_dir=None,
                     **values) -> "Profile":
         """A copy with effect ``name`` set to ``values`` (merged into the existing effect's, or all new with
-        ``replace``), enabled; an effect the chain lacks is inserted at its place in :data:`CANONICAL_ORDER`
-        (after every effect of the chain that comes before it). Plug-ins go at the end."""
+        ``replace``), enabled; an effect the chain lacks is inserted at its place (``Effect.order``: before the
+        first effect of the chain that comes after it). Plug-ins without an order go to the end."""
         from .effects import effect_class
 
         out = self.copy()
@@ -127,12 +117,9 @@ class Profile:
         if old is not None:
             out.effects[out.effects.index(old)] = new
         else:
-            rank = CANONICAL_ORDER.index(cls.name) if cls.name in CANONICAL_ORDER else len(CANONICAL_ORDER)
-            names = [e.name for e in out.effects]
-            pos = next((i for i, n in enumerate(names) if CANONICAL_ORDER.index(n) > rank), len(names)) \
-                if all(n in CANONICAL_ORDER for n in names) else len(names)
+            pos = len(out.effects) if cls.order is None else next(
+                (i for i, e in enumerate(out.effects) if e.order is not None and e.order > cls.order), len(out.effects))
             out.effects.insert(pos, new)
-        out._cache.clear()
         return out
 
     def controls(self) -> dict:
@@ -161,7 +148,6 @@ class Profile:
             if effect is None:
                 raise ProfileError(f"{self.source}: no effect '{name}' to disable")
             effect.enabled = False
-        out._cache.clear()
         return out
 
     def to_dict(self) -> dict:

@@ -56,12 +56,10 @@ def overlay_in_frame(overlay: np.ndarray, profile) -> np.ndarray:
     excluded objects land where the camera sees them but get no blur, noise or colour processing."""
     import cv2
 
-    from .pipeline import render_pixel_coordinates
-
     profile = load_profile(profile)
     g = profile.geometry
     u, v = np.meshgrid(np.arange(g.width, dtype=np.float64), np.arange(g.height, dtype=np.float64))
-    map_x, map_y = render_pixel_coordinates(profile, u, v, overlay.shape[:2])
+    map_x, map_y = profile.effect("lens_distortion").render_pixel_coordinates(g, u, v, overlay.shape[:2])
     return cv2.remap(overlay, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 

@@ -1,7 +1,7 @@
 """The node group as an asset library: a .blend holding "Lowcam Camera (<profile>)", marked as an asset, with its
 stage groups and packed maps, for the Asset Browser or File > Append in any Blender 5 file (no add-on needed).
 
-The maps are baked for one profile, render size and camera rotation (:func:`nodes.maps.bake`); the add-on's
+The maps are baked for one profile, render size and camera rotation (:func:`lowcam.node_maps.bake`); the add-on's
 Lowcam Camera node rebakes them when those change, the asset cannot.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from lowcam.pipeline import render_camera
 from lowcam.profile import load_profile
 
 from .build import build_camera_group
-from .maps import bake
+from lowcam.node_maps import bake
 
 
 def write_asset(path, profile="fire-i", render_width: int = 1600, angular_velocity=(0.0, 0.0, 0.0),

@@ -4,7 +4,9 @@ Python-defined nodes crash Blender's compositor at render time, so every pixel o
 Map UV (lens, half-sampling, Bayer sampling with chromatic aberration and motion taps, demosaicing, chroma),
 Convolve (half-sampling box, spatial blur levels, horizontal blur, sharpening, 4-pixel chroma boxes), Image
 Coordinates with floored modulo (Bayer masks), White Noise driven by the scene frame (sensor noise), and Math
-nodes (matrices, quantisation, YUV, blending). The images come from :mod:`nodes.maps`, i.e. from the engine.
+nodes (matrices, quantisation, YUV, blending). The images come from :mod:`lowcam.node_maps`, i.e. from the engine.
+Which effects have a node, its label, what its sockets carry and its recipe are the effects' own declarations
+(``Effect.node``); this module only knows recipes.
 
 Units inside the group: the working image is the render (premultiplied, linear); from Bayer sampling on values
 are DN / 255; the group's output is linear light that the Standard view transform turns back into those codes.
@@ -15,24 +17,20 @@ import bpy
 import numpy as np
 
 from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
-
-from .maps import CameraBake
+from lowcam.node_maps import CameraBake, node_stages
 
 PREFIX = "Lowcam"
-STAGE_LABELS = {
-    "lens_distortion": "Lens Distortion", "half_sampling": "Half Sampling", "crosstalk": "Crosstalk",
-    "spatial_blur": "Spatial Blur", "bayer_sampling": "Bayer Sampling", "vignetting": "Vignetting",
-    "noise": "Noise", "horizontal_blur": "Horizontal Blur", "sharpening": "Sharpening",
-    "quantisation": "Quantisation", "demosaic": "Demosaic", "saturation": "Saturation", "yuv_blend": "YUV Blend",
-    "chroma_subsampling": "Chroma Subsampling", "plate_blend": "Plate Blend",
-}
-#: Stages whose effect is baked into a later stage's maps (motion taps and aberration live in Bayer sampling).
-BAKED_INTO_MAPS = ("motion_blur", "chromatic_aberration")
-#: What each stage's sockets carry: "image" RGBA, "mosaic" (R value, G alpha), "rgb" (+ "Alpha"), "yuv" delta.
-STAGE_INPUT = {"lens_distortion": "image", "half_sampling": "image", "crosstalk": "image", "spatial_blur": "image",
-               "bayer_sampling": "image", "vignetting": "mosaic", "noise": "mosaic", "horizontal_blur": "mosaic",
-               "sharpening": "mosaic", "quantisation": "mosaic", "demosaic": "mosaic", "saturation": "rgb",
-               "yuv_blend": "rgb", "chroma_subsampling": "yuv", "plate_blend": "yuv"}
+#: The stage after the effects: the YUV difference added to the plate.
+PLATE_BLEND = "plate_blend"
+
+
+def stage_label(stage: str) -> str:
+    return "Plate Blend" if stage == PLATE_BLEND else node_stages()[stage].label
+
+
+def stage_carries(stage: str) -> str:
+    """What a stage's input sockets carry: "image" RGBA, "mosaic" (R value, G alpha), "rgb" (+ "Alpha"), "yuv"."""
+    return "yuv" if stage == PLATE_BLEND else node_stages()[stage].carries
 
 
 def image_from_array(name: str, array: np.ndarray) -> bpy.types.Image:
@@ -158,9 +156,10 @@ def _half_sampling(t, s, b, img):
     return {"Image": t.convolve(t.map_uv(s["Image"], img("half_uv")), img("half_kernel"))}
 
 
-def _crosstalk(t, s, b, img):
+def _matrix(t, s, b, img, stage):
+    """Generic recipe: the image's colour times the effect's 3x3 matrix, alpha kept."""
     r, g, bl, a = t.separate(s["Image"])
-    return {"Image": t.combine(*t.matrix(b.values["crosstalk_matrix"], (r, g, bl)), a)}
+    return {"Image": t.combine(*t.matrix(b.values[f"{stage}_matrix"], (r, g, bl)), a)}
 
 
 def _spatial_blur(t, s, b, img):
@@ -202,9 +201,10 @@ def _bayer_sampling(t, s, b, img):
                                0.0, 1.0)}
 
 
-def _vignetting(t, s, b, img):
+def _gain(t, s, b, img, stage):
+    """Generic recipe: the mosaic's colour times the effect's baked gain map."""
     v, a, _, _ = t.separate(s["Image"])
-    gain = t.separate(t.image(img("vignetting_gain")))[0]
+    gain = t.separate(t.image(img(f"{stage}_gain")))[0]
     return {"Image": t.combine(t.math("MULTIPLY", v, gain), a, 0.0, 1.0)}
 
 
@@ -235,10 +235,9 @@ def _noise(t, s, b, img):
     return {"Image": t.combine(t.math("MULTIPLY_ADD", noise, s["Strength"], v), a, 0.0, 1.0)}
 
 
-def _kernel_stage(name):
-    def stage(t, s, b, img):
-        return {"Image": t.convolve(s["Image"], img(f"{name}_kernel"))}
-    return stage
+def _kernel(t, s, b, img, stage):
+    """Generic recipe: the mosaic convolved with the effect's baked row kernel."""
+    return {"Image": t.convolve(s["Image"], img(f"{stage}_kernel"))}
 
 
 def _quantisation(t, s, b, img):
@@ -306,22 +305,31 @@ def _plate_blend(t, s, b, img):
     return {"Image": t.combine(*out, 1.0)}
 
 
+#: Recipes a :class:`lowcam.effects.NodeStage` may name: generic ones take the stage's name.
+GENERIC_BUILDERS = {"kernel": _kernel, "gain": _gain, "matrix": _matrix}
 STAGE_BUILDERS = {
-    "lens_distortion": _lens_distortion, "half_sampling": _half_sampling, "crosstalk": _crosstalk,
-    "spatial_blur": _spatial_blur, "bayer_sampling": _bayer_sampling, "vignetting": _vignetting, "noise": _noise,
-    "horizontal_blur": _kernel_stage("horizontal_blur"), "sharpening": _kernel_stage("sharpening"),
-    "quantisation": _quantisation, "demosaic": _demosaic, "saturation": _saturation, "yuv_blend": _yuv_blend,
-    "chroma_subsampling": _chroma_subsampling, "plate_blend": _plate_blend,
+    "lens_distortion": _lens_distortion, "half_sampling": _half_sampling, "spatial_blur": _spatial_blur,
+    "bayer_sampling": _bayer_sampling, "noise": _noise, "quantisation": _quantisation, "demosaic": _demosaic,
+    "saturation": _saturation, "yuv_blend": _yuv_blend, "chroma_subsampling": _chroma_subsampling,
+    PLATE_BLEND: _plate_blend,
 }
+
+
+def stage_builder(stage: str):
+    """The recipe that builds ``stage``: (tree, input sockets, bake, image namer) -> output sockets."""
+    kind = PLATE_BLEND if stage == PLATE_BLEND else node_stages()[stage].builder
+    if kind in GENERIC_BUILDERS:
+        return lambda t, s, b, img: GENERIC_BUILDERS[kind](t, s, b, img, stage)
+    return STAGE_BUILDERS[kind]
 
 
 def stage_sockets(stage: str):
     """(inputs, outputs) of a stage's group as (name, socket type) pairs."""
     colour = "NodeSocketColor"
     inputs = [("Image", colour)]
-    if STAGE_INPUT[stage] == "rgb":
+    if stage_carries(stage) == "rgb":
         inputs.append(("Alpha", colour))
-    if stage in ("yuv_blend", "plate_blend"):
+    if stage in ("yuv_blend", PLATE_BLEND):
         inputs.append(("Plate", colour))
     if stage == "noise":
         inputs += [("Seed", "NodeSocketFloat"), ("Strength", "NodeSocketFloat")]
@@ -330,7 +338,7 @@ def stage_sockets(stage: str):
 
 
 def group_name(stage: str) -> str:
-    return f"{PREFIX} {STAGE_LABELS[stage]}"
+    return f"{PREFIX} {stage_label(stage)}"
 
 
 def build_stage_group(stage: str, camera: CameraBake, name: str | None = None):
@@ -348,19 +356,21 @@ def build_stage_group(stage: str, camera: CameraBake, name: str | None = None):
         return images[key]
 
     s = {name: t.inp.outputs[name] for name, _ in inputs}
-    result = STAGE_BUILDERS[stage](t, s, camera, img)
+    result = stage_builder(stage)(t, s, camera, img)
     for name, _ in outputs:
         t.links.new(result[name], t.out.inputs[name])
     return group
 
 
 def node_stages(camera: CameraBake) -> list[str]:
-    """The stages of the group in order: the profile's, less those baked into maps, plus the plate blend."""
-    return [s for s in camera.stages if s not in BAKED_INTO_MAPS] + ["plate_blend"]
+    """The stages of the group in order: the profile's, less those baked into another's maps, plus the plate
+    blend."""
+    declared = node_stages()
+    return [s for s in camera.stages if not declared[s].baked_into] + [PLATE_BLEND]
 
 
 def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: str | None = None):
-    """Build "Lowcam Camera" from a :func:`nodes.maps.bake`: inputs Image (the render, premultiplied), Plate,
+    """Build "Lowcam Camera" from a :func:`lowcam.node_maps.bake`: inputs Image (the render, premultiplied), Plate,
     Seed, Noise; output Image.
 
     ``until`` ends the chain after that stage (its raw output goes to the group's output), for parity checks.
@@ -376,7 +386,7 @@ def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: s
     current = {"Image": t.inp.outputs["Image"]}
     for i, stage in enumerate(stages):
         node = t.nodes.new("CompositorNodeGroup")
-        node.node_tree = build_stage_group(stage, camera, f"{name}: {STAGE_LABELS[stage]}")
+        node.node_tree = build_stage_group(stage, camera, f"{name}: {stage_label(stage)}")
         node.location = (200 * (i + 1), 0)
         for name, _ in stage_sockets(stage)[0]:
             source = {"Plate": t.inp.outputs["Plate"], "Seed": t.inp.outputs["Seed"],

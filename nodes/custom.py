@@ -8,10 +8,10 @@ inner group from the engine. Python nodes that compute pixels would crash the co
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
-from lowcam.effects import EFFECTS
+from lowcam.effects import effect_class
+from lowcam.node_maps import bake, node_stages
 
-from .build import STAGE_LABELS, build_camera_group, build_stage_group
-from .maps import bake
+from .build import build_camera_group, build_stage_group, stage_label
 
 RENDER_WIDTH = 1600  # px the maps assume until the node sees a scene
 
@@ -182,13 +182,13 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
 
 
 def _stage_class(stage: str):
-    effect_cls = EFFECTS.get(stage)
+    effect_cls = effect_class(stage)
     annotations = {"profile": EnumProperty(name="Profile", items=_profile_items,
                                            update=lambda self, c: (self.load_profile_values(), self.rebuild(c)))}
     params = effect_cls.params if effect_cls is not None else {}
     for key, param in params.items():
         annotations[key] = _param_property(key, param)
-    label = STAGE_LABELS[stage]
+    label = stage_label(stage)
     return type(f"Lowcam{label.replace(' ', '')}Node", (LowcamStageNode, bpy.types.CompositorNodeCustomGroup), {
         "__annotations__": annotations, "bl_idname": f"Lowcam{label.replace(' ', '')}Node",
         "bl_label": f"Lowcam {label}", "stage": stage, "effect": stage if effect_cls is not None else "",
@@ -196,8 +196,9 @@ def _stage_class(stage: str):
     })
 
 
-#: Stages with a node of their own (the plate blend is part of the camera node only).
-STAGE_NODES = tuple(s for s in STAGE_LABELS if s != "plate_blend")
+#: Stages with a node of their own: every effect that declares one and is not baked into another's maps (the
+#: plate blend is part of the camera node only).
+STAGE_NODES = tuple(name for name, node in node_stages().items() if not node.baked_into)
 classes = [LowcamCameraNode] + [_stage_class(s) for s in STAGE_NODES]
 
 

@@ -13,7 +13,7 @@ from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
 from .build import build_camera_group, image_from_array, node_stages
-from .maps import bake, planes_to_mosaic
+from lowcam.node_maps import bake, planes_to_mosaic
 
 
 def _engine_stage(state, stage: str, frame: np.ndarray) -> np.ndarray:

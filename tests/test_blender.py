@@ -14,6 +14,8 @@ from lowcam.pipeline import plain_composite
 from lowcam.profile import BUNDLED_PROFILES
 from lowcam.scene import OVERLAY_LAYER, overlay_in_frame, read_layers, read_passes
 
+pytestmark = pytest.mark.blender  # real bpy: the Blender tier
+
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):

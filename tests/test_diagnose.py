@@ -31,7 +31,7 @@ HIDDEN = {
     "motion_blur": ([], ["motion_blur"]),
     "chroma_subsampling": ([], ["chroma_subsampling"]),
     "radial_distortion": ([("lens_distortion", {"w": 0.93 + draw(1, 0.08, 0.15)})], []),
-    "gamma": ([("tone_curve", {"gamma": draw(2, 1.6, 2.4)})], []),
+    "tone_curve": ([("tone_curve", {"gamma": draw(2, 1.6, 2.4)})], []),
     "rolling_shutter": ([("rolling_shutter", {"readout_s": draw(3, 0.02, 0.04)})], []),
     "prnu": ([("prnu", {"strength": draw(4, 0.02, 0.04), "pattern_seed": 4})], []),
     "dsnu": ([("dsnu", {"strength": draw(5, 1.5, 3.0), "pattern_seed": 5})], []),
@@ -49,18 +49,72 @@ HIDDEN = {
 }
 
 
-def run_case(tmp_path, fire_i, add, remove, seed, diagnosed=None):
-    folder = synthesise(fire_i, tmp_path / "set", add=add, seed=seed)
+#: candidate -> (scenes of its small focused set, decoys: candidates it could be mistaken for)
+FOCUS = {
+    "vignetting": (("flat-bright", "flat-dark", "photo"), ("tone_curve", "veiling_glare")),
+    "chromatic_aberration": (("chart", "noise-field"), ("radial_distortion", "defocus")),
+    "motion_blur": (("pan", "photo"), ("rolling_shutter", "horizontal_blur")),
+    "chroma_subsampling": (("photo", "chart"), ("jpeg", "colour_matrix")),
+    "radial_distortion": (("chart", "noise-field"), ("chromatic_aberration", "vignetting")),
+    "tone_curve": (("flat-bright", "flat-dark", "photo"), ("colour_matrix", "vignetting")),
+    "rolling_shutter": (("pan", "photo"), ("motion_blur", "radial_distortion")),
+    "prnu": (("flat-bright", "flat-dark", "photo"), ("dsnu", "vignetting")),
+    "dsnu": (("flat-bright", "flat-dark", "photo"), ("prnu", "hot_pixels")),
+    "row_noise": (("flat-bright", "photo"), ("dsnu", "quantisation_bits")),
+    "hot_pixels": (("flat-dark", "flat-bright", "photo"), ("dsnu", "prnu")),
+    "vertical_blur": (("chart", "noise-field"), ("defocus", "horizontal_blur")),
+    "defocus": (("chart", "noise-field"), ("vertical_blur", "asymmetric_sharpening")),
+    "asymmetric_sharpening": (("chart", "noise-field"), ("horizontal_blur", "defocus")),
+    "jpeg": (("photo", "noise-field"), ("chroma_subsampling", "defocus")),
+    "veiling_glare": (("chart", "photo"), ("tone_curve", "vignetting")),
+    "bilinear_demosaic": (("noise-field", "photo"), ("horizontal_blur", "chroma_subsampling")),
+    "colour_matrix": (("photo", "chart"), ("tone_curve", "chroma_subsampling")),
+    "quantisation_bits": (("flat-bright", "photo"), ("tone_curve", "row_noise")),
+    "horizontal_blur": (("chart", "noise-field"), ("defocus", "vertical_blur")),
+}
+
+
+def run_case(tmp_path, fire_i, add, remove, seed, diagnosed=None, only=None, only_scenes=None, frames=6):
+    folder = synthesise(fire_i, tmp_path / "set", add=add, seed=seed, frames=frames, only_scenes=only_scenes)
     profile = diagnosed or (fire_i.without(*remove) if remove else fire_i)
-    return diagnose(load_set(folder, profile), profile, workdir=tmp_path / "work")
+    return diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work")
 
 
-@pytest.mark.parametrize("candidate", list(HIDDEN))
-def test_a_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(tmp_path, fire_i, candidate):
+def hidden_case(fire_i, candidate):
+    """(effects added to the data, effects switched off, the diagnosed profile or None) for a candidate."""
     add, remove = HIDDEN[candidate]
     diagnosed = None
     if candidate == "horizontal_blur":  # a wrong parameter: the profile's sigma doubled
         diagnosed = fire_i.with_effect("horizontal_blur", sigma=2 * fire_i.effect("horizontal_blur").sigma)
+    return add, remove, diagnosed
+
+
+def test_every_candidate_has_a_hidden_case_and_a_focused_set():
+    from lowcam.measure.diagnose import candidates
+
+    assert set(HIDDEN) == set(FOCUS) == set(candidates())
+
+
+@pytest.mark.parametrize("candidate", list(HIDDEN))
+def test_a_hidden_effect_beats_its_decoys_on_a_small_focused_set(tmp_path, fire_i, candidate):
+    """The fast tier: 4 frames of 2-3 scenes that show the effect, the candidate against two it could be
+    mistaken for."""
+    add, remove, diagnosed = hidden_case(fire_i, candidate)
+    scenes, decoys = FOCUS[candidate]
+    d = run_case(tmp_path, fire_i, add, remove, seed=100 + len(candidate), diagnosed=diagnosed,
+                 only=[candidate, *decoys], only_scenes=scenes, frames=4)
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    assert d.error > 1.1, f"the hidden {candidate} is not visible: error {d.error:.3f}"
+    assert d.candidates[0].effect == candidate, ranking
+    assert d.candidates[0].error_after <= 1.1, ranking
+    assert d.verdict == "missing-effect"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("candidate", list(HIDDEN))
+def test_a_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(tmp_path, fire_i, candidate):
+    """The slow tier: the standard set (6 frames of every scene) against every candidate."""
+    add, remove, diagnosed = hidden_case(fire_i, candidate)
     d = run_case(tmp_path, fire_i, add, remove, seed=100 + len(candidate), diagnosed=diagnosed)
     ranking = [(c.effect, round(c.score, 3)) for c in d.candidates[:4]]
     assert d.error > 1.1, f"the hidden {candidate} is not visible: error {d.error:.3f}"
@@ -77,7 +131,7 @@ def test_a_set_with_nothing_hidden_is_explained(tmp_path, fire_i):
 def test_two_hidden_effects_both_surface_in_the_top_three(tmp_path, fire_i):
     d = run_case(tmp_path, fire_i, [("tone_curve", {"gamma": 1.8})], ["vignetting"], seed=32)
     top = [c.effect for c in d.candidates[:3]]
-    assert "gamma" in top and "vignetting" in top, top
+    assert "tone_curve" in top and "vignetting" in top, top
 
 
 def test_diagnose_cli_writes_json_and_adds_the_best_effect(tmp_path):
@@ -90,7 +144,7 @@ def test_diagnose_cli_writes_json_and_adds_the_best_effect(tmp_path):
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "d.json").read_text())
     assert doc["verdict"] == "missing-effect" and doc["noise_floor"] == 1.0 and doc["error"] > 1.1
-    assert doc["candidates"][0]["effect"] == "gamma" and abs(doc["candidates"][0]["params"]["gamma"] - 2.0) < 0.1
+    assert doc["candidates"][0]["effect"] == "tone_curve" and abs(doc["candidates"][0]["params"]["gamma"] - 2.0) < 0.1
     assert {"channels", "regions", "bands", "intensities"} <= set(doc["where"])
     fixed = lowcam.load_profile(tmp_path / "fixed.toml")
     assert fixed.effect("tone_curve") is not None

@@ -4,6 +4,9 @@ import sys
 from pathlib import Path
 
 import bpy
+import pytest
+
+pytestmark = pytest.mark.blender  # real bpy: the Blender tier
 
 ROOT = Path(__file__).resolve().parent.parent
 

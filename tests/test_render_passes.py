@@ -98,9 +98,8 @@ def test_pass_effects_need_their_pass_and_sane_values(fire_i):
 
 
 def test_the_node_group_leaves_pass_effects_to_the_handler(fire_i):
-    from lowcam.extension import submodule
+    from lowcam.node_maps import bake
 
-    bake = submodule("nodes.maps").bake
     with_passes = bake(fire_i.with_effect("object_motion").with_effect("depth_of_field"), (300, 400))
     plain = bake(fire_i, (300, 400))
     assert with_passes.stages == plain.stages

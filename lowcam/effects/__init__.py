@@ -1,10 +1,16 @@
-"""Physical effects, one module each. :data:`EFFECTS` maps a profile's ``type`` to its class."""
+"""Physical effects, one module each. :data:`EFFECTS` maps a profile's ``type`` to its class.
+
+Each effect declares itself (:class:`Effect`): its place in the chain (``order``), its compositor node
+(``node``), how diagnosis searches it (``searches``) and which calibration measures it (``calibration``). The
+chain order, the node stages, the diagnosis candidates and the calibration listing are derived from these
+declarations (:func:`known_effects`), for bundled effects and plug-ins (``"module:Class"``) alike.
+"""
 from __future__ import annotations
 
 import importlib
 
 from ..errors import ProfileError
-from .base import Effect, Param, ParamSet
+from .base import Effect, NodeStage, Param, ParamSet, Search
 from .bayer import BayerSampling, Demosaic
 from .blur import HorizontalBlur, SpatialBlur
 from .chromatic_aberration import ChromaticAberration
@@ -40,10 +46,28 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 
 
+#: Plug-in effects loaded so far in this process (``"module:Class"`` -> class).
+PLUGINS: dict[str, type[Effect]] = {}
+
+
+def known_effects() -> list[type[Effect]]:
+    """Every effect class known in this process, bundled and plug-in, in chain order (``Effect.order``; those
+    without an order last)."""
+    classes = list(EFFECTS.values()) + [c for c in PLUGINS.values() if c not in EFFECTS.values()]
+    return sorted(classes, key=lambda c: (c.order is None, c.order or 0.0))
+
+
+def canonical_order() -> list[str]:
+    """The names of :func:`known_effects` in the order they stand in a complete chain."""
+    return [c.name for c in known_effects()]
+
+
 def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
     """The class for a profile ``type``: a bundled name, or ``"package.module:ClassName"`` for a plug-in."""
     if type_name in EFFECTS:
         return EFFECTS[type_name]
+    if type_name in PLUGINS:
+        return PLUGINS[type_name]
     if ":" in type_name:
         module_name, _, class_name = type_name.partition(":")
         try:
@@ -52,9 +76,11 @@ def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
             raise ProfileError(f"{source}: effect type '{type_name}' cannot be loaded: {e}") from None
         if not (isinstance(cls, type) and issubclass(cls, Effect)):
             raise ProfileError(f"{source}: effect type '{type_name}' is not a lowcam.effects.Effect subclass")
+        PLUGINS[type_name] = cls
         return cls
     raise ProfileError(f"{source}: unknown effect type '{type_name}' (known: {', '.join(EFFECTS)}, "
                        "or 'module:Class' for a plug-in)")
 
 
-__all__ = ["EFFECTS", "Effect", "Param", "ParamSet", "effect_class"] + [c.__name__ for c in EFFECTS.values()]
+__all__ = ["EFFECTS", "PLUGINS", "Effect", "NodeStage", "Param", "ParamSet", "Search", "canonical_order",
+           "effect_class", "known_effects"] + [c.__name__ for c in EFFECTS.values()]

@@ -21,7 +21,7 @@ and in a profile: ``[[effect]]`` / ``type = "mypackage.haze:Haze"`` / ``veil_dn 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -84,6 +84,55 @@ class ParamSet:
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.values().items())})"
 
 
+@dataclass(frozen=True)
+class NodeStage:
+    """How the compositor node group builds an effect (the Blender side reads this; no bpy here).
+
+    ``label`` names the node; ``carries`` is what its sockets hold: ``"image"`` (RGBA on the working grid),
+    ``"mosaic"`` (the sensel mosaic, colour in R, alpha in G), ``"rgb"`` (the demosaiced frame plus an Alpha
+    socket) or ``"yuv"`` (the blended frame's YUV difference). ``builder`` names the node recipe in
+    :mod:`nodes.build`: one of its generic recipes (``"kernel"``: convolve with the effect's ``kernel()``;
+    ``"gain"``: multiply the colour by its baked ``gain`` map; ``"matrix"``: a 3x3 colour matrix) or a stage's own.
+    ``baked_into`` names a later effect whose maps already hold this one (motion taps live in Bayer sampling).
+    """
+
+    label: str
+    carries: str = "image"
+    builder: str = ""
+    baked_into: str = ""
+
+
+@dataclass(frozen=True)
+class Search:
+    """How diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this).
+
+    ``candidate`` is the name diagnosis lists; ``bounds`` the continuous parameters it searches (key ->
+    (low, high)), from ``start``; ``grid`` discrete values tried in turn (key -> values; scored on the full
+    error when ``full_error``), then ``refine`` steps around the best; ``fixed`` values set without a search
+    (e.g. ``method = "bilinear"``). ``when``: values the profile's effect must already have (the lens model).
+    ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise).
+    ``captures``: which captures show it (``"all"``, ``"textured"`` or ``"moving"``). ``requires``: an
+    effect the profile must already have (a candidate that changes a parameter). ``replace``: start from the
+    effect's defaults rather than the profile's values. ``evidence`` is formatted with the fitted values
+    (``{key}``) and the profile's (``{was_key}``).
+    """
+
+    candidate: str
+    evidence: str
+    bounds: dict = field(default_factory=dict)
+    start: dict = field(default_factory=dict)
+    grid: dict = field(default_factory=dict)
+    refine: dict = field(default_factory=dict)
+    fixed: dict = field(default_factory=dict)
+    when: dict = field(default_factory=dict)
+    fit: str = ""
+    captures: str = "all"
+    requires: str = ""
+    replace: bool = False
+    full_error: bool = False
+    evals: int = 20
+
+
 class Effect(ParamSet):
     """Base class of every stage. Subclasses set the class attributes and implement :meth:`apply`.
 
@@ -110,6 +159,15 @@ class Effect(ParamSet):
     random: ClassVar[bool] = False
     #: The render pass the effect reads (``"velocity"`` or ``"depth"``, see :mod:`lowcam.passes`), or "".
     needs_pass: ClassVar[str] = ""
+    #: Where the effect stands in a complete chain (:func:`lowcam.effects.canonical_order`); an effect added to
+    #: a profile goes there. Plug-ins without one go to the end.
+    order: ClassVar[float | None] = None
+    #: How the compositor node group builds it, or None when it has no node.
+    node: ClassVar[NodeStage | None] = None
+    #: How diagnosis may fit it: one :class:`Search` per candidate it offers.
+    searches: ClassVar[tuple[Search, ...]] = ()
+    #: The ``lowcam calibrate`` job that measures it (:data:`lowcam.calibrate.CALIBRATIONS`), or "".
+    calibration: ClassVar[str] = ""
 
     def __init__(self, enabled: bool = True, source: str = "<python>", base_dir: Path | None = None, **values):
         self.enabled = bool(enabled)
@@ -118,6 +176,12 @@ class Effect(ParamSet):
     def apply(self, state) -> None:  # pragma: no cover - interface
         """Run this step of the imaging chain on ``state`` (a :class:`lowcam.pipeline.SimState`) in place."""
         raise NotImplementedError
+
+    def finish(self, state, frame, footprint):
+        """After the blend: change the 8-bit ``frame`` (H, W, 3) and its ``footprint`` (H, W) bool of pixels the
+        graphics changed, and return both (the chroma groups, a JPEG encode, a raw frame). The default keeps
+        them."""
+        return frame, footprint
 
     def error(self, message: str) -> ProfileError:
         return ProfileError(f"{self.source}: effect '{self.name}': {message}")

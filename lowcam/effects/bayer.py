@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 
 from ..geometry import BAYER_BORDER, CFA_CHANNELS, COLOUR_INDEX, sample_texture
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 
 class BayerSampling(Effect):
@@ -19,6 +19,8 @@ class BayerSampling(Effect):
     name = "bayer_sampling"
     section = "5.2 step 5"
     writes = "bayer"
+    order = 110
+    node = NodeStage("Bayer Sampling", "image", "bayer_sampling")
     always_runs = True
     params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
 
@@ -146,6 +148,9 @@ class Demosaic(Effect):
     name = "demosaic"
     section = "4.4.1, 5.2 step 8, 7"
     writes = "rgb"
+    order = 200
+    node = NodeStage("Demosaic", "mosaic", "demosaic")
+    searches = (Search("bilinear_demosaic", "fine detail and noise correlations follow bilinear demosaicing", fixed={"method": "bilinear"}, requires="demosaic"),)
     always_runs = True
     params = {"method": Param("block", str, choices=("block", "bilinear"))}
 

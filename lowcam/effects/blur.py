@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from ..geometry import grid_points, sample_texture
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 
 def gaussian_taps(sigma: float, taps: int = 7, dtype=np.float32) -> np.ndarray:
@@ -78,6 +78,8 @@ class SpatialBlur(Effect):
     name = "spatial_blur"
     section = "5.2 step 3"
     writes = "working"
+    order = 80
+    node = NodeStage("Spatial Blur", "image", "spatial_blur")
     params = {
         "antialias_sigma_px": Param(0.3, low=0.0, high=20.0, unit="px (output)"),
         "corner_softness": Param(0.5, low=0.0, high=20.0, doc="sigma per px of red-blue separation"),
@@ -114,6 +116,9 @@ class HorizontalBlur(Effect):
     name = "horizontal_blur"
     section = "4.3, 5.2 step 6"
     writes = "bayer"
+    order = 150
+    node = NodeStage("Horizontal Blur", "mosaic", "kernel")
+    searches = (Search("horizontal_blur", "horizontal blur sigma {sigma:.3f} sensels (profile: {was_sigma:.3f})", bounds={"sigma": (0.0, 4.0)}, captures="textured", requires="horizontal_blur"),)
     params = {
         "sigma": Param(0.7, low=0.0, high=10.0, unit="sensels"),
         "taps": Param(7, int, low=1, high=31),
@@ -232,6 +237,8 @@ class VerticalBlur(Effect):
     name = "vertical_blur"
     section = "4.3"
     writes = "bayer"
+    order = 160
+    searches = (Search("vertical_blur", "edges are soft vertically as by a {sigma:.2f}-sensel Gaussian", bounds={"sigma": (0.0, 3.0)}, captures="textured"),)
     params = {"sigma": Param(0.0, low=0.0, high=10.0, unit="sensels"), "taps": Param(7, int, low=1, high=31)}
 
     def apply(self, state):

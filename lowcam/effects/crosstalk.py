@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 #: Fire-i filter response to 700/546/438 nm primaries, rows sum to 1 (sec. 4.2).
 FIRE_I_CROSSTALK = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]
@@ -24,6 +24,9 @@ class Crosstalk(Effect):
     name = "crosstalk"
     section = "4.2, 5.2 step 2"
     writes = "working"
+    order = 40
+    node = NodeStage("Crosstalk", "image", "matrix")
+    searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix", requires="crosstalk"),)
     params = {
         "matrix": Param(FIRE_I_CROSSTALK, "matrix", length=3),
         "extra_mixing": Param(0.05, low=0.0, high=1.0),
@@ -69,6 +72,8 @@ class Saturation(Effect):
     name = "saturation"
     section = "4.4.2"
     writes = "rgb"
+    order = 240
+    node = NodeStage("Saturation", "rgb", "saturation")
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
         "luma": Param(list(SATURATION_LUMA), "vector", length=3),

@@ -47,6 +47,7 @@ class DepthOfField(Effect):
     name = "depth_of_field"
     section = "beyond the paper (Fig. 15: depth of field)"
     writes = "render"
+    order = 10
     needs_pass = "depth"
     params = {
         "focus_distance_m": Param(2.0, low=0.01, high=1e4, unit="m", doc="distance of the sharp plane"),

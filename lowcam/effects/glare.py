@@ -4,7 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, Param, Search
 
 
 class VeilingGlare(Effect):
@@ -14,6 +14,8 @@ class VeilingGlare(Effect):
     name = "veiling_glare"
     section = "3 (flare)"
     writes = "working"
+    order = 100
+    searches = (Search("veiling_glare", "a haze of {strength:.3f} of the light, spread over {radius_px:.0f} px", bounds={"strength": (0.0, 0.5), "radius_px": (5.0, 300.0)}, start={"strength": 0.05, "radius_px": 40.0}, captures="textured", evals=30),)
     params = {"strength": Param(0.0, low=0.0, high=1.0), "radius_px": Param(40.0, low=1.0, high=500.0)}
 
     def apply(self, state):

@@ -1,7 +1,9 @@
 """JPEG compression of the delivered frame (a phone's or webcam's MJPEG stream; not in the paper)."""
 from __future__ import annotations
 
-from .base import Effect, Param
+import numpy as np
+
+from .base import Effect, Param, Search
 
 
 class Jpeg(Effect):
@@ -11,7 +13,20 @@ class Jpeg(Effect):
     name = "jpeg"
     section = "not in the paper"
     writes = "output"
+    order = 280
+    searches = (Search("jpeg", "8x8 block artefacts as from JPEG quality {quality}", grid={"quality": (30, 50, 70, 80, 90, 95)}, refine={"quality": (-8, -4, 0, 4, 8)}),)
     params = {"quality": Param(90, int, low=1, high=100)}
 
     def apply(self, state):
-        state.jpeg_quality = self.quality
+        """Nothing before the blend: the encode acts on the delivered frame (:meth:`finish`)."""
+
+    def finish(self, state, frame, footprint):
+        import cv2
+
+        from ..errors import LowcamError
+
+        ok, data = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR),
+                                [cv2.IMWRITE_JPEG_QUALITY, int(self.quality)])
+        if not ok:
+            raise LowcamError(f"{self.source}: JPEG encoding of a {frame.shape[1]}x{frame.shape[0]} frame failed")
+        return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB), np.ones_like(footprint)

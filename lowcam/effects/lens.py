@@ -24,7 +24,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, Param
+from ..errors import LowcamError
+from .base import Effect, NodeStage, Param, Search
 
 
 class LensModel:
@@ -260,13 +261,23 @@ class LensDistortion(Effect):
 
     The render covers a pinhole field of view of ``render_hfov_deg`` horizontally (square pixels, centred); with
     0 the engine picks the field that just covers the working grid (frame plus margin) for a render of the
-    frame's aspect ratio (see :func:`lowcam.pipeline.render_field_of_view`). The maps are exact per pixel and
+    frame's aspect ratio (see :meth:`render_field_of_view`). The maps are exact per pixel and
     computed once per render size.
     """
 
     name = "lens_distortion"
     section = "4.1, 5.2 step 1"
     writes = "working"
+    order = 20
+    node = NodeStage("Lens Distortion", "image", "lens_distortion")
+    searches = (
+        Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)}, when={"model": "fov"}, captures="textured"),
+        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)}, when={"model": "opencv"}, captures="textured"),
+        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)}, when={"model": "polynomial"}, captures="textured"),
+        Search("radial_distortion", "lens division_k1 = {division_k1:.4f} (was {was_division_k1:.4f})", bounds={"division_k1": (-1.0, 1.0)}, when={"model": "division"}, captures="textured"),
+        Search("radial_distortion", "lens nuke_k1 = {nuke_k1:.4f} (was {was_nuke_k1:.4f})", bounds={"nuke_k1": (-1.0, 1.0)}, when={"model": "nuke"}, captures="textured"),
+        Search("radial_distortion", "lens brown_k1 = {brown_k1:.4f} (was {was_brown_k1:.4f})", bounds={"brown_k1": (-1.0, 1.0)}, when={"model": "brown"}, captures="textured"),
+    )
     always_runs = True
     params = {
         "model": Param("fov", str, choices=tuple(_MODEL_KEYS)),
@@ -343,13 +354,60 @@ class LensDistortion(Effect):
         return BlenderLens(width, height, self.model, self.focal_length, self.sensor_width,
                            tuple(self.principal_point), self.pixel_aspect, **coefficients)
 
+    def lens_model(self, geometry) -> LensModel:
+        """The lens of the output frame: this model, or a pinhole when the stage is disabled."""
+        model = self.model_for(geometry.width, geometry.height)
+        return model if self.enabled else model.pinhole()
+
+    def render_field_of_view(self, geometry) -> tuple[float, float]:
+        """Pinhole half-extents (X, Y) = (tan of half the horizontal, vertical field) that the render must cover.
+
+        With ``render_hfov_deg`` = 0 the horizontal extent is chosen to just cover the working grid (frame plus
+        margin) for a render of the frame's aspect ratio, plus 2 %. Returns the extent the engine maps the
+        render's width onto (X) and the least vertical extent it needs (Y).
+        """
+        key = ("fov", geometry, self.enabled, repr(self.values()))
+        if key not in self._maps:
+            u0, v0, u1, v1 = geometry.working_extent
+            t = np.linspace(0.0, 1.0, 257)
+            border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t,
+                                       np.full_like(t, u0)])
+            border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1),
+                                       v1 - (v1 - v0) * t])
+            x, y = self.lens_model(geometry).undistort(border_u, border_v)
+            need_x, need_y = float(np.abs(x).max()), float(np.abs(y).max())
+            if self.render_hfov_deg > 0:
+                half_x = float(np.tan(np.radians(self.render_hfov_deg) / 2))
+                if half_x < need_x:
+                    raise LowcamError(f"{self.source}: render_hfov_deg = {self.render_hfov_deg} is narrower than "
+                                      f"the {np.degrees(2 * np.arctan(need_x)):.1f} deg the lens sees")
+            else:
+                half_x = 1.02 * max(need_x, need_y * geometry.width / geometry.height)
+            self._maps[key] = (half_x, need_y)
+        return self._maps[key]
+
+    def render_focal_px(self, geometry, width: int, height: int) -> float:
+        """Focal length in render pixels for a render of ``width`` x ``height`` (square pixels, centred)."""
+        half_x, need_y = self.render_field_of_view(geometry)
+        focal = width / (2 * half_x)
+        if height / (2 * focal) < need_y * 0.999:
+            raise LowcamError(f"a {width}x{height} render covers too little vertically for this camera: use the "
+                              f"aspect ratio {geometry.width}:{geometry.height} or a taller one")
+        return focal
+
+    def render_pixel_coordinates(self, geometry, u, v, render_shape) -> tuple[np.ndarray, np.ndarray]:
+        """Where output-frame points (u, v) (output pixels, through the lens) lie in a render of ``render_shape``
+        (rows, cols): float32 render pixel coordinates, centres at integers (cv2.remap maps)."""
+        x, y = self.lens_model(geometry).undistort(u, v)
+        hr, wr = render_shape
+        focal = self.render_focal_px(geometry, wr, hr)
+        return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+
     def render_coordinates(self, state, render_shape) -> tuple[np.ndarray, np.ndarray]:
         """Render pixel coordinates (x, y), float32, of every supersampled working-grid pixel: where each one
         looks in a render of ``render_shape`` (rows, cols); pixel centres are integers."""
-        from ..pipeline import render_pixel_coordinates
-
         u, v = state.geometry.working_pixel_centres(factor=2)
-        return render_pixel_coordinates(state.profile, u, v, render_shape)
+        return self.render_pixel_coordinates(state.geometry, u, v, render_shape)
 
     def render_maps(self, state, render_shape):
         """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""

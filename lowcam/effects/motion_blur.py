@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 
 from ..geometry import grid_points
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 
 def rotation_matrices(angular_velocity, times) -> np.ndarray:
@@ -57,6 +57,9 @@ class MotionBlur(Effect):
     name = "motion_blur"
     section = "5.2 step 4"
     writes = "sampling"
+    order = 50
+    node = NodeStage("Motion Blur", "image", baked_into="bayer_sampling")
+    searches = (Search("motion_blur", "moving captures are smeared as by a {exposure_s:.4f} s exposure", bounds={"exposure_s": (0.0005, 0.1)}, captures="moving"),)
     params = {
         "taps": Param(16, int, low=2, high=256),
         "exposure_s": Param(0.0, low=0.0, high=10.0, unit="s", doc="0: the camera's exposure_s"),

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param
 
 
 def frame_rng(seed: int, frame: int) -> np.random.Generator:
@@ -24,6 +24,8 @@ class Noise(Effect):
     name = "noise"
     section = "4.3, 5.2 step 5"
     writes = "bayer"
+    order = 130
+    node = NodeStage("Noise", "mosaic", "noise")
     random = True
     params = {
         "law": Param("sigma_linear", str, choices=("sigma_linear", "variance_linear")),

@@ -80,6 +80,7 @@ class ObjectMotion(Effect):
     name = "object_motion"
     section = "beyond the paper (Fig. 15: object motion)"
     writes = "render"
+    order = 0
     needs_pass = "velocity"
     params = {
         "min_shift_px": Param(0.5, low=0.0, high=100.0, unit="px (render)",

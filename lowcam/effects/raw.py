@@ -17,6 +17,7 @@ class RawBlend(Effect):
     name = "raw_blend"
     section = "7"
     writes = "bayer"
+    order = 190
     always_runs = True
     params = {"bits": Param(8, int, low=1, high=16, doc="raw bit depth, scaled to 8-bit DN")}
 
@@ -31,3 +32,14 @@ class RawBlend(Effect):
         state.bayer = np.where(covered, blended, plate).astype(np.float32)
         state.bayer_alpha = np.ones_like(state.bayer_alpha)
         state.raw_touched = covered
+
+    def finish(self, state, frame, footprint):
+        """The frame is the demosaiced raw frame itself; the footprint is the touched sensels' pixels and their
+        demosaicing neighbours."""
+        import cv2
+
+        from .bayer import mosaic
+
+        touched = mosaic(state.raw_touched, state.geometry).astype(np.uint8)
+        rgb = np.rint(np.clip(state.rgb, 0, 255)).astype(np.uint8)
+        return rgb, cv2.dilate(touched, np.ones((3, 3), np.uint8)).astype(bool)

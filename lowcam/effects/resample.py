@@ -4,7 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param
 
 
 class HalfSampling(Effect):
@@ -17,6 +17,8 @@ class HalfSampling(Effect):
     name = "half_sampling"
     section = "5.2 step 2"
     writes = "working"
+    order = 30
+    node = NodeStage("Half Sampling", "image", "half_sampling")
     always_runs = True
     params = {"box_enlargement": Param(0.05, low=0.0, high=0.33, doc="weight of each neighbouring tap")}
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import grid_points
-from .base import Effect, Param
+from .base import Effect, Param, Search
 
 
 class RollingShutter(Effect):
@@ -15,6 +15,8 @@ class RollingShutter(Effect):
     name = "rolling_shutter"
     section = "3 (CMOS rolling shutter; not simulated in the paper)"
     writes = "sampling"
+    order = 60
+    searches = (Search("rolling_shutter", "moving captures skew as with a {readout_s:.4f} s row read-out", bounds={"readout_s": (0.0, 0.1)}, captures="moving"),)
     params = {"readout_s": Param(0.0, low=0.0, high=1.0, unit="s", doc="time from first to last row")}
 
     def apply(self, state):

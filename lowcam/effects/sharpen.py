@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 from .blur import filter_rows, gaussian_taps
 
 
@@ -19,6 +19,9 @@ class Sharpening(Effect):
     name = "sharpening"
     section = "4.4.3, 5.2 step 7"
     writes = "bayer"
+    order = 170
+    node = NodeStage("Sharpening", "mosaic", "kernel")
+    searches = (Search("asymmetric_sharpening", "sharpening halos are lopsided: its low-pass sits {shift:+.2f} sensels off centre", bounds={"shift": (-2.0, 2.0)}, captures="textured", requires="sharpening"),)
     params = {
         "sharpness": Param(80.0, low=0.0, high=255.0, doc="the camera's sharpness setting"),
         "gain_per_unit": Param(0.025, low=0.0, high=1.0),
@@ -54,6 +57,9 @@ class Quantisation(Effect):
     name = "quantisation"
     section = "4.3, 5.2 step 7"
     writes = "bayer"
+    order = 180
+    node = NodeStage("Quantisation", "mosaic", "quantisation")
+    searches = (Search("quantisation_bits", "levels come in {bits} bits", grid={"bits": (4, 5, 6, 7, 8)}, full_error=True, requires="quantisation"),)
     params = {"bits": Param(6, int, low=1, high=16)}
 
     def step_dn(self) -> float:

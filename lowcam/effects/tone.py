@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, Param, Search
 
 
 class ToneCurve(Effect):
@@ -13,6 +13,8 @@ class ToneCurve(Effect):
     name = "tone_curve"
     section = "not in the paper (sec. 8: gamma is not modelled)"
     writes = "rgb"
+    order = 250
+    searches = (Search("tone_curve", "mid-tones follow a gamma of {gamma:.2f}", bounds={"gamma": (0.3, 4.0)}),)
     params = {"gamma": Param(1.0, low=0.2, high=5.0)}
 
     def apply(self, state):

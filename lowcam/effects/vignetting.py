@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import sample_texture
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 
 def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 80)) -> np.ndarray:
@@ -31,6 +31,9 @@ class Vignetting(Effect):
     name = "vignetting"
     section = "4.1, 5.2 step 5"
     writes = "bayer"
+    order = 120
+    node = NodeStage("Vignetting", "mosaic", "gain")
+    searches = (Search("vignetting", "radial fall-off k2 = {k2:.3f}, k4 = {k4:.3f}", bounds={"k2": (-1.0, 0.5), "k4": (-1.0, 1.0)}, start={"k2": -0.2, "k4": 0.0}, replace=True, evals=30),)
     params = {
         "texture": Param("", "path", doc="greyscale PNG gain map; empty: radial model"),
         "k2": Param(0.0, low=-10.0, high=10.0),
@@ -50,11 +53,14 @@ class Vignetting(Effect):
             return self._texture
         return radial_vignetting(width, height, self.k2, self.k4)
 
+    def gain_planes(self, geometry) -> np.ndarray:
+        """The gain of every sensel, (4, hb, wb) like the sensel planes (the node group bakes the same)."""
+        pos = geometry.sensel_positions
+        return sample_texture(self.gain_texture(geometry.width, geometry.height), geometry.frame_extent,
+                              pos[..., 0], pos[..., 1]).astype(np.float32)
+
     def apply(self, state):
-        g = state.geometry
-        pos = g.sensel_positions
-        gain = sample_texture(self.gain_texture(g.width, g.height), g.frame_extent, pos[..., 0], pos[..., 1])
-        state.bayer *= gain
+        state.bayer *= self.gain_planes(state.geometry)
 
 
 def fit_vignetting(frames, shape=(60, 80), blur_fraction: float = 1 / 40) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, Param
+from .base import Effect, NodeStage, Param, Search
 
 #: Full-range BT.601 (JFIF) RGB -> YUV.
 RGB_TO_YUV = np.array([[0.299, 0.587, 0.114],
@@ -36,6 +36,8 @@ class YuvBlend(Effect):
     name = "yuv_blend"
     section = "5.2 step 8"
     writes = "output"
+    order = 260
+    node = NodeStage("YUV Blend", "rgb", "yuv_blend")
     always_runs = True
     params = {}
 
@@ -59,6 +61,9 @@ class ChromaSubsampling(Effect):
     name = "chroma_subsampling"
     section = "5.2 steps 9-10"
     writes = "output"
+    order = 270
+    node = NodeStage("Chroma Subsampling", "yuv", "chroma_subsampling")
+    searches = (Search("chroma_subsampling", "colour is shared by groups of {group} pixels horizontally", grid={"group": (2, 4, 8)}, requires="yuv_blend"),)
     params = {"group": Param(4, int, low=1, high=64)}
 
     def apply(self, state):
@@ -72,4 +77,9 @@ class ChromaSubsampling(Effect):
         u, v = (cv2.resize(cv2.resize(c, (w // n, h), interpolation=cv2.INTER_AREA), (w, h),
                            interpolation=cv2.INTER_NEAREST) for c in (u, v))
         state.delta_yuv = cv2.merge([y, u, v])
-        state.chroma_group = n
+
+    def finish(self, state, frame, footprint):
+        """The footprint grows to whole chroma groups: they share the graphics' colour."""
+        h, w = footprint.shape
+        n = self.group
+        return frame, np.repeat(footprint.reshape(h, w // n, n).any(axis=2), n, axis=1)

@@ -20,6 +20,8 @@ import numpy as np
 from .compare import EXPLAINED_BELOW, capture_inputs, compare, simulate_capture
 
 UNEXPLAINED_ABOVE = 1.25
+#: Candidates renamed after their effect; the old names are still accepted.
+RENAMED_CANDIDATES = {"gamma": "tone_curve"}
 
 
 @dataclass
@@ -97,96 +99,114 @@ def _search(ctx, build, bounds, x0, evals: int = 30, subset=None):
     return np.clip(r.x, [b[0] for b in bounds], [b[1] for b in bounds])
 
 
-def _fit_one(ctx, effect: str, key: str, bounds, subset=None, evals: int = 20):
-    """Fit one parameter of one effect: (profile with it, {key: value}, value)."""
-    p = ctx.profile
-    x = float(_search(ctx, lambda v: p.with_effect(effect, **{key: v[0]}), [bounds], None, evals, subset)[0])
-    return p.with_effect(effect, **{key: x}), {key: x}, x
-
-
 def _grid(ctx, build, values, full: bool = False):
     scores = [(ctx.compare(build(v)).error if full else ctx.sse(build(v))) for v in values]
     return values[int(np.argmin(scores))]
 
 
-# --- the candidates ------------------------------------------------------------------------------------------------
-# Each returns (profile with the candidate, fitted params, evidence) or None when the set cannot show it.
+# --- the candidates: each effect's declared searches (lowcam.effects.Search) ---------------------------------------
 
-def c_vignetting(ctx):
+def candidates() -> dict:
+    """Candidate name -> list of (effect class, :class:`~lowcam.effects.Search`), from every known effect's
+    ``searches`` (bundled and plug-in), in chain order."""
+    from ..effects import known_effects
+
+    out: dict = {}
+    for cls in known_effects():
+        for search in cls.searches:
+            out.setdefault(search.candidate, []).append((cls, search))
+    return out
+
+
+def candidate_effect(name: str) -> str:
+    """The profile effect a candidate adds or changes."""
+    return candidates()[name][0][0].name
+
+
+def fit_candidate(ctx, name: str):
+    """Fit candidate ``name`` on ``ctx.profile``: (profile with it, fitted params, evidence), or None when the
+    profile or the captures cannot show it."""
+    for cls, search in candidates()[name]:
+        have = ctx.profile.effect(cls.name)
+        if search.requires and ctx.profile.effect(search.requires) is None:
+            continue
+        if search.when and (have is None or any(getattr(have, k) != v for k, v in search.when.items())):
+            continue
+        if search.captures == "moving" and not ctx.moving:
+            continue
+        if search.fixed and have is not None and have.enabled and all(
+                getattr(have, k) == v for k, v in search.fixed.items()):
+            continue
+        fitted = CLOSED_FORM[search.fit](ctx, cls.name) if search.fit else _fit_search(ctx, cls.name, search)
+        if fitted is None:
+            continue
+        profile, params, shown = fitted
+        was = {f"was_{k}": v for k, v in (have.values() if have is not None else {}).items()}
+        return profile, params, search.evidence.format(**shown, **was)
+    return None
+
+
+def _fit_search(ctx, effect: str, search):
+    """Grid values first (with refinement steps), then a bounded search over the continuous parameters."""
     p = ctx.profile
-    x = _search(ctx, lambda x: p.with_effect("vignetting", replace=True, k2=x[0], k4=x[1]),
-                [(-1.0, 0.5), (-1.0, 1.0)], [-0.2, 0.0])
-    corner = 1 + x[0] + x[1]
-    return p.with_effect("vignetting", replace=True, k2=x[0], k4=x[1]), {"k2": x[0], "k4": x[1]}, \
-        f"brightness falls to {corner / max(1.0, 1 + min(0, x[0])):.2f} of the centre's at the corners"
+    subset = {"all": None, "textured": ctx.textured, "moving": ctx.moving_ones}[search.captures]
+    values = dict(search.fixed)
+
+    def build(extra):
+        return p.with_effect(effect, replace=search.replace, **values, **extra)
+
+    for key, options in search.grid.items():
+        best = _grid(ctx, lambda v: build({key: v}), list(options), search.full_error)
+        if key in search.refine:
+            low, high = _param_range(p, effect, key)
+            best = _grid(ctx, lambda v: build({key: v}), sorted({min(high, max(low, best + d))
+                                                                 for d in search.refine[key]}), search.full_error)
+        values[key] = best
+    if search.bounds:
+        keys, bounds = list(search.bounds), list(search.bounds.values())
+        x0 = [search.start.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in zip(keys, bounds)]
+        x = _search(ctx, lambda x: build(dict(zip(keys, map(float, x)))), bounds, x0, search.evals, subset)
+        values.update(zip(keys, map(float, x)))
+    return build({}), values, values
 
 
-def c_chromatic_aberration(ctx):
-    p = ctx.profile
+def _param_range(profile, effect: str, key: str):
+    from ..effects import effect_class
 
-    def build(x):
-        return p.with_effect("chromatic_aberration", replace=True, red_corner_px=x[0], blue_corner_px=x[1],
-                             cubic=x[2])
-    x = _search(ctx, build, [(-5, 5), (-5, 5), (0, 5)], [0.5, 0.3, 1.0], evals=45, subset=ctx.textured)
-    return build(x), {"red_corner_px": x[0], "blue_corner_px": x[1], "cubic": x[2]}, \
-        f"red and blue sample {x[0]:+.2f} and {x[1]:+.2f} px outward of green at the corners"
-
-
-def c_radial_distortion(ctx):
-    lens = ctx.profile.effect("lens_distortion")
-    key, bounds = ("w", (0.0, 1.6)) if lens.model == "fov" else ("k1", (-1.0, 1.0))
-    p, params, x = _fit_one(ctx, "lens_distortion", key, bounds, ctx.textured)
-    return p, params, f"lens {key} = {x:.4f} (was {getattr(lens, key):.4f})"
-
-
-def c_motion_blur(ctx):
-    if not ctx.moving:
-        return None
-    p, params, x = _fit_one(ctx, "motion_blur", "exposure_s", (0.0005, 0.1), ctx.moving_ones)
-    return p, params, f"moving captures are smeared as by a {1e3 * x:.1f} ms exposure"
-
-
-def c_rolling_shutter(ctx):
-    if not ctx.moving:
-        return None
-    p, params, x = _fit_one(ctx, "rolling_shutter", "readout_s", (0.0, 0.1), ctx.moving_ones)
-    return p, params, f"moving captures skew as with a {1e3 * x:.1f} ms row read-out"
-
-
-def c_gamma(ctx):
-    p, params, x = _fit_one(ctx, "tone_curve", "gamma", (0.3, 4.0))
-    return p, params, f"mid-tones follow a gamma of {x:.2f}"
+    spec = effect_class(effect).params[key]
+    return spec.low, spec.high
 
 
 def _pixel_maps(ctx):
-    """Per-pixel least-squares gain and offset of the measured means against the clean model."""
-    s = np.stack(ctx.clean(ctx.profile))
-    m = np.stack(ctx.means)
-    return s, m
+    """The clean model and the measured means of every capture, stacked."""
+    return np.stack(ctx.clean(ctx.profile)), np.stack(ctx.means)
 
 
-def _with_map(ctx, effect: str, values: np.ndarray, **params):
+def _with_map(ctx, effect: str, values: np.ndarray):
     """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy), and its params."""
     path = ctx.workdir / f"{effect}.npy"
     np.save(path, values.astype(np.float32))
-    return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path), **params}
+    return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path)}
 
 
-def c_prnu(ctx):
+def fit_pixel_gain(ctx, effect):
+    """PRNU: per-pixel least-squares gain of the measured means against the clean model."""
     s, m = _pixel_maps(ctx)
     gain = ((m - s) * s).sum(0) / np.maximum((s * s).sum(0), 1e-6)
-    return (*_with_map(ctx, "prnu", gain, sigma=float(gain.std())),
-            f"a fixed per-pixel gain pattern, sigma {100 * gain.std():.2f} %, proportional to brightness")
+    profile, params = _with_map(ctx, effect, gain)
+    return profile, dict(params, sigma=float(gain.std())), {"sigma": float(gain.std())}
 
 
-def c_dsnu(ctx):
+def fit_pixel_offset(ctx, effect):
+    """DSNU: the per-pixel mean offset of the measured means from the clean model."""
     s, m = _pixel_maps(ctx)
     offset = (m - s).mean(0)
-    return (*_with_map(ctx, "dsnu", offset, sigma_dn=float(offset.std())),
-            f"a fixed per-pixel offset pattern, sigma {offset.std():.2f} DN, the same at every brightness")
+    profile, params = _with_map(ctx, effect, offset)
+    return profile, dict(params, sigma_dn=float(offset.std())), {"sigma_dn": float(offset.std())}
 
 
-def c_hot_pixels(ctx):
+def fit_hot_pixels(ctx, effect):
+    """Pixels far brighter than the model in every capture that can show it (robust threshold)."""
     s, m = _pixel_maps(ctx)
     unclipped = m < 250  # a hot pixel over a bright area clips: its offset shows only where there is headroom
     diff = np.where(unclipped, m - s, np.nan)
@@ -199,120 +219,56 @@ def c_hot_pixels(ctx):
     if not hot.any():
         return None
     n = int(hot.any(axis=-1).sum())
-    return (*_with_map(ctx, "hot_pixels", np.where(hot, offset, 0.0), count=n),
-            f"{n} pixels stay bright by {np.median(offset[hot]):.0f} DN or more in every capture")
+    profile, params = _with_map(ctx, effect, np.where(hot, offset, 0.0))
+    return profile, dict(params, count=n), {"count": n, "median_dn": float(np.median(offset[hot]))}
 
 
-def c_row_noise(ctx):
+def _row_variance(x: np.ndarray) -> np.ndarray:
+    """Per-channel variance of the per-frame row means of the noise of a (frames, H, W, 3) stack."""
+    x = x.astype(np.float64)
+    return (x - x.mean(0, keepdims=True)).mean(axis=2).var(axis=(0, 1))
+
+
+def fit_row_noise(ctx, effect):
+    """Row noise from the excess variance of row means over the model's, refined on the full error."""
     base = ctx.compare(ctx.profile)
-    extra = []
-    for st in base.captures:
-        def rowvar(x):
-            x = x.astype(np.float64)
-            return (x - x.mean(0, keepdims=True)).mean(axis=2).var(axis=(0, 1))
-        extra.append(rowvar(st.measured) - rowvar(st.simulated))
-    excess = float(np.mean(extra))
+    excess = float(np.mean([_row_variance(st.measured) - _row_variance(st.simulated) for st in base.captures]))
     if excess <= 0:
         return None
     sigmas = [np.sqrt(excess) * f for f in (0.8, 1.0, 1.25)]
-    best = _grid(ctx, lambda v: ctx.profile.with_effect("row_noise", sigma_dn=v), sigmas, full=True)
-    return ctx.profile.with_effect("row_noise", sigma_dn=best), {"sigma_dn": best}, \
-        f"row means of the noise vary {np.sqrt(excess):.2f} DN more than pixel noise explains"
+    best = float(_grid(ctx, lambda v: ctx.profile.with_effect(effect, sigma_dn=v), sigmas, full=True))
+    return ctx.profile.with_effect(effect, sigma_dn=best), {"sigma_dn": best}, {"sigma_dn": float(np.sqrt(excess))}
 
 
-def c_vertical_blur(ctx):
-    p, params, x = _fit_one(ctx, "vertical_blur", "sigma", (0.0, 3.0), ctx.textured)
-    return p, params, f"edges are soft vertically as by a {x:.2f}-sensel Gaussian"
-
-
-def c_horizontal_blur(ctx):
-    if ctx.profile.effect("horizontal_blur") is None:
-        return None
-    p, params, x = _fit_one(ctx, "horizontal_blur", "sigma", (0.0, 4.0), ctx.textured)
-    return p, params, f"horizontal blur sigma {x:.3f} sensels (profile: {ctx.profile.effect('horizontal_blur').sigma:.3f})"
-
-
-def c_defocus(ctx):
-    p, params, x = _fit_one(ctx, "defocus", "radius_px", (0.0, 8.0), ctx.textured)
-    return p, params, f"everything is blurred as by a {x:.2f} px defocus disc"
-
-
-def c_asymmetric_sharpening(ctx):
-    if ctx.profile.effect("sharpening") is None:
-        return None
-    p, params, x = _fit_one(ctx, "sharpening", "shift", (-2.0, 2.0), ctx.textured)
-    return p, params, f"sharpening halos are lopsided: its low-pass sits {x:+.2f} sensels off centre"
-
-
-def c_jpeg(ctx):
-    p = ctx.profile
-    q = _grid(ctx, lambda v: p.with_effect("jpeg", quality=v), [30, 50, 70, 80, 90, 95])
-    q = _grid(ctx, lambda v: p.with_effect("jpeg", quality=v), sorted({max(1, min(100, q + d))
-                                                                        for d in (-8, -4, 0, 4, 8)}))
-    return p.with_effect("jpeg", quality=q), {"quality": q}, f"8x8 block artefacts as from JPEG quality {q}"
-
-
-def c_veiling_glare(ctx):
-    p = ctx.profile
-
-    def build(x):
-        return p.with_effect("veiling_glare", strength=x[0], radius_px=x[1])
-    x = _search(ctx, build, [(0.0, 0.5), (5.0, 300.0)], [0.05, 40.0], 30, ctx.textured)
-    return build(x), {"strength": x[0], "radius_px": x[1]}, \
-        f"a haze of {100 * x[0]:.1f} % of the light, spread over {x[1]:.0f} px"
-
-
-def c_bilinear_demosaic(ctx):
-    p = ctx.profile
-    if p.effect("demosaic").method == "bilinear":
-        return None
-    return p.with_effect("demosaic", method="bilinear"), {"method": "bilinear"}, \
-        "fine detail and noise correlations follow bilinear demosaicing"
-
-
-def c_colour_matrix(ctx):
-    from ..effects.crosstalk import fit_colour_matrix, saturation_matrix
+def fit_colour_matrix(ctx, effect):
+    """A crosstalk matrix from a least-squares colour matrix between the clean model and the means."""
+    from ..effects.crosstalk import fit_colour_matrix as fit_matrix, saturation_matrix
 
     p = ctx.profile
     s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])
     m = np.concatenate([c.reshape(-1, 3) for c in ctx.means])
     ok = (s.max(1) < 250) & (m.max(1) < 250) & (s.min(1) > 3)
-    t = fit_colour_matrix(s[ok], m[ok])
-    sat = saturation_matrix(p.effect("saturation").saturation) if p.effect("saturation") is not None and \
-        p.effect("saturation").enabled else np.eye(3)
-    old = p.effect("crosstalk").total_matrix() if p.effect("crosstalk") is not None and \
-        p.effect("crosstalk").enabled else np.eye(3)
+    t = fit_matrix(s[ok], m[ok])
+    sat = p.effect("saturation")
+    sat = saturation_matrix(sat.saturation) if sat is not None and sat.enabled else np.eye(3)
+    old = p.effect(effect)
+    old = old.total_matrix() if old.enabled else np.eye(3)
     new = np.linalg.solve(sat, t @ sat @ old)
     new = new / new.sum(axis=1, keepdims=True)
-    return p.with_effect("crosstalk", matrix=new.tolist(), extra_mixing=0.0), {"matrix": new.round(4).tolist()}, \
-        "colours are mixed differently: crosstalk rows " + "; ".join(" ".join(f"{v:.3f}" for v in r) for r in new)
+    rows = "; ".join(" ".join(f"{v:.3f}" for v in r) for r in new)
+    return p.with_effect(effect, matrix=new.tolist(), extra_mixing=0.0), {"matrix": new.round(4).tolist()}, \
+        {"rows": rows}
 
 
-def c_quantisation_bits(ctx):
-    p = ctx.profile
-    bits = _grid(ctx, lambda v: p.with_effect("quantisation", bits=v), [4, 5, 6, 7, 8], full=True)
-    return p.with_effect("quantisation", bits=bits), {"bits": bits}, f"levels are {256 // 2 ** bits} DN apart " \
-                                                                      f"({bits} bits)"
+#: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
+CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "pixel_offset": fit_pixel_offset, "hot_pixels": fit_hot_pixels,
+               "row_noise": fit_row_noise, "colour_matrix": fit_colour_matrix}
+PER_PIXEL_FITS = ("pixel_gain", "pixel_offset")
 
 
-def c_chroma_subsampling(ctx):
-    p = ctx.profile
-    if p.effect("yuv_blend") is None:
-        return None
-    group = _grid(ctx, lambda v: p.with_effect("chroma_subsampling", group=v), [2, 4, 8])
-    return p.with_effect("chroma_subsampling", group=group), {"group": group}, \
-        f"colour is shared by groups of {group} pixels horizontally"
-
-
-CANDIDATES = {
-    "vignetting": c_vignetting, "chromatic_aberration": c_chromatic_aberration,
-    "radial_distortion": c_radial_distortion, "motion_blur": c_motion_blur, "gamma": c_gamma,
-    "rolling_shutter": c_rolling_shutter, "prnu": c_prnu, "dsnu": c_dsnu, "row_noise": c_row_noise,
-    "hot_pixels": c_hot_pixels, "vertical_blur": c_vertical_blur, "horizontal_blur": c_horizontal_blur,
-    "defocus": c_defocus, "asymmetric_sharpening": c_asymmetric_sharpening, "jpeg": c_jpeg,
-    "veiling_glare": c_veiling_glare, "bilinear_demosaic": c_bilinear_demosaic, "colour_matrix": c_colour_matrix,
-    "quantisation_bits": c_quantisation_bits, "chroma_subsampling": c_chroma_subsampling,
-}
+def per_pixel(name: str) -> bool:
+    """True for a candidate fitted as a dense per-pixel map (it absorbs noise: :attr:`Candidate.score`)."""
+    return any(search.fit in PER_PIXEL_FITS for _, search in candidates()[name])
 
 
 @dataclass
@@ -344,7 +300,7 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
     for i, name in enumerate(names):
         if progress:
             progress(i, len(names), name)
-        fitted = CANDIDATES[name](ctx)
+        fitted = fit_candidate(ctx, name)
         if fitted is None:
             continue
         cand_profile, params, evidence = fitted
@@ -352,13 +308,13 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
         out.append(Candidate(name, after, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
                                            for k, v in params.items()},
                              f"{evidence}; error {base_error:.2f} -> {after:.2f}", cand_profile,
-                             name in ("prnu", "dsnu"), len(ctx.mset.captures)))
+                             per_pixel(name), len(ctx.mset.captures)))
     out.sort(key=lambda c: c.score)
     return out
 
 
 def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2) -> Diagnosis:
-    """Rank the candidates (all of :data:`CANDIDATES`, or ``only``) for a measurement set.
+    """Rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set.
 
     Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
@@ -367,7 +323,7 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     workdir = Path(workdir or tempfile.mkdtemp(prefix="lowcam-diagnose-"))
     ctx = Context(mset, profile, workdir)
     base = ctx.compare(profile)
-    names = list(only or CANDIDATES)
+    names = list(only or candidates())
     ranked = rank(ctx, base.error, names, progress)
     chosen: list[Candidate] = []
     for _ in range(rounds - 1):
@@ -390,7 +346,7 @@ def save_candidate_profile(candidate: Candidate, path) -> Path:
 
     path = Path(path).resolve()
     profile = candidate.profile
-    effect = profile.effect(CANDIDATE_EFFECT.get(candidate.effect, candidate.effect))
+    effect = profile.effect(candidate_effect(candidate.effect))
     if effect is not None and getattr(effect, "texture", None) and Path(effect.texture).suffix == ".npy":
         target = path.parent / path.stem / Path(effect.texture).name
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -398,8 +354,3 @@ def save_candidate_profile(candidate: Candidate, path) -> Path:
         profile = profile.with_effect(effect.name, texture=str(target), source=str(path), base_dir=path.parent)
     return profile.save(path)
 
-
-#: The profile effect each candidate adds or changes.
-CANDIDATE_EFFECT = {"radial_distortion": "lens_distortion", "gamma": "tone_curve",
-                    "asymmetric_sharpening": "sharpening", "bilinear_demosaic": "demosaic",
-                    "colour_matrix": "crosstalk", "quantisation_bits": "quantisation"}

@@ -76,14 +76,22 @@ def hidden_profile(profile, add=(), remove=()):
     return p.without(*remove) if remove else p
 
 
-def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int = 640, seed: int = 7):
-    """Write a measurement set made by ``profile`` with hidden changes; returns its folder."""
+def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int = 640, seed: int = 7,
+               only_scenes=None):
+    """Write a measurement set made by ``profile`` with hidden changes; returns its folder. ``only_scenes``
+    limits it to those of :func:`scenes` (a small, focused set)."""
     from ..pipeline import simulate
     from .sets import write_set
 
     camera = hidden_profile(profile, add, remove)
     captures = []
-    for name, (ideal, omega) in scenes(profile, width).items():
+    every = scenes(profile, width)
+    unknown = sorted(set(only_scenes or ()) - set(every))
+    if unknown:
+        raise LowcamError(f"unknown scene '{unknown[0]}' (known: {', '.join(every)})")
+    for name, (ideal, omega) in every.items():
+        if only_scenes and name not in only_scenes:
+            continue
         shots = [simulate(ideal, camera, None, omega, None, seed, k) for k in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
     return write_set(folder, captures)

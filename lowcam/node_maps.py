@@ -11,6 +11,11 @@ The node group reproduces :func:`lowcam.pipeline.run` stage by stage on the same
 Everything that depends on the lens, the colour filter array or the camera motion is baked here into images:
 Map UV "STMaps" (normalised, origin bottom-left, third component 1), gain maps and convolution kernels. Images
 are returned top row first, as numpy holds them; :mod:`nodes.build` flips them for Blender.
+
+Which effects have a node, and how it is built, each effect declares (``Effect.node``,
+:class:`lowcam.effects.NodeStage`); the generic recipes (``kernel``, ``gain``, ``matrix``) are baked here from
+the effect's own ``kernel()``, ``gain_planes()`` and ``total_matrix()``, so a plug-in effect that declares one
+gets a node without changes here. Pure numpy: testable without Blender.
 """
 from __future__ import annotations
 
@@ -19,16 +24,18 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from lowcam.effects.blur import blur_level_maps
-from lowcam.errors import LowcamError
-from lowcam.geometry import BAYER_BORDER, CFA_CHANNELS, sample_texture
-from lowcam.pipeline import run
-from lowcam.profile import load_profile
+from .effects import known_effects
+from .effects.blur import blur_level_maps
+from .errors import LowcamError
+from .geometry import BAYER_BORDER, CFA_CHANNELS
+from .pipeline import run
+from .profile import load_profile
 
-#: Effects the node group reproduces, in the order they may appear in a profile.
-NODE_STAGES = ("lens_distortion", "half_sampling", "crosstalk", "motion_blur", "chromatic_aberration",
-               "spatial_blur", "bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening",
-               "quantisation", "demosaic", "saturation", "yuv_blend", "chroma_subsampling")
+
+def node_stages() -> dict:
+    """Effect name -> :class:`~lowcam.effects.NodeStage` of every known effect that has a compositor node, in
+    chain order."""
+    return {cls.name: cls.node for cls in known_effects() if cls.node is not None}
 
 
 def stmap(x: np.ndarray, y: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -101,7 +108,8 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
         raise LowcamError(f"{profile.source}: the compositor node group simulates YUV cameras; "
                           "use the engine (the add-on's render handler) for raw Bayer profiles")
     stages = [e.name for e in profile.effects if e.enabled or e.always_runs]
-    unknown = [s for s in stages if s not in NODE_STAGES]
+    declared = node_stages()
+    unknown = [s for s in stages if s not in declared]
     if unknown:
         raise LowcamError(f"{profile.source}: the compositor node group has no node for {', '.join(unknown)}; "
                           "use the engine (the add-on's render handler) for this profile")
@@ -128,9 +136,6 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
     k = np.array([e, 1 - 2 * e, e], np.float32)
     out.images["half_kernel"] = np.outer(k, k).astype(np.float32)
 
-    if "crosstalk" in stages:
-        out.values["crosstalk_matrix"] = profile.effect("crosstalk").total_matrix().ravel().tolist()
-
     if "spatial_blur" in stages:
         blur = profile.effect("spatial_blur")
         sigma_grid = blur.sigma_grid(state) * min(g.working_scale)
@@ -154,18 +159,10 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
     out.values["render_white"] = profile.effect("bayer_sampling").render_white
     out.values["cfa"] = {name: g.cfa[name] for name in CFA_CHANNELS}
 
-    if "vignetting" in stages:
-        vig = profile.effect("vignetting")
-        pos = g.sensel_positions
-        gain = sample_texture(vig.gain_texture(g.width, g.height), g.frame_extent, pos[..., 0], pos[..., 1])
-        out.images["vignetting_gain"] = planes_to_mosaic(gain.astype(np.float32), g)
     if "noise" in stages:
         noise = profile.effect("noise")
         out.values["noise_law"] = noise.law
         out.values["noise"] = {c: list(getattr(noise, c)) for c in ("red", "green", "blue")}
-    for name in ("horizontal_blur", "sharpening"):
-        if name in stages:
-            out.images[f"{name}_kernel"] = mosaic_kernel(profile.effect(name).kernel())
     if "quantisation" in stages:
         out.values["quantisation_step_dn"] = profile.effect("quantisation").step_dn()
 
@@ -180,7 +177,7 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
         out.images[f"demosaic_uv_{name}"] = stmap(2 * j + dx, 2 * i + dy, wm, hm)
 
     if "saturation" in stages:
-        from lowcam.effects.crosstalk import saturation_matrix
+        from .effects.crosstalk import saturation_matrix
 
         sat = profile.effect("saturation")
         s = saturation_matrix(sat.saturation, sat.luma)
@@ -192,4 +189,12 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
         kernel[0, n - 1:] = 1.0 / n                       # mean of pixels x .. x + n - 1
         out.images["chroma_kernel"] = kernel
         out.images["chroma_uv"] = stmap(n * (xo // n), yo, g.width, g.height)
+    for name in stages:  # the generic recipes, from the effects' own arrays
+        effect, builder = profile.effect(name), declared[name].builder
+        if builder == "kernel":
+            out.images[f"{name}_kernel"] = mosaic_kernel(effect.kernel())
+        elif builder == "gain":
+            out.images[f"{name}_gain"] = planes_to_mosaic(effect.gain_planes(g), g)
+        elif builder == "matrix":
+            out.values[f"{name}_matrix"] = effect.total_matrix().ravel().tolist()
     return out
