@@ -4,7 +4,7 @@
 
 def _modules():
     from . import handlers, operators, panels, properties
-    from ..nodes import custom  # the extension's root package holds addon/ and nodes/ (lowcam.extension)
+    from ..nodes import custom  # the extension's root package holds addon/ and nodes/
 
     return properties, operators, panels, handlers, custom
 

@@ -11,7 +11,7 @@ import numpy as np
 from .errors import LowcamError
 
 
-def _vector3(text: str) -> tuple[float, float, float]:
+def vector3(text: str) -> tuple[float, float, float]:
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -87,100 +87,6 @@ def cmd_profiles(args) -> int:
         except LowcamError as e:
             desc = f"INVALID: {e}"
         print(f"{name:12s} {desc}  ({path})")
-    return 0
-
-
-def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
-    """Two frames next to each other with a caption bar above each."""
-    import cv2
-
-    h, w = left.shape[:2]
-    bar = 28
-    canvas = np.full((h + bar, 2 * w + 8, 3), 255, np.uint8)
-    canvas[bar:, :w] = left
-    canvas[bar:, w + 8:] = right
-    for x, label in ((6, left_label), (w + 14, right_label)):
-        cv2.putText(canvas, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    return canvas
-
-
-def cmd_demo(args) -> int:
-    """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
-    and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
-    from .io import read_image, read_plate, write_png
-    from .pipeline import plain_composite
-    from .profile import load_profile
-
-    out = Path(args.output).resolve()
-    profile = load_profile(args.profile)
-    steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
-    say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
-    say(0)
-    if args.synthetic:
-        from .io import write_exr
-        from .pipeline import run
-        from .sample import sample_plate, sample_render
-
-        render = sample_render(profile, args.render_width)
-        write_exr(out / "sample_render.exr", render)
-        plate = sample_plate(profile)
-        say(1)
-        frame = run(render, profile, plate, args.angular_velocity, None, args.seed, 0).frame
-        title = f"lowcam ({profile.name}), w = {args.angular_velocity} rad/s"
-    else:
-        from .extension import submodule
-        from .scene import OVERLAY_LAYER, over_frame, overlay_in_frame, read_layers
-
-        blend = submodule("addon.sample").build_sample_scene(out, args.profile, args.render_width)
-        say(1)
-        t0 = time.perf_counter()
-        composite = submodule("addon.render").render(blend, [1], str(out / "lowcam" / "####.png"), force=True,
-                                                     keep_renders=str(out / "render"))[0]
-        print(f"      rendered and simulated in {time.perf_counter() - t0:.1f} s", flush=True)
-        frame = read_image(composite)
-        render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
-        plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
-        title = f"lowcam ({profile.name}), camera panning, sphere moving"
-    say(2)
-    plain = plain_composite(render, profile, plate)
-    if not args.synthetic:
-        plain = over_frame(plain, overlay_in_frame(overlay, profile))
-    write_png(out / "lowcam.png", frame)
-    write_png(out / "plain.png", plain)
-    write_png(out / "side_by_side.png", side_by_side(plain, frame, "plain composite", title))
-    print(f"{out / 'side_by_side.png'}: plain composite (left) next to the {profile.name} camera (right)")
-    return 0
-
-
-def cmd_render(args) -> int:
-    from tqdm import tqdm
-
-    from .batch import parse_frames
-    from .extension import submodule
-
-    frames = parse_frames(args.frames)
-    bar = tqdm(total=len(frames), unit="frame", desc="lowcam render")
-    written = submodule("addon.render").render(args.blend, frames, args.output, args.force,
-                                               progress=lambda f, p: bar.update(1))
-    bar.close()
-    print(f"{len(written)} composites in {written[0].parent if written else args.output}")
-    return 0
-
-
-def cmd_motion(args) -> int:
-    from .batch import parse_frames
-    from .extension import submodule
-
-    path = submodule("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
-    print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
-    return 0
-
-
-def cmd_node_asset(args) -> int:
-    from .extension import submodule
-
-    path = submodule("nodes.asset").write_asset(args.output, args.profile, args.render_width, args.angular_velocity)
-    print(f"{path}: \"Lowcam Camera ({args.profile})\" asset ({path.stat().st_size / 1e6:.0f} MB)")
     return 0
 
 
@@ -292,8 +198,9 @@ def cmd_compare(args) -> int:
 
         from .io import atomic_write_bytes
 
-        atomic_write_bytes(args.json, json.dumps({"error": cmp.error, "noise_floor": 1.0, "verdict": cmp.verdict,
-                                                  "families": cmp.families, "where": cmp.where}, indent=1).encode())
+        doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
+               "where": cmp.where}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     if args.report:
         page = write_compare_report(cmp, args.report, f"{profile.name} against {mset.path}", history)
         print(f"{page}: report")
@@ -354,6 +261,26 @@ def cmd_synth(args) -> int:
     return 0
 
 
+def add_plugin_commands(sub) -> None:
+    """Commands other packages add through the ``lowcam.commands`` entry-point group: each entry is a function
+    that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``, ``motion`` and
+    ``node-asset``; see ``addon/commands.py``). The engine knows none of them by name."""
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group="lowcam.commands"):
+        try:
+            add = entry.load()
+        except ImportError as e:
+            p = sub.add_parser(entry.name, help=f"unavailable: {e}")
+            p.set_defaults(func=lambda args, e=e, name=entry.name: _unavailable(name, e))
+            continue
+        add(sub)
+
+
+def _unavailable(name: str, problem: Exception) -> int:
+    raise LowcamError(f"'{name}' commands cannot be loaded ({problem}); reinstall Lowcam with pip install -e .")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
                                      "(Klein & Murray 2010).")
@@ -363,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--profile", default="fire-i", help="profile name or TOML path (default fire-i)")
         p.add_argument("--render", required=render_required, help="premultiplied RGBA render (EXR or PNG)")
         p.add_argument("--plate", help="the video frame (PNG/JPEG) at the camera's size")
-        p.add_argument("--angular-velocity", type=_vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+        p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                        help="camera rotation in rad/s, camera frame: x right, y down, z forward")
         p.add_argument("--exposure-s", type=float, default=None, help="exposure time (s); default: the profile's")
         p.add_argument("--seed", type=int, default=0, help="noise seed")
@@ -479,36 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("profiles", help="list the bundled profiles")
     p.set_defaults(func=cmd_profiles)
 
-    p = sub.add_parser("demo", help="the main job on the bundled sample scene")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
-    p.add_argument("--angular-velocity", type=_vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
-                   help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--render-width", type=int, default=800, help="width of the sample render (px)")
-    p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
-    p.set_defaults(func=cmd_demo)
+    add_plugin_commands(sub)
 
-    p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
-    p.add_argument("blend", help="the .blend file (its scene's Lowcam settings are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
-    p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
-    p.set_defaults(func=cmd_render)
-
-    p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
-    p.add_argument("blend", help="the .blend file (its Lowcam motion source and exposure are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", required=True, help="the motion.json to write")
-    p.set_defaults(func=cmd_motion)
-
-    p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
-    p.add_argument("-o", "--output", required=True, help="the .blend to write")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("--render-width", type=int, default=1600, help="width of the renders it will take (px)")
-    p.add_argument("--angular-velocity", type=_vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
-                   help="camera rotation baked into the maps (rad/s, camera frame)")
-    p.set_defaults(func=cmd_node_asset)
     return parser
 
 

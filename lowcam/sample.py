@@ -89,3 +89,17 @@ def sample_plate(profile="fire-i") -> np.ndarray:
         ch = int(round(iw * h / w))
         img = img[(ih - ch) // 2:(ih - ch) // 2 + ch]
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
+    """Two frames next to each other with a caption bar above each."""
+    import cv2
+
+    h, w = left.shape[:2]
+    bar = 28
+    canvas = np.full((h + bar, 2 * w + 8, 3), 255, np.uint8)
+    canvas[bar:, :w] = left
+    canvas[bar:, w + 8:] = right
+    for x, label in ((6, left_label), (w + 14, right_label)):
+        cv2.putText(canvas, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import bpy
 
+from lowcam.node_maps import bake
 from lowcam.pipeline import render_camera
 from lowcam.profile import load_profile
 
 from .build import build_camera_group
-from lowcam.node_maps import bake
 
 
 def write_asset(path, profile="fire-i", render_width: int = 1600, angular_velocity=(0.0, 0.0, 0.0),

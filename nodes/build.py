@@ -124,10 +124,6 @@ class Tree:
             rows.append(acc)
         return rows
 
-    def per_channel(self, image, fn, alpha_too=False):
-        r, g, b, a = self.separate(image)
-        return self.combine(fn(r), fn(g), fn(b), fn(a) if alpha_too else a)
-
 
 def _new_group(name: str, inputs, outputs):
     group = bpy.data.node_groups.get(name)
@@ -362,7 +358,7 @@ def build_stage_group(stage: str, camera: CameraBake, name: str | None = None):
     return group
 
 
-def node_stages(camera: CameraBake) -> list[str]:
+def group_stages(camera: CameraBake) -> list[str]:
     """The stages of the group in order: the profile's, less those baked into another's maps, plus the plate
     blend."""
     declared = node_stages()
@@ -376,7 +372,7 @@ def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: s
     ``until`` ends the chain after that stage (its raw output goes to the group's output), for parity checks.
     Returns the group; its stage groups are ``group["lowcam_stages"]``.
     """
-    stages = node_stages(camera)
+    stages = group_stages(camera)
     if until is not None:
         stages = stages[:stages.index(until) + 1]
     group, t = _new_group(name, [("Image", "NodeSocketColor"), ("Plate", "NodeSocketColor"),

@@ -59,7 +59,7 @@ def _param_property(key, param):
 
 def _param_values(node, effect_name):
     values = {}
-    for key, param in EFFECTS[effect_name].params.items():
+    for key, param in effect_class(effect_name).params.items():
         value = getattr(node, key)
         if param.kind == "matrix":
             n = int(len(value) ** 0.5)
@@ -132,7 +132,7 @@ class LowcamStageNode(LowcamNodeBase):
         if effect is None:
             return
         self["_loading"] = True
-        for key, param in EFFECTS[self.effect].params.items():
+        for key, param in effect_class(self.effect).params.items():
             value = getattr(effect, key)
             if param.kind == "matrix":
                 value = [float(x) for row in value for x in row]

@@ -9,11 +9,11 @@ import bpy
 import numpy as np
 
 from lowcam.io import read_exr, read_image
+from lowcam.node_maps import bake, planes_to_mosaic
 from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
-from .build import build_camera_group, image_from_array, node_stages
-from lowcam.node_maps import bake, planes_to_mosaic
+from .build import build_camera_group, group_stages, image_from_array
 
 
 def _engine_stage(state, stage: str, frame: np.ndarray) -> np.ndarray:
@@ -100,7 +100,7 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
     render_image.alpha_mode = "PREMUL"
     plate = plate_image(plate_u8)
     camera = bake(profile, render.shape[:2], angular_velocity, exposure_s)
-    all_stages = node_stages(camera)
+    all_stages = group_stages(camera)
     results = {}
     for stage in stages or all_stages:
         engine_stop = {"plate_blend": None, "noise": all_stages[all_stages.index(stage) - 1]}.get(stage, stage)

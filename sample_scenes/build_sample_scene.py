@@ -6,7 +6,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lowcam.extension import submodule  # noqa: E402
+from lowcam_blender import submodule  # noqa: E402
 
 if __name__ == "__main__":
     folder = sys.argv[1] if len(sys.argv) > 1 else str(Path(__file__).resolve().parent / "out")

@@ -66,7 +66,7 @@ def build(out_dir: Path) -> Path:
 def build_asset(out_dir: Path, profile: str = "fire-i") -> Path:
     """The node group as an asset .blend beside the zip (``lowcam node-asset`` with its defaults)."""
     sys.path.insert(0, str(ROOT))
-    from lowcam.extension import submodule
+    from lowcam_blender import submodule
 
     return submodule("nodes.asset").write_asset(out_dir / f"lowcam-camera-{profile}.blend", profile)
 

@@ -8,7 +8,7 @@ import pytest
 
 from lowcam.effects.yuv import rgb_to_yuv
 from lowcam.errors import LowcamError
-from lowcam.extension import submodule
+from lowcam_blender import submodule
 from lowcam.io import read_image, read_plate
 from lowcam.pipeline import plain_composite
 from lowcam.profile import BUNDLED_PROFILES

@@ -99,8 +99,7 @@ def test_rolling_shutter_skews_a_vertical_bar_by_f_w_readout(fire_i, wy):
     focal length at the centre). Positive wy pans right, so later (lower) rows see the bar further left."""
     readout = 0.05
     profile = _quiet(fire_i).with_effect("rolling_shutter", readout_s=readout)
-    _, _, focal = _render_axes(profile)
-    x, _, _ = _render_axes(profile)
+    x, _, focal = _render_axes(profile)
     half_width = 0.02
     bar = _grey_render(np.broadcast_to(np.clip((half_width - np.abs(x)) * focal + 0.5, 0, 1)[None, :], (H, W)))
     f = _centre_focal_px(profile)

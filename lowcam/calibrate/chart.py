@@ -16,19 +16,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..captures import DICTIONARY, charuco_board
 from ..errors import LowcamError
 
 PAGES_MM = {"a4": (297.0, 210.0), "a3": (420.0, 297.0)}
-DICTIONARY = "DICT_5X5_100"
 #: Colour patches (sRGB 0-255): primaries, secondaries, skin and foliage tones, and a few mixed colours.
 COLOURS = [(200, 40, 40), (40, 160, 60), (40, 60, 190), (220, 200, 40), (200, 60, 170), (40, 170, 190),
            (190, 140, 110), (110, 130, 60), (240, 140, 30), (90, 60, 140), (150, 190, 60), (60, 90, 120)]
-
-
-def charuco_board(squares=(7, 5), square_mm: float = 30.0, marker_mm: float = 22.0):
-    aruco = cv2.aruco
-    dictionary = aruco.getPredefinedDictionary(getattr(aruco, DICTIONARY))
-    return aruco.CharucoBoard(squares, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
 
 
 def make_chart(size: str = "a4", dpi: int = 300, seed: int = 7) -> tuple[np.ndarray, dict]:

@@ -68,6 +68,9 @@ def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
         return EFFECTS[type_name]
     if type_name in PLUGINS:
         return PLUGINS[type_name]
+    loaded = next((cls for cls in PLUGINS.values() if cls.name == type_name), None)
+    if loaded is not None:  # a plug-in loaded earlier, by its own name
+        return loaded
     if ":" in type_name:
         module_name, _, class_name = type_name.partition(":")
         try:

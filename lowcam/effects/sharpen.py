@@ -7,6 +7,14 @@ from .base import Effect, NodeStage, Param, Search
 from .blur import filter_rows, gaussian_taps
 
 
+def sharpening_kernel(a: float, sigma: float, taps: int = 7, shift: float = 0.0, dtype=np.float32) -> np.ndarray:
+    """The row filter of ``F = I + a (I - L)``, ``L`` a ``taps``-tap Gaussian of ``sigma`` sensels centred
+    ``shift`` sensels off the middle tap (sec. 4.4.3)."""
+    x = np.arange(taps) - (taps - 1) / 2 - shift
+    low = np.exp(-0.5 * (x / sigma) ** 2)
+    return ((1 + a) * gaussian_taps(0.0, taps, np.float64) - a * low / low.sum()).astype(dtype)
+
+
 class Sharpening(Effect):
     """Horizontal unsharp masking ``F = I + a (I - L)`` on each sensel plane, ``L`` a ``taps``-tap Gaussian.
 
@@ -36,11 +44,7 @@ class Sharpening(Effect):
             raise self.error("'taps' must be odd")
 
     def kernel(self) -> np.ndarray:
-        a = self.gain_per_unit * self.sharpness
-        identity = gaussian_taps(0.0, self.taps)
-        x = np.arange(self.taps) - (self.taps - 1) / 2 - self.shift
-        low = np.exp(-0.5 * (x / self.sigma) ** 2)
-        return ((1 + a) * identity - a * low / low.sum()).astype(np.float32)
+        return sharpening_kernel(self.gain_per_unit * self.sharpness, self.sigma, self.taps, self.shift)
 
     def apply(self, state):
         filter_rows(state, self.kernel())
@@ -103,8 +107,6 @@ def fit_sharpening_to_images(soft: np.ndarray, sharp: np.ndarray, taps: int = 7)
     or 255 in ``sharp`` are left out: their overshoot is lost."""
     from scipy.optimize import least_squares
 
-    from .blur import gaussian_taps
-
     soft = np.asarray(soft, np.float64)
     sharp = np.asarray(sharp, np.float64)
     half = taps // 2
@@ -113,28 +115,7 @@ def fit_sharpening_to_images(soft: np.ndarray, sharp: np.ndarray, taps: int = 7)
     valid = (target > 0.5) & (target < 254.5)
 
     def residual(p):
-        a, sigma = p
-        k = (1 + a) * gaussian_taps(0.0, taps, np.float64) - a * gaussian_taps(sigma, taps, np.float64)
-        return (windows @ k[::-1] - target)[valid]
+        return (windows @ sharpening_kernel(*p, taps, dtype=np.float64)[::-1] - target)[valid]
 
     sol = least_squares(residual, [1.0, 0.6], bounds=([0.0, 0.2], [20.0, 3.0]))
-    return float(sol.x[0]), float(sol.x[1])
-
-
-def fit_sharpening_model(kernel: np.ndarray, taps: int = 7) -> tuple[float, float]:
-    """The ``F = I + a (I - L_sigma)`` model (``taps`` taps) closest in frequency response to a measured kernel:
-    returns (a, sigma)."""
-    from scipy.optimize import least_squares
-
-    from .blur import gaussian_taps
-
-    f, target = frequency_response(kernel)
-
-    def model(p):
-        a, sigma = p
-        identity = gaussian_taps(0.0, taps, np.float64)
-        return (1 + a) * identity - a * gaussian_taps(sigma, taps, np.float64)
-
-    sol = least_squares(lambda p: frequency_response(model(p))[1] - target, [1.0, 0.6],
-                        bounds=([0.0, 0.2], [20.0, 3.0]))
     return float(sol.x[0]), float(sol.x[1])

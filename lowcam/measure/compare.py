@@ -105,12 +105,15 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400) -> list[float]:
     return out
 
 
-def _row_log_ratios(F, G) -> list[float]:
-    def rowvar(x):
-        d = x - x.mean(axis=0, keepdims=True)
-        return d.mean(axis=2).var(axis=(0, 1))  # per channel: variance of row means over rows and frames
+def row_noise_variance(frames: np.ndarray) -> np.ndarray:
+    """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
+    and frames (row noise shows here; pixel noise averages out over a row)."""
+    d = frames.astype(np.float64) - frames.mean(axis=0, keepdims=True)
+    return d.mean(axis=2).var(axis=(0, 1))
 
-    rf, rg = rowvar(F), rowvar(G)
+
+def _row_log_ratios(F, G) -> list[float]:
+    rf, rg = row_noise_variance(F), row_noise_variance(G)
     return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import EXPLAINED_BELOW, capture_inputs, compare, simulate_capture
+from .compare import EXPLAINED_BELOW, capture_inputs, compare, row_noise_variance, simulate_capture
 
 UNEXPLAINED_ABOVE = 1.25
 #: Candidates renamed after their effect; the old names are still accepted.
@@ -223,16 +223,11 @@ def fit_hot_pixels(ctx, effect):
     return profile, dict(params, count=n), {"count": n, "median_dn": float(np.median(offset[hot]))}
 
 
-def _row_variance(x: np.ndarray) -> np.ndarray:
-    """Per-channel variance of the per-frame row means of the noise of a (frames, H, W, 3) stack."""
-    x = x.astype(np.float64)
-    return (x - x.mean(0, keepdims=True)).mean(axis=2).var(axis=(0, 1))
-
-
 def fit_row_noise(ctx, effect):
     """Row noise from the excess variance of row means over the model's, refined on the full error."""
     base = ctx.compare(ctx.profile)
-    excess = float(np.mean([_row_variance(st.measured) - _row_variance(st.simulated) for st in base.captures]))
+    excess = float(np.mean([row_noise_variance(st.measured) - row_noise_variance(st.simulated)
+                           for st in base.captures]))
     if excess <= 0:
         return None
     sigmas = [np.sqrt(excess) * f for f in (0.8, 1.0, 1.25)]
@@ -289,7 +284,8 @@ class Diagnosis:
         return "unexplained"
 
     def as_json(self) -> dict:
-        return {"error": round(self.error, 4), "noise_floor": 1.0, "verdict": self.verdict,
+        return {"error": round(self.error, 4), "noise_floor": self.comparison.noise_floor,
+                "verdict": self.verdict,
                 "families": {k: round(v, 4) for k, v in self.comparison.families.items()},
                 "candidates": [c.as_json() for c in self.candidates], "where": self.comparison.where}
 

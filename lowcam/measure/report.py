@@ -10,7 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..calibrate import _figure
+from ..reports import figure, image, numbers_block, write_page
+from .compare import row_noise_variance
 
 
 def _rgb2yuv(x):
@@ -35,7 +36,7 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     out = []
 
     def fig(name, title, draw, size=(7, 4)):
-        out.append((title, _figure(folder / f"{name}.png", draw, size)))
+        out.append((title, figure(folder / f"{name}.png", draw, size)))
 
     # residual maps, in units of the noise of the means
     def residual_maps(f):
@@ -218,10 +219,7 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     def rows(f):
         ax = f.add_subplot(1, 1, 1)
         for key, label in (("measured", "measured"), ("simulated", "model")):
-            vals = []
-            for s in stats:
-                d = getattr(s, key).astype(np.float32)
-                vals.append((d - d.mean(0, keepdims=True)).mean(axis=2).std(axis=(0, 1)))
+            vals = [np.sqrt(row_noise_variance(getattr(s, key))) for s in stats]
             ax.bar(np.arange(3) + (-0.2 if label == "measured" else 0.2), np.mean(vals, 0), 0.4, label=label)
         ax.set_xticks(range(3), ["red", "green", "blue"])
         ax.set_ylabel("std of row means of the noise (DN)")
@@ -258,12 +256,10 @@ def history_figure(entries, folder: Path) -> Path:
         ax.set_ylabel("error (1 = noise)")
         ax.set_title("error against model version", fontsize=9)
         ax.legend()
-    return _figure(folder / "history.png", draw, (7, 4))
+    return figure(folder / "history.png", draw, (7, 4))
 
 
 def write_compare_report(cmp, folder, title: str, history=None, extra: dict | None = None) -> Path:
-    from ..io import atomic_write_bytes
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     figures = probe_figures(cmp, folder)
@@ -273,17 +269,10 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
                "families": cmp.families, "where": cmp.where}
     if extra:
         numbers.update(extra)
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>Lowcam comparison</title><style>"
-             "body{font-family:sans-serif;max-width:1200px;margin:auto}img{max-width:100%}pre{background:#f4f4f4;"
-             "padding:8px;overflow:auto}</style></head><body>",
-             f"<h1>{html.escape(title)}</h1>",
-             f"<p><b>error {cmp.error:.3f}</b> (1.0 = the noise floor; explained below 1.1): "
+    parts = [f"<p><b>error {cmp.error:.3f}</b> (1.0 = the noise floor; explained below 1.1): "
              f"{html.escape(cmp.verdict)}. Families: " +
              ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()) + "</p>"]
     for name, path in figures:
-        parts.append(f"<h2>{html.escape(name)}</h2><img src='{html.escape(path.name)}' alt='{html.escape(name)}'>")
-    parts.append("<h2>Numbers</h2><pre>" + html.escape(json.dumps(numbers, indent=1, default=float)) + "</pre>")
-    parts.append("</body></html>")
-    page = folder / "index.html"
-    atomic_write_bytes(page, "\n".join(parts).encode())
-    return page
+        parts.append(f"<h2>{html.escape(name)}</h2>{image(folder, path, name)}")
+    parts.append("<h2>Numbers</h2>" + numbers_block(numbers))
+    return write_page(folder, "Lowcam comparison", title, parts)

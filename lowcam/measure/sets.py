@@ -77,7 +77,7 @@ def load_set(folder, profile=None) -> MeasurementSet:
                         for p in glob.glob(str(folder / pat))})
         if not names:
             raise LowcamError(f"{where}: no frames match {patterns}")
-        from ..calibrate import load_frames
+        from ..captures import load_frames
 
         frames, _ = load_frames(names, 1, where)
         frames = np.stack(frames)

@@ -45,7 +45,7 @@ def render_board_view(profile, rvec, tvec, inner=(9, 6), square=0.025, width=160
 def ideal_from_target(profile, capture) -> tuple[np.ndarray, np.ndarray]:
     """(ideal render, plate) for a ``target`` capture: the board's pose from the frames through the profile's
     lens, its white and black from the frames, and the frames' own mean as the plate around it."""
-    from ..calibrate import detect_target, parse_target
+    from ..captures import detect_target, parse_target
 
     spec = parse_target(capture.target)
     if spec[0] != "checkerboard":

@@ -1,0 +1,130 @@
+"""The Blender-driving commands of ``lowcam``: ``demo``, ``render``, ``motion`` and ``node-asset``.
+
+They live on the Blender side and reach the ``lowcam`` command through the ``lowcam.commands`` entry point
+(pyproject.toml), so the engine imports nothing of ``addon/`` or ``nodes/``. Importing this module imports no bpy;
+each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from lowcam.cli import vector3
+
+
+def _side(name: str):
+    """The extension's module ``name`` (``"addon.render"``), the add-on registered with Blender once."""
+    from .. import submodule
+
+    return submodule(name)
+
+
+def cmd_demo(args) -> int:
+    """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
+    and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
+    from lowcam.io import read_image, read_plate, write_png
+    from lowcam.pipeline import plain_composite
+    from lowcam.profile import load_profile
+    from lowcam.sample import side_by_side
+
+    out = Path(args.output).resolve()
+    profile = load_profile(args.profile)
+    steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
+    say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
+    say(0)
+    if args.synthetic:
+        from lowcam.io import write_exr
+        from lowcam.pipeline import run
+        from lowcam.sample import sample_plate, sample_render
+
+        render = sample_render(profile, args.render_width)
+        write_exr(out / "sample_render.exr", render)
+        plate = sample_plate(profile)
+        say(1)
+        frame = run(render, profile, plate, args.angular_velocity, None, args.seed, 0).frame
+        title = f"lowcam ({profile.name}), w = {args.angular_velocity} rad/s"
+    else:
+        from lowcam.scene import OVERLAY_LAYER, over_frame, overlay_in_frame, read_layers
+
+        blend = _side("addon.sample").build_sample_scene(out, args.profile, args.render_width)
+        say(1)
+        t0 = time.perf_counter()
+        composite = _side("addon.render").render(blend, [1], str(out / "lowcam" / "####.png"), force=True,
+                                                 keep_renders=str(out / "render"))[0]
+        print(f"      rendered and simulated in {time.perf_counter() - t0:.1f} s", flush=True)
+        frame = read_image(composite)
+        render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
+        plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
+        title = f"lowcam ({profile.name}), camera panning, sphere moving"
+    say(2)
+    plain = plain_composite(render, profile, plate)
+    if not args.synthetic:
+        plain = over_frame(plain, overlay_in_frame(overlay, profile))
+    write_png(out / "lowcam.png", frame)
+    write_png(out / "plain.png", plain)
+    write_png(out / "side_by_side.png", side_by_side(plain, frame, "plain composite", title))
+    print(f"{out / 'side_by_side.png'}: plain composite (left) next to the {profile.name} camera (right)")
+    return 0
+
+
+def cmd_render(args) -> int:
+    from tqdm import tqdm
+
+    from lowcam.batch import parse_frames
+
+    frames = parse_frames(args.frames)
+    bar = tqdm(total=len(frames), unit="frame", desc="lowcam render")
+    written = _side("addon.render").render(args.blend, frames, args.output, args.force,
+                                               progress=lambda f, p: bar.update(1))
+    bar.close()
+    print(f"{len(written)} composites in {written[0].parent if written else args.output}")
+    return 0
+
+
+def cmd_motion(args) -> int:
+    from lowcam.batch import parse_frames
+
+    path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
+    print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
+    return 0
+
+
+def cmd_node_asset(args) -> int:
+
+    path = _side("nodes.asset").write_asset(args.output, args.profile, args.render_width, args.angular_velocity)
+    print(f"{path}: \"Lowcam Camera ({args.profile})\" asset ({path.stat().st_size / 1e6:.0f} MB)")
+    return 0
+
+
+def add_commands(sub) -> None:
+    """Add the Blender-driving sub-commands to the ``lowcam`` parser (the ``lowcam.commands`` entry point)."""
+    p = sub.add_parser("demo", help="the main job on the bundled sample scene")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
+    p.add_argument("--angular-velocity", type=vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
+                   help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--render-width", type=int, default=800, help="width of the sample render (px)")
+    p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
+    p.add_argument("blend", help="the .blend file (its scene's Lowcam settings are used)")
+    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
+    p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
+    p.add_argument("blend", help="the .blend file (its Lowcam motion source and exposure are used)")
+    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", required=True, help="the motion.json to write")
+    p.set_defaults(func=cmd_motion)
+
+    p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
+    p.add_argument("-o", "--output", required=True, help="the .blend to write")
+    p.add_argument("--profile", default="fire-i")
+    p.add_argument("--render-width", type=int, default=1600, help="width of the renders it will take (px)")
+    p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+                   help="camera rotation baked into the maps (rad/s, camera frame)")
+    p.set_defaults(func=cmd_node_asset)

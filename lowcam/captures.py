@@ -1,0 +1,192 @@
+"""
+Captures and targets
+====================
+
+Reading what a real camera delivered and finding the printed targets in it, for the calibrations
+(:mod:`lowcam.calibrate`) and the measurements (:mod:`lowcam.measure`) alike.
+
+Capture input/output
+
+-   :func:`expand_paths`: file names and glob patterns to paths.
+-   :func:`load_frames`: capture frames as RGB ``uint8``, every problem naming the frame.
+-   :func:`refuse_saturated`: refuse clipped flat fields and noise stacks.
+-   :func:`read_patches_csv`: a table of ideal and measured patch colours.
+-   :func:`srgb_to_linear`: printed sRGB values (0-255) to linear light (0-1).
+
+Targets
+
+-   :data:`DICTIONARY`, :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.calibrate.chart`).
+-   :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description.
+-   :func:`detect_target`: the target's object and image points in one frame.
+-   :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it.
+"""
+from __future__ import annotations
+
+import glob
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import LowcamError
+
+#: The ArUco dictionary of the chart's ChArUco board.
+DICTIONARY = "DICT_5X5_100"
+
+
+# --- captures ------------------------------------------------------------------------------------------------------
+
+def expand_paths(patterns) -> list[Path]:
+    """Each pattern's matches, sorted; a pattern that matches nothing stays as given (reading it names it)."""
+    out = []
+    for p in patterns:
+        matches = sorted(glob.glob(str(p)))
+        out.extend(Path(m) for m in matches) if matches else out.append(Path(p))
+    return out
+
+
+def load_frames(patterns, min_frames: int = 1, what: str = "calibration") -> tuple[list[np.ndarray], list[str]]:
+    """Read capture frames (PNG/JPEG, RGB uint8); every problem names the frame."""
+    from .io import read_image
+
+    paths = expand_paths(patterns)
+    if len(paths) < min_frames:
+        raise LowcamError(f"{what}: {len(paths)} frame(s) given, at least {min_frames} needed")
+    frames, names = [], []
+    for p in paths:
+        img = read_image(p)
+        if img.dtype != np.uint8:
+            img = np.round(img / 257.0).astype(np.uint8)
+        if img.ndim == 2:
+            img = np.repeat(img[..., None], 3, axis=2)
+        if frames and img.shape != frames[0].shape:
+            raise LowcamError(f"{p}: the frame is {img.shape[1]}x{img.shape[0]}, the first frame ({names[0]}) is "
+                              f"{frames[0].shape[1]}x{frames[0].shape[0]}: mixed sizes")
+        frames.append(img)
+        names.append(str(p))
+    return frames, names
+
+
+def refuse_saturated(frames, names, fraction: float = 0.01) -> None:
+    """Flat fields and noise stacks must not clip: name the first frame with over ``fraction`` pixels at 255."""
+    for f, n in zip(frames, names):
+        clipped = float((f >= 255).any(axis=-1).mean())
+        if clipped > fraction:
+            raise LowcamError(f"{n}: {100 * clipped:.1f} % of the pixels are saturated (255); lower the exposure")
+
+
+def read_patches_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Patch colours: header ``ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b`` (ideal in render units
+    0-1, measured in DN 0-255), one row per patch."""
+    path = Path(path)
+    try:
+        data = np.genfromtxt(path, delimiter=",", names=True)
+    except (OSError, ValueError) as e:
+        raise LowcamError(f"{path}: cannot read the patch table ({e})") from None
+    cols = ["ideal_r", "ideal_g", "ideal_b", "measured_r", "measured_g", "measured_b"]
+    if data.dtype.names is None or any(c not in data.dtype.names for c in cols) or data.size < 4:
+        raise LowcamError(f"{path}: the patch table needs the columns {','.join(cols)} and at least 4 patches")
+    table = np.column_stack([np.atleast_1d(data[c]) for c in cols])
+    return table[:, :3] * 255.0, table[:, 3:]
+
+
+def srgb_to_linear(v):
+    """sRGB code values (0-255) to linear light (0-1).
+
+    >>> srgb_to_linear([0, 255]).tolist()
+    [0.0, 1.0]
+    """
+    v = np.asarray(v, np.float64) / 255.0
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+# --- targets -------------------------------------------------------------------------------------------------------
+
+def charuco_board(squares=(7, 5), square_mm: float = 30.0, marker_mm: float = 22.0):
+    """The chart's ChArUco board (OpenCV ``aruco``, :data:`DICTIONARY`); sizes in metres on the board."""
+    aruco = cv2.aruco
+    dictionary = aruco.getPredefinedDictionary(getattr(aruco, DICTIONARY))
+    return aruco.CharucoBoard(squares, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
+
+
+def parse_target(spec: str):
+    """``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's board).
+
+    >>> parse_target("checkerboard:9x6:0.025")
+    ('checkerboard', (9, 6), 0.025)
+    """
+    kind, _, rest = spec.partition(":")
+    if kind in ("checkerboard", "chessboard"):
+        try:
+            size, square = rest.split(":")
+            cols, rows = (int(v) for v in size.lower().split("x"))
+            return ("checkerboard", (cols, rows), float(square))
+        except ValueError:
+            raise LowcamError(f"target '{spec}': use checkerboard:COLSxROWS:SQUARE_M, e.g. checkerboard:9x6:0.025")
+    if kind == "charuco":
+        return ("charuco", None, None)
+    raise LowcamError(f"target '{spec}': unknown (use checkerboard:9x6:0.025 or charuco)")
+
+
+def detect_target(image: np.ndarray, target) -> tuple[np.ndarray, np.ndarray] | None:
+    """(object points (N, 3) in metres, image points (N, 2) in pixels) of the target in one frame, or None."""
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    kind, size, square = target
+    if kind == "checkerboard":
+        ok, corners = cv2.findChessboardCorners(grey, size, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not ok:
+            return None
+        corners = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1),
+                                   (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        obj = np.zeros((size[0] * size[1], 3))
+        obj[:, :2] = np.mgrid[0:size[0], 0:size[1]].T.reshape(-1, 2) * square
+        return obj, corners.reshape(-1, 2).astype(np.float64)
+    board = charuco_board()
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(grey)
+    if ids is None or len(ids) < 8:
+        return None
+    obj = board.getChessboardCorners()[ids.ravel()]
+    return np.asarray(obj, np.float64), corners.reshape(-1, 2).astype(np.float64)
+
+
+def chart_patch_colours(patterns, layout_path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Find the chart (its ChArUco board) in each frame and read the mean colour of every colour patch and grey
+    step. Returns (ideal linear colours x 255 from the printed sRGB, measured DN averaged over frames, notes)."""
+    layout = json.loads(Path(layout_path).read_text())
+    if layout.get("format") != "lowcam-chart":
+        raise LowcamError(f"{layout_path}: not a lowcam chart layout")
+    board = next(e for e in layout["elements"] if e["type"] == "charuco")
+    patches = [(p["rect_mm"], p["srgb"]) for e in layout["elements"] if e["type"] == "colour_patches"
+               for p in e["patches"]]
+    patches += [(p["rect_mm"], [p["value"]] * 3) for e in layout["elements"] if e["type"] == "grey_steps"
+                for p in e["patches"]]
+    frames, names = load_frames(patterns, 1, "colour calibration")
+    spec = parse_target("charuco")
+    sums, count, notes = np.zeros((len(patches), 3)), 0, []
+    for f, n in zip(frames, names):
+        found = detect_target(f, spec)
+        if found is None:
+            notes.append(f"{n}: the chart's ChArUco board not found, frame skipped")
+            continue
+        obj, img = found
+        # board metres (origin at the board's outer top-left corner, y down) -> page millimetres
+        x0, y0 = board["rect_mm"][:2]
+        scale = board["square_mm"] / (1000.0 * charuco_board().getSquareLength())
+        mm = obj[:, :2] * 1000.0 * scale + [x0, y0]
+        h, _ = cv2.findHomography(mm.astype(np.float32), img.astype(np.float32))
+        for k, (rect, _) in enumerate(patches):
+            x, y, w, hh = rect
+            inner = np.array([[x + 0.3 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.7 * hh],
+                              [x + 0.3 * w, y + 0.7 * hh]], np.float32)
+            poly = cv2.perspectiveTransform(inner[None], h)[0]
+            mask = np.zeros(f.shape[:2], np.uint8)
+            cv2.fillConvexPoly(mask, np.round(poly).astype(np.int32), 1)
+            if mask.sum() < 4:
+                raise LowcamError(f"{n}: the chart's patches are too small in the frame (move closer)")
+            sums[k] += f[mask > 0].reshape(-1, 3).mean(axis=0)
+        count += 1
+    if count == 0:
+        raise LowcamError("colour calibration: the chart was found in none of the frames")
+    ideal = srgb_to_linear([c for _, c in patches]) * 255.0
+    return ideal, sums / count, notes

@@ -1,0 +1,76 @@
+"""
+Plots and HTML reports
+======================
+
+The pictures and pages that calibration (:func:`lowcam.calibrate.write_report`) and measurement
+(:func:`lowcam.measure.report.write_compare_report`) write:
+
+-   :func:`figure`: draw one matplotlib figure (headless) and save it as PNG.
+-   :func:`write_page`: ``index.html`` in a folder: the page scaffolding (title, style, heading) around sections.
+-   :func:`image`: an ``<img>`` of a PNG, copied into the page's folder when it lies elsewhere.
+-   :func:`numbers_block`: numbers as indented JSON in a ``<pre>``, optionally folded in a ``<details>``.
+"""
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+STYLE = ("body{font-family:sans-serif;max-width:1200px;margin:auto}img{max-width:100%}"
+         "pre{background:#f4f4f4;padding:8px;overflow:auto}")
+
+
+def figure(path: Path, draw, size=(7, 4.5)) -> Path:
+    """Call ``draw(fig)`` on a new ``size`` (inches, 100 dpi) figure and save it as the PNG ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=size, dpi=100)
+    draw(fig)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def image(folder, path, alt: str) -> str:
+    """An ``<img>`` of the PNG ``path`` for a page in ``folder``, copying the file there if it lies elsewhere."""
+    path, folder = Path(path), Path(folder)
+    target = folder / path.name
+    if path.resolve() != target.resolve():
+        folder.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(path.read_bytes())
+    return f"<img src='{html.escape(path.name)}' alt='{html.escape(alt)}'>"
+
+
+def _plain(value):
+    return np.asarray(value).tolist()
+
+
+def numbers_block(numbers, summary: str | None = None) -> str:
+    """``numbers`` (NumPy values allowed) as indented JSON in a ``<pre>``; folded under ``summary`` if given.
+
+    >>> numbers_block({"a": np.float32(0.5)})
+    '<pre>{\\n "a": 0.5\\n}</pre>'
+    """
+    pre = f"<pre>{html.escape(json.dumps(numbers, indent=1, default=_plain))}</pre>"
+    return f"<details><summary>{html.escape(summary)}</summary>{pre}</details>" if summary else pre
+
+
+def write_page(folder, title: str, heading: str, sections) -> Path:
+    """Write ``folder/index.html``: a page titled ``title`` with the heading ``heading`` over ``sections`` (HTML
+    fragments, in order); returns its path."""
+    from .io import atomic_write_bytes
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+             f"<style>{STYLE}</style></head><body>", f"<h1>{html.escape(heading)}</h1>", *sections, "</body></html>"]
+    page = folder / "index.html"
+    atomic_write_bytes(page, "\n".join(parts).encode())
+    return page
