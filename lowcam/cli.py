@@ -131,39 +131,21 @@ def cmd_calibrate(args) -> int:
     from . import calibrate as cal
     from .profile import load_profile
 
+    if args.what == "list":
+        for name, effects in cal.calibration_listing().items():
+            c = cal.CALIBRATIONS.get(name)
+            about = (c.help + (f" (also: {', '.join(c.aliases)})" if c.aliases else "")) if c else "no such calibration"
+            print(f"{name:22s} {', '.join(effects) or '-':24s} {about}")
+        return 0
     out = Path(args.output)
     plots = Path(args.plots) if args.plots else out.parent / f"{out.stem}-plots"
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
-    what = args.what
-    if what == "lens":
-        models = ("fov", "opencv") if args.model == "both" else (args.model,)
-        results = [cal.calibrate_lens(args.frames, args.target, models, plots)]
-    elif what == "vignetting":
-        results = [cal.calibrate_vignetting(args.frames, plots)]
-    elif what == "ca":
-        results = [cal.calibrate_chromatic_aberration(args.frames, plots)]
-    elif what == "noise":
-        results = [cal.calibrate_noise(args.frames, args.demosaic, args.law, plots)]
-    elif what == "demosaic":
-        results = [cal.calibrate_demosaic(args.frames, base.geometry, plots)]
-    elif what == "blur":
-        results = [cal.calibrate_blur(args.frames, plots)]
-    elif what == "sharpening":
-        results = [cal.calibrate_sharpening(args.soft, args.sharp, args.sharpness, plots)]
-    elif what == "colour":
-        if args.patches:
-            ideal, measured = cal.read_patches_csv(args.patches)
-        elif args.frames and args.chart:
-            ideal, measured, notes = cal.chart_patch_colours(args.frames, args.chart)
-            for note in notes:
-                print(f"  {note}")
-        else:
-            raise LowcamError("colour calibration needs --patches CSV, or frames of the chart with --chart chart.json")
-        results = [cal.calibrate_colour(ideal, measured, args.saturation, plots)]
-    else:  # all
+    if args.what == "all":
         base_from_manifest, results = cal.run_manifest(args.manifest, plots)
         if not args.profile:
             base = base_from_manifest
+    else:
+        results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
     for r in results:
         print(r.summary)
         for note in r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []:
@@ -342,37 +324,18 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
         q.set_defaults(func=cmd_calibrate)
 
-    q = csub.add_parser("lens", help="FOV and Brown-Conrady from checkerboard or ChArUco frames")
-    q.add_argument("frames", nargs="+")
-    q.add_argument("--target", default="checkerboard:9x6:0.025", help="checkerboard:COLSxROWS:SQUARE_M or charuco")
-    q.add_argument("--model", choices=("fov", "opencv", "both"), default="both")
-    common(q)
-    for name, helptext in (("vignetting", "from flat-field frames"), ("ca", "chromatic aberration from frames "
-                           "of the noise field"), ("demosaic", "identify the demosaicing from a static stack"),
-                           ("blur", "horizontal/vertical blur from slanted edges")):
-        q = csub.add_parser(name, help=helptext)
-        q.add_argument("frames", nargs="+")
+    from .calibrate import CALIBRATIONS
+
+    for name, calibrator in CALIBRATIONS.items():
+        q = csub.add_parser(name, aliases=list(calibrator.aliases), help=calibrator.help)
+        calibrator.add_arguments(q)
         common(q)
-    q = csub.add_parser("noise", help="both noise laws from a stack of frames of a static scene")
-    q.add_argument("frames", nargs="+")
-    q.add_argument("--law", choices=("sigma_linear", "variance_linear"), default="sigma_linear",
-                   help="the law written into the profile (both are fitted and reported)")
-    q.add_argument("--demosaic", choices=("block", "bilinear"), default="block")
-    common(q)
-    q = csub.add_parser("sharpening", help="sharpening filter from captures at sharpness 0 and at a setting")
-    q.add_argument("--soft", nargs="+", required=True)
-    q.add_argument("--sharp", nargs="+", required=True)
-    q.add_argument("--sharpness", type=float, required=True, help="the camera setting of the --sharp captures")
-    common(q)
-    q = csub.add_parser("colour", help="crosstalk from the chart's colour patches (or a table of patch colours)")
-    q.add_argument("frames", nargs="*", help="frames showing the whole chart")
-    q.add_argument("--chart", help="the chart's layout JSON (written by lowcam chart)")
-    q.add_argument("--patches", help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b")
-    q.add_argument("--saturation", type=float, default=65.0, help="the camera's saturation setting")
-    common(q)
+        q.set_defaults(calibration=name)
     q = csub.add_parser("all", help="every calibration a manifest lists, into one profile")
     q.add_argument("manifest")
     common(q)
+    q = csub.add_parser("list", help="every calibration and the effects it fits")
+    q.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("compare", help="the model against measured frames: error, where it fails, probes")
     p.add_argument("set", help="measurement-set folder (with set.toml)")

@@ -177,7 +177,7 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
         out.images[f"demosaic_uv_{name}"] = stmap(2 * j + dx, 2 * i + dy, wm, hm)
 
     if "saturation" in stages:
-        from .effects.crosstalk import saturation_matrix
+        from .effects.saturation import saturation_matrix
 
         sat = profile.effect("saturation")
         s = saturation_matrix(sat.saturation, sat.luma)

@@ -55,8 +55,8 @@ def _plain(value):
 def numbers_block(numbers, summary: str | None = None) -> str:
     """``numbers`` (NumPy values allowed) as indented JSON in a ``<pre>``; folded under ``summary`` if given.
 
-    >>> numbers_block({"a": np.float32(0.5)})
-    '<pre>{\\n "a": 0.5\\n}</pre>'
+    >>> numbers_block(np.float32(0.5), "fit")
+    '<details><summary>fit</summary><pre>0.5</pre></details>'
     """
     pre = f"<pre>{html.escape(json.dumps(numbers, indent=1, default=_plain))}</pre>"
     return f"<details><summary>{html.escape(summary)}</summary>{pre}</details>" if summary else pre

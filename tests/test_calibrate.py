@@ -76,7 +76,7 @@ def test_vignetting_recovered_within_2_percent(fire_i, tmp_path, k2, k4):
     profile.effects[profile.effects.index(v)] = type(v)(k2=k2, k4=k4)
     frames = [lowcam.simulate(flat_render(0.75, 800, 600), profile, seed=s) for s in range(8)]
     cal = calibrate_vignetting(save(frames, tmp_path))
-    gain = cal.values["vignetting"]["_texture"]
+    gain = cal.textures["vignetting"].data
     truth = radial_vignetting(640, 480, k2, k4)
     assert np.sqrt(np.mean((gain - truth) ** 2)) < 0.02
 
@@ -88,7 +88,7 @@ def test_chromatic_aberration_recovered_within_0_1_px(fire_i, tmp_path, red, blu
     profile.effects[profile.effects.index(ca)] = type(ca)(red_corner_px=red, blue_corner_px=blue, cubic=1.0)
     frames = [lowcam.simulate(noise_field(seed=s), profile) for s in range(2)]
     cal = calibrate_chromatic_aberration(save(frames, tmp_path))
-    err = cal.values["chromatic_aberration"]["_grid"] - radial_ca_grid(640, 480, red, blue, cubic=1.0)
+    err = cal.textures["chromatic_aberration"].data - radial_ca_grid(640, 480, red, blue, cubic=1.0)
     assert np.sqrt(np.mean(err ** 2)) < 0.1
 
 
@@ -175,7 +175,8 @@ def test_calibrated_parts_write_a_profile_that_loads_and_runs(fire_i, tmp_path):
 def test_calibrate_all_from_a_manifest_with_report(fire_i, tmp_path):
     profile = quiet(fire_i)
     save([lowcam.simulate(flat_render(0.7, 800, 600), profile, seed=s) for s in range(4)], tmp_path / "flat")
-    save([lowcam.simulate(gradient_render(), profile, seed=3, frame=f) for f in range(12)], tmp_path / "static")
+    bilinear = profile.with_effect("demosaic", method="bilinear")  # not the base profile's block demosaicing
+    save([lowcam.simulate(gradient_render(), bilinear, seed=3, frame=f) for f in range(12)], tmp_path / "static")
     (tmp_path / "manifest.toml").write_text('profile = "fire-i"\n[vignetting]\nframes = ["flat/*.png"]\n'
                                             '[noise]\nframes = ["static/*.png"]\n[demosaic]\nframes = ["static/*.png"]\n')
     r = subprocess.run([sys.executable, "-m", "lowcam.cli", "calibrate", "all", str(tmp_path / "manifest.toml"),
@@ -186,7 +187,7 @@ def test_calibrate_all_from_a_manifest_with_report(fire_i, tmp_path):
     assert lines[0].startswith("vignetting:") and lines[1].startswith("noise:") and lines[2].startswith("demosaic:")
     page = (tmp_path / "report" / "index.html").read_text()
     assert page.count("<img") == 3 and "noise.png" in page and "numbers and fit quality" in page
-    assert lowcam.load_profile(tmp_path / "cam.toml").effect("demosaic").method == "block"
+    assert lowcam.load_profile(tmp_path / "cam.toml").effect("demosaic").method == "bilinear"
 
 
 @pytest.mark.parametrize("make, args, message", [
@@ -250,3 +251,56 @@ def test_colour_from_a_photographed_chart_is_found_automatically(fire_i, tmp_pat
     truth = profile.effect("crosstalk").total_matrix()
     assert np.abs(np.array(cal.values["crosstalk"]["matrix"]) - truth).max() < 0.03
     assert (tmp_path / "colour.png").is_file()
+
+
+def _subcommands(parser):
+    import argparse
+
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def test_cli_and_manifest_take_exactly_the_table_of_calibrations(tmp_path, capsys):
+    from lowcam.calibrate import CALIBRATIONS, calibration_listing, calibrator, run_manifest
+    from lowcam.cli import build_parser, main
+    from lowcam.effects import known_effects
+
+    parser = build_parser()
+    names = set(_subcommands(_subcommands(parser)["calibrate"])) - {"all", "list"}
+    assert names == set(CALIBRATIONS) | {"ca"}
+    for name in names:  # each sub-command dispatches to its table entry; "ca" is chromatic_aberration's alias
+        c = calibrator(name)
+        argv = [a for o in c.options if o.required for a in
+                (["f.png"] if o.positional else [o.flag, "f.png" if o.kind == "frames" else "1"])]
+        args = parser.parse_args(["calibrate", name, *argv, "-o", "x.toml"])
+        assert args.calibration == c.name == ("chromatic_aberration" if name == "ca" else name)
+    for name, c in CALIBRATIONS.items():  # the manifest knows the same sections, each with its own keys
+        (tmp_path / "m.toml").write_text(f"[{name}]\nbogus = 1\n")
+        known = ", ".join(c.manifest_keys)
+        with pytest.raises(LowcamError, match=rf"\[{name}\]: unknown key 'bogus' \(known: {known}\)"):
+            run_manifest(tmp_path / "m.toml")
+    (tmp_path / "m.toml").write_text("[ca]\nframes = ['x.png']\n")
+    with pytest.raises(LowcamError, match="unknown manifest section 'ca'"):
+        run_manifest(tmp_path / "m.toml")
+    # the listing names the effects that declare each calibration
+    listing = calibration_listing()
+    assert list(listing)[:len(CALIBRATIONS)] == list(CALIBRATIONS)
+    for name, effects in listing.items():
+        assert effects == [e.name for e in known_effects() if e.calibration == name]
+    assert listing["lens"] == ["lens_distortion"] and listing["colour"] == ["crosstalk"]
+    assert "horizontal_blur" in listing["blur"] and CALIBRATIONS["vignetting"].effects == ["vignetting"]
+    assert main(["calibrate", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()[:len(CALIBRATIONS)]
+    assert [ln.split()[:2] for ln in lines] == [[n, ", ".join(listing[n]) or "-"] for n in CALIBRATIONS]
+
+
+def test_ca_alias_calibrates_and_writes_the_grid_beside_the_profile(fire_i, tmp_path, capsys):
+    from lowcam.cli import main
+
+    profile = quiet(fire_i, "noise")
+    ca = profile.effect("chromatic_aberration")
+    profile.effects[profile.effects.index(ca)] = type(ca)(red_corner_px=1.0, blue_corner_px=0.5)
+    paths = save([lowcam.simulate(noise_field(seed=s), profile) for s in range(2)], tmp_path / "in")
+    assert main(["calibrate", "ca", *paths, "-o", str(tmp_path / "cam.toml")]) == 0
+    assert capsys.readouterr().out.startswith("chromatic aberration: 2 frames")
+    mine = lowcam.load_profile(tmp_path / "cam.toml")
+    assert Path(mine.effect("chromatic_aberration").texture) == tmp_path / "cam" / "chromatic_aberration.csv"

@@ -198,5 +198,9 @@ def test_compare_on_real_chessboard_frames_writes_a_report(tmp_path):
                         str(tmp_path / "c.json")], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "c.json").read_text())
-    assert doc["error"] > 0 and len(doc["where"]["regions"]) == 9
+    # another camera than the Fire-i: far above the noise floor, and mostly at low frequencies (uneven light,
+    # the board's margin), as the README reports
+    bands = {b["band"]: b["error"] for b in doc["where"]["bands"]}
+    assert doc["error"] > 3 and len(doc["where"]["regions"]) == 9
+    assert bands["low"] > bands["mid"] > bands["high"], bands
     assert (tmp_path / "report" / "residual_maps.png").stat().st_size > 5000

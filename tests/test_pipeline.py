@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects.crosstalk import saturation_matrix
+from lowcam.effects.saturation import saturation_matrix
 from lowcam.effects.yuv import rgb_to_yuv
 from lowcam.sample import sample_plate, sample_render
 
@@ -114,6 +114,10 @@ def test_every_stage_is_recorded_and_changes_something(fire_i, scene):
     names = [k.split("-", 1)[1] for k in result.stages]
     assert names == [e.name for e in fire_i.effects]
     assert np.array_equal(result.stages[next(reversed(result.stages))], result.frame)
+    pictures = list(result.stages.values())
+    for name, before, after in zip(names[1:], pictures, pictures[1:]):
+        if before.shape == after.shape:  # the same kind of picture: the stage must have changed it
+            assert np.abs(after.astype(float) - before.astype(float)).mean() > 1e-4, f"{name} changed nothing"
 
 
 @pytest.mark.parametrize("name", ["crosstalk", "spatial_blur", "vignetting", "noise", "horizontal_blur",

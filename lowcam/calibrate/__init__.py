@@ -1,129 +1,63 @@
 """Calibration from measurements (Klein & Murray 2010, sec. 4): captures in, profile parameters and plots out.
 
-Each calibration reads the camera's frames, fits the parameters of one effect with that effect's own fitting
-code (``lowcam.effects.*``), writes them into a profile (textures beside it), prints a one-line summary and saves
-a plot. :func:`write_report` gathers the plots and numbers into an HTML page.
+Each calibration reads the camera's frames (:mod:`lowcam.captures`), fits the parameters of one effect with that
+effect's own fitting code (``lowcam.effects.*``), writes them into a profile (textures beside it), prints a
+one-line summary and saves a plot (:mod:`lowcam.reports`). :func:`write_report` gathers the plots and numbers into
+an HTML page.
+
+:data:`CALIBRATIONS` is the one table of calibrations: the ``lowcam calibrate`` sub-commands and the manifest's
+sections (:func:`run_manifest`) are made from it. Effects name the calibration that measures them
+(``Effect.calibration``); :func:`calibration_listing` gathers those declarations.
 """
 from __future__ import annotations
 
-import glob
 import html
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Callable
 
-import cv2
 import numpy as np
 
+from ..captures import (chart_patch_colours, detect_target, expand_paths, load_frames, parse_target,  # noqa: F401
+                        read_patches_csv, refuse_saturated, srgb_to_linear)
 from ..errors import LowcamError
+from ..reports import figure, image, numbers_block, write_page
+
+
+@dataclass
+class Texture:
+    """A fitted texture for the effect parameter ``param`` (a path): :func:`apply_to_profile` saves ``data`` as
+    ``file`` beside the profile with ``write(path, data, camera)`` and points the parameter at it."""
+
+    param: str
+    data: np.ndarray
+    file: str
+    write: Callable[[Path, np.ndarray, Any], None]
+
 
 @dataclass
 class Calibration:
-    """One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect, ``numbers`` for the
-    report, ``figures`` (PNG paths)."""
+    """One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect, ``textures`` per effect
+    (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths)."""
 
     what: str
     summary: str
     values: dict[str, dict] = field(default_factory=dict)
     numbers: dict = field(default_factory=dict)
     figures: list[Path] = field(default_factory=list)
+    textures: dict[str, Texture] = field(default_factory=dict)
 
 
-# --- captures ------------------------------------------------------------------------------------------------------
+def _write_gain_png(path: Path, gain: np.ndarray, camera) -> None:
+    from ..io import write_png
 
-def expand_paths(patterns) -> list[Path]:
-    out = []
-    for p in patterns:
-        matches = sorted(glob.glob(str(p)))
-        out.extend(Path(m) for m in matches) if matches else out.append(Path(p))
-    return out
+    write_png(path, np.round(gain * 65535).astype(np.uint16))
 
 
-def load_frames(patterns, min_frames: int = 1, what: str = "calibration") -> tuple[list[np.ndarray], list[str]]:
-    """Read capture frames (PNG/JPEG, RGB uint8); every problem names the frame."""
-    from ..io import read_image
+def _write_ca_csv(path: Path, grid: np.ndarray, camera) -> None:
+    from ..effects.chromatic_aberration import write_ca_grid
 
-    paths = expand_paths(patterns)
-    if len(paths) < min_frames:
-        raise LowcamError(f"{what}: {len(paths)} frame(s) given, at least {min_frames} needed")
-    frames, names = [], []
-    for p in paths:
-        img = read_image(p)
-        if img.dtype != np.uint8:
-            img = np.round(img / 257.0).astype(np.uint8)
-        if img.ndim == 2:
-            img = np.repeat(img[..., None], 3, axis=2)
-        if frames and img.shape != frames[0].shape:
-            raise LowcamError(f"{p}: the frame is {img.shape[1]}x{img.shape[0]}, the first frame ({names[0]}) is "
-                              f"{frames[0].shape[1]}x{frames[0].shape[0]}: mixed sizes")
-        frames.append(img)
-        names.append(str(p))
-    return frames, names
-
-
-def refuse_saturated(frames, names, fraction: float = 0.01) -> None:
-    """Flat fields and noise stacks must not clip: name the first frame with over ``fraction`` pixels at 255."""
-    for f, n in zip(frames, names):
-        clipped = float((f >= 255).any(axis=-1).mean())
-        if clipped > fraction:
-            raise LowcamError(f"{n}: {100 * clipped:.1f} % of the pixels are saturated (255); lower the exposure")
-
-
-# --- targets -------------------------------------------------------------------------------------------------------
-
-def parse_target(spec: str):
-    """``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's board)."""
-    kind, _, rest = spec.partition(":")
-    if kind in ("checkerboard", "chessboard"):
-        try:
-            size, square = rest.split(":")
-            cols, rows = (int(v) for v in size.lower().split("x"))
-            return ("checkerboard", (cols, rows), float(square))
-        except ValueError:
-            raise LowcamError(f"target '{spec}': use checkerboard:COLSxROWS:SQUARE_M, e.g. checkerboard:9x6:0.025")
-    if kind == "charuco":
-        return ("charuco", None, None)
-    raise LowcamError(f"target '{spec}': unknown (use checkerboard:9x6:0.025 or charuco)")
-
-
-def detect_target(image: np.ndarray, target) -> tuple[np.ndarray, np.ndarray] | None:
-    """(object points (N, 3) in metres, image points (N, 2) in pixels) of the target in one frame, or None."""
-    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    kind, size, square = target
-    if kind == "checkerboard":
-        ok, corners = cv2.findChessboardCorners(grey, size, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not ok:
-            return None
-        corners = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1),
-                                   (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-        obj = np.zeros((size[0] * size[1], 3))
-        obj[:, :2] = np.mgrid[0:size[0], 0:size[1]].T.reshape(-1, 2) * square
-        return obj, corners.reshape(-1, 2).astype(np.float64)
-    from .chart import charuco_board
-
-    board = charuco_board()
-    corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(grey)
-    if ids is None or len(ids) < 8:
-        return None
-    obj = board.getChessboardCorners()[ids.ravel()]
-    return np.asarray(obj, np.float64), corners.reshape(-1, 2).astype(np.float64)
-
-
-# --- plots ---------------------------------------------------------------------------------------------------------
-
-def _figure(path: Path, draw, size=(7, 4.5)) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig = plt.figure(figsize=size, dpi=100)
-    draw(fig)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    write_ca_grid(path, grid, camera.width, camera.height)
 
 
 # --- the calibrations ---------------------------------------------------------------------------------------------
@@ -168,7 +102,7 @@ def calibrate_lens(patterns, target: str = "checkerboard:9x6:0.025", models=("fo
                 ax.set_ylim(h, 0)
                 ax.set_aspect("equal")
                 ax.set_title(f"{m}: RMS {fit.rms:.3f} px (arrows x100)")
-        figures.append(_figure(Path(plot_dir) / "lens_residuals.png", draw, (11, 4.5)))
+        figures.append(figure(Path(plot_dir) / "lens_residuals.png", draw, (11, 4.5)))
     summary = (f"lens: {len(used)}/{len(frames)} frames, " +
                ", ".join(f"{m} RMS {fits[m].rms:.3f} px" for m in fits) + f"; profile gets {best}")
     return Calibration("lens", summary, {"lens_distortion": {"model": best, **fits[best].params}}, numbers,
@@ -196,9 +130,10 @@ def calibrate_vignetting(patterns, plot_dir: Path | None = None) -> Calibration:
             ax.set_xlabel("radius / corner radius")
             ax.set_ylabel("gain")
             ax.set_title("radial fall-off")
-        figures.append(_figure(Path(plot_dir) / "vignetting.png", draw, (10, 4)))
+        figures.append(figure(Path(plot_dir) / "vignetting.png", draw, (10, 4)))
     return Calibration("vignetting", f"vignetting: {len(frames)} flat fields, corner gain {corners:.3f}",
-                       {"vignetting": {"_texture": gain}}, {"corner_gain": corners, "frames": len(frames)}, figures)
+                       {"vignetting": {}}, {"corner_gain": corners, "frames": len(frames)}, figures,
+                       {"vignetting": Texture("texture", gain, "vignetting.png", _write_gain_png)})
 
 
 def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Calibration:
@@ -221,11 +156,12 @@ def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Ca
             ax.set_ylim(h, 0)
             ax.set_aspect("equal")
             ax.set_title("red and blue sampling offsets relative to green (x20)")
-        figures.append(_figure(Path(plot_dir) / "chromatic_aberration.png", draw))
+        figures.append(figure(Path(plot_dir) / "chromatic_aberration.png", draw))
     return Calibration("chromatic_aberration",
                        f"chromatic aberration: {len(frames)} frames, max red {red.max():.2f} px, blue {blue.max():.2f} px",
-                       {"chromatic_aberration": {"_grid": grid}},
-                       {"max_red_px": float(red.max()), "max_blue_px": float(blue.max())}, figures)
+                       {"chromatic_aberration": {}},
+                       {"max_red_px": float(red.max()), "max_blue_px": float(blue.max())}, figures,
+                       {"chromatic_aberration": Texture("texture", grid, "chromatic_aberration.csv", _write_ca_csv)})
 
 
 def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear",
@@ -253,7 +189,7 @@ def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear"
                 ax.set_ylabel("sigma (DN)")
                 ax.set_title(channel)
                 ax.legend(fontsize=7)
-        figures.append(_figure(Path(plot_dir) / "noise.png", draw, (12, 4)))
+        figures.append(figure(Path(plot_dir) / "noise.png", draw, (12, 4)))
     chosen = fit[law]
     summary = "noise: " + ", ".join(f"{c} {law} [{a:.3f}, {b:.4f}]" for c, (a, b) in chosen.items())
     return Calibration("noise", summary, {"noise": {"law": law, **chosen}},
@@ -279,7 +215,7 @@ def calibrate_demosaic(patterns, geometry, plot_dir: Path | None = None) -> Cali
                     ax.set_yticks([])
                     if c == 0:
                         ax.set_title(col if col == "measured" else f"{col} ({result['errors'][col]:.3f})", fontsize=8)
-        figures.append(_figure(Path(plot_dir) / "demosaic.png", draw, (8, 6)))
+        figures.append(figure(Path(plot_dir) / "demosaic.png", draw, (8, 6)))
     method = "block" if result["best"] == "block" else "bilinear"  # the engine simulates these two
     errors = ", ".join(f"{m} {e:.3f}" for m, e in result["errors"].items())
     return Calibration("demosaic", f"demosaic: best match {result['best']} (errors {errors})",
@@ -307,7 +243,7 @@ def calibrate_blur(patterns, plot_dir: Path | None = None) -> Calibration:
             ax.set_title(f"extra horizontal blur {r['extra_horizontal_sensels']:.3f} sensels "
                          f"({r['edges']['vertical']} + {r['edges']['horizontal']} edges)")
             ax.legend(fontsize=8)
-        figures.append(_figure(Path(plot_dir) / "blur.png", draw))
+        figures.append(figure(Path(plot_dir) / "blur.png", draw))
     return Calibration("blur", f"blur: edge sigma horizontal {r['sigma_horizontal_px']:.3f} px, vertical "
                                f"{r['sigma_vertical_px']:.3f} px -> horizontal blur {r['extra_horizontal_sensels']:.3f} sensels",
                        {"horizontal_blur": {"sigma": r["extra_horizontal_sensels"]}}, r, figures)
@@ -321,7 +257,7 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     camera sharpens: the free 101-tap filter for the plot, and the 7-tap model fitted to the images themselves
     (the free filter is poorly determined at frequencies the scene and the sensor's blur leave empty).
     """
-    from ..effects.sharpen import fit_row_filter, fit_sharpening_to_images, frequency_response
+    from ..effects.sharpening import fit_row_filter, fit_sharpening_to_images, frequency_response
 
     soft, _ = load_frames(soft_patterns, 1, "sharpening calibration (soft)")
     sharp, _ = load_frames(sharp_patterns, 1, "sharpening calibration (sharp)")
@@ -349,7 +285,7 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
             ax.set_xlabel("cycles / sensel")
             ax.set_title("frequency response")
             ax.legend(fontsize=7)
-        figures.append(_figure(Path(plot_dir) / "sharpening.png", draw, (10, 4)))
+        figures.append(figure(Path(plot_dir) / "sharpening.png", draw, (10, 4)))
     gain = a / sharpness if sharpness > 0 else 0.0
     return Calibration("sharpening", f"sharpening: a = {a:.3f}, sigma = {sigma:.3f} sensels at sharpness "
                                      f"{sharpness:g} (gain per unit {gain:.4f})",
@@ -387,7 +323,7 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
             ax.set_xticks(range(3), ["r", "g", "b"])
             ax.set_yticks(range(3), ["r^", "g^", "b^"])
             ax.set_title("crosstalk (saturation divided out)")
-        figures.append(_figure(Path(plot_dir) / "colour.png", draw, (9, 4)))
+        figures.append(figure(Path(plot_dir) / "colour.png", draw, (9, 4)))
     return Calibration("colour", "colour: crosstalk rows " + "; ".join(" ".join(f"{v:.3f}" for v in row)
                                                                       for row in crosstalk),
                        {"crosstalk": {"matrix": crosstalk.tolist(), "extra_mixing": 0.0},
@@ -398,23 +334,17 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
 
 def apply_to_profile(profile, calibrations, out_path: Path):
     """A copy of ``profile`` with every calibration's values, textures written beside ``out_path``."""
-    from ..effects.chromatic_aberration import write_ca_grid
-    from ..io import write_png
-
     out_path = Path(out_path).resolve()
     tex_dir = out_path.parent / out_path.stem
     new = profile
     for cal in calibrations:
-        for name, values in cal.values.items():
-            values = dict(values)
-            if "_texture" in values:
-                path = tex_dir / "vignetting.png"
-                write_png(path, np.round(values.pop("_texture") * 65535).astype(np.uint16))
-                values["texture"] = str(path)
-            if "_grid" in values:
-                path = tex_dir / "chromatic_aberration.csv"
-                write_ca_grid(path, values.pop("_grid"), new.camera.width, new.camera.height)
-                values["texture"] = str(path)
+        for name in list(cal.values) + [n for n in cal.textures if n not in cal.values]:
+            values = dict(cal.values.get(name, {}))
+            texture = cal.textures.get(name)
+            if texture is not None:
+                path = tex_dir / texture.file
+                texture.write(path, texture.data, new.camera)
+                values[texture.param] = str(path)
             new = new.with_effect(name, replace=(name == "lens_distortion"), source=str(out_path),
                                   base_dir=out_path.parent, **values)
     new = new.copy()
@@ -424,48 +354,214 @@ def apply_to_profile(profile, calibrations, out_path: Path):
 
 def write_report(calibrations, folder) -> Path:
     """An HTML page with every calibration's summary, numbers and plots."""
-    from ..io import atomic_write_bytes
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>Lowcam calibration</title>",
-             "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}pre{background:#f4f4f4;padding:8px;"
-             "overflow:auto}img{max-width:100%}</style></head><body><h1>Lowcam calibration report</h1>"]
+    sections = []
     for cal in calibrations:
-        parts.append(f"<h2>{html.escape(cal.what)}</h2><p><b>{html.escape(cal.summary)}</b></p>")
-        for fig in cal.figures:
-            fig = Path(fig)
-            target = folder / fig.name
-            if fig.resolve() != target.resolve():
-                target.write_bytes(fig.read_bytes())
-            parts.append(f"<img src='{html.escape(fig.name)}' alt='{html.escape(cal.what)}'>")
-        numbers = json.dumps(cal.numbers, indent=1, default=lambda o: np.asarray(o).tolist())
-        parts.append(f"<details><summary>numbers and fit quality</summary><pre>{html.escape(numbers)}</pre></details>")
-    parts.append("</body></html>")
-    path = folder / "index.html"
-    atomic_write_bytes(path, "\n".join(parts).encode())
-    return path
+        sections.append(f"<h2>{html.escape(cal.what)}</h2><p><b>{html.escape(cal.summary)}</b></p>")
+        sections.extend(image(folder, fig, cal.what) for fig in cal.figures)
+        sections.append(numbers_block(cal.numbers, "numbers and fit quality"))
+    return write_page(folder, "Lowcam calibration", "Lowcam calibration report", sections)
 
 
-def read_patches_csv(path) -> tuple[np.ndarray, np.ndarray]:
-    """Patch colours: header ``ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b`` (ideal in render units
-    0-1, measured in DN 0-255), one row per patch."""
-    path = Path(path)
-    try:
-        data = np.genfromtxt(path, delimiter=",", names=True)
-    except (OSError, ValueError) as e:
-        raise LowcamError(f"{path}: cannot read the patch table ({e})") from None
-    cols = ["ideal_r", "ideal_g", "ideal_b", "measured_r", "measured_g", "measured_b"]
-    if data.dtype.names is None or any(c not in data.dtype.names for c in cols) or data.size < 4:
-        raise LowcamError(f"{path}: the patch table needs the columns {','.join(cols)} and at least 4 patches")
-    table = np.column_stack([np.atleast_1d(data[c]) for c in cols])
-    return table[:, :3] * 255.0, table[:, 3:]
+# --- the table of calibrations ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Option:
+    """One input of a calibration: a key of its manifest section and an argument of its ``lowcam calibrate``
+    sub-command (``--key``, or a positional argument).
+
+    ``kind``: ``"frames"`` (file names or glob patterns; at least one if ``required``), ``"path"`` (one file), or a
+    type such as ``str`` or ``float``. In a manifest, frames and paths are relative to the manifest and a key left
+    out takes ``default`` (an error if it has none and is ``required``); on the command line a ``required`` option
+    must be given.
+    """
+
+    key: str
+    kind: Any = str
+    default: Any = None
+    required: bool = False
+    positional: bool = False
+    choices: tuple[str, ...] | None = None
+    help: str | None = None
+
+    def add_argument(self, parser) -> None:
+        if self.kind == "frames":
+            nargs = "+" if self.required else "*"
+            if self.positional:
+                parser.add_argument(self.key, nargs=nargs, help=self.help)
+            else:
+                parser.add_argument(self.flag, dest=self.key, nargs=nargs, required=self.required, help=self.help)
+            return
+        kw = {"help": self.help, "choices": self.choices}
+        if self.kind not in ("path", str):
+            kw["type"] = self.kind
+        if self.required:
+            kw["required"] = True
+        elif self.default is not None:
+            kw["default"] = self.default
+        parser.add_argument(self.flag, dest=self.key, **kw)
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.key.replace("_", "-")
+
+    def from_manifest(self, section: dict, where: str, folder: Path):
+        value = section.get(self.key)
+        if self.kind == "frames":
+            if not value:
+                if self.required:
+                    raise LowcamError(f"{where} needs '{self.key}'")
+                return []
+            return [str(folder / p) for p in ([value] if isinstance(value, str) else value)]
+        if value is None:
+            if self.default is None and self.required:
+                raise LowcamError(f"{where} needs '{self.key}'")
+            return self.default
+        if self.kind == "path":
+            return str(folder / value)
+        if self.choices and value not in self.choices:
+            raise LowcamError(f"{where}: '{self.key}' must be one of {', '.join(self.choices)}, got {value!r}")
+        try:
+            return self.kind(value)
+        except (TypeError, ValueError):
+            raise LowcamError(f"{where}: '{self.key}' must be a {self.kind.__name__}, got {value!r}") from None
+
+
+@dataclass(frozen=True)
+class Calibrator:
+    """One calibration, as ``lowcam calibrate <name>`` and a manifest's ``[name]`` section run it.
+
+    ``function`` fits the parameters; ``help`` is its line in ``lowcam calibrate -h``; ``options`` its inputs
+    (:class:`Option`: the sub-command's arguments beside the common ones and the manifest keys it accepts); ``run(
+    options, base, plot_dir)`` calls ``function`` with the options' values (a dict), the starting profile and the
+    plot folder. ``aliases`` are further sub-command names. The effects it fits are those that declare
+    ``calibration = name`` (:attr:`effects`, :func:`calibration_listing`).
+    """
+
+    name: str
+    function: Callable[..., Calibration]
+    help: str
+    options: tuple[Option, ...]
+    run: Callable[[dict, Any, Path | None], Calibration]
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def manifest_keys(self) -> tuple[str, ...]:
+        return tuple(o.key for o in self.options)
+
+    @property
+    def effects(self) -> list[str]:
+        """The known effects that declare this calibration (:func:`calibration_listing`)."""
+        return calibration_listing().get(self.name, [])
+
+    def add_arguments(self, parser) -> None:
+        """This calibration's arguments on its ``lowcam calibrate`` sub-parser."""
+        for option in self.options:
+            option.add_argument(parser)
+
+    def from_args(self, args, base, plot_dir: Path | None = None) -> Calibration:
+        """Run it with parsed command-line ``args`` (from :meth:`add_arguments`)."""
+        return self.run({o.key: getattr(args, o.key) for o in self.options}, base, plot_dir)
+
+    def check_section(self, section, where: str) -> None:
+        if not isinstance(section, dict):
+            raise LowcamError(f"{where} must be a table of keys ({', '.join(self.manifest_keys)})")
+        unknown = sorted(set(section) - set(self.manifest_keys))
+        if unknown:
+            raise LowcamError(f"{where}: unknown key '{unknown[0]}' (known: {', '.join(self.manifest_keys)})")
+
+    def from_manifest(self, section: dict, where: str, folder: Path, base,
+                      plot_dir: Path | None = None) -> Calibration:
+        """Run it with a manifest's section (``where`` names it in messages; paths relative to ``folder``)."""
+        self.check_section(section, where)
+        return self.run({o.key: o.from_manifest(section, where, Path(folder)) for o in self.options}, base,
+                        plot_dir)
+
+
+def _lens_models(model: str) -> tuple[str, ...]:
+    return ("fov", "opencv") if model == "both" else (model,)
+
+
+def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
+    notes = None
+    if o["patches"]:
+        ideal, measured = read_patches_csv(o["patches"])
+    elif o["frames"] and o["chart"]:
+        ideal, measured, notes = chart_patch_colours(o["frames"], o["chart"])
+    else:
+        raise LowcamError("colour calibration needs --patches CSV, or frames of the chart with --chart chart.json "
+                          "(in a manifest: patches, or frames and chart)")
+    cal = calibrate_colour(ideal, measured, o["saturation"], plot_dir)
+    if notes is not None:
+        cal.numbers["skipped"] = notes
+    return cal
+
+
+_FRAMES = Option("frames", "frames", required=True, positional=True)
+
+#: Every calibration by name, in the order a manifest runs them.
+CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
+    Calibrator("lens", calibrate_lens, "FOV and Brown-Conrady from checkerboard or ChArUco frames",
+               (_FRAMES, Option("target", str, "checkerboard:9x6:0.025",
+                                help="checkerboard:COLSxROWS:SQUARE_M or charuco"),
+                Option("model", str, "both", choices=("fov", "opencv", "both"))),
+               lambda o, base, plots: calibrate_lens(o["frames"], o["target"], _lens_models(o["model"]), plots)),
+    Calibrator("vignetting", calibrate_vignetting, "from flat-field frames", (_FRAMES,),
+               lambda o, base, plots: calibrate_vignetting(o["frames"], plots)),
+    Calibrator("chromatic_aberration", calibrate_chromatic_aberration,
+               "chromatic aberration from frames of the noise field", (_FRAMES,),
+               lambda o, base, plots: calibrate_chromatic_aberration(o["frames"], plots), aliases=("ca",)),
+    Calibrator("noise", calibrate_noise, "both noise laws from a stack of frames of a static scene",
+               (_FRAMES, Option("law", str, "sigma_linear", choices=("sigma_linear", "variance_linear"),
+                                help="the law written into the profile (both are fitted and reported)"),
+                Option("demosaic", str, "block", choices=("block", "bilinear"))),
+               lambda o, base, plots: calibrate_noise(o["frames"], o["demosaic"], o["law"], plots)),
+    Calibrator("demosaic", calibrate_demosaic, "identify the demosaicing from a static stack", (_FRAMES,),
+               lambda o, base, plots: calibrate_demosaic(o["frames"], base.geometry, plots)),
+    Calibrator("blur", calibrate_blur, "horizontal/vertical blur from slanted edges", (_FRAMES,),
+               lambda o, base, plots: calibrate_blur(o["frames"], plots)),
+    Calibrator("sharpening", calibrate_sharpening, "sharpening filter from captures at sharpness 0 and at a setting",
+               (Option("soft", "frames", required=True), Option("sharp", "frames", required=True),
+                Option("sharpness", float, 80.0, required=True, help="the camera setting of the --sharp captures")),
+               lambda o, base, plots: calibrate_sharpening(o["soft"], o["sharp"], o["sharpness"], plots)),
+    Calibrator("colour", calibrate_colour, "crosstalk from the chart's colour patches (or a table of patch colours)",
+               (Option("frames", "frames", positional=True, help="frames showing the whole chart"),
+                Option("chart", "path", help="the chart's layout JSON (written by lowcam chart)"),
+                Option("patches", "path",
+                       help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b"),
+                Option("saturation", float, 65.0, help="the camera's saturation setting")),
+               _run_colour),
+)}
+
+
+def calibrator(name: str) -> Calibrator:
+    """The calibration called ``name`` (or one of its aliases, e.g. ``"ca"``)."""
+    for c in CALIBRATIONS.values():
+        if name == c.name or name in c.aliases:
+            return c
+    raise LowcamError(f"unknown calibration '{name}' (known: {', '.join(CALIBRATIONS)})")
+
+
+def calibration_listing() -> dict[str, list[str]]:
+    """Which effects each calibration fits: every name of :data:`CALIBRATIONS` (in order) with the effects that
+    declare it as their ``calibration`` (:func:`lowcam.effects.known_effects`, plug-ins loaded so far included).
+    A name that effects declare but no calibration has comes after them.
+
+    >>> calibration_listing()["lens"]
+    ['lens_distortion']
+    """
+    from ..effects import known_effects
+
+    listing: dict[str, list[str]] = {name: [] for name in CALIBRATIONS}
+    for cls in known_effects():
+        if cls.calibration:
+            listing.setdefault(cls.calibration, []).append(cls.name)
+    return listing
 
 
 def run_manifest(path, plot_dir: Path | None = None):
-    """Run every calibration that the manifest lists; returns (base profile name, calibrations).
+    """Run every calibration that the manifest lists; returns (base profile, calibrations).
 
-    Manifest (TOML; frame patterns relative to the manifest)::
+    Manifest (TOML; frame patterns relative to the manifest; sections and their keys from :data:`CALIBRATIONS`)::
 
         profile = "fire-i"                      # the profile the results are written into
         [lens]                 frames = ["chessboard/*.png"], target = "checkerboard:9x6:0.025", model = "both"
@@ -475,97 +571,21 @@ def run_manifest(path, plot_dir: Path | None = None):
         [demosaic]             frames = ["static/*.png"]
         [blur]                 frames = ["edges/*.png"]
         [sharpening]           soft = ["soft/*.png"], sharp = ["sharp/*.png"], sharpness = 80
-        [colour]               patches = "patches.csv", saturation = 90
+        [colour]               patches = "patches.csv", saturation = 90   # or frames = [...], chart = "chart.json"
     """
     from ..io import read_toml
     from ..profile import load_profile
 
     path = Path(path)
     doc = read_toml(path, "manifest")
-    known = {"profile", "lens", "vignetting", "chromatic_aberration", "noise", "demosaic", "blur", "sharpening",
-             "colour"}
+    known = {"profile", *CALIBRATIONS}
     unknown = sorted(set(doc) - known)
     if unknown:
         raise LowcamError(f"{path}: unknown manifest section '{unknown[0]}' (known: {', '.join(sorted(known))})")
     base = load_profile(doc.get("profile", "fire-i"))
-
-    def frames(section, key="frames"):
-        items = doc[section].get(key)
-        if not items:
-            raise LowcamError(f"{path}: [{section}] needs '{key}'")
-        return [str(path.parent / p) for p in ([items] if isinstance(items, str) else items)]
-
-    cals = []
-    if "lens" in doc:
-        model = doc["lens"].get("model", "both")
-        cals.append(calibrate_lens(frames("lens"), doc["lens"].get("target", "checkerboard:9x6:0.025"),
-                                   ("fov", "opencv") if model == "both" else (model,), plot_dir))
-    if "vignetting" in doc:
-        cals.append(calibrate_vignetting(frames("vignetting"), plot_dir))
-    if "chromatic_aberration" in doc:
-        cals.append(calibrate_chromatic_aberration(frames("chromatic_aberration"), plot_dir))
-    if "noise" in doc:
-        cals.append(calibrate_noise(frames("noise"), doc["noise"].get("demosaic", "block"),
-                                    doc["noise"].get("law", "sigma_linear"), plot_dir))
-    if "demosaic" in doc:
-        cals.append(calibrate_demosaic(frames("demosaic"), base.geometry, plot_dir))
-    if "blur" in doc:
-        cals.append(calibrate_blur(frames("blur"), plot_dir))
-    if "sharpening" in doc:
-        cals.append(calibrate_sharpening(frames("sharpening", "soft"), frames("sharpening", "sharp"),
-                                         float(doc["sharpening"].get("sharpness", 80)), plot_dir))
-    if "colour" in doc:
-        ideal, measured = read_patches_csv(path.parent / doc["colour"]["patches"])
-        cals.append(calibrate_colour(ideal, measured, float(doc["colour"].get("saturation", 65)), plot_dir))
-    if not cals:
+    listed = [c for name, c in CALIBRATIONS.items() if name in doc]
+    if not listed:
         raise LowcamError(f"{path}: the manifest lists no calibration")
-    return base, cals
-
-
-def srgb_to_linear(v):
-    v = np.asarray(v, np.float64) / 255.0
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
-def chart_patch_colours(patterns, layout_path) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Find the chart (its ChArUco board) in each frame and read the mean colour of every colour patch and grey
-    step. Returns (ideal linear colours x 255 from the printed sRGB, measured DN averaged over frames, notes)."""
-    from .chart import charuco_board
-
-    layout = json.loads(Path(layout_path).read_text())
-    if layout.get("format") != "lowcam-chart":
-        raise LowcamError(f"{layout_path}: not a lowcam chart layout")
-    board = next(e for e in layout["elements"] if e["type"] == "charuco")
-    patches = [(p["rect_mm"], p["srgb"]) for e in layout["elements"] if e["type"] == "colour_patches"
-               for p in e["patches"]]
-    patches += [(p["rect_mm"], [p["value"]] * 3) for e in layout["elements"] if e["type"] == "grey_steps"
-                for p in e["patches"]]
-    frames, names = load_frames(patterns, 1, "colour calibration")
-    spec = parse_target("charuco")
-    sums, count, notes = np.zeros((len(patches), 3)), 0, []
-    for f, n in zip(frames, names):
-        found = detect_target(f, spec)
-        if found is None:
-            notes.append(f"{n}: the chart's ChArUco board not found, frame skipped")
-            continue
-        obj, img = found
-        # board metres (origin at the board's outer top-left corner, y down) -> page millimetres
-        x0, y0 = board["rect_mm"][:2]
-        scale = board["square_mm"] / (1000.0 * charuco_board().getSquareLength())
-        mm = obj[:, :2] * 1000.0 * scale + [x0, y0]
-        h, _ = cv2.findHomography(mm.astype(np.float32), img.astype(np.float32))
-        for k, (rect, _) in enumerate(patches):
-            x, y, w, hh = rect
-            inner = np.array([[x + 0.3 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.3 * hh], [x + 0.7 * w, y + 0.7 * hh],
-                              [x + 0.3 * w, y + 0.7 * hh]], np.float32)
-            poly = cv2.perspectiveTransform(inner[None], h)[0]
-            mask = np.zeros(f.shape[:2], np.uint8)
-            cv2.fillConvexPoly(mask, np.round(poly).astype(np.int32), 1)
-            if mask.sum() < 4:
-                raise LowcamError(f"{n}: the chart's patches are too small in the frame (move closer)")
-            sums[k] += f[mask > 0].reshape(-1, 3).mean(axis=0)
-        count += 1
-    if count == 0:
-        raise LowcamError("colour calibration: the chart was found in none of the frames")
-    ideal = srgb_to_linear([c for _, c in patches]) * 255.0
-    return ideal, sums / count, notes
+    for c in listed:  # every section's keys before the first (slow) calibration runs
+        c.check_section(doc[c.name], f"{path}: [{c.name}]")
+    return base, [c.from_manifest(doc[c.name], f"{path}: [{c.name}]", path.parent, base, plot_dir) for c in listed]

@@ -12,26 +12,27 @@ import importlib
 from ..errors import ProfileError
 from .base import Effect, NodeStage, Param, ParamSet, Search
 from .bayer import BayerSampling, Demosaic
-from .blur import HorizontalBlur, SpatialBlur
+from .blur import HorizontalBlur, SpatialBlur, VerticalBlur
 from .chromatic_aberration import ChromaticAberration
-from .crosstalk import Crosstalk, Saturation
-from .lens import LensDistortion
-from .motion_blur import MotionBlur
-from .object_motion import ObjectMotion
-from .noise import Noise
-from .raw import RawBlend
-from .resample import HalfSampling
-from .sharpen import Quantisation, Sharpening
-from .vignetting import Vignetting
-from .yuv import ChromaSubsampling, YuvBlend
-from .blur import VerticalBlur
+from .crosstalk import Crosstalk
 from .defocus import Defocus
 from .depth_of_field import DepthOfField
-from .fixed_pattern import DSNU, PRNU, HotPixels, RowNoise
-from .glare import VeilingGlare
+from .fixed_pattern import DSNU, HotPixels, PRNU, RowNoise
+from .half_sampling import HalfSampling
 from .jpeg import Jpeg
+from .lens import LensDistortion
+from .motion_blur import MotionBlur
+from .noise import Noise
+from .object_motion import ObjectMotion
+from .quantisation import Quantisation
+from .raw_blend import RawBlend
 from .rolling_shutter import RollingShutter
-from .tone import ToneCurve
+from .saturation import Saturation
+from .sharpening import Sharpening
+from .tone_curve import ToneCurve
+from .veiling_glare import VeilingGlare
+from .vignetting import Vignetting
+from .yuv import ChromaSubsampling, YuvBlend
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls

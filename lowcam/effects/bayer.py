@@ -149,6 +149,7 @@ class Demosaic(Effect):
     section = "4.4.1, 5.2 step 8, 7"
     writes = "rgb"
     order = 200
+    calibration = "demosaic"
     node = NodeStage("Demosaic", "mosaic", "demosaic")
     searches = (Search("bilinear_demosaic", "fine detail and noise correlations follow bilinear demosaicing", fixed={"method": "bilinear"}, requires="demosaic"),)
     always_runs = True

@@ -117,6 +117,7 @@ class HorizontalBlur(Effect):
     section = "4.3, 5.2 step 6"
     writes = "bayer"
     order = 150
+    calibration = "blur"
     node = NodeStage("Horizontal Blur", "mosaic", "kernel")
     searches = (Search("horizontal_blur", "horizontal blur sigma {sigma:.3f} sensels (profile: {was_sigma:.3f})", bounds={"sigma": (0.0, 4.0)}, captures="textured", requires="horizontal_blur"),)
     params = {

@@ -1,16 +1,15 @@
-"""Colour crosstalk of the Bayer filters and the camera's saturation control (Klein & Murray 2010, sec. 4.2,
-4.4.2, 5.2 step 2)."""
+"""Colour crosstalk of the Bayer filters, and its calibration from a colour chart (Klein & Murray 2010, sec. 4.2,
+5.2 step 2)."""
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
 from .base import Effect, NodeStage, Param, Search
+from .saturation import SATURATION_LUMA, saturation_matrix
 
 #: Fire-i filter response to 700/546/438 nm primaries, rows sum to 1 (sec. 4.2).
 FIRE_I_CROSSTALK = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]
-#: Rows of the saturation control's fixed part A (sec. 4.4.2).
-SATURATION_LUMA = (0.2915, 0.5887, 0.1113)
 
 
 class Crosstalk(Effect):
@@ -25,6 +24,7 @@ class Crosstalk(Effect):
     section = "4.2, 5.2 step 2"
     writes = "working"
     order = 40
+    calibration = "colour"
     node = NodeStage("Crosstalk", "image", "matrix")
     searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix", requires="crosstalk"),)
     params = {
@@ -46,43 +46,6 @@ class Crosstalk(Effect):
         t = np.eye(4, dtype=np.float64)
         t[:3, :3] = self.total_matrix()
         state.working = cv2.transform(state.working, t.astype(np.float32))
-
-
-def saturation_matrix(beta: float, luma=SATURATION_LUMA) -> np.ndarray:
-    """The Fire-i saturation control ``S(beta) = A + (beta / 65) (I - A)``, every row of A equal to ``luma``.
-
-    The paper prints ``A + beta B`` with B to four decimals; ``B = (I - A) / 65`` reproduces every printed entry
-    (to the last digit but one: -0.0091 against -0.0090) and makes ``beta = 65`` exactly the identity, as the
-    paper states (sec. 4.4.2).
-
-    >>> bool(np.allclose(saturation_matrix(65), np.eye(3)))
-    True
-    """
-    a = np.tile(np.asarray(luma, np.float64), (3, 1))
-    return a + (beta / 65.0) * (np.eye(3) - a)
-
-
-class Saturation(Effect):
-    """The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2).
-
-    The matrix is also recorded in the state, so blending can take it into account: the video frame already went
-    through it, and with per-channel alpha the camera mixes the channels of the light behind the graphics too.
-    """
-
-    name = "saturation"
-    section = "4.4.2"
-    writes = "rgb"
-    order = 240
-    node = NodeStage("Saturation", "rgb", "saturation")
-    params = {
-        "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
-        "luma": Param(list(SATURATION_LUMA), "vector", length=3),
-    }
-
-    def apply(self, state):
-        s = saturation_matrix(self.saturation, self.luma)
-        state.rgb = cv2.transform(state.rgb, s.astype(np.float32))
-        state.colour_matrix = s if state.colour_matrix is None else s @ state.colour_matrix
 
 
 def fit_colour_matrix(ideal: np.ndarray, measured: np.ndarray) -> np.ndarray:

@@ -269,6 +269,7 @@ class LensDistortion(Effect):
     section = "4.1, 5.2 step 1"
     writes = "working"
     order = 20
+    calibration = "lens"
     node = NodeStage("Lens Distortion", "image", "lens_distortion")
     searches = (
         Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)}, when={"model": "fov"}, captures="textured"),

@@ -25,6 +25,7 @@ class Noise(Effect):
     section = "4.3, 5.2 step 5"
     writes = "bayer"
     order = 130
+    calibration = "noise"
     node = NodeStage("Noise", "mosaic", "noise")
     random = True
     params = {

@@ -32,6 +32,7 @@ class Vignetting(Effect):
     section = "4.1, 5.2 step 5"
     writes = "bayer"
     order = 120
+    calibration = "vignetting"
     node = NodeStage("Vignetting", "mosaic", "gain")
     searches = (Search("vignetting", "radial fall-off k2 = {k2:.3f}, k4 = {k4:.3f}", bounds={"k2": (-1.0, 0.5), "k4": (-1.0, 1.0)}, start={"k2": -0.2, "k4": 0.0}, replace=True, evals=30),)
     params = {

@@ -237,7 +237,8 @@ def fit_row_noise(ctx, effect):
 
 def fit_colour_matrix(ctx, effect):
     """A crosstalk matrix from a least-squares colour matrix between the clean model and the means."""
-    from ..effects.crosstalk import fit_colour_matrix as fit_matrix, saturation_matrix
+    from ..effects.crosstalk import fit_colour_matrix as fit_matrix
+    from ..effects.saturation import saturation_matrix
 
     p = ctx.profile
     s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])

@@ -1,4 +1,5 @@
-"""In-camera sharpening and quantisation (Klein & Murray 2010, sec. 4.4.3, 5.2 step 7)."""
+"""In-camera sharpening: horizontal unsharp masking and its calibration (Klein & Murray 2010, sec. 4.4.3, 5.2
+step 7)."""
 from __future__ import annotations
 
 import numpy as np
@@ -28,6 +29,7 @@ class Sharpening(Effect):
     section = "4.4.3, 5.2 step 7"
     writes = "bayer"
     order = 170
+    calibration = "sharpening"
     node = NodeStage("Sharpening", "mosaic", "kernel")
     searches = (Search("asymmetric_sharpening", "sharpening halos are lopsided: its low-pass sits {shift:+.2f} sensels off centre", bounds={"shift": (-2.0, 2.0)}, captures="textured", requires="sharpening"),)
     params = {
@@ -49,32 +51,6 @@ class Sharpening(Effect):
     def apply(self, state):
         filter_rows(state, self.kernel())
 
-
-class Quantisation(Effect):
-    """Rounds each sensel's premultiplied value to ``bits`` of 8-bit range (sec. 4.3, 5.2 step 7).
-
-    The Fire-i's 6 bits means steps of 4 DN. As on the paper's GPU (divide by 4, add 128, store in 8 bits),
-    values keep their sign, so sharpening undershoot survives until blending; they are clipped to
-    ``[-255, 510]`` DN.
-    """
-
-    name = "quantisation"
-    section = "4.3, 5.2 step 7"
-    writes = "bayer"
-    order = 180
-    node = NodeStage("Quantisation", "mosaic", "quantisation")
-    searches = (Search("quantisation_bits", "levels come in {bits} bits", grid={"bits": (4, 5, 6, 7, 8)}, full_error=True, requires="quantisation"),)
-    params = {"bits": Param(6, int, low=1, high=16)}
-
-    def step_dn(self) -> float:
-        return 256.0 / 2 ** self.bits
-
-    def apply(self, state):
-        step = self.step_dn()
-        state.bayer = (np.round(np.clip(state.bayer, -255.0, 510.0) / step) * step).astype(np.float32)
-
-
-# --- calibration (sec. 4.4.3, Figs. 6-8) -------------------------------------------------------------------------
 
 def fit_row_filter(soft: np.ndarray, sharp: np.ndarray, taps: int = 101) -> np.ndarray:
     """The ``taps``-tap FIR filter h with ``sharp[row] = soft[row] * h`` in the least-squares sense over every
