@@ -128,6 +128,24 @@ def lk_shift(ref: np.ndarray, grad_x: np.ndarray, grad_y: np.ndarray, moving: np
     return float(d[0]), float(d[1])
 
 
+def channel_shifts(frame: np.ndarray, u: np.ndarray, v: np.ndarray, patch: int = 30) -> np.ndarray:
+    """Where red and blue sample relative to green around each point (``u``, ``v``) of an (H, W, 3) ``frame``:
+    ``(..., 4)`` ``[red_du, red_dv, blue_du, blue_dv]`` in pixels by Lucas-Kanade over ``patch`` x ``patch``
+    patches (NaN where the patch has too little texture)."""
+    import cv2
+
+    frame = np.asarray(frame, np.float32)
+    green = np.ascontiguousarray(frame[..., 1])
+    gx = cv2.Sobel(green, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+    gy = cv2.Sobel(green, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+    out = np.zeros(np.shape(u) + (4,))
+    for c, col in ((0, 0), (2, 2)):
+        moving = np.ascontiguousarray(frame[..., c])
+        for index in np.ndindex(np.shape(u)):
+            out[index + (slice(col, col + 2),)] = lk_shift(green, gx, gy, moving, (u[index], v[index]), patch)
+    return out
+
+
 def fit_chromatic_aberration(frames, cells=(24, 18), patch: int = 30, smooth_cells: float = 0.7) -> np.ndarray:
     """The lateral-colour grid from frames of a grey white-noise field (sec. 4.1).
 
@@ -143,17 +161,7 @@ def fit_chromatic_aberration(frames, cells=(24, 18), patch: int = 30, smooth_cel
     u, v = grid_points((-0.5, -0.5, w - 0.5, h - 0.5), cells)
     margin = patch / 2 + 2
     uc, vc = np.clip(u, margin, w - 1 - margin), np.clip(v, margin, h - 1 - margin)
-    shifts = np.zeros((len(frames),) + u.shape + (4,))
-    for n, frame in enumerate(frames):
-        green = np.ascontiguousarray(frame[..., 1])
-        gx = cv2.Sobel(green, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-        gy = cv2.Sobel(green, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-        for c, col in ((0, 0), (2, 2)):
-            moving = np.ascontiguousarray(frame[..., c])
-            for i in range(u.shape[0]):
-                for j in range(u.shape[1]):
-                    shifts[n, i, j, col:col + 2] = lk_shift(green, gx, gy, moving, (uc[i, j], vc[i, j]), patch)
-    grid = np.nanmean(shifts, axis=0)
+    grid = np.nanmean([channel_shifts(frame, uc, vc, patch) for frame in frames], axis=0)
     if np.isnan(grid).any():
         raise ValueError("the frames have too little texture to align the colour channels (use the noise field)")
     if smooth_cells > 0:

@@ -30,7 +30,7 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     """Every probe as (title, PNG path)."""
     from ..effects.bayer import block_correlations
     from ..effects.blur import edge_sigma, find_edges
-    from ..effects.chromatic_aberration import lk_shift
+    from ..effects.chromatic_aberration import channel_shifts
 
     stats = cmp.captures
     out = []
@@ -101,18 +101,12 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
         ax = f.add_subplot(1, 1, 1)
         for data, label, mk in ((tex.measured, "measured", "o"), (tex.simulated, "model", "x")):
             img = data.astype(np.float32).mean(0)
-            g = np.ascontiguousarray(img[..., 1])
-            gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-            gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-            h, wd = g.shape
-            rs, ds = [], []
-            for cy in np.linspace(40, h - 40, 6):
-                for cx in np.linspace(40, wd - 40, 8):
-                    d = lk_shift(g, gx, gy, np.ascontiguousarray(img[..., 0]), (cx, cy), 30)
-                    if np.isfinite(d[0]):
-                        rs.append(np.hypot(cx - wd / 2, cy - h / 2))
-                        ds.append(np.hypot(*d))
-            ax.plot(rs, ds, mk, label=f"{label}: red vs green")
+            h, wd = img.shape[:2]
+            cx, cy = np.meshgrid(np.linspace(40, wd - 40, 8), np.linspace(40, h - 40, 6))
+            red = channel_shifts(img, cx, cy)[..., :2]
+            ok = np.isfinite(red[..., 0])
+            ax.plot(np.hypot(cx - wd / 2, cy - h / 2)[ok], np.hypot(red[..., 0], red[..., 1])[ok], mk,
+                    label=f"{label}: red vs green")
         ax.set_xlabel("radius (px)")
         ax.set_ylabel("shift (px)")
         ax.set_title(f"lateral colour shift ({tex.name})", fontsize=9)
