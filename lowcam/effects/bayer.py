@@ -151,7 +151,8 @@ class Demosaic(Effect):
     order = 200
     calibration = "demosaic"
     node = NodeStage("Demosaic", "mosaic", "demosaic")
-    searches = (Search("bilinear_demosaic", "fine detail and noise correlations follow bilinear demosaicing", fixed={"method": "bilinear"}, requires="demosaic"),)
+    searches = (Search("bilinear_demosaic", "fine detail and noise correlations follow bilinear demosaicing",
+                       fixed={"method": "bilinear"}, requires="demosaic"),)
     always_runs = True
     params = {"method": Param("block", str, choices=("block", "bilinear"))}
 

@@ -119,7 +119,8 @@ class HorizontalBlur(Effect):
     order = 150
     calibration = "blur"
     node = NodeStage("Horizontal Blur", "mosaic", "kernel")
-    searches = (Search("horizontal_blur", "horizontal blur sigma {sigma:.3f} sensels (profile: {was_sigma:.3f})", bounds={"sigma": (0.0, 4.0)}, captures="textured", requires="horizontal_blur"),)
+    searches = (Search("horizontal_blur", "horizontal blur sigma {sigma:.3f} sensels (profile: {was_sigma:.3f})",
+                       bounds={"sigma": (0.0, 4.0)}, captures="textured", requires="horizontal_blur"),)
     params = {
         "sigma": Param(0.7, low=0.0, high=10.0, unit="sensels"),
         "taps": Param(7, int, low=1, high=31),
@@ -239,7 +240,8 @@ class VerticalBlur(Effect):
     section = "4.3"
     writes = "bayer"
     order = 160
-    searches = (Search("vertical_blur", "edges are soft vertically as by a {sigma:.2f}-sensel Gaussian", bounds={"sigma": (0.0, 3.0)}, captures="textured"),)
+    searches = (Search("vertical_blur", "edges are soft vertically as by a {sigma:.2f}-sensel Gaussian",
+                       bounds={"sigma": (0.0, 3.0)}, captures="textured"),)
     params = {"sigma": Param(0.0, low=0.0, high=10.0, unit="sensels"), "taps": Param(7, int, low=1, high=31)}
 
     def apply(self, state):

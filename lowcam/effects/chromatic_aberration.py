@@ -77,7 +77,12 @@ class ChromaticAberration(Effect):
     order = 70
     calibration = "chromatic_aberration"
     node = NodeStage("Chromatic Aberration", "image", baked_into="bayer_sampling")
-    searches = (Search("chromatic_aberration", "red and blue sample {red_corner_px:+.2f} and {blue_corner_px:+.2f} px outward of green at the corners", bounds={"red_corner_px": (-5.0, 5.0), "blue_corner_px": (-5.0, 5.0), "cubic": (0.0, 5.0)}, start={"red_corner_px": 0.5, "blue_corner_px": 0.3, "cubic": 1.0}, captures="textured", replace=True, evals=45),)
+    searches = (Search("chromatic_aberration",
+                       "red and blue sample {red_corner_px:+.2f} and {blue_corner_px:+.2f} px outward of green at "
+                       "the corners",
+                       bounds={"red_corner_px": (-5.0, 5.0), "blue_corner_px": (-5.0, 5.0), "cubic": (0.0, 5.0)},
+                       start={"red_corner_px": 0.5, "blue_corner_px": 0.3, "cubic": 1.0}, captures="textured",
+                       replace=True, evals=45),)
     params = {
         "texture": Param("", "path", doc="CSV grid; empty: use the radial model"),
         "red_corner_px": Param(0.0, low=-50.0, high=50.0, unit="px", doc="outward shift of red at the corner"),

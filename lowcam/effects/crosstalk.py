@@ -26,7 +26,8 @@ class Crosstalk(Effect):
     order = 40
     calibration = "colour"
     node = NodeStage("Crosstalk", "image", "matrix")
-    searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix", requires="crosstalk"),)
+    searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix",
+                       requires="crosstalk"),)
     params = {
         "matrix": Param(FIRE_I_CROSSTALK, "matrix", length=3),
         "extra_mixing": Param(0.05, low=0.0, high=1.0),

@@ -22,7 +22,8 @@ class Defocus(Effect):
     section = "2-3 (defocus; not simulated in the paper)"
     writes = "working"
     order = 90
-    searches = (Search("defocus", "everything is blurred as by a {radius_px:.2f} px defocus disc", bounds={"radius_px": (0.0, 8.0)}, captures="textured"),)
+    searches = (Search("defocus", "everything is blurred as by a {radius_px:.2f} px defocus disc",
+                       bounds={"radius_px": (0.0, 8.0)}, captures="textured"),)
     params = {"radius_px": Param(0.0, low=0.0, high=30.0, unit="px (output)")}
 
     def apply(self, state):

@@ -36,7 +36,8 @@ class PRNU(_PixelMap):
     name = "prnu"
     section = "4.3 (PRNU, after Irie et al.)"
     order = 210
-    searches = (Search("prnu", "a fixed per-pixel gain pattern, sigma {sigma:.4f}, proportional to brightness", fit="pixel_gain"),)
+    searches = (Search("prnu", "a fixed per-pixel gain pattern, sigma {sigma:.4f}, proportional to brightness",
+                       fit="pixel_gain"),)
     params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=1.0))
 
     def apply(self, state):
@@ -50,7 +51,9 @@ class DSNU(_PixelMap):
     name = "dsnu"
     section = "4.3 (fixed-pattern offsets)"
     order = 220
-    searches = (Search("dsnu", "a fixed per-pixel offset pattern, sigma {sigma_dn:.2f} DN, the same at every brightness", fit="pixel_offset"),)
+    searches = (Search("dsnu",
+                       "a fixed per-pixel offset pattern, sigma {sigma_dn:.2f} DN, the same at every brightness",
+                       fit="pixel_offset"),)
 
     def apply(self, state):
         state.rgb += self.pattern(state.rgb.shape) * state.rgb_alpha
@@ -62,7 +65,8 @@ class HotPixels(_PixelMap):
     name = "hot_pixels"
     section = "4.3 (defective pixels)"
     order = 230
-    searches = (Search("hot_pixels", "{count} pixels stay bright by {median_dn:.0f} DN or more in every capture", fit="hot_pixels"),)
+    searches = (Search("hot_pixels", "{count} pixels stay bright by {median_dn:.0f} DN or more in every capture",
+                       fit="hot_pixels"),)
     params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=255.0),
                   fraction=Param(0.0005, low=0.0, high=0.1))
 
@@ -82,7 +86,8 @@ class RowNoise(Effect):
     section = "4.3 (read-out noise)"
     writes = "bayer"
     order = 140
-    searches = (Search("row_noise", "row means of the noise vary {sigma_dn:.2f} DN more than pixel noise explains", fit="row_noise"),)
+    searches = (Search("row_noise", "row means of the noise vary {sigma_dn:.2f} DN more than pixel noise explains",
+                       fit="row_noise"),)
     random = True
     params = {"sigma_dn": Param(0.0, low=0.0, high=50.0, unit="DN")}
 

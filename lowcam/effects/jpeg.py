@@ -14,7 +14,8 @@ class Jpeg(Effect):
     section = "not in the paper"
     writes = "output"
     order = 280
-    searches = (Search("jpeg", "8x8 block artefacts as from JPEG quality {quality}", grid={"quality": (30, 50, 70, 80, 90, 95)}, refine={"quality": (-8, -4, 0, 4, 8)}),)
+    searches = (Search("jpeg", "8x8 block artefacts as from JPEG quality {quality}",
+                       grid={"quality": (30, 50, 70, 80, 90, 95)}, refine={"quality": (-8, -4, 0, 4, 8)}),)
     params = {"quality": Param(90, int, low=1, high=100)}
 
     def apply(self, state):

@@ -272,12 +272,18 @@ class LensDistortion(Effect):
     calibration = "lens"
     node = NodeStage("Lens Distortion", "image", "lens_distortion")
     searches = (
-        Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)}, when={"model": "fov"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)}, when={"model": "opencv"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)}, when={"model": "polynomial"}, captures="textured"),
-        Search("radial_distortion", "lens division_k1 = {division_k1:.4f} (was {was_division_k1:.4f})", bounds={"division_k1": (-1.0, 1.0)}, when={"model": "division"}, captures="textured"),
-        Search("radial_distortion", "lens nuke_k1 = {nuke_k1:.4f} (was {was_nuke_k1:.4f})", bounds={"nuke_k1": (-1.0, 1.0)}, when={"model": "nuke"}, captures="textured"),
-        Search("radial_distortion", "lens brown_k1 = {brown_k1:.4f} (was {was_brown_k1:.4f})", bounds={"brown_k1": (-1.0, 1.0)}, when={"model": "brown"}, captures="textured"),
+        Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)},
+               when={"model": "fov"}, captures="textured"),
+        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
+               when={"model": "opencv"}, captures="textured"),
+        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
+               when={"model": "polynomial"}, captures="textured"),
+        Search("radial_distortion", "lens division_k1 = {division_k1:.4f} (was {was_division_k1:.4f})",
+               bounds={"division_k1": (-1.0, 1.0)}, when={"model": "division"}, captures="textured"),
+        Search("radial_distortion", "lens nuke_k1 = {nuke_k1:.4f} (was {was_nuke_k1:.4f})",
+               bounds={"nuke_k1": (-1.0, 1.0)}, when={"model": "nuke"}, captures="textured"),
+        Search("radial_distortion", "lens brown_k1 = {brown_k1:.4f} (was {was_brown_k1:.4f})",
+               bounds={"brown_k1": (-1.0, 1.0)}, when={"model": "brown"}, captures="textured"),
     )
     always_runs = True
     params = {

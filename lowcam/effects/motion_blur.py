@@ -59,7 +59,8 @@ class MotionBlur(Effect):
     writes = "sampling"
     order = 50
     node = NodeStage("Motion Blur", "image", baked_into="bayer_sampling")
-    searches = (Search("motion_blur", "moving captures are smeared as by a {exposure_s:.4f} s exposure", bounds={"exposure_s": (0.0005, 0.1)}, captures="moving"),)
+    searches = (Search("motion_blur", "moving captures are smeared as by a {exposure_s:.4f} s exposure",
+                       bounds={"exposure_s": (0.0005, 0.1)}, captures="moving"),)
     params = {
         "taps": Param(16, int, low=2, high=256),
         "exposure_s": Param(0.0, low=0.0, high=10.0, unit="s", doc="0: the camera's exposure_s"),

@@ -19,7 +19,8 @@ class Quantisation(Effect):
     writes = "bayer"
     order = 180
     node = NodeStage("Quantisation", "mosaic", "quantisation")
-    searches = (Search("quantisation_bits", "levels come in {bits} bits", grid={"bits": (4, 5, 6, 7, 8)}, full_error=True, requires="quantisation"),)
+    searches = (Search("quantisation_bits", "levels come in {bits} bits", grid={"bits": (4, 5, 6, 7, 8)},
+                       full_error=True, requires="quantisation"),)
     params = {"bits": Param(6, int, low=1, high=16)}
 
     def step_dn(self) -> float:

@@ -16,7 +16,8 @@ class RollingShutter(Effect):
     section = "3 (CMOS rolling shutter; not simulated in the paper)"
     writes = "sampling"
     order = 60
-    searches = (Search("rolling_shutter", "moving captures skew as with a {readout_s:.4f} s row read-out", bounds={"readout_s": (0.0, 0.1)}, captures="moving"),)
+    searches = (Search("rolling_shutter", "moving captures skew as with a {readout_s:.4f} s row read-out",
+                       bounds={"readout_s": (0.0, 0.1)}, captures="moving"),)
     params = {"readout_s": Param(0.0, low=0.0, high=1.0, unit="s", doc="time from first to last row")}
 
     def apply(self, state):

@@ -15,7 +15,9 @@ class VeilingGlare(Effect):
     section = "3 (flare)"
     writes = "working"
     order = 100
-    searches = (Search("veiling_glare", "a haze of {strength:.3f} of the light, spread over {radius_px:.0f} px", bounds={"strength": (0.0, 0.5), "radius_px": (5.0, 300.0)}, start={"strength": 0.05, "radius_px": 40.0}, captures="textured", evals=30),)
+    searches = (Search("veiling_glare", "a haze of {strength:.3f} of the light, spread over {radius_px:.0f} px",
+                       bounds={"strength": (0.0, 0.5), "radius_px": (5.0, 300.0)},
+                       start={"strength": 0.05, "radius_px": 40.0}, captures="textured", evals=30),)
     params = {"strength": Param(0.0, low=0.0, high=1.0), "radius_px": Param(40.0, low=1.0, high=500.0)}
 
     def apply(self, state):

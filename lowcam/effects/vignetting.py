@@ -34,7 +34,9 @@ class Vignetting(Effect):
     order = 120
     calibration = "vignetting"
     node = NodeStage("Vignetting", "mosaic", "gain")
-    searches = (Search("vignetting", "radial fall-off k2 = {k2:.3f}, k4 = {k4:.3f}", bounds={"k2": (-1.0, 0.5), "k4": (-1.0, 1.0)}, start={"k2": -0.2, "k4": 0.0}, replace=True, evals=30),)
+    searches = (Search("vignetting", "radial fall-off k2 = {k2:.3f}, k4 = {k4:.3f}",
+                       bounds={"k2": (-1.0, 0.5), "k4": (-1.0, 1.0)}, start={"k2": -0.2, "k4": 0.0}, replace=True,
+                       evals=30),)
     params = {
         "texture": Param("", "path", doc="greyscale PNG gain map; empty: radial model"),
         "k2": Param(0.0, low=-10.0, high=10.0),

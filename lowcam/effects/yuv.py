@@ -63,7 +63,8 @@ class ChromaSubsampling(Effect):
     writes = "output"
     order = 270
     node = NodeStage("Chroma Subsampling", "yuv", "chroma_subsampling")
-    searches = (Search("chroma_subsampling", "colour is shared by groups of {group} pixels horizontally", grid={"group": (2, 4, 8)}, requires="yuv_blend"),)
+    searches = (Search("chroma_subsampling", "colour is shared by groups of {group} pixels horizontally",
+                       grid={"group": (2, 4, 8)}, requires="yuv_blend"),)
     params = {"group": Param(4, int, low=1, high=64)}
 
     def apply(self, state):
