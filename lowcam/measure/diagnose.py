@@ -137,7 +137,7 @@ def fit_candidate(ctx, name: str):
         if search.fixed and have is not None and have.enabled and all(
                 getattr(have, k) == v for k, v in search.fixed.items()):
             continue
-        fitted = CLOSED_FORM[search.fit](ctx, cls.name) if search.fit else _fit_search(ctx, cls.name, search)
+        fitted = CLOSED_FORM[search.fit](ctx, cls.name) if search.fit else _fit_search(ctx, cls, search)
         if fitted is None:
             continue
         profile, params, shown = fitted
@@ -146,9 +146,9 @@ def fit_candidate(ctx, name: str):
     return None
 
 
-def _fit_search(ctx, effect: str, search):
+def _fit_search(ctx, cls, search):
     """Grid values first (with refinement steps), then a bounded search over the continuous parameters."""
-    p = ctx.profile
+    p, effect = ctx.profile, cls.name
     subset = {"all": None, "textured": ctx.textured, "moving": ctx.moving_ones}[search.captures]
     values = dict(search.fixed)
 
@@ -158,7 +158,7 @@ def _fit_search(ctx, effect: str, search):
     for key, options in search.grid.items():
         best = _grid(ctx, lambda v: build({key: v}), list(options), search.full_error)
         if key in search.refine:
-            low, high = _param_range(p, effect, key)
+            low, high = cls.params[key].low, cls.params[key].high
             best = _grid(ctx, lambda v: build({key: v}), sorted({min(high, max(low, best + d))
                                                                  for d in search.refine[key]}), search.full_error)
         values[key] = best
@@ -168,13 +168,6 @@ def _fit_search(ctx, effect: str, search):
         x = _search(ctx, lambda x: build(dict(zip(keys, map(float, x)))), bounds, x0, search.evals, subset)
         values.update(zip(keys, map(float, x)))
     return build({}), values, values
-
-
-def _param_range(profile, effect: str, key: str):
-    from ..effects import effect_class
-
-    spec = effect_class(effect).params[key]
-    return spec.low, spec.high
 
 
 def _pixel_maps(ctx):
