@@ -1,5 +1,11 @@
 """Render handlers: with ``scene.lowcam.enabled``, every frame Blender writes (``blender -b scene.blend -a``) gets
-its degraded composite written to ``scene.lowcam.output`` with no extra step."""
+its degraded composite written to ``scene.lowcam.output`` with no extra step.
+
+Contents
+--------
+- :func:`on_render_init`: render_init handler: sets the scene up (render camera, passes) when Simulate Camera is on
+- :func:`on_render_write`: render_write handler: degrades every frame Blender writes
+"""
 from __future__ import annotations
 
 import sys

@@ -1,4 +1,10 @@
-"""Camera motion from a Blender scene: the angular velocity over each frame's shutter interval."""
+"""Camera motion from a Blender scene: the angular velocity over each frame's shutter interval.
+
+Contents
+--------
+- :func:`camera_motion`: Per-frame motion of ``camera`` (e.g. a solved tracking camera) from ``matrix_world`` at
+  sub-frames
+"""
 from __future__ import annotations
 
 import math

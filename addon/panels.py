@@ -1,4 +1,11 @@
-"""Panels: Output Properties > Lowcam Camera, and the Compositor sidebar's Lowcam tab."""
+"""Panels: Output Properties > Lowcam Camera, and the Compositor sidebar's Lowcam tab.
+
+Contents
+--------
+- :func:`draw_settings`: the settings both panels show
+- :class:`LOWCAM_PT_output`: Output Properties > Lowcam Camera
+- :class:`LOWCAM_PT_compositor`: the compositor sidebar's Lowcam tab
+"""
 from __future__ import annotations
 
 import bpy

@@ -1,4 +1,9 @@
-"""Scene settings of the add-on (``scene.lowcam``)."""
+"""Scene settings of the add-on (``scene.lowcam``).
+
+Contents
+--------
+- :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``)
+"""
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty

@@ -1,4 +1,14 @@
-"""``lowcam render``: render frames of a .blend with the bpy module and write their degraded composites."""
+"""``lowcam render``: render frames of a .blend with the bpy module and write their degraded composites.
+
+Contents
+--------
+- :func:`open_scene`: open a .blend and return its scene (a clear error when it cannot)
+- :func:`write_motion`: ``lowcam motion``: each frame's camera motion from ``blend``'s scene (its motion source,
+  e.g. the solved camera) as a motion.json for ``lowcam batch`` on renders made elsewhere
+- :func:`render_frame`: Render ``frame`` to ``render_path`` (multilayer EXR) and write its degraded composite
+- :func:`render`: Render and degrade ``frame_list`` of ``blend``'s scene; frames whose composite exists are skipped
+  unless ``force`` (so an interrupted job resumes)
+"""
 from __future__ import annotations
 
 import tempfile

@@ -7,6 +7,19 @@ with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``.
 Every output is written atomically, so a frame file that exists is complete; a rerun skips those frames unless
 ``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish. Noise is
 seeded per frame, so a serial run, a Dask run and a run split into chunks give the same bytes.
+
+Contents
+--------
+- :func:`expand_pattern`: ``renders/####.exr`` or ``renders/%04d.exr`` with the frame number filled in
+- :func:`parse_frames`: ``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers
+- :class:`Shot`: Everything one frame's job needs; picklable, so Dask can ship it to workers
+- :class:`FrameResult`: one frame's outcome in a shot
+- :func:`read_video_frame`: Frame ``index`` (0-based) of a video file as uint8 RGB
+- :func:`process_frame`: Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead
+- :func:`run_shot`: Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers``
+  processes, or on the Dask cluster at ``scheduler`` (``tcp://host:port``)
+- :func:`local_cluster`: A Dask LocalCluster of ``workers`` single-threaded processes on loopback
+- :func:`summary`: one line on a finished shot
 """
 from __future__ import annotations
 

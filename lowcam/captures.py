@@ -19,6 +19,25 @@ Targets
 -   :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description.
 -   :func:`detect_target`: the target's object and image points in one frame.
 -   :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it.
+
+Contents
+--------
+- :func:`expand_paths`: Each pattern's matches, sorted; a pattern that matches nothing stays as given (reading it
+  names it)
+- :func:`load_frames`: Read capture frames (PNG/JPEG, RGB uint8); every problem names the frame
+- :func:`refuse_saturated`: Flat fields and noise stacks must not clip: name the first frame with over ``fraction``
+  pixels at 255
+- :func:`read_patches_csv`: Patch colours: header ``ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b``
+  (ideal in render units 0-1, measured in DN 0-255), one row per patch
+- :func:`srgb_to_linear`: sRGB code values (0-255) to linear light (0-1)
+- :func:`charuco_board`: The chart's ChArUco board (OpenCV ``aruco``, :data:`DICTIONARY`); sizes in metres on the
+  board
+- :func:`parse_target`: ``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's
+  board)
+- :func:`detect_target`: (object points (N, 3) in metres, image points (N, 2) in pixels) of the target in one frame,
+  or None
+- :func:`chart_patch_colours`: Find the chart (its ChArUco board) in each frame and read the mean colour of every
+  colour patch and grey step
 """
 from __future__ import annotations
 

@@ -1,4 +1,24 @@
-"""The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2."""
+"""The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2.
+
+Contents
+--------
+- :func:`vector3`
+- :func:`cmd_apply`: ``lowcam apply``
+- :func:`save_stages`: Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)
+- :func:`cmd_stages`: ``lowcam stages``
+- :func:`cmd_profiles`: ``lowcam profiles``
+- :func:`cmd_batch`: ``lowcam batch``
+- :func:`cmd_chart`: ``lowcam chart``
+- :func:`cmd_calibrate`: ``lowcam calibrate``, through :data:`lowcam.calibrate.CALIBRATIONS`
+- :func:`cmd_compare`: ``lowcam compare``
+- :func:`cmd_diagnose`: ``lowcam diagnose``
+- :func:`cmd_synth`: ``lowcam synth``
+- :func:`add_plugin_commands`: Commands other packages add through the ``lowcam.commands`` entry-point group: each
+  entry is a function that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``,
+  ``motion`` and ``node-asset``; see ``addon/commands.py``)
+- :func:`build_parser`: the argument parser of every sub-command
+- :func:`main`: the entry point: one line on stderr and exit status 2 for a :class:`~lowcam.errors.LowcamError`
+"""
 from __future__ import annotations
 
 import argparse

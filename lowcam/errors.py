@@ -2,6 +2,11 @@
 
 Each message is a single line that names the file (or profile key) and the problem, so the CLI can print it
 as it is, without a traceback.
+
+Contents
+--------
+- :class:`LowcamError`: Bad input or configuration: a missing or corrupt file, a wrong size, an unknown profile key
+- :class:`ProfileError`: A profile that does not validate: unknown key, wrong type, value out of range
 """
 
 

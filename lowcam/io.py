@@ -3,6 +3,24 @@
 Every problem is a one-line :class:`~lowcam.errors.LowcamError` naming the file. Every write is atomic: the data
 goes to a temporary file in the same folder, which is then renamed over the target, so a crash never leaves a
 half-written frame under the final name.
+
+Contents
+--------
+- :func:`atomic_write_bytes`: Write ``data`` to ``path`` through a temporary file and an atomic rename
+- :func:`read_toml`: A TOML file as a dict; a missing or malformed file is a one-line error naming it
+- :func:`read_exr`: All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'``
+  or ``'ViewLayer.Combined'`` come as (H, W, C) arrays)
+- :func:`read_render`: Read a render as premultiplied linear RGBA float32 (H, W, 4)
+- :func:`check_render`: Validate an in-memory render: (H, W, 4), finite, alpha in [0, 1]
+- :func:`read_image`: Read a PNG/JPEG as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)
+- :func:`read_plate`: Read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
+- :func:`check_plate`: Validate an in-memory plate: uint8, the camera's size, RGB (or one channel for a raw-Bayer
+  camera)
+- :func:`read_gain_map`: A greyscale PNG gain texture, scaled so the brightest texel is 1
+- :func:`encode_png`: PNG bytes of an RGB(A) or greyscale uint8/uint16 image
+- :func:`write_png`: Write an RGB(A) or greyscale uint8/uint16 image as PNG, atomically
+- :func:`write_exr`: Write float RGBA (H, W, 4) as a single-layer OpenEXR file, atomically
+- :func:`write_image`: Write by extension: ``.exr`` takes float RGBA, anything else is PNG
 """
 from __future__ import annotations
 

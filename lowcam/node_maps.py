@@ -16,6 +16,27 @@ Which effects have a node, and how it is built, each effect declares (``Effect.n
 :class:`lowcam.effects.NodeStage`); the generic recipes (``kernel``, ``gain``, ``matrix``) are baked here from
 the effect's own ``kernel()``, ``gain_planes()`` and ``total_matrix()``, so a plug-in effect that declares one
 gets a node without changes here. Pure numpy: testable without Blender.
+
+Contents
+--------
+- :func:`node_stages`: Effect name -> :class:`~lowcam.effects.NodeStage` of every known effect that has a compositor
+  node, in chain order
+- :func:`stmap`: An (rows, cols, 4) Map UV image that reads pixel (x, y) (top-left origin, centres at integers) of a
+  ``width`` x ``height`` image: ``u = (x + 0.5) / width``, ``v = 1 - (y + 0.5) / height``, mask 1
+- :func:`mosaic_shape`: (rows, cols) of the sensel mosaic, borders included
+- :func:`planes_to_mosaic`: Interleave (4, hb, wb, ...) sensel planes into the (2 hb, 2 wb, ...) mosaic, borders
+  included: plane (i, j) of a channel with CFA offset (dy, dx) sits at mosaic pixel (2 i + dy, 2 j + dx)
+- :func:`mosaic_kernel`: A row filter over one sensel plane as a (1, 2 taps - 1) filter over the mosaic (zeros
+  between)
+- :func:`gaussian_blur_kernel`: The 2-D kernel ``cv2.GaussianBlur(image, (0, 0), sigma)`` uses on float32 images
+- :class:`CameraBake`: Everything the node group reads, for one profile, render size and camera motion
+- :func:`bake`: Compute the images and values of every stage of ``profile`` for a render of ``render_shape`` (rows,
+  cols)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

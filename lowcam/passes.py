@@ -11,6 +11,14 @@ Both are render-sized arrays in the render's pixel grid (top row first), like th
     large where nothing was rendered.
 
 Blender writes them as the Vector and Depth passes (:func:`from_blender`).
+
+Contents
+--------
+- :class:`RenderPasses`: a render's image velocity (px/s) and depth (m), validated
+- :func:`check_passes`: Validate ``passes`` against a render of ``render_shape`` (rows, cols, ...); returns them as
+  float32
+- :func:`from_blender`: Passes from Blender's Vector pass (H, W, 4) and Depth pass (H, W, scene units of
+  ``metres_per_unit``) at ``fps`` frames per second
 """
 from __future__ import annotations
 

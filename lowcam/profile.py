@@ -17,6 +17,23 @@ Layout (see ``profiles/fire-i.toml`` for a complete, commented example)::
 
 Everything is validated on load: an unknown key, a wrong type or a value out of range is a one-line
 :class:`~lowcam.errors.ProfileError` naming the file and the key.
+
+Contents
+--------
+- :class:`CameraSpec`: The ``[camera]`` table: the delivered frame and global settings
+- :class:`Profile`: A validated camera profile: :class:`CameraSpec` plus an ordered list of
+  :class:`~lowcam.effects.Effect`
+- :func:`profile_search_path`: Folders searched for profiles by name: ``$LOWCAM_PROFILE_PATH``
+  (os.pathsep-separated), then the bundled
+- :func:`list_profiles`: (name, path) of every profile on the search path
+- :func:`find_profile`: the file of a bundled name or a path (a clear error naming the known ones)
+- :func:`load_profile`: Load and validate a profile by bundled name (``"fire-i"``) or path (``"my-camera.toml"``)
+- :func:`profile_from_dict`: a validated :class:`Profile` from parsed TOML
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

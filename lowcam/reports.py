@@ -9,6 +9,16 @@ The pictures and pages that calibration (:func:`lowcam.calibrate.write_report`) 
 -   :func:`write_page`: ``index.html`` in a folder: the page scaffolding (title, style, heading) around sections.
 -   :func:`image`: an ``<img>`` of a PNG, copied into the page's folder when it lies elsewhere.
 -   :func:`numbers_block`: numbers as indented JSON in a ``<pre>``, optionally folded in a ``<details>``.
+
+Contents
+--------
+- :func:`figure`: Call ``draw(fig)`` on a new ``size`` (inches, 100 dpi) figure and save it as the PNG ``path``
+- :func:`image`: An ``<img>`` of the PNG ``path`` for a page in ``folder``, copying the file there if it lies
+  elsewhere
+- :func:`numbers_block`: ``numbers`` (NumPy values allowed) as indented JSON in a ``<pre>``; folded under
+  ``summary`` if given
+- :func:`write_page`: Write ``folder/index.html``: a page titled ``title`` with the heading ``heading`` over
+  ``sections`` (HTML fragments, in order); returns its path
 """
 from __future__ import annotations
 

@@ -1,5 +1,19 @@
 """Degrade one frame written by Blender: a multilayer EXR with the graphics' view layer (and optionally an overlay
 layer of excluded objects), simulated with the engine and blended onto the plate. No bpy here; ``addon/`` calls it.
+
+Contents
+--------
+- :func:`read_layers`: (render, overlay) premultiplied RGBA from a Blender multilayer EXR: view layer ``layer``'s
+  Combined pass and, when asked, ``overlay_layer``'s
+- :func:`read_passes`: View layer ``layer``'s Vector and Depth passes (those present) as :class:`RenderPasses`, for
+  a scene at ``fps`` whose length unit is ``metres_per_unit``; ``needs`` names the passes that must be there
+  (``"Vector"``, ``"Depth"``)
+- :func:`overlay_in_frame`: Resample a render-sized ``overlay`` into the output frame through the lens geometry only
+  (bilinear), so excluded objects land where the camera sees them but get no blur, noise or colour processing
+- :func:`over_frame`: Premultiplied ``overlay`` (frame-sized, linear, 1.0 = 255 DN like renders) over an 8-bit
+  ``frame``
+- :func:`degrade_frame`: Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite
+  (atomically)
 """
 from __future__ import annotations
 

@@ -3,6 +3,10 @@ stage groups and packed maps, for the Asset Browser or File > Append in any Blen
 
 The maps are baked for one profile, render size and camera rotation (:func:`lowcam.node_maps.bake`); the add-on's
 Lowcam Camera node rebakes them when those change, the asset cannot.
+
+Contents
+--------
+- :func:`write_asset`: Write the asset .blend to ``path`` (atomically) and return it
 """
 from __future__ import annotations
 

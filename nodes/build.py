@@ -10,6 +10,30 @@ Which effects have a node, its label, what its sockets carry and its recipe are 
 
 Units inside the group: the working image is the render (premultiplied, linear); from Bayer sampling on values
 are DN / 255; the group's output is linear light that the Standard view transform turns back into those codes.
+
+Contents
+--------
+- :func:`stage_label`: a stage's node label (the effect's declaration)
+- :func:`stage_carries`: What a stage's input sockets carry: "image" RGBA, "mosaic" (R value, G alpha), "rgb" (+
+  "Alpha"), "yuv"
+- :func:`image_from_array`: A float, non-colour Blender image holding ``array`` ((rows, cols), (rows, cols, 4); top
+  row first), packed into the .blend so the group travels as an asset
+- :class:`Tree`: Small helpers over a compositor node tree: each returns an output socket
+- :func:`stage_builder`: The recipe that builds ``stage``: (tree, input sockets, bake, image namer) -> output
+  sockets
+- :func:`stage_sockets`: (inputs, outputs) of a stage's group as (name, socket type) pairs
+- :func:`group_name`: the node group name of a stage
+- :func:`build_stage_group`: The node group of one stage (named ``name``, default "Lowcam <Stage>"), its images
+  ``<name>: <what>``
+- :func:`group_stages`: The stages of the group in order: the profile's, less those baked into another's maps, plus
+  the plate blend
+- :func:`build_camera_group`: Build "Lowcam Camera" from a :func:`lowcam.node_maps.bake`: inputs Image (the render,
+  premultiplied), Plate, Seed, Noise; output Image
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

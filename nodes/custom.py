@@ -3,6 +3,14 @@
 "Lowcam Camera" holds the whole chain; one node per stage holds that stage alone. Each node's properties mirror
 its profile parameters (and the profile it starts from); changing one rebakes the maps and rebuilds the node's
 inner group from the engine. Python nodes that compute pixels would crash the compositor; these only contain.
+
+Contents
+--------
+- :class:`LowcamNodeBase`: what the camera node and the stage nodes share
+- :class:`LowcamStageNode`: one stage of the chain as a node
+- :class:`LowcamCameraNode`: The whole camera: render (premultiplied) and plate in, the camera's frame out
+- :class:`NODE_MT_lowcam_add`: the Add > Lowcam menu
+- :func:`draw_add_menu`: adds the Lowcam menu to the compositor's Add menu
 """
 
 import bpy

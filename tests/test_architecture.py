@@ -136,3 +136,16 @@ def test_a_plugin_effect_is_a_diagnosis_candidate_and_is_found(tmp_path, fire_i,
     d = diagnose(load_set(folder, fire_i), fire_i, only=["haze", "dsnu", "tone_curve"], workdir=tmp_path / "w")
     assert d.candidates[0].effect == "haze", [(c.effect, c.score) for c in d.candidates]
     assert abs(d.candidates[0].params["veil_dn"] - 12.0) < 1.0 and d.candidates[0].error_after <= 1.1
+
+
+def test_every_engine_module_says_what_it_holds_and_effects_cite_the_paper():
+    for path in sorted(ENGINE.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        doc = ast.get_docstring(tree) or ""
+        public = [n.name for n in tree.body if isinstance(n, (ast.ClassDef, ast.FunctionDef))
+                  and not n.name.startswith("_")]
+        assert doc, f"{path} has no module docstring"
+        missing = [n for n in public if f"`{n}`" not in doc]
+        assert not missing, f"{path.name}'s docstring does not list {missing}"
+        if path.parent.name == "effects" and path.name not in ("__init__.py", "base.py"):
+            assert "[Klein2010]" in doc or "References" in doc, f"{path.name} cites nothing"

@@ -8,6 +8,44 @@ an HTML page.
 :data:`CALIBRATIONS` is the one table of calibrations: the ``lowcam calibrate`` sub-commands and the manifest's
 sections (:func:`run_manifest`) are made from it. Effects name the calibration that measures them
 (``Effect.calibration``); :func:`calibration_listing` gathers those declarations.
+
+Contents
+--------
+- :class:`Texture`: A fitted texture for the effect parameter ``param`` (a path): :func:`apply_to_profile` saves
+  ``data`` as ``file`` beside the profile with ``write(path, data, camera)`` and points the parameter at it
+- :class:`Calibration`: One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect,
+  ``textures`` per effect (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths)
+- :func:`calibrate_lens`: FOV and Brown-Conrady lenses from chessboard or ChArUco views (sec. 4.1)
+- :func:`calibrate_vignetting`: the vignetting texture from flat fields (sec. 4.1)
+- :func:`calibrate_chromatic_aberration`: the lateral-colour grid from frames of the noise field (sec. 4.1)
+- :func:`calibrate_noise`: both noise laws from a stack of frames of a static scene (sec. 4.3)
+- :func:`calibrate_demosaic`: which demosaicing, from noise covariances of a static stack (sec. 4.4.1)
+- :func:`calibrate_blur`: horizontal and vertical blur from slanted edges (sec. 4.3)
+- :func:`calibrate_sharpening`: Sharpening from two captures of one static scene, at sharpness 0 and at
+  ``sharpness`` (sec. 4.4.3)
+- :func:`calibrate_colour`: Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255),
+  ``measured_rgb`` the camera's mean patch colours (DN) at saturation setting ``saturation``
+- :func:`apply_to_profile`: A copy of ``profile`` with every calibration's values, textures written beside
+  ``out_path``
+- :func:`write_report`: An HTML page with every calibration's summary, numbers and plots
+- :class:`Option`: One input of a calibration: a key of its manifest section and an argument of its ``lowcam
+  calibrate`` sub-command (``--key``, or a positional argument)
+- :class:`Calibrator`: One calibration, as ``lowcam calibrate <name>`` and a manifest's ``[name]`` section run it
+- :func:`calibrator`: The calibration called ``name`` (or one of its aliases, e.g. ``"ca"``)
+- :func:`calibration_listing`: Which effects each calibration fits: every name of :data:`CALIBRATIONS` (in order)
+  with the effects that declare it as their ``calibration`` (:func:`lowcam.effects.known_effects`, plug-ins loaded
+  so far included)
+- :func:`run_manifest`: Run every calibration that the manifest lists; returns (base profile, calibrations)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
+- [Lucas1981] B. D. Lucas and T. Kanade, "An Iterative Image Registration Technique with an Application to Stereo
+  Vision", IJCAI 1981, 674-679.
+- [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
+  (photon transfer).
 """
 from __future__ import annotations
 

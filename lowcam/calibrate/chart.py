@@ -7,6 +7,16 @@ travels with the chart:
 - a grey white-noise field: chromatic aberration and demosaic identification;
 - slanted squares (5 degrees) in several regions and orientations: edge spread, MTF, sharpening;
 - grey steps and colour patches: tone curve, noise against brightness, colour matrix.
+
+Contents
+--------
+- :func:`make_chart`: The chart as a greyscale-or-colour uint8 RGB raster at ``dpi``, and its layout description
+- :func:`write_chart`: Write the chart (``.pdf`` or ``.png``) and its layout ``<name>.json`` beside it
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

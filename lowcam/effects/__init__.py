@@ -4,6 +4,19 @@ Each effect declares itself (:class:`Effect`): its place in the chain (``order``
 (``node``), how diagnosis searches it (``searches``) and which calibration measures it (``calibration``). The
 chain order, the node stages, the diagnosis candidates and the calibration listing are derived from these
 declarations (:func:`known_effects`), for bundled effects and plug-ins (``"module:Class"``) alike.
+
+Contents
+--------
+- :func:`known_effects`: Every effect class known in this process, bundled and plug-in, in chain order
+  (``Effect.order``; those without an order last)
+- :func:`canonical_order`: The names of :func:`known_effects` in the order they stand in a complete chain
+- :func:`effect_class`: The class for a profile ``type``: a bundled name, or ``"package.module:ClassName"`` for a
+  plug-in
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

@@ -18,6 +18,20 @@ Writing your own effect (a plug-in)::
             state.bayer += self.veil_dn * state.bayer_alpha
 
 and in a profile: ``[[effect]]`` / ``type = "mypackage.haze:Haze"`` / ``veil_dn = 3.0``.
+
+Contents
+--------
+- :class:`Param`: Specification of one effect parameter
+- :class:`ParamSet`: A named, validated set of :class:`Param` values (an effect, or the profile's ``[camera]``
+  table)
+- :class:`NodeStage`: How the compositor node group builds an effect (the Blender side reads this; no bpy here)
+- :class:`Search`: How diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this)
+- :class:`Effect`: Base class of every stage
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

@@ -1,4 +1,29 @@
-"""Bayer sampling and demosaicing (Klein & Murray 2010, sec. 4.4.1, 5.2 steps 5 and 8, sec. 7)."""
+"""Bayer sampling and demosaicing (Klein & Murray 2010, sec. 4.4.1, 5.2 steps 5 and 8, sec. 7).
+
+Contents
+--------
+- :class:`BayerSampling`: Samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
+- :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5): red and blue are
+  nearest-neighbour blocks, green is the mean of the Gr and Gb blocks
+- :func:`mosaic`: Interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
+- :func:`unmosaic`: Split a Bayer frame (H, W), or an RGB frame (H, W, 3) sampled through the mosaic, into four
+  planes with replicated borders
+- :func:`demosaic_bilinear`: Bilinear demosaicing of the four sensel planes (the raw-Bayer pipeline, sec. 7);
+  returns (H, W, 3)
+- :class:`Demosaic`: Reconstructs full-colour premultiplied RGB and per-channel alpha from the sensel planes
+- :func:`block_correlations`: 16x16 correlation between the pixels of aligned 4x4 blocks (the paper's Fig. 4), from
+  the temporal noise of a stack (N, H, W, 3) of frames of a static scene, over all blocks and frames
+- :func:`predicted_correlations`: The 4x4-block correlations that independent sensel noise produces through a
+  demosaicing ``method``
+- :func:`identify_demosaic`: Score each method of :data:`DEMOSAIC_METHODS` against the measured noise correlations
+  of a stack of frames of a static scene; the lowest error (mean absolute difference of the off-diagonal
+  correlations over the three channels) wins
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

@@ -1,4 +1,29 @@
-"""Lateral chromatic aberration: per-channel sampling offsets (Klein & Murray 2010, sec. 4.1, 5.2 step 5)."""
+"""Lateral chromatic aberration: per-channel sampling offsets (Klein & Murray 2010, sec. 4.1, 5.2 step 5).
+
+Contents
+--------
+- :func:`read_ca_grid`: Read a chromatic-aberration grid CSV
+- :func:`write_ca_grid`: Write ``grid`` (rows, cols, 4) for an output frame of ``width`` x ``height`` in
+  :func:`read_ca_grid`'s format
+- :func:`radial_ca_grid`: A lateral-colour grid from a radial model: displacement ``s (rho + cubic rho^3) / (1 +
+  cubic)`` outward, ``rho`` = radius / half-diagonal, ``s`` = ``red_px`` or ``blue_px`` (the displacement at the
+  corner)
+- :class:`ChromaticAberration`: Red and blue sensels sample the image through their own offset grids; green is the
+  reference
+- :func:`lk_shift`: Lucas-Kanade translation ``d`` such that ``moving(p) ~ ref(p + d)`` over a ``size`` x ``size``
+  patch at ``centre`` (Gauss-Newton on bilinearly resampled ``ref``, sub-pixel)
+- :func:`channel_shifts`: Where red and blue sample relative to green around each point (``u``, ``v``) of an (H, W,
+  3) ``frame``: ``(..., 4)`` ``[red_du, red_dv, blue_du, blue_dv]`` in pixels by Lucas-Kanade over ``patch`` x
+  ``patch`` patches (NaN where the patch has too little texture)
+- :func:`fit_chromatic_aberration`: The lateral-colour grid from frames of a grey white-noise field (sec. 4.1)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Lucas1981] B. D. Lucas and T. Kanade, "An Iterative Image Registration Technique with an Application to Stereo
+  Vision", IJCAI 1981, 674-679.
+"""
 from __future__ import annotations
 
 import csv

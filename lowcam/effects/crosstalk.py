@@ -1,5 +1,19 @@
 """Colour crosstalk of the Bayer filters, and its calibration from a colour chart (Klein & Murray 2010, sec. 4.2,
-5.2 step 2)."""
+5.2 step 2).
+
+Contents
+--------
+- :class:`Crosstalk`: Mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
+- :func:`fit_colour_matrix`: The 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches; both (N, 3),
+  same units)
+- :func:`crosstalk_from_colour_matrix`: Undo the camera's saturation setting: the sensor's own mixing ``S(beta)^-1
+  M``, rows renormalised to 1 (sec. 4.2, 4.4.2)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

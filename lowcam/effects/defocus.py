@@ -1,4 +1,15 @@
-"""Defocus: a uniform disc blur of the optical image (paper sec. 2 and 3 set it aside for fixed-focus lenses)."""
+"""Defocus: a uniform disc blur of the optical image (paper sec. 2 and 3 set it aside for fixed-focus lenses).
+
+Contents
+--------
+- :func:`disc_kernel`: A normalised, anti-aliased pillbox of ``radius_px``
+- :class:`Defocus`: Out-of-focus blur: the working image convolved with a disc of ``radius_px`` output pixels
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

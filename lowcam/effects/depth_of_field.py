@@ -3,6 +3,18 @@ paper, whose fixed-focus camera is sharp at its working distances; Fig. 15 lists
 
 A thin lens with entrance pupil ``A`` focused at ``s`` images a point at depth ``z`` as a disc subtending
 ``A |1/z - 1/s|`` radians, so its radius in render pixels is ``0.5 A |1/z - 1/s| f_px``.
+
+Contents
+--------
+- :func:`blur_radius_px`: Radius (px) of the blur disc of points at ``depth_m``: ``0.5 A |1/z - 1/s| f_px``
+- :func:`scatter_discs`: Spread each pixel of premultiplied ``image`` over a disc of its own ``radius_px`` (H, W)
+- :class:`DepthOfField`: Defocus blur that grows with the distance from the focus plane (needs a depth pass:
+  Blender's Z pass through the add-on or ``lowcam render``)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

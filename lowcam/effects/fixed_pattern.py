@@ -1,5 +1,22 @@
 """Fixed-pattern sensor defects: gain (PRNU), offset (DSNU) and hot pixels; row noise (Irie et al., cited in the
-paper's sec. 4.3, which found PRNU imperceptible on the Fire-i indoors)."""
+paper's sec. 4.3, which found PRNU imperceptible on the Fire-i indoors).
+
+Contents
+--------
+- :class:`PRNU`: Photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)
+- :class:`DSNU`: Dark-signal non-uniformity: each pixel adds a fixed offset (DN; ``strength``: its sigma), where the
+  graphics cover it
+- :class:`HotPixels`: A ``fraction`` of pixels with a large fixed offset (``strength`` DN, all channels)
+- :class:`RowNoise`: Temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``, all
+  sensels of the row), seeded per frame like the pixel noise
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Irie2008] K. Irie, A. E. McKinnon, K. Unsworth and I. M. Woodhead, "A Model for Measurement of Noise in CCD
+  Digital-Video Cameras", Measurement Science and Technology 19(4), 2008.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,15 @@
-"""Half-sampling of the distorted image (Klein & Murray 2010, sec. 5.2 step 2)."""
+"""Half-sampling of the distorted image (Klein & Murray 2010, sec. 5.2 step 2).
+
+Contents
+--------
+- :class:`HalfSampling`: 2x2 box down-sampling of the supersampled working image, slightly enlarged to avoid
+  aliasing
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

@@ -1,4 +1,14 @@
-"""JPEG compression of the delivered frame (a phone's or webcam's MJPEG stream; not in the paper)."""
+"""JPEG compression of the delivered frame (a phone's or webcam's MJPEG stream; not in the paper).
+
+Contents
+--------
+- :class:`Jpeg`: Encodes the final 8-bit frame as JPEG at ``quality`` and decodes it again (OpenCV's libjpeg, 4:2:0)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -18,6 +18,30 @@ Models
     ``pixel_aspect`` and ``k1, k2, k3`` / ``division_k1, division_k2`` / ``nuke_k1, nuke_k2`` /
     ``brown_k1..brown_k4, brown_p1, brown_p2``. They are evaluated in Blender's pixel frame (origin bottom-left,
     y up), so a camera solved in Blender is used as it is.
+
+Contents
+--------
+- :class:`LensModel`: Mapping between the pinhole camera plane and output pixels
+- :class:`PinholeLens`: No distortion: ``u = cx + fx x``
+- :class:`FovLens`: Devernay & Faugeras' FOV model with PTAM's normalised parameters (see the module docstring)
+- :class:`OpenCVLens`: Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2
+- :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame (origin bottom-left, y
+  up)
+- :class:`LensDistortion`: Warps the ideal pinhole render through the lens into the supersampled working grid (sec.
+  5.2 step 1)
+- :class:`LensFit`: Result of :func:`fit_lens`: the fitted :class:`LensDistortion` parameters and the reprojection
+  errors
+- :func:`fit_lens`: Fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Devernay2001] F. Devernay and O. Faugeras, "Straight lines have to be straight", Machine Vision and Applications
+  13(1), 14-24, 2001.
+- [Klein2007] G. Klein and D. Murray, "Parallel Tracking and Mapping for Small AR Workspaces", ISMAR 2007 (PTAM).
+- [Brown1966] D. C. Brown, "Decentering Distortion of Lenses", Photogrammetric Engineering 32(3), 444-462, 1966.
+- [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
 """
 from __future__ import annotations
 

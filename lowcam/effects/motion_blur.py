@@ -1,4 +1,20 @@
-"""Motion blur from camera rotation during the exposure (Klein & Murray 2010, sec. 5.2 step 4)."""
+"""Motion blur from camera rotation during the exposure (Klein & Murray 2010, sec. 5.2 step 4).
+
+Contents
+--------
+- :func:`rotation_matrices`: Rotations ``exp([w]x t)`` for a constant body rate ``angular_velocity`` (rad/s, camera
+  frame) at ``times``
+- :func:`tap_offsets`: Where pixel (u, v) looks in the mid-exposure image at each of ``taps`` instants of the
+  exposure
+- :func:`shutter_s`: The exposure (s) the motion effects integrate over: the frame's own, else the ``motion_blur``
+  effect's ``exposure_s``, else the camera's
+- :class:`MotionBlur`: ``taps``-tap motion blur along the flow that the camera's rotation produces over the exposure
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

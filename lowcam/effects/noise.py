@@ -1,4 +1,21 @@
-"""Sensor noise with an intensity-dependent standard deviation (Klein & Murray 2010, sec. 4.3, 5.2 step 5)."""
+"""Sensor noise with an intensity-dependent standard deviation (Klein & Murray 2010, sec. 4.3, 5.2 step 5).
+
+Contents
+--------
+- :func:`frame_rng`: The random generator of one frame: reproducible from (seed, frame) alone, independent between
+  frames
+- :class:`Noise`: Gaussian noise per sensel, independent in space and time, its sigma a function of the mean (DN)
+- :func:`fit_noise_law`: Fit ``[a, b]`` of a noise law to per-pixel temporal means and standard deviations (sec.
+  4.3)
+- :func:`fit_noise`: Both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
+  (photon transfer).
+"""
 from __future__ import annotations
 
 import numpy as np

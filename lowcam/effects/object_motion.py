@@ -6,6 +6,21 @@ static scene would have under the camera's angular velocity, :func:`rotation_vel
 :class:`~lowcam.effects.MotionBlur`; what remains is spread over the exposure here, in the render's pixel grid
 before the lens. The two blurs are applied one after the other, so a moving object seen by a turning camera gets
 the convolution of both streaks: its extent is right, its profile a trapezoid instead of a box.
+
+Contents
+--------
+- :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s, x right, y down) of a static scene seen by a
+  pinhole camera of ``focal_px`` (centred, ``shape`` = (rows, cols)) turning at ``angular_velocity`` (rad/s, camera
+  frame)
+- :func:`splat_along`: Spread each pixel of premultiplied RGBA ``image`` evenly along the segment ``[-shift/2,
+  +shift/2]`` around it (``shift_px`` (H, W, 2): the pixel's path over the exposure, px)
+- :class:`ObjectMotion`: Blur along each pixel's image velocity minus the camera rotation's, over the shutter (needs
+  a velocity pass: Blender's Vector pass through the add-on or ``lowcam render``)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
 from __future__ import annotations
 

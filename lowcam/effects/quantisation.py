@@ -1,4 +1,14 @@
-"""Quantisation of the sensel values to the camera's bit depth (Klein & Murray 2010, sec. 4.3, 5.2 step 7)."""
+"""Quantisation of the sensel values to the camera's bit depth (Klein & Murray 2010, sec. 4.3, 5.2 step 7).
+
+Contents
+--------
+- :class:`Quantisation`: Rounds each sensel's premultiplied value to ``bits`` of 8-bit range (sec. 4.3, 5.2 step 7)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

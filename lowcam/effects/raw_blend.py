@@ -1,4 +1,15 @@
-"""Blending into a raw Bayer frame (Klein & Murray 2010, sec. 7: the IDS uEye pipeline)."""
+"""Blending into a raw Bayer frame (Klein & Murray 2010, sec. 7: the IDS uEye pipeline).
+
+Contents
+--------
+- :class:`RawBlend`: Blends each sensel plane directly into the camera's own Bayer pixels, then quantises to the raw
+  bit depth
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

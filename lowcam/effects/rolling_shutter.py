@@ -1,4 +1,15 @@
-"""Rolling shutter: rows exposed at different times while the camera turns (paper sec. 3, not simulated there)."""
+"""Rolling shutter: rows exposed at different times while the camera turns (paper sec. 3, not simulated there).
+
+Contents
+--------
+- :class:`RollingShutter`: Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with
+  the camera turning at ``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,17 @@
 """The camera's saturation control: ``A + (beta / 65)(I - A)`` after demosaicing (Klein & Murray 2010, sec.
-4.4.2)."""
+4.4.2).
+
+Contents
+--------
+- :func:`saturation_matrix`: The Fire-i saturation control ``S(beta) = A + (beta / 65) (I - A)``, every row of A
+  equal to ``luma``
+- :class:`Saturation`: The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

@@ -1,5 +1,24 @@
 """In-camera sharpening: horizontal unsharp masking and its calibration (Klein & Murray 2010, sec. 4.4.3, 5.2
-step 7)."""
+step 7).
+
+Contents
+--------
+- :func:`sharpening_kernel`: The row filter of ``F = I + a (I - L)``, ``L`` a ``taps``-tap Gaussian of ``sigma``
+  sensels centred ``shift`` sensels off the middle tap (sec. 4.4.3)
+- :class:`Sharpening`: Horizontal unsharp masking ``F = I + a (I - L)`` on each sensel plane, ``L`` a ``taps``-tap
+  Gaussian
+- :func:`fit_row_filter`: The ``taps``-tap FIR filter h with ``sharp[row] = soft[row] * h`` in the least-squares
+  sense over every row of two 2-D images of the same static scene (the paper's 101-tap estimate, sec. 4.4.3)
+- :func:`frequency_response`: |H(f)| of a symmetric-centred FIR kernel at ``n`` frequencies from 0 to Nyquist
+  (cycles/sample)
+- :func:`fit_sharpening_to_images`: (a, sigma) of ``F = I + a (I - L_sigma)`` that best maps the rows of ``soft``
+  onto ``sharp`` (least squares in the image, so only frequencies the scene actually contains decide the fit)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

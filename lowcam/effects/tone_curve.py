@@ -1,4 +1,15 @@
-"""The camera's tone curve (gamma): not modelled in the paper (sec. 8 names it as missing)."""
+"""The camera's tone curve (gamma): not modelled in the paper (sec. 8 names it as missing).
+
+Contents
+--------
+- :class:`ToneCurve`: ``out = 255 (in / 255)^(1 / gamma)`` on each channel of the demosaiced frame (straight colour,
+  so partial coverage keeps its alpha)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

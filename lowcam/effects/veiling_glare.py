@@ -1,4 +1,15 @@
-"""Veiling glare: light scattered inside the lens spreads a faint haze around bright areas (sec. 3: flare)."""
+"""Veiling glare: light scattered inside the lens spreads a faint haze around bright areas (sec. 3: flare).
+
+Contents
+--------
+- :class:`VeilingGlare`: Adds ``strength`` times a wide Gaussian blur (``radius_px`` output pixels) of the light to
+  the light; the haze reaches beyond the graphics' edges (colour without alpha: it adds to the plate there)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import cv2

@@ -1,5 +1,20 @@
 """Vignetting: multiplicative fall-off of the rendered light towards the corners (Klein & Murray 2010, sec. 4.1,
-Fig. 2; sec. 5.2 step 5)."""
+Fig. 2; sec. 5.2 step 5).
+
+Contents
+--------
+- :func:`radial_vignetting`: Gain map ``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) at the cell centres
+  of a ``shape`` (rows, cols) texture over the frame, normalised to a maximum of 1
+- :class:`Vignetting`: Multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
+- :func:`fit_vignetting`: The gain texture from flat-field frames (sec. 4.1): average them, blur away sensor and
+  target irregularities (Gaussian, sigma = ``blur_fraction`` of the frame width), subsample to ``shape`` (rows,
+  cols) and normalise the brightest texel to 1
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,19 @@
-"""Blending in YUV and YUV 4:1:1 chroma (Klein & Murray 2010, sec. 5.2 steps 8-10)."""
+"""Blending in YUV and YUV 4:1:1 chroma (Klein & Murray 2010, sec. 5.2 steps 8-10).
+
+Contents
+--------
+- :func:`rgb_to_yuv`: (..., 3) RGB to YUV with BT.601 luma weights
+- :func:`yuv_to_rgb`: its inverse
+- :class:`YuvBlend`: Blends the rendered light into the video frame in YUV, each channel with its own alpha (step 8)
+- :class:`ChromaSubsampling`: YUV 4:1:1: U and V are box-averaged over groups of ``group`` horizontal pixels and
+  recombined with the full-resolution Y without interpolation (steps 9-10)
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [BT601] ITU-R Recommendation BT.601, "Studio encoding parameters of digital television" (the Y'CbCr luma weights).
+"""
 from __future__ import annotations
 
 import cv2

@@ -14,6 +14,22 @@ For a capture with ``n`` measured frames F and ``K`` simulated frames G (the pro
 
 The error is ``sqrt((e_mean^2 + e_var^2 + e_rows^2) / 3)``, over all captures: 1.0 (the noise floor) when the
 model explains the frames down to their noise. The verdict is ``explained`` below 1.1.
+
+Contents
+--------
+- :class:`CaptureStats`: one capture's measured and simulated frames and its error sums
+- :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
+- :func:`capture_inputs`: (ideal render, plate) for a capture, rendering the target's ideal view when needed
+- :func:`prefix_key`: Identifies the first ``count`` effects of a profile (and its camera) for caching their output
+- :func:`simulate_capture`: ``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of
+  ``seed``); the deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it
+- :func:`row_noise_variance`: Per channel: the variance of the per-frame row means of the noise of a (frames, H, W,
+  3) stack, over rows and frames (row noise shows here; pixel noise averages out over a row)
+- :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
+- :func:`combine`: the error and its families over all captures
+- :func:`where`: Where the mean residual lives: per channel, per region (3x3), per spatial-frequency band, per
+  brightness
+- :func:`compare`: Compare a profile with a measurement set (see the module docstring for the error)
 """
 from __future__ import annotations
 

@@ -8,6 +8,29 @@ after correcting per-pixel maps for what they absorb of the noise (:attr:`Candid
 
 Verdict: ``explained`` when the profile's own error is below 1.1; ``missing-effect`` when the best candidate's
 score is at most 1.25; ``unexplained`` otherwise (``where`` then still says where the residual lives).
+
+Contents
+--------
+- :class:`Candidate`: one fitted candidate: its error after, score, params and evidence
+- :class:`Context`: The measured set, the profile, cached inputs and the noise-free objective
+- :func:`candidates`: Candidate name -> list of (effect class, :class:`~lowcam.effects.Search`), from every known
+  effect's ``searches`` (bundled and plug-in), in chain order
+- :func:`candidate_effect`: The profile effect a candidate adds or changes
+- :func:`fit_candidate`: Fit candidate ``name`` on ``ctx.profile``: (profile with it, fitted params, evidence), or
+  None when the profile or the captures cannot show it
+- :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
+- :func:`fit_pixel_offset`: DSNU: the per-pixel mean offset of the measured means from the clean model
+- :func:`fit_hot_pixels`: Pixels far brighter than the model in every capture that can show it (robust threshold)
+- :func:`fit_row_noise`: Row noise from the excess variance of row means over the model's, refined on the full error
+- :func:`fit_colour_matrix`: A crosstalk matrix from a least-squares colour matrix between the clean model and the
+  means
+- :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise:
+  :attr:`Candidate.score`)
+- :class:`Diagnosis`: the comparison, the ranked candidates and the verdict
+- :func:`rank`: Fit every named candidate on ``ctx.profile`` and rank them by score
+- :func:`diagnose`: Rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set
+- :func:`save_candidate_profile`: Write the candidate's profile; fitted maps (.npy) are copied into a folder beside
+  it
 """
 from __future__ import annotations
 

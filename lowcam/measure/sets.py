@@ -14,6 +14,13 @@ A folder holds ``set.toml``::
 Instead of ``ideal``, ``target = "checkerboard:9x6:0.025"`` makes Lowcam find the board in the frames, estimate
 its pose with the profile's lens, and render the board's ideal view itself (its white and black are taken from
 the frames); everything off the board is compared against the frames' own mean.
+
+Contents
+--------
+- :class:`Capture`: one capture: its frames, ideal or target, plate and motion
+- :class:`MeasurementSet`: the captures of a set.toml
+- :func:`load_set`: Read and validate a measurement set; errors name the file and the problem
+- :func:`write_set`: Write a measurement set
 """
 from __future__ import annotations
 

@@ -1,4 +1,13 @@
-"""Synthetic measurement sets: bundled ideal scenes through a profile with hidden changes (``lowcam synth``)."""
+"""Synthetic measurement sets: bundled ideal scenes through a profile with hidden changes (``lowcam synth``).
+
+Contents
+--------
+- :func:`scenes`: Ideal scenes framed for ``profile``: name -> (premultiplied RGBA render, angular velocity)
+- :func:`parse_change`: ``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value})
+- :func:`hidden_profile`: ``profile`` with effects added or changed (``add``: (name, values)) and others switched
+  off
+- :func:`synthesise`: Write a measurement set made by ``profile`` with hidden changes; returns its folder
+"""
 from __future__ import annotations
 
 import cv2

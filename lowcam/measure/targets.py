@@ -1,4 +1,14 @@
-"""Ideal views of printed targets for captures that give ``target`` instead of ``ideal``."""
+"""Ideal views of printed targets for captures that give ``target`` instead of ``ideal``.
+
+Contents
+--------
+- :func:`board_texture`: A printed chessboard (``inner`` corners) with a ``border`` of white squares, and the
+  pixel->metre origin offset in squares (the first inner corner sits at the origin)
+- :func:`render_board_view`: A pinhole render (premultiplied RGBA, opaque on the board only) of a chessboard at pose
+  (rvec, tvec)
+- :func:`ideal_from_target`: (ideal render, plate) for a ``target`` capture: the board's pose from the frames
+  through the profile's lens, its white and black from the frames, and the frames' own mean as the plate around it
+"""
 from __future__ import annotations
 
 import cv2
