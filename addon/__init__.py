@@ -1,5 +1,17 @@
-"""Blender glue: properties, operators, panels, handlers and the compositor nodes. It calls the engine in
-``lowcam``; it reimplements nothing."""
+"""Blender glue: properties, operators, panels, handlers and the compositor nodes; it reimplements nothing.
+
+It calls the engine in ``lowcam``. The extension's root package holds ``addon/`` and ``nodes/``, and ships the
+bundled ``profiles/``, which the engine finds through ``LOWCAM_PROFILE_PATH``.
+
+Contents
+--------
+- :func:`register`: register the settings, operators, panels, render handlers and compositor nodes
+- :func:`unregister`: unregister them, in reverse order
+
+Modules: :mod:`.properties` (scene settings), :mod:`.operators`, :mod:`.panels`, :mod:`.handlers` (render
+handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera motion), :mod:`.render` and
+:mod:`.commands` (command line), :mod:`.sample` (the sample scene).
+"""
 
 
 def _modules():

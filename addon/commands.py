@@ -3,16 +3,15 @@
 They live on the Blender side and reach the ``lowcam`` command through the ``lowcam.commands`` entry point
 (pyproject.toml), so the engine imports nothing of ``addon/`` or ``nodes/``. Importing this module imports no bpy;
 each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs.
+``lowcam demo --synthetic`` needs no Blender: the engine alone on a generated render.
 
 Contents
 --------
-- :func:`cmd_demo`: Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write
-  the plain and degraded composites side by side (``--synthetic``: the engine alone on a generated render)
-- :func:`cmd_render`: ``lowcam render``
-- :func:`cmd_motion`: ``lowcam motion``
-- :func:`cmd_node_asset`: ``lowcam node-asset``
-- :func:`add_commands`: Add the Blender-driving sub-commands to the ``lowcam`` parser (the ``lowcam.commands`` entry
-  point)
+- :func:`cmd_demo`: ``lowcam demo``: the sample scene rendered with Cycles, plain and degraded side by side
+- :func:`cmd_render`: ``lowcam render``: render frames of a .blend and write their degraded composites
+- :func:`cmd_motion`: ``lowcam motion``: each frame's camera motion from a .blend as motion.json
+- :func:`cmd_node_asset`: ``lowcam node-asset``: the node group as an asset .blend
+- :func:`add_commands`: add the Blender-driving sub-commands to the ``lowcam`` parser (the entry point)
 """
 from __future__ import annotations
 

@@ -8,20 +8,17 @@ of view the engine needs (wider than the real camera's, :func:`lowcam.pipeline.r
 
 Contents
 --------
+- :data:`CLIP_LENS_KEYS`: Blender tracking-camera models -> lowcam's BlenderLens models and coefficient names
 - :func:`settings`: the scene's Lowcam settings
-- :func:`scene_profile`: The chosen profile with the scene's sharpness, saturation, object motion and defocus from
-  depth and (optionally) the clip's lens
-- :func:`clip_lens`: The Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)
-- :func:`setup_render_camera`: Give ``scene`` the render the engine and the node group take: the pinhole field of
-  view and size of :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width), a
-  transparent film and the Standard view without dither (plates pass unchanged)
-- :func:`setup_scene`: Prepare ``scene`` for the render handler (:func:`setup_render_camera`, multilayer EXR output,
-  the passes and the overlay view layer); returns the render camera (field of view, size)
+- :func:`scene_profile`: the chosen profile with the scene's sharpness, saturation, object motion, defocus and clip lens
+- :func:`clip_lens`: the Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)
+- :func:`setup_render_camera`: give a scene the render camera, film and view transform the engine needs
+- :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
-- :func:`plate`: The plate for ``frame`` as uint8 RGB at the camera's size, or None
-- :func:`motion`: The camera's angular velocity over ``frame``'s exposure from the chosen motion source
+- :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
+- :func:`motion`: the camera's angular velocity over a frame's exposure from the chosen motion source
 - :func:`output_path`: where a frame's degraded composite goes
-- :func:`degrade`: Simulate the camera on the frame Blender wrote to ``render_path``; returns the composite's path
+- :func:`degrade`: simulate the camera on the frame Blender wrote; returns the composite's path
 """
 from __future__ import annotations
 

@@ -1,10 +1,15 @@
-"""Render handlers: with ``scene.lowcam.enabled``, every frame Blender writes (``blender -b scene.blend -a``) gets
-its degraded composite written to ``scene.lowcam.output`` with no extra step.
+"""Render handlers: every frame Blender writes gets its degraded composite, with no extra step.
+
+With ``scene.lowcam.enabled``, every frame Blender writes (``blender -b scene.blend -a``) gets its degraded
+composite written to ``scene.lowcam.output``. ``suspended`` is set while an operator degrades frames itself.
 
 Contents
 --------
 - :func:`on_render_init`: render_init handler: sets the scene up (render camera, passes) when Simulate Camera is on
 - :func:`on_render_write`: render_write handler: degrades every frame Blender writes
+- :data:`HANDLERS`: (Blender handler list, function) pairs
+- :func:`register`: append the handlers to Blender's handler lists
+- :func:`unregister`: remove them
 """
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 
 Contents
 --------
-- :func:`camera_motion`: Per-frame motion of ``camera`` (e.g. a solved tracking camera) from ``matrix_world`` at
-  sub-frames
+- :func:`camera_motion`: per-frame motion of a camera (e.g. a solved one) from its ``matrix_world`` at sub-frames
 """
 from __future__ import annotations
 

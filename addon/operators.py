@@ -2,14 +2,11 @@
 
 Contents
 --------
-- :class:`LOWCAM_OT_setup_scene`: Transparent film, Standard view, multilayer EXR output and the render camera's
-  field of view
-- :func:`render_and_degrade`: Render ``frame`` of ``scene`` to a temporary multilayer EXR and write its degraded
-  composite
-- :class:`LOWCAM_OT_apply`: Render the current frame and apply the camera to it and the plate; the result opens as
-  "Lowcam Result"
-- :class:`LOWCAM_OT_add_camera_node`: Add a "Lowcam Camera" node between the Render Layers and the output of the
-  scene's compositor, and give the scene the render camera it needs
+- :class:`LOWCAM_OT_setup_scene`: transparent film, Standard view, multilayer EXR output and the render camera
+- :func:`render_and_degrade`: render a frame to a temporary multilayer EXR and write its degraded composite
+- :class:`LOWCAM_OT_apply`: render the current frame and apply the camera; the result opens as "Lowcam Result"
+- :class:`LOWCAM_OT_add_camera_node`: add a "Lowcam Camera" node to the scene's compositor, with its render camera
+- :data:`classes`: the operator classes, for registration
 """
 from __future__ import annotations
 

@@ -5,6 +5,7 @@ Contents
 - :func:`draw_settings`: the settings both panels show
 - :class:`LOWCAM_PT_output`: Output Properties > Lowcam Camera
 - :class:`LOWCAM_PT_compositor`: the compositor sidebar's Lowcam tab
+- :data:`classes`: the panel classes, for registration
 """
 from __future__ import annotations
 

@@ -3,6 +3,9 @@
 Contents
 --------
 - :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``)
+- :data:`classes`: the property classes, for registration
+- :func:`register`: add ``scene.lowcam`` to every scene
+- :func:`unregister`: remove it
 """
 
 import bpy

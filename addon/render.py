@@ -3,11 +3,9 @@
 Contents
 --------
 - :func:`open_scene`: open a .blend and return its scene (a clear error when it cannot)
-- :func:`write_motion`: ``lowcam motion``: each frame's camera motion from ``blend``'s scene (its motion source,
-  e.g. the solved camera) as a motion.json for ``lowcam batch`` on renders made elsewhere
-- :func:`render_frame`: Render ``frame`` to ``render_path`` (multilayer EXR) and write its degraded composite
-- :func:`render`: Render and degrade ``frame_list`` of ``blend``'s scene; frames whose composite exists are skipped
-  unless ``force`` (so an interrupted job resumes)
+- :func:`write_motion`: ``lowcam motion``: each frame's camera motion from a .blend's scene as a motion.json
+- :func:`render_frame`: render a frame to a multilayer EXR and write its degraded composite
+- :func:`render`: render and degrade frames of a .blend's scene, skipping finished ones unless ``force`` (resumes)
 """
 from __future__ import annotations
 

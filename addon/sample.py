@@ -1,10 +1,10 @@
-"""The sample scene: a real photograph as the plate, inserted objects, and a camera that pans, so motion blur
-shows. ``sample_scenes/build_sample_scene.py`` runs this; ``lowcam demo`` renders it.
+"""The sample scene: a real photograph as the plate, inserted objects, and a panning camera, so motion blur shows.
+
+``sample_scenes/build_sample_scene.py`` runs this; ``lowcam demo`` renders it.
 
 Contents
 --------
-- :func:`build_sample_scene`: Write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns the .blend
-  path
+- :func:`build_sample_scene`: write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns its path
 """
 from __future__ import annotations
 

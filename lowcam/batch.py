@@ -10,15 +10,15 @@ seeded per frame, so a serial run, a Dask run and a run split into chunks give t
 
 Contents
 --------
-- :func:`expand_pattern`: ``renders/####.exr`` or ``renders/%04d.exr`` with the frame number filled in
-- :func:`parse_frames`: ``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers
-- :class:`Shot`: Everything one frame's job needs; picklable, so Dask can ship it to workers
+- :data:`VIDEO_SUFFIXES`: file suffixes read as a video of plates
+- :func:`expand_pattern`: a ``####`` or ``%04d`` pattern with the frame number filled in
+- :func:`parse_frames`: ``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` -> sorted frame numbers
+- :class:`Shot`: everything one frame's job needs; picklable, so Dask can ship it to workers
 - :class:`FrameResult`: one frame's outcome in a shot
-- :func:`read_video_frame`: Frame ``index`` (0-based) of a video file as uint8 RGB
-- :func:`process_frame`: Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead
-- :func:`run_shot`: Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers``
-  processes, or on the Dask cluster at ``scheduler`` (``tcp://host:port``)
-- :func:`local_cluster`: A Dask LocalCluster of ``workers`` single-threaded processes on loopback
+- :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB
+- :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
+- :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
+- :func:`local_cluster`: a Dask LocalCluster of single-threaded processes on loopback
 - :func:`summary`: one line on a finished shot
 """
 from __future__ import annotations

@@ -1,43 +1,29 @@
-"""
-Captures and targets
-====================
+"""Captures and targets: reading what a real camera delivered and finding the printed targets in it.
 
-Reading what a real camera delivered and finding the printed targets in it, for the calibrations
-(:mod:`lowcam.calibrate`) and the measurements (:mod:`lowcam.measure`) alike.
-
-Capture input/output
-
--   :func:`expand_paths`: file names and glob patterns to paths.
--   :func:`load_frames`: capture frames as RGB ``uint8``, every problem naming the frame.
--   :func:`refuse_saturated`: refuse clipped flat fields and noise stacks.
--   :func:`read_patches_csv`: a table of ideal and measured patch colours.
--   :func:`srgb_to_linear`: printed sRGB values (0-255) to linear light (0-1).
-
-Targets
-
--   :data:`DICTIONARY`, :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.calibrate.chart`).
--   :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description.
--   :func:`detect_target`: the target's object and image points in one frame.
--   :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it.
+Used by the calibrations (:mod:`lowcam.calibrate`) and the measurements (:mod:`lowcam.measure`) alike.
 
 Contents
 --------
-- :func:`expand_paths`: Each pattern's matches, sorted; a pattern that matches nothing stays as given (reading it
-  names it)
-- :func:`load_frames`: Read capture frames (PNG/JPEG, RGB uint8); every problem names the frame
-- :func:`refuse_saturated`: Flat fields and noise stacks must not clip: name the first frame with over ``fraction``
-  pixels at 255
-- :func:`read_patches_csv`: Patch colours: header ``ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b``
-  (ideal in render units 0-1, measured in DN 0-255), one row per patch
-- :func:`srgb_to_linear`: sRGB code values (0-255) to linear light (0-1)
-- :func:`charuco_board`: The chart's ChArUco board (OpenCV ``aruco``, :data:`DICTIONARY`); sizes in metres on the
-  board
-- :func:`parse_target`: ``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's
-  board)
-- :func:`detect_target`: (object points (N, 3) in metres, image points (N, 2) in pixels) of the target in one frame,
-  or None
-- :func:`chart_patch_colours`: Find the chart (its ChArUco board) in each frame and read the mean colour of every
-  colour patch and grey step
+Capture input and output:
+
+- :func:`expand_paths`: file names and glob patterns to sorted paths (a pattern matching nothing stays as given)
+- :func:`load_frames`: capture frames (PNG/JPEG) as RGB ``uint8``, every problem naming the frame
+- :func:`refuse_saturated`: refuse clipped flat fields and noise stacks, naming the first clipped frame
+- :func:`read_patches_csv`: a table of ideal (render units 0-1) and measured (DN 0-255) patch colours
+- :func:`srgb_to_linear`: printed sRGB code values (0-255) to linear light (0-1), IEC 61966-2-1
+
+Targets:
+
+- :data:`DICTIONARY`: the ArUco dictionary of the chart's ChArUco board
+- :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.calibrate.chart`); sizes in metres
+- :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description
+- :func:`detect_target`: the target's object points (metres) and image points (pixels) in one frame, or None
+- :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it
+
+References
+----------
+- [IEC61966-2-1] IEC 61966-2-1:1999, "Multimedia systems and equipment - Colour measurement and management -
+  Part 2-1: Default RGB colour space - sRGB".
 """
 from __future__ import annotations
 

@@ -1,21 +1,22 @@
 """The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2.
 
+Other packages add commands through the ``lowcam.commands`` entry-point group: the Blender side adds ``demo``,
+``render``, ``motion`` and ``node-asset`` (``addon/commands.py``); the engine knows none of them by name.
+
 Contents
 --------
-- :func:`vector3`
-- :func:`cmd_apply`: ``lowcam apply``
-- :func:`save_stages`: Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)
-- :func:`cmd_stages`: ``lowcam stages``
-- :func:`cmd_profiles`: ``lowcam profiles``
-- :func:`cmd_batch`: ``lowcam batch``
-- :func:`cmd_chart`: ``lowcam chart``
+- :func:`vector3`: argparse type for an angular velocity ``wx,wy,wz`` (rad/s)
+- :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
+- :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
+- :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
+- :func:`cmd_profiles`: ``lowcam profiles``: list the profiles
+- :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
+- :func:`cmd_chart`: ``lowcam chart``: the printable calibration chart and its layout
 - :func:`cmd_calibrate`: ``lowcam calibrate``, through :data:`lowcam.calibrate.CALIBRATIONS`
-- :func:`cmd_compare`: ``lowcam compare``
-- :func:`cmd_diagnose`: ``lowcam diagnose``
-- :func:`cmd_synth`: ``lowcam synth``
-- :func:`add_plugin_commands`: Commands other packages add through the ``lowcam.commands`` entry-point group: each
-  entry is a function that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``,
-  ``motion`` and ``node-asset``; see ``addon/commands.py``)
+- :func:`cmd_compare`: ``lowcam compare``: the model against measured frames
+- :func:`cmd_diagnose`: ``lowcam diagnose``: rank the effects the profile may lack
+- :func:`cmd_synth`: ``lowcam synth``: a measurement set from bundled scenes, with hidden effects
+- :func:`add_plugin_commands`: commands other packages add through the ``lowcam.commands`` entry points
 - :func:`build_parser`: the argument parser of every sub-command
 - :func:`main`: the entry point: one line on stderr and exit status 2 for a :class:`~lowcam.errors.LowcamError`
 """

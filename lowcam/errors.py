@@ -5,8 +5,8 @@ as it is, without a traceback.
 
 Contents
 --------
-- :class:`LowcamError`: Bad input or configuration: a missing or corrupt file, a wrong size, an unknown profile key
-- :class:`ProfileError`: A profile that does not validate: unknown key, wrong type, value out of range
+- :class:`LowcamError`: bad input or configuration: a missing or corrupt file, a wrong size, an unknown key
+- :class:`ProfileError`: a profile that does not validate: unknown key, wrong type, value out of range
 """
 
 

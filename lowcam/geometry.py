@@ -3,24 +3,26 @@
 Coordinates are in **output pixels** (the camera's frame, e.g. 640x480), x right and y down, with pixel centres on
 integers (Klein & Murray 2010, sec. 5.2; PTAM's convention). The *working grid* covers the output frame plus a
 margin of ``margin_px`` on every side, at ``oversample`` working pixels per output pixel (the paper's 1024x768 image,
-step 2); the lens stage renders into twice that resolution (the paper's 2048x1536, step 1).
+step 2); the lens stage renders into twice that resolution (the paper's 2048x1536, step 1). Each Bayer channel's
+sensel plane has half the frame's rows and columns plus borders (326x242 for 640x480, step 5); the default
+pattern is the Fire-i's GBRG (sec. 4.2).
 
 Contents
 --------
-- :func:`cfa_offsets`: Row/column offset of each of R, Gr, Gb, B inside the 2x2 cell of a Bayer ``pattern`` such as
-  ``"GBRG"``
-- :class:`FrameGeometry`: Output frame size, working-grid margin and oversampling, and Bayer layout
-- :func:`sample_texture`: Bilinear lookup of a texture that covers ``extent`` = (u0, v0, u1, v1) with texel centres
-  at cell centres
-- :func:`grid_points`: Output-pixel coordinates of the centres of a ``cells`` = (columns, rows) partition of
-  ``extent``
+- :data:`CFA_CHANNELS`: the Bayer channels in sensel-plane order: R, Gr, Gb, B
+- :data:`COLOUR_INDEX`: the RGB component of each of :data:`CFA_CHANNELS`
+- :data:`BAYER_BORDER`: border sensels kept around each plane: 1 row, 3 columns
+- :func:`cfa_offsets`: row/column offset of each of R, Gr, Gb, B in the 2x2 cell of a pattern such as ``"GBRG"``
+- :class:`FrameGeometry`: output frame size, working-grid margin and oversampling, and Bayer layout
+- :func:`sample_texture`: bilinear lookup of a texture over ``extent`` = (u0, v0, u1, v1), texels at cell centres
+- :func:`grid_points`: output-pixel centres of a ``cells`` = (columns, rows) partition of ``extent``
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
-- [Devernay2001] F. Devernay and O. Faugeras, "Straight lines have to be straight", Machine Vision and Applications
-  13(1), 14-24, 2001.
+- [Klein2007] G. Klein and D. Murray, "Parallel Tracking and Mapping for Small AR Workspaces", ISMAR 2007 (PTAM;
+  its camera's pixel convention).
 """
 from __future__ import annotations
 

@@ -6,21 +6,19 @@ half-written frame under the final name.
 
 Contents
 --------
-- :func:`atomic_write_bytes`: Write ``data`` to ``path`` through a temporary file and an atomic rename
-- :func:`read_toml`: A TOML file as a dict; a missing or malformed file is a one-line error naming it
-- :func:`read_exr`: All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'``
-  or ``'ViewLayer.Combined'`` come as (H, W, C) arrays)
-- :func:`read_render`: Read a render as premultiplied linear RGBA float32 (H, W, 4)
-- :func:`check_render`: Validate an in-memory render: (H, W, 4), finite, alpha in [0, 1]
-- :func:`read_image`: Read a PNG/JPEG as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)
-- :func:`read_plate`: Read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
-- :func:`check_plate`: Validate an in-memory plate: uint8, the camera's size, RGB (or one channel for a raw-Bayer
-  camera)
-- :func:`read_gain_map`: A greyscale PNG gain texture, scaled so the brightest texel is 1
+- :func:`atomic_write_bytes`: write bytes to a path through a temporary file and an atomic rename
+- :func:`read_toml`: a TOML file as a dict; a missing or malformed file is a one-line error naming it
+- :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
+- :func:`read_render`: read a render as premultiplied linear RGBA float32 (H, W, 4)
+- :func:`check_render`: validate an in-memory render: (H, W, 4), finite, alpha in [0, 1]
+- :func:`read_image`: read a PNG/JPEG as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)
+- :func:`read_plate`: read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
+- :func:`check_plate`: validate an in-memory plate: uint8, the camera's size, RGB (or one channel for raw Bayer)
+- :func:`read_gain_map`: a greyscale PNG gain texture, scaled so the brightest texel is 1
 - :func:`encode_png`: PNG bytes of an RGB(A) or greyscale uint8/uint16 image
-- :func:`write_png`: Write an RGB(A) or greyscale uint8/uint16 image as PNG, atomically
-- :func:`write_exr`: Write float RGBA (H, W, 4) as a single-layer OpenEXR file, atomically
-- :func:`write_image`: Write by extension: ``.exr`` takes float RGBA, anything else is PNG
+- :func:`write_png`: write an RGB(A) or greyscale uint8/uint16 image as PNG, atomically
+- :func:`write_exr`: write float RGBA (H, W, 4) as a single-layer OpenEXR file, atomically
+- :func:`write_image`: write by extension: ``.exr`` takes float RGBA, anything else is PNG
 """
 from __future__ import annotations
 

@@ -23,13 +23,13 @@ samples, linearly interpolated at the ends).
 Contents
 --------
 - :class:`FrameMotion`: one frame's angular velocity (rad/s) and exposure (s)
-- :func:`write_motion_json`: Write ``{frame: FrameMotion}`` as motion.json (atomically)
-- :func:`read_motion_json`: a motion.json as {frame: FrameMotion}
-- :func:`read_gyro_csv`: Samples as an (N, 4) array of ``t, wx, wy, wz``, sorted by time
-- :func:`average_rate`: Time average of the angular velocity over [t0, t1] from gyro samples (t, wx, wy, wz)
-- :func:`gyro_to_motion`: Per-frame motion from gyro samples: frame f starts at ``t0 + (f - first_frame) / fps``
-- :func:`angular_velocity_between`: Mean body rate (rad/s, Lowcam camera frame) of a camera whose camera-to-world
-  rotation goes from ``rot_a`` to ``rot_b`` in ``dt`` seconds
+- :func:`write_motion_json`: write ``{frame: FrameMotion}`` as motion.json (atomically)
+- :func:`read_motion_json`: a motion.json as ``{frame: FrameMotion}``
+- :func:`read_gyro_csv`: gyro samples as an (N, 4) array of ``t, wx, wy, wz``, sorted by time
+- :func:`average_rate`: time average of the angular velocity over [t0, t1] from gyro samples
+- :func:`gyro_to_motion`: per-frame motion from gyro samples: frame f starts at ``t0 + (f - first_frame) / fps``
+- :data:`BLENDER_TO_CAMERA`: Blender's camera axes (x right, y up, looking down -z) to Lowcam's
+- :func:`angular_velocity_between`: mean body rate (rad/s, camera frame) between two camera-to-world rotations
 """
 from __future__ import annotations
 

@@ -17,21 +17,20 @@ Which effects have a node, and how it is built, each effect declares (``Effect.n
 the effect's own ``kernel()``, ``gain_planes()`` and ``total_matrix()``, so a plug-in effect that declares one
 gets a node without changes here. Pure numpy: testable without Blender.
 
+STMaps read pixel (x, y) (top-left origin, centres at integers) at ``u = (x + 0.5) / width``,
+``v = 1 - (y + 0.5) / height``, mask 1. In the mosaic, plane (i, j) of a channel with CFA offset (dy, dx) sits
+at mosaic pixel (2 i + dy, 2 j + dx); a plane's row filter becomes a mosaic filter with zeros between its taps.
+
 Contents
 --------
-- :func:`node_stages`: Effect name -> :class:`~lowcam.effects.NodeStage` of every known effect that has a compositor
-  node, in chain order
-- :func:`stmap`: An (rows, cols, 4) Map UV image that reads pixel (x, y) (top-left origin, centres at integers) of a
-  ``width`` x ``height`` image: ``u = (x + 0.5) / width``, ``v = 1 - (y + 0.5) / height``, mask 1
+- :func:`node_stages`: effect name -> :class:`~lowcam.effects.NodeStage` of every effect with a node, in chain order
+- :func:`stmap`: a Map UV image that reads pixel (x, y) of a ``width`` x ``height`` image
 - :func:`mosaic_shape`: (rows, cols) of the sensel mosaic, borders included
-- :func:`planes_to_mosaic`: Interleave (4, hb, wb, ...) sensel planes into the (2 hb, 2 wb, ...) mosaic, borders
-  included: plane (i, j) of a channel with CFA offset (dy, dx) sits at mosaic pixel (2 i + dy, 2 j + dx)
-- :func:`mosaic_kernel`: A row filter over one sensel plane as a (1, 2 taps - 1) filter over the mosaic (zeros
-  between)
-- :func:`gaussian_blur_kernel`: The 2-D kernel ``cv2.GaussianBlur(image, (0, 0), sigma)`` uses on float32 images
-- :class:`CameraBake`: Everything the node group reads, for one profile, render size and camera motion
-- :func:`bake`: Compute the images and values of every stage of ``profile`` for a render of ``render_shape`` (rows,
-  cols)
+- :func:`planes_to_mosaic`: interleave (4, hb, wb, ...) sensel planes into the (2 hb, 2 wb, ...) mosaic
+- :func:`mosaic_kernel`: a row filter over one sensel plane as a (1, 2 taps - 1) filter over the mosaic
+- :func:`gaussian_blur_kernel`: the 2-D kernel ``cv2.GaussianBlur(image, (0, 0), sigma)`` uses on float32 images
+- :class:`CameraBake`: everything the node group reads, for one profile, render size and camera motion
+- :func:`bake`: the images and values of every stage of a profile for a render of ``render_shape`` (rows, cols)
 
 References
 ----------

@@ -14,11 +14,11 @@ Blender writes them as the Vector and Depth passes (:func:`from_blender`).
 
 Contents
 --------
+- :data:`PASS_FIELDS`: each kind of pass ("velocity", "depth") -> its :class:`RenderPasses` field
+- :data:`BLENDER_PASS`: each kind of pass -> the Blender pass that holds it
 - :class:`RenderPasses`: a render's image velocity (px/s) and depth (m), validated
-- :func:`check_passes`: Validate ``passes`` against a render of ``render_shape`` (rows, cols, ...); returns them as
-  float32
-- :func:`from_blender`: Passes from Blender's Vector pass (H, W, 4) and Depth pass (H, W, scene units of
-  ``metres_per_unit``) at ``fps`` frames per second
+- :func:`check_passes`: validate passes against a render of ``render_shape``; returns them as float32
+- :func:`from_blender`: passes from Blender's Vector and Depth passes, at ``fps`` and ``metres_per_unit``
 """
 from __future__ import annotations
 

@@ -8,33 +8,22 @@ Conventions
   (so positive y pans right, positive x tilts down, positive z rolls clockwise in the image). The render shows
   the middle of the exposure.
 - Values are 8-bit digital numbers (DN) from Bayer sampling on; the output is an 8-bit RGB frame.
+- Pixels the graphics do not change are the plate's, bit for bit; ``Result.footprint`` marks the others.
 
 Contents
 --------
-- :class:`SimState`: Everything one frame's simulation carries from stage to stage (see
-  :class:`lowcam.effects.Effect`)
-- :class:`Result`: One simulated frame: ``frame`` (H, W, 3) uint8, ``footprint`` (H, W) bool marks pixels the
-  graphics changed (every other pixel is the plate's, bit for bit), ``stages`` maps ``"NN-effect"`` to each stage's
-  output when asked for, and ``state`` is the final :class:`SimState` (its raw arrays: ``working``, ``bayer``,
-  ``bayer_alpha``, ``rgb``, ``rgb_alpha``, ``delta_yuv``)
-- :func:`render_field_of_view`: Pinhole half-extents (X, Y) the render must cover
-  (:meth:`LensDistortion.render_field_of_view <lowcam.effects.LensDistortion.render_field_of_view>`)
-- :func:`render_focal_px`: Focal length in render pixels for a render of ``width`` x ``height`` (square pixels,
-  centred)
-- :func:`render_camera`: The pinhole camera a renderer must use: horizontal field of view (deg), sensor fit and
-  resolution
-- :func:`run`: Simulate the camera on one frame; see :func:`simulate`
-- :func:`deterministic_prefix`: How many leading effects of ``profile`` do not depend on (seed, frame) (at most up
-  to ``until``)
-- :func:`prepare`: Run the chain up to its first random effect (noise), or through ``until``: that part is the same
-  for every frame of a static scene
-- :func:`resume`: The 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token (which it leaves untouched)
-- :func:`simulate`: The camera's 8-bit RGB frame (H, W, 3) for a premultiplied RGBA ``render`` composited over
-  ``plate``
-- :func:`stage_image`: A displayable picture of the state after a stage: float RGBA for the working image, a
-  colour-coded mosaic for the sensel planes, 8-bit RGB for the frame, and an arrow plot for sampling fields
-- :func:`plain_composite`: The standard compositing the paper compares against: the render warped through the lens,
-  resampled to the frame and blended over the plate with its alpha, with none of the camera's degradations
+- :class:`SimState`: everything one frame's simulation carries from stage to stage
+- :class:`Result`: one simulated frame: ``frame``, ``footprint``, ``stages`` when asked for, and the final state
+- :func:`render_field_of_view`: pinhole half-extents (X, Y) the render must cover
+- :func:`render_focal_px`: focal length in render pixels for a render of ``width`` x ``height``
+- :func:`render_camera`: the pinhole camera a renderer must use: field of view (deg), sensor fit and resolution
+- :func:`run`: simulate the camera on one frame as a :class:`Result`; see :func:`simulate`
+- :func:`deterministic_prefix`: how many leading effects of a profile do not depend on (seed, frame)
+- :func:`prepare`: run the chain up to its first random effect: the same for every frame of a static scene
+- :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
+- :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
+- :func:`stage_image`: a displayable picture of the state after a stage
+- :func:`plain_composite`: the standard compositing the paper compares against: lens warp and alpha blend only
 
 References
 ----------

@@ -20,20 +20,19 @@ Everything is validated on load: an unknown key, a wrong type or a value out of 
 
 Contents
 --------
-- :class:`CameraSpec`: The ``[camera]`` table: the delivered frame and global settings
-- :class:`Profile`: A validated camera profile: :class:`CameraSpec` plus an ordered list of
-  :class:`~lowcam.effects.Effect`
-- :func:`profile_search_path`: Folders searched for profiles by name: ``$LOWCAM_PROFILE_PATH``
-  (os.pathsep-separated), then the bundled
+- :data:`BUNDLED_PROFILES`: the repository's ``profiles/`` folder
+- :class:`CameraSpec`: the ``[camera]`` table: the delivered frame and global settings
+- :class:`Profile`: a validated camera profile: :class:`CameraSpec` plus an ordered list of effects
+- :func:`profile_search_path`: folders searched for profiles by name: ``$LOWCAM_PROFILE_PATH``, then the bundled
 - :func:`list_profiles`: (name, path) of every profile on the search path
-- :func:`find_profile`: the file of a bundled name or a path (a clear error naming the known ones)
-- :func:`load_profile`: Load and validate a profile by bundled name (``"fire-i"``) or path (``"my-camera.toml"``)
+- :func:`find_profile`: the file of a profile name or path (a clear error naming the known ones)
+- :func:`load_profile`: load and validate a profile by name (``"fire-i"``) or path (``"my-camera.toml"``)
 - :func:`profile_from_dict`: a validated :class:`Profile` from parsed TOML
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
-  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010 (the bundled Fire-i profile's values).
 """
 from __future__ import annotations
 

@@ -1,24 +1,14 @@
-"""
-Plots and HTML reports
-======================
+"""Plots and HTML reports: the pictures and pages that calibration and measurement write.
 
-The pictures and pages that calibration (:func:`lowcam.calibrate.write_report`) and measurement
-(:func:`lowcam.measure.report.write_compare_report`) write:
-
--   :func:`figure`: draw one matplotlib figure (headless) and save it as PNG.
--   :func:`write_page`: ``index.html`` in a folder: the page scaffolding (title, style, heading) around sections.
--   :func:`image`: an ``<img>`` of a PNG, copied into the page's folder when it lies elsewhere.
--   :func:`numbers_block`: numbers as indented JSON in a ``<pre>``, optionally folded in a ``<details>``.
+Used by :func:`lowcam.calibrate.write_report` and :func:`lowcam.measure.report.write_compare_report`.
 
 Contents
 --------
-- :func:`figure`: Call ``draw(fig)`` on a new ``size`` (inches, 100 dpi) figure and save it as the PNG ``path``
-- :func:`image`: An ``<img>`` of the PNG ``path`` for a page in ``folder``, copying the file there if it lies
-  elsewhere
-- :func:`numbers_block`: ``numbers`` (NumPy values allowed) as indented JSON in a ``<pre>``; folded under
-  ``summary`` if given
-- :func:`write_page`: Write ``folder/index.html``: a page titled ``title`` with the heading ``heading`` over
-  ``sections`` (HTML fragments, in order); returns its path
+- :data:`STYLE`: the pages' CSS
+- :func:`figure`: draw one matplotlib figure (headless, 100 dpi) and save it as PNG
+- :func:`image`: an ``<img>`` of a PNG, copied into the page's folder when it lies elsewhere
+- :func:`numbers_block`: numbers (NumPy values allowed) as indented JSON in a ``<pre>``, optionally folded
+- :func:`write_page`: ``index.html`` in a folder: title, style and heading around HTML sections; returns its path
 """
 from __future__ import annotations
 

@@ -5,16 +5,9 @@ same scene comes out at any render size. Edges are anti-aliased analytically (ex
 
 Contents
 --------
-- :func:`sample_render`: Premultiplied linear RGBA (height, width, 4) float32: a shaded sphere, a checkerboard card
-  and white text, on a transparent background, framed for ``profile``'s camera
-- :func:`sample_plate`: A real photograph (scikit-image's ``coffee``) cropped and scaled to the camera's frame,
-  uint8 RGB
-- :func:`side_by_side`: Two frames next to each other with a caption bar above each
-
-References
-----------
-- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
-  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- :func:`sample_render`: premultiplied linear RGBA of a shaded sphere, a checkerboard card and white text
+- :func:`sample_plate`: a real photograph (scikit-image's ``coffee``) cropped and scaled to the frame, uint8 RGB
+- :func:`side_by_side`: two frames next to each other with a caption bar above each
 """
 from __future__ import annotations
 

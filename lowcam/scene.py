@@ -1,19 +1,16 @@
-"""Degrade one frame written by Blender: a multilayer EXR with the graphics' view layer (and optionally an overlay
-layer of excluded objects), simulated with the engine and blended onto the plate. No bpy here; ``addon/`` calls it.
+"""Degrade one frame written by Blender: simulate the camera on its render and blend it onto the plate.
+
+The frame is a multilayer EXR with the graphics' view layer (and optionally an overlay layer of excluded
+objects), simulated with the engine and blended onto the plate. No bpy here; ``addon/`` calls it.
 
 Contents
 --------
-- :func:`read_layers`: (render, overlay) premultiplied RGBA from a Blender multilayer EXR: view layer ``layer``'s
-  Combined pass and, when asked, ``overlay_layer``'s
-- :func:`read_passes`: View layer ``layer``'s Vector and Depth passes (those present) as :class:`RenderPasses`, for
-  a scene at ``fps`` whose length unit is ``metres_per_unit``; ``needs`` names the passes that must be there
-  (``"Vector"``, ``"Depth"``)
-- :func:`overlay_in_frame`: Resample a render-sized ``overlay`` into the output frame through the lens geometry only
-  (bilinear), so excluded objects land where the camera sees them but get no blur, noise or colour processing
-- :func:`over_frame`: Premultiplied ``overlay`` (frame-sized, linear, 1.0 = 255 DN like renders) over an 8-bit
-  ``frame``
-- :func:`degrade_frame`: Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite
-  (atomically)
+- :data:`OVERLAY_LAYER`: the view layer that renders only the excluded objects ("Lowcam Overlay")
+- :func:`read_layers`: (render, overlay) premultiplied RGBA from a Blender multilayer EXR
+- :func:`read_passes`: a view layer's Vector and Depth passes as :class:`~lowcam.passes.RenderPasses`
+- :func:`overlay_in_frame`: resample the overlay into the frame through the lens geometry only (no degradation)
+- :func:`over_frame`: a premultiplied frame-sized overlay (linear, 1.0 = 255 DN) over an 8-bit frame
+- :func:`degrade_frame`: simulate the camera on a frame Blender wrote and write the composite (atomically)
 """
 from __future__ import annotations
 

@@ -1,12 +1,12 @@
-"""The node group as an asset library: a .blend holding "Lowcam Camera (<profile>)", marked as an asset, with its
-stage groups and packed maps, for the Asset Browser or File > Append in any Blender 5 file (no add-on needed).
+"""The node group as an asset library: a .blend holding "Lowcam Camera (<profile>)", marked as an asset.
 
-The maps are baked for one profile, render size and camera rotation (:func:`lowcam.node_maps.bake`); the add-on's
-Lowcam Camera node rebakes them when those change, the asset cannot.
+The .blend holds the group with its stage groups and packed maps, for the Asset Browser or File > Append in any
+Blender 5 file (no add-on needed). The maps are baked for one profile, render size and camera rotation
+(:func:`lowcam.node_maps.bake`); the add-on's Lowcam Camera node rebakes them when those change, the asset cannot.
 
 Contents
 --------
-- :func:`write_asset`: Write the asset .blend to ``path`` (atomically) and return it
+- :func:`write_asset`: write the asset .blend to ``path`` (atomically) and return it
 """
 from __future__ import annotations
 

@@ -11,29 +11,31 @@ Which effects have a node, its label, what its sockets carry and its recipe are 
 Units inside the group: the working image is the render (premultiplied, linear); from Bayer sampling on values
 are DN / 255; the group's output is linear light that the Standard view transform turns back into those codes.
 
+Sensor noise is Gaussian, by the Box-Muller transform [Box1958] of two White Noise values per sensel and frame.
+
 Contents
 --------
+- :data:`PREFIX`: the prefix of the node group names ("Lowcam")
+- :data:`PLATE_BLEND`: the stage after the effects: the YUV difference added to the plate
 - :func:`stage_label`: a stage's node label (the effect's declaration)
-- :func:`stage_carries`: What a stage's input sockets carry: "image" RGBA, "mosaic" (R value, G alpha), "rgb" (+
-  "Alpha"), "yuv"
-- :func:`image_from_array`: A float, non-colour Blender image holding ``array`` ((rows, cols), (rows, cols, 4); top
-  row first), packed into the .blend so the group travels as an asset
-- :class:`Tree`: Small helpers over a compositor node tree: each returns an output socket
-- :func:`stage_builder`: The recipe that builds ``stage``: (tree, input sockets, bake, image namer) -> output
-  sockets
+- :func:`stage_carries`: what a stage's input sockets carry: "image", "mosaic", "rgb" or "yuv"
+- :func:`image_from_array`: a float, non-colour Blender image holding an array, packed into the .blend
+- :class:`Tree`: small helpers over a compositor node tree: each returns an output socket
+- :data:`GENERIC_BUILDERS`: the generic recipes a :class:`lowcam.effects.NodeStage` may name
+- :data:`STAGE_BUILDERS`: the recipes of the stages that have their own
+- :func:`stage_builder`: the recipe that builds a stage: (tree, input sockets, bake, image namer) -> output sockets
 - :func:`stage_sockets`: (inputs, outputs) of a stage's group as (name, socket type) pairs
 - :func:`group_name`: the node group name of a stage
-- :func:`build_stage_group`: The node group of one stage (named ``name``, default "Lowcam <Stage>"), its images
-  ``<name>: <what>``
-- :func:`group_stages`: The stages of the group in order: the profile's, less those baked into another's maps, plus
-  the plate blend
-- :func:`build_camera_group`: Build "Lowcam Camera" from a :func:`lowcam.node_maps.bake`: inputs Image (the render,
-  premultiplied), Plate, Seed, Noise; output Image
+- :func:`build_stage_group`: the node group of one stage (default "Lowcam <Stage>"), its images ``<name>: <what>``
+- :func:`group_stages`: the group's stages in order: the profile's, less those baked into others, plus the plate blend
+- :func:`build_camera_group`: build "Lowcam Camera" from a bake: Image, Plate, Seed and Noise in; Image out
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Box1958] G. E. P. Box and M. E. Muller, "A Note on the Generation of Random Normal Deviates", The Annals of
+  Mathematical Statistics 29(2), 610-611, 1958.
 """
 from __future__ import annotations
 

@@ -6,11 +6,16 @@ inner group from the engine. Python nodes that compute pixels would crash the co
 
 Contents
 --------
+- :data:`RENDER_WIDTH`: the render width (px) the maps assume until the node sees a scene
 - :class:`LowcamNodeBase`: what the camera node and the stage nodes share
 - :class:`LowcamStageNode`: one stage of the chain as a node
-- :class:`LowcamCameraNode`: The whole camera: render (premultiplied) and plate in, the camera's frame out
+- :class:`LowcamCameraNode`: the whole camera: render (premultiplied) and plate in, the camera's frame out
+- :data:`STAGE_NODES`: the stages with a node of their own (those not baked into another's maps)
+- :data:`classes`: the node classes, for registration
 - :class:`NODE_MT_lowcam_add`: the Add > Lowcam menu
 - :func:`draw_add_menu`: adds the Lowcam menu to the compositor's Add menu
+- :func:`register`: register the nodes and the menu
+- :func:`unregister`: unregister them
 """
 
 import bpy

@@ -1,19 +1,16 @@
-"""Node group against engine: render each stage of "Lowcam Camera" with Blender's compositor and compare it with
-the engine's state after the same effect, noise off. Mean absolute differences are in DN (1/255).
+"""Node group against engine: each stage of "Lowcam Camera" rendered by Blender's compositor, compared.
+
+Each stage is rendered with Blender's compositor and compared with the engine's state after the same effect,
+noise off. Mean absolute differences are in DN (1/255).
+
+For each stage, :func:`parity` gives ``{"mad": mean |node - engine| over the frame, "mad_object": the same where
+the render reaches, "max": the largest difference, "max_outside": the largest where it does not}``.
 
 Contents
 --------
-- :func:`render_group`: Composite ``group`` fed by the images in ``inputs`` (socket name -> bpy image or value) at
-  ``shape`` (rows, cols); EXR paths give the float output, PNG paths the 8-bit codes after the Standard view
-- :func:`plate_image`: The plate as Blender loads a video frame: an sRGB 8-bit image file
-- :func:`parity`: {stage: {"mad": mean |node - engine| over the frame (DN), "mad_object": the same where the render
-  reaches, "max": the largest difference, "max_outside": the largest where it does not}} for each stage of the node
-  group, noise off
-
-References
-----------
-- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
-  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- :func:`render_group`: composite a node group fed by images at ``shape``: EXR paths give floats, PNG 8-bit codes
+- :func:`plate_image`: the plate as Blender loads a video frame: an sRGB 8-bit image file
+- :func:`parity`: per stage of the node group, noise off, the differences from the engine (DN)
 """
 from __future__ import annotations
 

@@ -11,39 +11,38 @@ sections (:func:`run_manifest`) are made from it. Effects name the calibration t
 
 Contents
 --------
-- :class:`Texture`: A fitted texture for the effect parameter ``param`` (a path): :func:`apply_to_profile` saves
-  ``data`` as ``file`` beside the profile with ``write(path, data, camera)`` and points the parameter at it
-- :class:`Calibration`: One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect,
-  ``textures`` per effect (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths)
+- :class:`Texture`: a fitted texture for an effect's path parameter, written beside the profile
+- :class:`Calibration`: one calibration's outcome: summary, fitted values, textures, numbers and figures
 - :func:`calibrate_lens`: FOV and Brown-Conrady lenses from chessboard or ChArUco views (sec. 4.1)
 - :func:`calibrate_vignetting`: the vignetting texture from flat fields (sec. 4.1)
 - :func:`calibrate_chromatic_aberration`: the lateral-colour grid from frames of the noise field (sec. 4.1)
 - :func:`calibrate_noise`: both noise laws from a stack of frames of a static scene (sec. 4.3)
 - :func:`calibrate_demosaic`: which demosaicing, from noise covariances of a static stack (sec. 4.4.1)
 - :func:`calibrate_blur`: horizontal and vertical blur from slanted edges (sec. 4.3)
-- :func:`calibrate_sharpening`: Sharpening from two captures of one static scene, at sharpness 0 and at
-  ``sharpness`` (sec. 4.4.3)
-- :func:`calibrate_colour`: Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255),
-  ``measured_rgb`` the camera's mean patch colours (DN) at saturation setting ``saturation``
-- :func:`apply_to_profile`: A copy of ``profile`` with every calibration's values, textures written beside
-  ``out_path``
-- :func:`write_report`: An HTML page with every calibration's summary, numbers and plots
-- :class:`Option`: One input of a calibration: a key of its manifest section and an argument of its ``lowcam
-  calibrate`` sub-command (``--key``, or a positional argument)
-- :class:`Calibrator`: One calibration, as ``lowcam calibrate <name>`` and a manifest's ``[name]`` section run it
-- :func:`calibrator`: The calibration called ``name`` (or one of its aliases, e.g. ``"ca"``)
-- :func:`calibration_listing`: Which effects each calibration fits: every name of :data:`CALIBRATIONS` (in order)
-  with the effects that declare it as their ``calibration`` (:func:`lowcam.effects.known_effects`, plug-ins loaded
-  so far included)
-- :func:`run_manifest`: Run every calibration that the manifest lists; returns (base profile, calibrations)
+- :func:`calibrate_sharpening`: sharpening from captures at sharpness 0 and at a setting (sec. 4.4.3)
+- :func:`calibrate_colour`: crosstalk from patch colours, the saturation setting divided out (sec. 4.2, 4.4.2)
+- :func:`apply_to_profile`: a copy of a profile with every calibration's values, textures written beside it
+- :func:`write_report`: an HTML page with every calibration's summary, numbers and plots
+- :class:`Option`: one input of a calibration: a manifest key and a ``lowcam calibrate`` argument
+- :class:`Calibrator`: one calibration, as ``lowcam calibrate <name>`` and a manifest's ``[name]`` section run it
+- :data:`CALIBRATIONS`: every calibration by name, in the order a manifest runs them
+- :func:`calibrator`: the calibration called ``name`` (or one of its aliases, e.g. ``"ca"``)
+- :func:`calibration_listing`: each calibration with the effects that declare it
+- :func:`run_manifest`: run every calibration a manifest lists; returns (base profile, calibrations)
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 - [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
+- [Devernay2001] F. Devernay and O. Faugeras, "Straight lines have to be straight", Machine Vision and Applications
+  13(1), 14-24, 2001.
+- [Klein2007] G. Klein and D. Murray, "Parallel Tracking and Mapping for Small AR Workspaces", ISMAR 2007 (PTAM).
+- [Brown1966] D. C. Brown, "Decentering Distortion of Lenses", Photogrammetric Engineering 32(3), 444-462, 1966.
 - [Lucas1981] B. D. Lucas and T. Kanade, "An Iterative Image Registration Technique with an Application to Stereo
   Vision", IJCAI 1981, 674-679.
+- [Irie2008] K. Irie, A. E. McKinnon, K. Unsworth and I. M. Woodhead, "A Model for Measurement of Noise in CCD
+  Digital-Video Cameras", Measurement Science and Technology 19(4), 2008.
 - [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
   (photon transfer).
 """

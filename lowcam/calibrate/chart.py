@@ -1,7 +1,7 @@
 """The printable calibration chart: one page with every target the calibrations need (``lowcam chart``).
 
-Layout (A4 or A3 landscape; millimetres from the page's top-left corner, y down), described in a JSON file that
-travels with the chart:
+The targets are those of the paper's calibrations (Klein & Murray 2010, sec. 4). Layout (A4 or A3 landscape;
+millimetres from the page's top-left corner, y down), described in a JSON file that travels with the chart:
 
 - a ChArUco board (OpenCV ``aruco``, dictionary DICT_5X5_100): pose and lens calibration;
 - a grey white-noise field: chromatic aberration and demosaic identification;
@@ -10,8 +10,10 @@ travels with the chart:
 
 Contents
 --------
-- :func:`make_chart`: The chart as a greyscale-or-colour uint8 RGB raster at ``dpi``, and its layout description
-- :func:`write_chart`: Write the chart (``.pdf`` or ``.png``) and its layout ``<name>.json`` beside it
+- :data:`PAGES_MM`: page sizes (landscape width, height in mm) by name
+- :data:`COLOURS`: the colour patches (sRGB 0-255)
+- :func:`make_chart`: the chart as a uint8 RGB raster at ``dpi``, and its layout description
+- :func:`write_chart`: write the chart (``.pdf`` or ``.png``) and its layout ``<name>.json`` beside it
 
 References
 ----------

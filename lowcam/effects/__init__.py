@@ -7,11 +7,39 @@ declarations (:func:`known_effects`), for bundled effects and plug-ins (``"modul
 
 Contents
 --------
-- :func:`known_effects`: Every effect class known in this process, bundled and plug-in, in chain order
-  (``Effect.order``; those without an order last)
-- :func:`canonical_order`: The names of :func:`known_effects` in the order they stand in a complete chain
-- :func:`effect_class`: The class for a profile ``type``: a bundled name, or ``"package.module:ClassName"`` for a
-  plug-in
+- :data:`EFFECTS`: every bundled effect class by its profile ``type``
+- :data:`PLUGINS`: plug-in effects loaded so far in this process (``"module:Class"`` -> class)
+- :func:`known_effects`: every effect class known in this process, bundled and plug-in, in chain order
+- :func:`canonical_order`: the names of :func:`known_effects` in the order they stand in a complete chain
+- :func:`effect_class`: the class for a profile ``type``: a bundled name or ``"package.module:ClassName"``
+- :class:`Effect`: base class of every stage (:mod:`lowcam.effects.base`)
+- :class:`Param`, :class:`ParamSet`: an effect's typed, validated parameters
+- :class:`NodeStage`, :class:`Search`: how the compositor node builds an effect and how diagnosis fits it
+
+Modules, in chain order (sections of [Klein2010]):
+
+- :mod:`~lowcam.effects.object_motion`: motion blur of moving objects, from a velocity pass (beyond the paper)
+- :mod:`~lowcam.effects.depth_of_field`: defocus from a depth pass (beyond the paper)
+- :mod:`~lowcam.effects.lens`: lens distortion (sec. 4.1, 5.2 step 1)
+- :mod:`~lowcam.effects.half_sampling`: half-sampling (sec. 5.2 step 2)
+- :mod:`~lowcam.effects.crosstalk`: Bayer filter crosstalk (sec. 4.2, 5.2 step 2)
+- :mod:`~lowcam.effects.motion_blur`: motion blur from camera rotation (sec. 5.2 step 4)
+- :mod:`~lowcam.effects.rolling_shutter`: rolling shutter (sec. 3; not simulated in the paper)
+- :mod:`~lowcam.effects.chromatic_aberration`: lateral chromatic aberration (sec. 4.1, 5.2 step 5)
+- :mod:`~lowcam.effects.blur`: spatially varying, horizontal and vertical blur (sec. 4.3, 5.2 steps 3 and 6)
+- :mod:`~lowcam.effects.defocus`: uniform defocus (sec. 2-3; not simulated in the paper)
+- :mod:`~lowcam.effects.veiling_glare`: veiling glare (sec. 3: flare)
+- :mod:`~lowcam.effects.bayer`: Bayer sampling and demosaicing (sec. 4.4.1, 5.2 steps 5 and 8, sec. 7)
+- :mod:`~lowcam.effects.vignetting`: vignetting (sec. 4.1, 5.2 step 5)
+- :mod:`~lowcam.effects.noise`: sensor noise (sec. 4.3, 5.2 step 5)
+- :mod:`~lowcam.effects.fixed_pattern`: row noise, PRNU, DSNU and hot pixels (sec. 4.3, after Irie et al.)
+- :mod:`~lowcam.effects.sharpening`: in-camera sharpening (sec. 4.4.3, 5.2 step 7)
+- :mod:`~lowcam.effects.quantisation`: quantisation (sec. 4.3, 5.2 step 7)
+- :mod:`~lowcam.effects.raw_blend`: blending into a raw Bayer frame (sec. 7)
+- :mod:`~lowcam.effects.saturation`: the saturation control (sec. 4.4.2)
+- :mod:`~lowcam.effects.tone_curve`: the tone curve (not in the paper; sec. 8)
+- :mod:`~lowcam.effects.yuv`: YUV blending and 4:1:1 chroma (sec. 5.2 steps 8-10)
+- :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
 
 References
 ----------

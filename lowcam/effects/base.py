@@ -21,12 +21,11 @@ and in a profile: ``[[effect]]`` / ``type = "mypackage.haze:Haze"`` / ``veil_dn 
 
 Contents
 --------
-- :class:`Param`: Specification of one effect parameter
-- :class:`ParamSet`: A named, validated set of :class:`Param` values (an effect, or the profile's ``[camera]``
-  table)
-- :class:`NodeStage`: How the compositor node group builds an effect (the Blender side reads this; no bpy here)
-- :class:`Search`: How diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this)
-- :class:`Effect`: Base class of every stage
+- :class:`Param`: specification of one effect parameter (default, type, range, unit)
+- :class:`ParamSet`: a named, validated set of :class:`Param` values (an effect, or the ``[camera]`` table)
+- :class:`NodeStage`: how the compositor node group builds an effect (the Blender side reads this; no bpy here)
+- :class:`Search`: how diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this)
+- :class:`Effect`: base class of every stage
 
 References
 ----------

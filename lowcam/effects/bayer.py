@@ -1,23 +1,22 @@
 """Bayer sampling and demosaicing (Klein & Murray 2010, sec. 4.4.1, 5.2 steps 5 and 8, sec. 7).
 
+Sensel planes are (4, rows, cols) in R, Gr, Gb, B order (:data:`lowcam.geometry.CFA_CHANNELS`), with borders, in
+8-bit DN. The Fire-i's 2x2-block demosaicing (sec. 4.4.1, Fig. 5) makes red and blue nearest-neighbour blocks
+and green the mean of the Gr and Gb blocks; the camera's method is identified from the correlations of its
+temporal noise in 4x4 blocks (the paper's Fig. 4).
+
 Contents
 --------
-- :class:`BayerSampling`: Samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
-- :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5): red and blue are
-  nearest-neighbour blocks, green is the mean of the Gr and Gb blocks
-- :func:`mosaic`: Interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
-- :func:`unmosaic`: Split a Bayer frame (H, W), or an RGB frame (H, W, 3) sampled through the mosaic, into four
-  planes with replicated borders
-- :func:`demosaic_bilinear`: Bilinear demosaicing of the four sensel planes (the raw-Bayer pipeline, sec. 7);
-  returns (H, W, 3)
-- :class:`Demosaic`: Reconstructs full-colour premultiplied RGB and per-channel alpha from the sensel planes
-- :func:`block_correlations`: 16x16 correlation between the pixels of aligned 4x4 blocks (the paper's Fig. 4), from
-  the temporal noise of a stack (N, H, W, 3) of frames of a static scene, over all blocks and frames
-- :func:`predicted_correlations`: The 4x4-block correlations that independent sensel noise produces through a
-  demosaicing ``method``
-- :func:`identify_demosaic`: Score each method of :data:`DEMOSAIC_METHODS` against the measured noise correlations
-  of a stack of frames of a static scene; the lowest error (mean absolute difference of the off-diagonal
-  correlations over the three channels) wins
+- :class:`BayerSampling`: samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
+- :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5)
+- :func:`mosaic`: interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
+- :func:`unmosaic`: split a Bayer (or mosaic-sampled RGB) frame into four planes with replicated borders
+- :func:`demosaic_bilinear`: bilinear demosaicing (the raw-Bayer pipeline, sec. 7); returns (H, W, 3)
+- :class:`Demosaic`: full-colour premultiplied RGB and per-channel alpha from the planes (sec. 5.2 step 8)
+- :data:`DEMOSAIC_METHODS`: the methods identification compares: block, bilinear and OpenCV's edge-aware
+- :func:`block_correlations`: 16x16 noise correlations between the pixels of 4x4 blocks (Fig. 4)
+- :func:`predicted_correlations`: the 4x4-block correlations independent sensel noise gives through a method
+- :func:`identify_demosaic`: score each method against the measured correlations; the lowest error wins
 
 References
 ----------

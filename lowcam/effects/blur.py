@@ -1,33 +1,31 @@
-"""Gaussian blurs: the spatially varying optical blur and the sensor's horizontal blur (Klein & Murray 2010,
-sec. 4.3, 5.2 steps 3 and 6).
+"""Gaussian blurs: the varying optical blur and the sensor's horizontal blur (Klein & Murray 2010, sec. 4.3, 5.2).
+
+The spatially varying blur is step 3 of sec. 5.2, on a 24x18-cell grid: ``sigma^2 = antialias^2 +
+(corner_softness |d_red - d_blue|)^2 + gap^2`` in output pixels, blended from a few uniform blurs. The horizontal
+blur of every sensel plane is step 6 (7 taps, sigma 0.7 sensels, sec. 4.3). Its calibration measures edge spread
+across slanted edges: the extra horizontal blur is ``sqrt(sigma_h^2 - sigma_v^2)`` px, half that in sensels.
 
 Contents
 --------
-- :func:`gaussian_taps`: A normalised ``taps``-tap sampled Gaussian of standard deviation ``sigma`` (px)
-- :func:`blur_levels`: Blur radii (px) whose blend covers any sigma in [lo, hi]: 0, then octaves from 0.5 px
-- :func:`level_weights`: Piecewise-linear (hat) weights of each blur level for each sigma; they sum to 1
-- :func:`blur_level_maps`: The uniform Gaussian blurs (sigma, px) a blur varying as ``sigma_grid`` blends, each with
-  its weight map over an image of ``shape`` (rows, cols), bilinear from the grid; the maps sum to 1
-- :func:`varying_gaussian`: Blur ``image`` with a Gaussian whose sigma (px) varies smoothly as given by
-  ``sigma_grid``
-- :class:`SpatialBlur`: Spatially varying Gaussian blur on a 24x18-cell grid (sec. 5.2 step 3)
-- :class:`HorizontalBlur`: Horizontal Gaussian blur of every sensel plane, 7 taps, sigma 0.7 sensels (sec. 4.3, 5.2
-  step 6)
-- :func:`filter_rows`: Convolve every sensel plane's colour and alpha along rows with ``kernel``
-- :func:`edge_sigma`: Gaussian sigma (px) of the edge spread across the one straight edge inside the box [x0:x1,
-  y0:y1], and the edge normal's angle (rad, 0 = the normal points along +x)
-- :func:`find_edges`: Boxes around the sides of every dark or bright slanted square in a greyscale image: returns a
-  list of ``(x0, y0, x1, y1, orientation)`` with orientation ``"vertical"`` or ``"horizontal"`` (the edge's)
-- :func:`fit_edge_blur`: Horizontal and vertical edge-spread sigmas (px) from frames of slanted squares, and the
-  extra horizontal blur that makes them differ (sec. 4.3): ``sqrt(sigma_h^2 - sigma_v^2)``, also in sensels (half of
-  it, since each Bayer channel has half the frame's resolution)
-- :class:`VerticalBlur`: Vertical Gaussian blur of every sensel plane (sigma in sensels): blur the paper's camera
-  did not show, as a candidate for others (sec. 4.3 measured only a horizontal one)
+- :func:`gaussian_taps`: a normalised ``taps``-tap sampled Gaussian of standard deviation ``sigma`` (px)
+- :func:`blur_levels`: blur radii (px) whose blend covers any sigma in [lo, hi]: 0, then octaves from 0.5 px
+- :func:`level_weights`: piecewise-linear (hat) weights of each blur level for each sigma; they sum to 1
+- :func:`blur_level_maps`: the uniform blurs a sigma grid blends, each with its weight map over the image
+- :func:`varying_gaussian`: blur an image with a Gaussian whose sigma varies smoothly over a coarse grid
+- :class:`SpatialBlur`: spatially varying Gaussian blur on a 24x18-cell grid (sec. 5.2 step 3)
+- :class:`HorizontalBlur`: horizontal Gaussian blur of every sensel plane, 7 taps, sigma 0.7 (sec. 4.3, step 6)
+- :func:`filter_rows`: convolve every sensel plane's colour and alpha along rows with a kernel
+- :func:`edge_sigma`: Gaussian sigma (px) of the edge spread across one slanted edge, and its normal's angle
+- :func:`find_edges`: boxes around the sides of every slanted square in a greyscale image
+- :func:`fit_edge_blur`: horizontal and vertical edge-spread sigmas, and the extra horizontal blur (sec. 4.3)
+- :class:`VerticalBlur`: vertical Gaussian blur of every sensel plane: a candidate the paper's camera did not show
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [ISO12233] ISO 12233:2017, "Photography - Electronic still picture imaging - Resolution and spatial frequency
+  responses" (the slanted-edge method).
 """
 from __future__ import annotations
 

@@ -1,21 +1,22 @@
 """Lateral chromatic aberration: per-channel sampling offsets (Klein & Murray 2010, sec. 4.1, 5.2 step 5).
 
+Red and blue sensels sample the image through their own offset grids; green is the reference. A grid is (rows,
+cols, 4) ``[red_du, red_dv, blue_du, blue_dv]`` in output pixels at the cell centres of the output frame (24x18
+cells in the paper), stored as a CSV (:data:`CSV_COLUMNS`). Without a measured grid, a radial model displaces
+red and blue outward by ``s (rho + cubic rho^3) / (1 + cubic)``, ``rho`` = radius / half-diagonal, ``s`` the
+displacement at the corner. The calibration measures the offsets by Lucas-Kanade alignment of red and blue to
+green over patches of a noise target, as the paper does (sec. 4.1).
+
 Contents
 --------
-- :func:`read_ca_grid`: Read a chromatic-aberration grid CSV
-- :func:`write_ca_grid`: Write ``grid`` (rows, cols, 4) for an output frame of ``width`` x ``height`` in
-  :func:`read_ca_grid`'s format
-- :func:`radial_ca_grid`: A lateral-colour grid from a radial model: displacement ``s (rho + cubic rho^3) / (1 +
-  cubic)`` outward, ``rho`` = radius / half-diagonal, ``s`` = ``red_px`` or ``blue_px`` (the displacement at the
-  corner)
-- :class:`ChromaticAberration`: Red and blue sensels sample the image through their own offset grids; green is the
-  reference
-- :func:`lk_shift`: Lucas-Kanade translation ``d`` such that ``moving(p) ~ ref(p + d)`` over a ``size`` x ``size``
-  patch at ``centre`` (Gauss-Newton on bilinearly resampled ``ref``, sub-pixel)
-- :func:`channel_shifts`: Where red and blue sample relative to green around each point (``u``, ``v``) of an (H, W,
-  3) ``frame``: ``(..., 4)`` ``[red_du, red_dv, blue_du, blue_dv]`` in pixels by Lucas-Kanade over ``patch`` x
-  ``patch`` patches (NaN where the patch has too little texture)
-- :func:`fit_chromatic_aberration`: The lateral-colour grid from frames of a grey white-noise field (sec. 4.1)
+- :data:`CSV_COLUMNS`: the header of a grid CSV: ``u,v,red_du,red_dv,blue_du,blue_dv``
+- :func:`read_ca_grid`: read a chromatic-aberration grid CSV as (rows, cols, 4)
+- :func:`write_ca_grid`: write a grid for an output frame of ``width`` x ``height`` in the same format
+- :func:`radial_ca_grid`: a lateral-colour grid from the radial model
+- :class:`ChromaticAberration`: red and blue sample through their own offset grids; green is the reference
+- :func:`lk_shift`: Lucas-Kanade sub-pixel translation of one patch (Gauss-Newton) [Lucas1981]
+- :func:`channel_shifts`: where red and blue sample relative to green around given points, by Lucas-Kanade
+- :func:`fit_chromatic_aberration`: the lateral-colour grid from frames of a grey white-noise field (sec. 4.1)
 
 References
 ----------

@@ -1,13 +1,16 @@
-"""Colour crosstalk of the Bayer filters, and its calibration from a colour chart (Klein & Murray 2010, sec. 4.2,
-5.2 step 2).
+"""Colour crosstalk of the Bayer filters, and its calibration from a colour chart (Klein & Murray 2010, sec. 4.2).
+
+The rendered colour is mixed as ``rgb' = N (M rgb)`` (sec. 5.2 step 2): ``M`` the filter crosstalk matrix (the
+Fire-i's from its sensor's spectral chart, rows summing to 1), ``N`` the paper's further 5 % of every channel
+added to every other, rows renormalised so white stays white. The calibration fits the camera's total colour
+matrix to chart patches and divides the saturation setting out: ``S(beta)^-1 M``, rows renormalised to 1.
 
 Contents
 --------
-- :class:`Crosstalk`: Mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
-- :func:`fit_colour_matrix`: The 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches; both (N, 3),
-  same units)
-- :func:`crosstalk_from_colour_matrix`: Undo the camera's saturation setting: the sensor's own mixing ``S(beta)^-1
-  M``, rows renormalised to 1 (sec. 4.2, 4.4.2)
+- :data:`FIRE_I_CROSSTALK`: the Fire-i filter response to 700/546/438 nm primaries (sec. 4.2)
+- :class:`Crosstalk`: mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
+- :func:`fit_colour_matrix`: the 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches)
+- :func:`crosstalk_from_colour_matrix`: the sensor's own mixing, the saturation setting undone (sec. 4.2, 4.4.2)
 
 References
 ----------

@@ -2,8 +2,8 @@
 
 Contents
 --------
-- :func:`disc_kernel`: A normalised, anti-aliased pillbox of ``radius_px``
-- :class:`Defocus`: Out-of-focus blur: the working image convolved with a disc of ``radius_px`` output pixels
+- :func:`disc_kernel`: a normalised, anti-aliased pillbox of ``radius_px``
+- :class:`Defocus`: out-of-focus blur: the working image convolved with a disc of ``radius_px`` output pixels
 
 References
 ----------

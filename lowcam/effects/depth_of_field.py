@@ -1,15 +1,15 @@
-"""Defocus from depth: each point spreads over the disc its distance from the focus plane gives it (beyond the
-paper, whose fixed-focus camera is sharp at its working distances; Fig. 15 lists depth of field as a drawback).
+"""Defocus from depth: each point spreads over the disc its distance from the focus plane gives it.
 
-A thin lens with entrance pupil ``A`` focused at ``s`` images a point at depth ``z`` as a disc subtending
-``A |1/z - 1/s|`` radians, so its radius in render pixels is ``0.5 A |1/z - 1/s| f_px``.
+This goes beyond the paper, whose fixed-focus camera is sharp at its working distances (Fig. 15 lists depth of
+field as a drawback). A thin lens with entrance pupil ``A`` focused at ``s`` images a point at depth ``z`` as a
+disc subtending ``A |1/z - 1/s|`` radians, so its radius in render pixels is ``0.5 A |1/z - 1/s| f_px``.
 
 Contents
 --------
-- :func:`blur_radius_px`: Radius (px) of the blur disc of points at ``depth_m``: ``0.5 A |1/z - 1/s| f_px``
-- :func:`scatter_discs`: Spread each pixel of premultiplied ``image`` over a disc of its own ``radius_px`` (H, W)
-- :class:`DepthOfField`: Defocus blur that grows with the distance from the focus plane (needs a depth pass:
-  Blender's Z pass through the add-on or ``lowcam render``)
+- :data:`RADIUS_LEVELS`: disc radii (render px) of the layers a varying blur is blended from
+- :func:`blur_radius_px`: radius (px) of the blur disc of points at ``depth_m``: ``0.5 A |1/z - 1/s| f_px``
+- :func:`scatter_discs`: spread each pixel of a premultiplied image over a disc of its own radius
+- :class:`DepthOfField`: defocus blur that grows with the distance from the focus plane (needs a depth pass)
 
 References
 ----------

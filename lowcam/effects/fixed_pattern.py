@@ -1,14 +1,16 @@
-"""Fixed-pattern sensor defects: gain (PRNU), offset (DSNU) and hot pixels; row noise (Irie et al., cited in the
-paper's sec. 4.3, which found PRNU imperceptible on the Fire-i indoors).
+"""Fixed-pattern sensor defects (PRNU, DSNU, hot pixels) and row noise (Klein & Murray 2010, sec. 4.3).
+
+Irie et al., cited in the paper's sec. 4.3, found the Fire-i's noise dominated by shot noise, readout noise and
+photo-response non-uniformity (PRNU); the paper found PRNU imperceptible on the Fire-i indoors. These effects are
+candidates for other cameras. The fixed maps act on the demosaiced frame, per pixel and channel, from a ``.npy``
+texture (H, W, 3) or drawn from ``pattern_seed``; row noise acts on the sensel planes, seeded per frame.
 
 Contents
 --------
-- :class:`PRNU`: Photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)
-- :class:`DSNU`: Dark-signal non-uniformity: each pixel adds a fixed offset (DN; ``strength``: its sigma), where the
-  graphics cover it
-- :class:`HotPixels`: A ``fraction`` of pixels with a large fixed offset (``strength`` DN, all channels)
-- :class:`RowNoise`: Temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``, all
-  sensels of the row), seeded per frame like the pixel noise
+- :class:`PRNU`: photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)
+- :class:`DSNU`: dark-signal non-uniformity: a fixed offset per pixel (DN; ``strength``: its sigma)
+- :class:`HotPixels`: a ``fraction`` of pixels with a large fixed offset (``strength`` DN, all channels)
+- :class:`RowNoise`: temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``)
 
 References
 ----------
@@ -16,6 +18,8 @@ References
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 - [Irie2008] K. Irie, A. E. McKinnon, K. Unsworth and I. M. Woodhead, "A Model for Measurement of Noise in CCD
   Digital-Video Cameras", Measurement Science and Technology 19(4), 2008.
+- [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
+  (the definitions of DSNU and PRNU).
 """
 from __future__ import annotations
 

@@ -1,9 +1,11 @@
 """Half-sampling of the distorted image (Klein & Murray 2010, sec. 5.2 step 2).
 
+The paper takes four bilinear taps just outside the 2x2 box (a slightly enlarged box, against aliasing); here the
+exact 2x2 box is followed by the 3-tap kernel ``[e, 1 - 2e, e]`` on the half-resolution image.
+
 Contents
 --------
-- :class:`HalfSampling`: 2x2 box down-sampling of the supersampled working image, slightly enlarged to avoid
-  aliasing
+- :class:`HalfSampling`: 2x2 box down-sampling of the supersampled working image, slightly enlarged
 
 References
 ----------

@@ -1,13 +1,16 @@
 """JPEG compression of the delivered frame (a phone's or webcam's MJPEG stream; not in the paper).
 
+The frame is encoded with OpenCV's libjpeg (4:2:0 chroma) and decoded again. The whole frame is recompressed, so
+no pixel keeps the plate's exact bytes.
+
 Contents
 --------
-- :class:`Jpeg`: Encodes the final 8-bit frame as JPEG at ``quality`` and decodes it again (OpenCV's libjpeg, 4:2:0)
+- :class:`Jpeg`: encodes the final 8-bit frame as JPEG at ``quality`` and decodes it again
 
 References
 ----------
-- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
-  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [T.81] ITU-T Recommendation T.81 | ISO/IEC 10918-1, "Digital compression and coding of continuous-tone still
+  images" (JPEG), 1992.
 """
 from __future__ import annotations
 

@@ -19,19 +19,20 @@ Models
     ``brown_k1..brown_k4, brown_p1, brown_p2``. They are evaluated in Blender's pixel frame (origin bottom-left,
     y up), so a camera solved in Blender is used as it is.
 
+Fitting (sec. 4.1): from views of a chessboard or ChArUco board, the poses start from OpenCV's pinhole
+calibration (Zhang's method); intrinsics, distortion and poses are then refined together by Levenberg-Marquardt
+on the reprojection error (the paper uses damped Gauss-Newton).
+
 Contents
 --------
-- :class:`LensModel`: Mapping between the pinhole camera plane and output pixels
-- :class:`PinholeLens`: No distortion: ``u = cx + fx x``
-- :class:`FovLens`: Devernay & Faugeras' FOV model with PTAM's normalised parameters (see the module docstring)
+- :class:`LensModel`: mapping between the pinhole camera plane and output pixels, both ways
+- :class:`PinholeLens`: no distortion: ``u = cx + fx x``
+- :class:`FovLens`: Devernay & Faugeras' FOV model with PTAM's normalised parameters (``fov`` above)
 - :class:`OpenCVLens`: Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2
-- :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame (origin bottom-left, y
-  up)
-- :class:`LensDistortion`: Warps the ideal pinhole render through the lens into the supersampled working grid (sec.
-  5.2 step 1)
-- :class:`LensFit`: Result of :func:`fit_lens`: the fitted :class:`LensDistortion` parameters and the reprojection
-  errors
-- :func:`fit_lens`: Fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target
+- :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame
+- :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
+- :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
+- :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
 
 References
 ----------

@@ -1,14 +1,16 @@
 """Motion blur from camera rotation during the exposure (Klein & Murray 2010, sec. 5.2 step 4).
 
+Rotation only, as in the paper. Pixel p at time t sees the ray ``R(t) d_p`` of the mid-exposure camera,
+``R(t) = exp([w]x t)`` for the body rate ``w`` (rad/s, camera frame: x right, y down, z forward); the taps are
+these exact projections at the midpoints of equal slices of the exposure, on a 24x18-cell grid (the paper takes
+16 straight taps along the local flow).
+
 Contents
 --------
-- :func:`rotation_matrices`: Rotations ``exp([w]x t)`` for a constant body rate ``angular_velocity`` (rad/s, camera
-  frame) at ``times``
-- :func:`tap_offsets`: Where pixel (u, v) looks in the mid-exposure image at each of ``taps`` instants of the
-  exposure
-- :func:`shutter_s`: The exposure (s) the motion effects integrate over: the frame's own, else the ``motion_blur``
-  effect's ``exposure_s``, else the camera's
-- :class:`MotionBlur`: ``taps``-tap motion blur along the flow that the camera's rotation produces over the exposure
+- :func:`rotation_matrices`: rotations ``exp([w]x t)`` for a constant body rate at ``times``
+- :func:`tap_offsets`: where pixel (u, v) looks in the mid-exposure image at each tap of the exposure
+- :func:`shutter_s`: the exposure (s) the motion effects integrate over: the frame's, the effect's or the camera's
+- :class:`MotionBlur`: ``taps``-tap motion blur along the flow the camera's rotation produces over the exposure
 
 References
 ----------

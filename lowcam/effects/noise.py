@@ -1,18 +1,24 @@
 """Sensor noise with an intensity-dependent standard deviation (Klein & Murray 2010, sec. 4.3, 5.2 step 5).
 
+Gaussian noise per sensel, independent in space and time, in 8-bit DN, under one of two laws per channel:
+``sigma = a + b mu`` (the paper's linear fit, sec. 4.3) or ``sigma^2 = a + b mu`` (photon transfer: read noise
+plus shot noise, the form Irie et al. and EMVA 1288 predict). Under the Fire-i's 2x2-block demosaicing each
+green pixel averages two sensels, so the measured green law is scaled by sqrt 2 (sigma) or 2 (variance) to give
+the per-sensel one; red and blue are not scaled. Means above 220 DN are left out of the fits (saturation).
+
 Contents
 --------
-- :func:`frame_rng`: The random generator of one frame: reproducible from (seed, frame) alone, independent between
-  frames
-- :class:`Noise`: Gaussian noise per sensel, independent in space and time, its sigma a function of the mean (DN)
-- :func:`fit_noise_law`: Fit ``[a, b]`` of a noise law to per-pixel temporal means and standard deviations (sec.
-  4.3)
-- :func:`fit_noise`: Both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
+- :func:`frame_rng`: the random generator of one frame: reproducible from (seed, frame), independent between frames
+- :class:`Noise`: Gaussian noise per sensel, its sigma a function of the mean (DN), scaled by alpha
+- :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3)
+- :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Irie2008] K. Irie, A. E. McKinnon, K. Unsworth and I. M. Woodhead, "A Model for Measurement of Noise in CCD
+  Digital-Video Cameras", Measurement Science and Technology 19(4), 2008.
 - [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
   (photon transfer).
 """

@@ -1,5 +1,6 @@
-"""Motion blur from everything the camera's rotation does not explain: moving objects and the camera's translation
-(beyond the paper, which blurs camera rotation only; its Fig. 15 lists this as a drawback).
+"""Motion blur from everything the camera's rotation does not explain: moving objects, the camera's translation.
+
+This goes beyond the paper, which blurs camera rotation only (its Fig. 15 lists this as a drawback).
 
 The renderer's velocity pass (:class:`lowcam.passes.RenderPasses`) gives each pixel's image velocity. The part a
 static scene would have under the camera's angular velocity, :func:`rotation_velocity`, is left to
@@ -9,13 +10,9 @@ the convolution of both streaks: its extent is right, its profile a trapezoid in
 
 Contents
 --------
-- :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s, x right, y down) of a static scene seen by a
-  pinhole camera of ``focal_px`` (centred, ``shape`` = (rows, cols)) turning at ``angular_velocity`` (rad/s, camera
-  frame)
-- :func:`splat_along`: Spread each pixel of premultiplied RGBA ``image`` evenly along the segment ``[-shift/2,
-  +shift/2]`` around it (``shift_px`` (H, W, 2): the pixel's path over the exposure, px)
-- :class:`ObjectMotion`: Blur along each pixel's image velocity minus the camera rotation's, over the shutter (needs
-  a velocity pass: Blender's Vector pass through the add-on or ``lowcam render``)
+- :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s) of a static scene under a turning pinhole camera
+- :func:`splat_along`: spread each pixel of a premultiplied RGBA image evenly along its path over the exposure
+- :class:`ObjectMotion`: blur along each pixel's velocity minus the camera rotation's (needs a velocity pass)
 
 References
 ----------

@@ -1,8 +1,12 @@
 """Quantisation of the sensel values to the camera's bit depth (Klein & Murray 2010, sec. 4.3, 5.2 step 7).
 
+The Fire-i's output shows 6-bit levels (steps of 4 DN) although its ADC has 10 bits. As on the paper's GPU
+(divide by 4, add 128, store in 8 bits), values keep their sign, so sharpening undershoot survives until
+blending.
+
 Contents
 --------
-- :class:`Quantisation`: Rounds each sensel's premultiplied value to ``bits`` of 8-bit range (sec. 4.3, 5.2 step 7)
+- :class:`Quantisation`: rounds each sensel's premultiplied value to ``bits`` of 8-bit range (sec. 4.3, 5.2 step 7)
 
 References
 ----------

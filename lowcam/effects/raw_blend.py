@@ -1,9 +1,12 @@
 """Blending into a raw Bayer frame (Klein & Murray 2010, sec. 7: the IDS uEye pipeline).
 
+For raw-Bayer cameras the chain stops after Bayer sampling (sec. 5.2 step 5): each rendered sensel plane is
+blended with the camera's own Bayer pixels, and the frame is then demosaiced bilinearly (sec. 7). Sensels that
+no graphics touch keep the plate's values exactly.
+
 Contents
 --------
-- :class:`RawBlend`: Blends each sensel plane directly into the camera's own Bayer pixels, then quantises to the raw
-  bit depth
+- :class:`RawBlend`: blends each sensel plane into the camera's own Bayer pixels, then quantises to the raw depth
 
 References
 ----------

@@ -1,9 +1,12 @@
 """Rolling shutter: rows exposed at different times while the camera turns (paper sec. 3, not simulated there).
 
+Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with the camera turning at
+``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches (``readout_s``: the time from the
+first row to the last). The effect adds sampling offsets on the 24x18-cell grid to every sensel's position.
+
 Contents
 --------
-- :class:`RollingShutter`: Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with
-  the camera turning at ``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches
+- :class:`RollingShutter`: each row sees the scene rotated as at its own exposure time (``readout_s``)
 
 References
 ----------

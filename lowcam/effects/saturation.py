@@ -1,11 +1,13 @@
-"""The camera's saturation control: ``A + (beta / 65)(I - A)`` after demosaicing (Klein & Murray 2010, sec.
-4.4.2).
+"""The camera's saturation control after demosaicing (Klein & Murray 2010, sec. 4.4.2).
+
+``S(beta) = A + (beta / 65) (I - A)``, every row of A equal to ``[0.2915 0.5887 0.1113]``: the paper's
+``A + beta B`` with ``B = (I - A) / 65``, so ``beta = 65`` is the identity (the Fire-i's default is 90).
 
 Contents
 --------
-- :func:`saturation_matrix`: The Fire-i saturation control ``S(beta) = A + (beta / 65) (I - A)``, every row of A
-  equal to ``luma``
-- :class:`Saturation`: The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2)
+- :data:`SATURATION_LUMA`: the rows of the control's fixed part A (sec. 4.4.2)
+- :func:`saturation_matrix`: the Fire-i saturation control ``S(beta)``
+- :class:`Saturation`: the saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2)
 
 References
 ----------

@@ -1,18 +1,17 @@
-"""In-camera sharpening: horizontal unsharp masking and its calibration (Klein & Murray 2010, sec. 4.4.3, 5.2
-step 7).
+"""In-camera sharpening: horizontal unsharp masking and its calibration (Klein & Murray 2010, sec. 4.4.3).
+
+The camera sharpens each colour channel's 320x240 image horizontally (sec. 5.2 step 7). The paper measures a
+long, asymmetric 101-tap filter and simulates it with the symmetric 7-tap ``F = I + a (I - L)``, ``L`` a Gaussian
+of sigma 0.55 sensels. The relation between ``a`` and the sharpness setting was lost from the text; here
+``a = gain_per_unit * sharpness`` (a profile parameter; see :class:`Sharpening`).
 
 Contents
 --------
-- :func:`sharpening_kernel`: The row filter of ``F = I + a (I - L)``, ``L`` a ``taps``-tap Gaussian of ``sigma``
-  sensels centred ``shift`` sensels off the middle tap (sec. 4.4.3)
-- :class:`Sharpening`: Horizontal unsharp masking ``F = I + a (I - L)`` on each sensel plane, ``L`` a ``taps``-tap
-  Gaussian
-- :func:`fit_row_filter`: The ``taps``-tap FIR filter h with ``sharp[row] = soft[row] * h`` in the least-squares
-  sense over every row of two 2-D images of the same static scene (the paper's 101-tap estimate, sec. 4.4.3)
-- :func:`frequency_response`: |H(f)| of a symmetric-centred FIR kernel at ``n`` frequencies from 0 to Nyquist
-  (cycles/sample)
-- :func:`fit_sharpening_to_images`: (a, sigma) of ``F = I + a (I - L_sigma)`` that best maps the rows of ``soft``
-  onto ``sharp`` (least squares in the image, so only frequencies the scene actually contains decide the fit)
+- :func:`sharpening_kernel`: the row filter of ``F = I + a (I - L)``, ``L`` a Gaussian, optionally off centre
+- :class:`Sharpening`: horizontal unsharp masking ``F = I + a (I - L)`` on each sensel plane
+- :func:`fit_row_filter`: the free FIR filter mapping soft rows onto sharp rows (the paper's 101-tap estimate)
+- :func:`frequency_response`: |H(f)| of a centred FIR kernel from 0 to Nyquist (cycles/sample)
+- :func:`fit_sharpening_to_images`: (a, sigma) of ``F = I + a (I - L_sigma)`` fitted to the images themselves
 
 References
 ----------

@@ -1,9 +1,11 @@
 """The camera's tone curve (gamma): not modelled in the paper (sec. 8 names it as missing).
 
+``out = 255 (in / 255)^(1 / gamma)`` on each channel of the demosaiced frame, in straight colour so partial
+coverage keeps its alpha; ``gamma`` 1 is the identity, 2.2 a typical display encoding.
+
 Contents
 --------
-- :class:`ToneCurve`: ``out = 255 (in / 255)^(1 / gamma)`` on each channel of the demosaiced frame (straight colour,
-  so partial coverage keeps its alpha)
+- :class:`ToneCurve`: ``out = 255 (in / 255)^(1 / gamma)`` on each channel of the demosaiced frame
 
 References
 ----------

@@ -1,9 +1,11 @@
 """Veiling glare: light scattered inside the lens spreads a faint haze around bright areas (sec. 3: flare).
 
+The haze is ``strength`` times a wide Gaussian blur (``radius_px`` output pixels) of the light, added to the light.
+It reaches beyond the graphics' edges: colour without alpha, so it adds to the plate there.
+
 Contents
 --------
-- :class:`VeilingGlare`: Adds ``strength`` times a wide Gaussian blur (``radius_px`` output pixels) of the light to
-  the light; the haze reaches beyond the graphics' edges (colour without alpha: it adds to the plate there)
+- :class:`VeilingGlare`: adds ``strength`` times a wide Gaussian blur (``radius_px``) of the light to the light
 
 References
 ----------

@@ -1,14 +1,15 @@
-"""Vignetting: multiplicative fall-off of the rendered light towards the corners (Klein & Murray 2010, sec. 4.1,
-Fig. 2; sec. 5.2 step 5).
+"""Vignetting: multiplicative fall-off of the rendered light towards the corners (Klein & Murray 2010, sec. 4.1).
+
+Each sensel's colour (not its alpha) is multiplied by a gain texture over the output frame (80x60 in the paper,
+Fig. 2; brightest texel = 1) at Bayer sampling (sec. 5.2 step 5). Without a measured texture, a radial model
+``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) is used. The calibration averages flat fields, blurs
+away sensor and target irregularities, subsamples and normalises, as the paper does (sec. 4.1).
 
 Contents
 --------
-- :func:`radial_vignetting`: Gain map ``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) at the cell centres
-  of a ``shape`` (rows, cols) texture over the frame, normalised to a maximum of 1
-- :class:`Vignetting`: Multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
-- :func:`fit_vignetting`: The gain texture from flat-field frames (sec. 4.1): average them, blur away sensor and
-  target irregularities (Gaussian, sigma = ``blur_fraction`` of the frame width), subsample to ``shape`` (rows,
-  cols) and normalise the brightest texel to 1
+- :func:`radial_vignetting`: gain map ``1 + k2 rho^2 + k4 rho^4`` over a (rows, cols) texture, maximum 1
+- :class:`Vignetting`: multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
+- :func:`fit_vignetting`: the gain texture from flat-field frames (sec. 4.1)
 
 References
 ----------

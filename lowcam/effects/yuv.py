@@ -1,18 +1,25 @@
 """Blending in YUV and YUV 4:1:1 chroma (Klein & Murray 2010, sec. 5.2 steps 8-10).
 
+The composite is ``video + delta`` with ``delta = rgb - alpha * video`` held in YUV, so video pixels no graphics
+touch stay bit-for-bit unchanged (step 8). The graphics' chroma is then box-averaged over groups of 4 horizontal
+pixels and recombined with the full-resolution Y without interpolation (steps 9-10). YUV is full-range BT.601
+(JFIF): ``Y = 0.299 R + 0.587 G + 0.114 B``.
+
 Contents
 --------
+- :data:`RGB_TO_YUV`: the full-range BT.601 (JFIF) RGB -> YUV matrix
+- :data:`YUV_TO_RGB`: its inverse
 - :func:`rgb_to_yuv`: (..., 3) RGB to YUV with BT.601 luma weights
 - :func:`yuv_to_rgb`: its inverse
-- :class:`YuvBlend`: Blends the rendered light into the video frame in YUV, each channel with its own alpha (step 8)
-- :class:`ChromaSubsampling`: YUV 4:1:1: U and V are box-averaged over groups of ``group`` horizontal pixels and
-  recombined with the full-resolution Y without interpolation (steps 9-10)
+- :class:`YuvBlend`: blends the rendered light into the video frame in YUV, each channel with its own alpha
+- :class:`ChromaSubsampling`: YUV 4:1:1: U and V box-averaged over ``group`` horizontal pixels (steps 9-10)
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
-- [BT601] ITU-R Recommendation BT.601, "Studio encoding parameters of digital television" (the Y'CbCr luma weights).
+- [ITU-R BT.601] ITU-R Recommendation BT.601, "Studio encoding parameters of digital television for standard 4:3 and
+  wide-screen 16:9 aspect ratios" (the Y'CbCr luma and colour-difference weights).
 """
 from __future__ import annotations
 

@@ -13,23 +13,24 @@ For a capture with ``n`` measured frames F and ``K`` simulated frames G (the pro
 - ``rows``: the variance of per-frame row means of the noise (row noise), measured over model, as ``e_var``.
 
 The error is ``sqrt((e_mean^2 + e_var^2 + e_rows^2) / 3)``, over all captures: 1.0 (the noise floor) when the
-model explains the frames down to their noise. The verdict is ``explained`` below 1.1.
+model explains the frames down to their noise. The verdict is ``explained`` up to 1.1 times the noise floor
+(:attr:`Comparison.noise_floor`, 1.0 unless set), ``not explained`` above.
 
 Contents
 --------
+- :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
+- :data:`SIM_SEED`: the first noise seed of the simulated frames
+- :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
 - :class:`CaptureStats`: one capture's measured and simulated frames and its error sums
 - :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
 - :func:`capture_inputs`: (ideal render, plate) for a capture, rendering the target's ideal view when needed
-- :func:`prefix_key`: Identifies the first ``count`` effects of a profile (and its camera) for caching their output
-- :func:`simulate_capture`: ``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of
-  ``seed``); the deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it
-- :func:`row_noise_variance`: Per channel: the variance of the per-frame row means of the noise of a (frames, H, W,
-  3) stack, over rows and frames (row noise shows here; pixel noise averages out over a row)
+- :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
+- :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
+- :func:`row_noise_variance`: per channel, the variance of the per-frame row means of the noise of a stack
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
 - :func:`combine`: the error and its families over all captures
-- :func:`where`: Where the mean residual lives: per channel, per region (3x3), per spatial-frequency band, per
-  brightness
-- :func:`compare`: Compare a profile with a measurement set (see the module docstring for the error)
+- :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
+- :func:`compare`: compare a profile with a measurement set (the error above)
 """
 from __future__ import annotations
 

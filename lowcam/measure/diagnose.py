@@ -11,26 +11,34 @@ score is at most 1.25; ``unexplained`` otherwise (``where`` then still says wher
 
 Contents
 --------
+- :data:`UNEXPLAINED_ABOVE`: the best candidate's score above which the verdict is ``unexplained`` (1.25)
+- :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
 - :class:`Candidate`: one fitted candidate: its error after, score, params and evidence
-- :class:`Context`: The measured set, the profile, cached inputs and the noise-free objective
-- :func:`candidates`: Candidate name -> list of (effect class, :class:`~lowcam.effects.Search`), from every known
-  effect's ``searches`` (bundled and plug-in), in chain order
-- :func:`candidate_effect`: The profile effect a candidate adds or changes
-- :func:`fit_candidate`: Fit candidate ``name`` on ``ctx.profile``: (profile with it, fitted params, evidence), or
-  None when the profile or the captures cannot show it
+- :class:`Context`: the measured set, the profile, cached inputs and the noise-free objective
+- :func:`candidates`: candidate name -> (effect class, :class:`~lowcam.effects.Search`) pairs, in chain order
+- :func:`candidate_effect`: the profile effect a candidate adds or changes
+- :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence), or None
 - :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
 - :func:`fit_pixel_offset`: DSNU: the per-pixel mean offset of the measured means from the clean model
-- :func:`fit_hot_pixels`: Pixels far brighter than the model in every capture that can show it (robust threshold)
-- :func:`fit_row_noise`: Row noise from the excess variance of row means over the model's, refined on the full error
-- :func:`fit_colour_matrix`: A crosstalk matrix from a least-squares colour matrix between the clean model and the
-  means
-- :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise:
-  :attr:`Candidate.score`)
+- :func:`fit_hot_pixels`: pixels far brighter than the model in every capture that can show it
+- :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
+- :func:`fit_colour_matrix`: a crosstalk matrix from a colour matrix between the clean model and the means
+- :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
+- :data:`PER_PIXEL_FITS`: the closed-form fits that give a dense per-pixel map
+- :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
 - :class:`Diagnosis`: the comparison, the ranked candidates and the verdict
-- :func:`rank`: Fit every named candidate on ``ctx.profile`` and rank them by score
-- :func:`diagnose`: Rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set
-- :func:`save_candidate_profile`: Write the candidate's profile; fitted maps (.npy) are copied into a folder beside
-  it
+- :func:`rank`: fit every named candidate and rank them by score
+- :func:`diagnose`: rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set
+- :func:`save_candidate_profile`: write a candidate's profile, its fitted maps (.npy) copied beside it
+
+References
+----------
+- [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
+  Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Irie2008] K. Irie, A. E. McKinnon, K. Unsworth and I. M. Woodhead, "A Model for Measurement of Noise in CCD
+  Digital-Video Cameras", Measurement Science and Technology 19(4), 2008 (fixed-pattern and row noise).
+- [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
+  (PRNU and DSNU).
 """
 from __future__ import annotations
 

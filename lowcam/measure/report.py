@@ -1,11 +1,12 @@
-"""Pictures of a comparison: residual maps, where the error lives, and measured-versus-model probes for each
-physical effect; the error history of a measurement set.
+"""Pictures of a comparison: residual maps, where the error lives, probes per effect, the error history.
+
+Measured-versus-model probes are drawn for each physical effect; the error history is kept per measurement set.
 
 Contents
 --------
-- :func:`probe_figures`: Every probe as (title, PNG path)
+- :func:`probe_figures`: every probe as (title, PNG path)
 - :func:`history_path`: where a set keeps its comparison history
-- :func:`record_history`: Append this comparison to the set's history (``<set>/.lowcam/history.json``) and return it
+- :func:`record_history`: append this comparison to the set's history (``<set>/.lowcam/history.json``)
 - :func:`history_figure`: the error against model versions, as a PNG
 - :func:`write_compare_report`: the HTML comparison report
 """

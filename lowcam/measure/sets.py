@@ -17,10 +17,11 @@ the frames); everything off the board is compared against the frames' own mean.
 
 Contents
 --------
+- :data:`CAPTURE_KEYS`: the keys a ``[[capture]]`` table may hold
 - :class:`Capture`: one capture: its frames, ideal or target, plate and motion
 - :class:`MeasurementSet`: the captures of a set.toml
-- :func:`load_set`: Read and validate a measurement set; errors name the file and the problem
-- :func:`write_set`: Write a measurement set
+- :func:`load_set`: read and validate a measurement set; errors name the file and the problem
+- :func:`write_set`: write a measurement set
 """
 from __future__ import annotations
 

@@ -2,11 +2,11 @@
 
 Contents
 --------
-- :func:`scenes`: Ideal scenes framed for ``profile``: name -> (premultiplied RGBA render, angular velocity)
+- :data:`PAN`: the camera's angular velocity (rad/s) during the "pan" capture
+- :func:`scenes`: ideal scenes framed for a profile: name -> (premultiplied RGBA render, angular velocity)
 - :func:`parse_change`: ``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value})
-- :func:`hidden_profile`: ``profile`` with effects added or changed (``add``: (name, values)) and others switched
-  off
-- :func:`synthesise`: Write a measurement set made by ``profile`` with hidden changes; returns its folder
+- :func:`hidden_profile`: a profile with effects added or changed and others switched off
+- :func:`synthesise`: write a measurement set made by a profile with hidden changes; returns its folder
 """
 from __future__ import annotations
 

@@ -1,13 +1,13 @@
 """Ideal views of printed targets for captures that give ``target`` instead of ``ideal``.
 
+The board's pose is estimated from the mean of the frames through the profile's lens, its white and black are
+taken from the frames, and the frames' own mean is the plate around it.
+
 Contents
 --------
-- :func:`board_texture`: A printed chessboard (``inner`` corners) with a ``border`` of white squares, and the
-  pixel->metre origin offset in squares (the first inner corner sits at the origin)
-- :func:`render_board_view`: A pinhole render (premultiplied RGBA, opaque on the board only) of a chessboard at pose
-  (rvec, tvec)
-- :func:`ideal_from_target`: (ideal render, plate) for a ``target`` capture: the board's pose from the frames
-  through the profile's lens, its white and black from the frames, and the frames' own mean as the plate around it
+- :func:`board_texture`: a printed chessboard with a border of white squares, and its pixel -> metre origin offset
+- :func:`render_board_view`: a pinhole render (premultiplied RGBA, opaque on the board) of a chessboard at a pose
+- :func:`ideal_from_target`: (ideal render, plate) for a ``target`` capture, the board's pose from the frames
 """
 from __future__ import annotations
 
