@@ -12,7 +12,9 @@ Contents
 --------
 - :data:`VIDEO_SUFFIXES`: file suffixes read as a video of plates
 - :func:`expand_pattern`: a ``####`` or ``%04d`` pattern with the frame number filled in
+- :data:`MAX_FRAMES`: the most frames one job takes
 - :func:`parse_frames`: ``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` -> sorted frame numbers
+- :func:`check_shot_outputs`: check every output of a shot before any frame is made
 - :class:`Shot`: everything one frame's job needs; picklable, so Dask can ship it to workers
 - :class:`FrameResult`: one frame's outcome in a shot
 - :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB
@@ -23,7 +25,10 @@ Contents
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +42,10 @@ VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpe
 def expand_pattern(pattern: str, frame: int) -> str:
     """``renders/####.exr`` or ``renders/%04d.exr`` with the frame number filled in."""
     if "%" in pattern:
-        return pattern % frame
+        try:
+            return pattern % frame
+        except (TypeError, ValueError) as e:
+            raise LowcamError(f"{pattern}: not a frame pattern ({e}); use one %d or a run of '#'") from None
     runs = list(re.finditer(r"#+", pattern))
     if not runs:
         raise LowcamError(f"{pattern}: the pattern has no '#' (or %d) for the frame number")
@@ -45,9 +53,17 @@ def expand_pattern(pattern: str, frame: int) -> str:
     return pattern[:m.start()] + f"{frame:0{len(m.group())}d}" + pattern[m.end():]
 
 
+#: The most frames one job takes (a day of 24 fps footage is 2 073 600): more is a typing error, not a shot.
+MAX_FRAMES = 2_000_000
+
+
 def parse_frames(spec: str) -> list[int]:
-    """``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers."""
+    """``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers, at most
+    :data:`MAX_FRAMES` of them, each a valid frame number (:data:`lowcam.effects.noise.FRAME_RANGE`)."""
+    from .effects.noise import FRAME_RANGE
+
     frames: set[int] = set()
+    count = 0
     for part in spec.split(","):
         m = re.fullmatch(r"\s*(-?\d+)(?:\s*-\s*(-?\d+)(?:x(\d+))?)?\s*", part)
         if not m:
@@ -57,6 +73,11 @@ def parse_frames(spec: str) -> list[int]:
         step = int(m.group(3) or 1)
         if b < a or step < 1:
             raise LowcamError(f"frames '{spec}': '{part}' is an empty range")
+        if a < FRAME_RANGE[0] or b >= FRAME_RANGE[1]:
+            raise LowcamError(f"frames '{spec}': frame numbers must lie in [-2^31, 2^31)")
+        count += (b - a) // step + 1
+        if count > MAX_FRAMES:
+            raise LowcamError(f"frames '{spec}': more than {MAX_FRAMES} frames in one job; split the shot")
         frames.update(range(a, b + 1, step))
     return sorted(frames)
 
@@ -73,6 +94,7 @@ class Shot:
     require_motion: bool = False
     seed: int = 0
     video_first_frame: int = 1
+    layer: str | None = None
 
     def output_path(self, frame: int) -> Path:
         return Path(expand_pattern(self.output, frame))
@@ -144,7 +166,7 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
         if motion is None and shot.require_motion:
             raise LowcamError(f"frame {frame}: no entry in the motion file")
         motion = motion or FrameMotion((0.0, 0.0, 0.0))
-        render = read_render(expand_pattern(shot.renders, frame))
+        render = read_render(expand_pattern(shot.renders, frame), shot.layer)
         plate = _read_plate(shot, frame, profile) if shot.plates else None
         image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame)
         write_image(out, image)
@@ -153,10 +175,28 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     return FrameResult(frame, "written", "", time.perf_counter() - t)
 
 
+def check_shot_outputs(output: str, renders: str, plates: str | None, frames: list[int], inputs=()) -> None:
+    """Check, before any frame is made, that every output path of the shot can be written and that none is a
+    render, a plate or one of ``inputs`` (the profile, the motion file)."""
+    from .io import check_image_output
+
+    check_image_output(expand_pattern(output, frames[0]), inputs)
+    video = plates if plates and Path(plates).suffix.lower() in VIDEO_SUFFIXES else None
+    for option, pattern in (("--renders", renders), ("--plates", None if video else plates)):
+        if pattern and os.path.realpath(pattern) == os.path.realpath(output):
+            raise LowcamError(f"{output}: the output pattern is the {option} pattern; choose another -o")
+    for f in frames:  # an output that exists must be a regular file and no input
+        out = expand_pattern(output, f)
+        if os.path.lexists(out):
+            sources = [expand_pattern(renders, f)] + ([expand_pattern(plates, f)] if plates and not video else [])
+            check_image_output(out, sources + ([video] if video else []) + list(inputs))
+
+
 def _progress(total: int, quiet: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="frame", disable=quiet, dynamic_ncols=True,
+    # on a terminal only (None): a log file gets the summary, not a stream of carriage returns
+    return tqdm(total=total, unit="frame", disable=True if quiet else None, dynamic_ncols=True,
                 bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} frames [{elapsed}<{remaining}, {rate_fmt}]")
 
 
@@ -164,38 +204,66 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
              quiet: bool = False) -> list[FrameResult]:
     """Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers`` processes,
     or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
+    from .io import remove_stale_temporaries
+
     _profile(shot.profile)  # a bad profile fails here, once, before any frame
+    if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
+        raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")
     for folder in {shot.output_path(f).parent for f in frames}:
-        for stale in folder.glob(".*.part*"):  # temporaries of writes that a killed run left behind
-            stale.unlink(missing_ok=True)
+        if folder.is_dir():  # temporaries that killed runs left; a live run's stay
+            remove_stale_temporaries(folder)
     results: list[FrameResult] = []
     bar = _progress(len(frames), quiet)
-    if not workers and not scheduler:
-        for f in frames:
-            results.append(process_frame(shot, f, force))
-            bar.update()
-    else:
-        from dask.distributed import Client, as_completed
-
-        cluster = None
-        if scheduler:
-            client = Client(scheduler, timeout="30s")
-        else:
-            cluster = local_cluster(workers)
-            client = Client(cluster)
-        try:
-            client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
-            futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
-                       for f in frames]
-            for future in as_completed(futures):
-                results.append(future.result())
+    try:
+        if not workers and not scheduler:
+            for f in frames:
+                results.append(process_frame(shot, f, force))
                 bar.update()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    bar.close()
+        else:
+            with _dask_client(workers, scheduler) as client:
+                client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
+                futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
+                           for f in frames]
+                from dask.distributed import as_completed
+
+                for future in as_completed(futures):
+                    results.append(future.result())
+                    bar.update()
+    finally:
+        bar.close()
     return sorted(results, key=lambda r: r.frame)
+
+
+@contextlib.contextmanager
+def _dask_client(workers: int, scheduler: str | None):
+    """A Dask client: on the cluster at ``scheduler``, or on a local cluster of ``workers`` processes that ignore
+    Ctrl-C (the parent shuts them down), with Dask's own logging kept to errors that matter."""
+    import logging
+
+    from dask.distributed import Client
+
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    cluster = None
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="10s")
+        else:
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the spawned workers
+            try:
+                cluster = local_cluster(workers)
+            finally:
+                signal.signal(signal.SIGINT, previous)
+            client = Client(cluster)
+    except (OSError, TimeoutError) as e:
+        raise LowcamError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({e})" if scheduler else
+                          f"--workers {workers}: cannot start a local Dask cluster ({e})") from None
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def local_cluster(workers: int):
@@ -210,6 +278,8 @@ def local_cluster(workers: int):
 
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    environ["PYTHONWARNINGS"] = "ignore"  # library warnings and Dask's chatter stay off the terminal
+    environ["DASK_LOGGING__DISTRIBUTED"] = "error"
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None)

@@ -23,13 +23,49 @@ Contents
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .errors import LowcamError
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``lowcam apply: error: ... (see lowcam apply --help)``)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def bounded_int(low: int, high: int, what: str = "an integer"):
+    """An argparse type: an integer in [low, high]."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{value} is out of range [{low}, {high}]")
+        return value
+    return parse
+
+
+def seed(text: str) -> int:
+    """An argparse type: a noise seed, 0 <= seed < 2**64 (every bit counts: no two seeds alias)."""
+    from .effects.noise import SEED_RANGE
+
+    return bounded_int(SEED_RANGE[0], SEED_RANGE[1] - 1, "an integer seed")(text)
+
+
+def frame_number(text: str) -> int:
+    """An argparse type: a frame number in [-2**31, 2**31)."""
+    from .effects.noise import FRAME_RANGE
+
+    return bounded_int(FRAME_RANGE[0], FRAME_RANGE[1] - 1, "an integer frame number")(text)
 
 
 def vector3(text: str) -> tuple[float, float, float]:
@@ -42,10 +78,16 @@ def vector3(text: str) -> tuple[float, float, float]:
     return values
 
 
+def input_files(args, *outputs: str) -> list[str]:
+    """Every argument that names an existing file, except the ``outputs`` options: the files an output must not
+    replace."""
+    return [v for k, v in vars(args).items() if k not in outputs and isinstance(v, str) and v and Path(v).is_file()]
+
+
 def _load_inputs(args, profile):
     from .io import read_plate, read_render
 
-    render = read_render(args.render)
+    render = read_render(args.render, args.layer)
     plate = None
     if args.plate:
         c = profile.camera
@@ -54,10 +96,11 @@ def _load_inputs(args, profile):
 
 
 def cmd_apply(args) -> int:
-    from .io import write_image
+    from .io import check_image_output, write_image
     from .pipeline import run
     from .profile import load_profile
 
+    check_image_output(args.output, input_files(args, "output"))
     profile = load_profile(args.profile)
     render, plate = _load_inputs(args, profile)
     t0 = time.perf_counter()
@@ -70,9 +113,9 @@ def cmd_apply(args) -> int:
 
 def save_stages(stages, folder: Path) -> list[Path]:
     """Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)."""
-    from .io import write_png
+    from .io import make_output_folder, write_png
 
-    folder.mkdir(parents=True, exist_ok=True)
+    make_output_folder(folder)
     paths = []
     for name, img in stages.items():
         if img.dtype != np.uint8:
@@ -82,10 +125,12 @@ def save_stages(stages, folder: Path) -> list[Path]:
 
 
 def cmd_stages(args) -> int:
+    from .io import check_output_folder
     from .pipeline import run
     from .profile import load_profile
     from .sample import sample_plate, sample_render
 
+    check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     if args.render:
         render, plate = _load_inputs(args, profile)
@@ -112,11 +157,13 @@ def cmd_profiles(args) -> int:
 
 
 def cmd_batch(args) -> int:
-    from .batch import Shot, parse_frames, run_shot, summary
+    from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
     from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
     from .profile import load_profile
 
     frames = parse_frames(args.frames)
+    shot_inputs = [args.profile, args.motion, args.gyro]
+    check_shot_outputs(args.output, args.renders, args.plates, frames, [f for f in shot_inputs if f])
     load_profile(args.profile)  # fail early on a bad profile
     motion, require = {}, False
     if args.motion:
@@ -128,7 +175,7 @@ def cmd_batch(args) -> int:
                                 args.gyro_first_frame, source=args.gyro)
         require = True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
-                args.video_first_frame)
+                args.video_first_frame, args.layer)
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
     done = sum(r.status == "written" for r in results)
@@ -142,7 +189,11 @@ def cmd_batch(args) -> int:
 
 def cmd_chart(args) -> int:
     from .calibrate.chart import write_chart
+    from .io import check_output
 
+    if Path(args.output).suffix.lower() not in (".pdf", ".png"):
+        raise LowcamError(f"{args.output}: the chart is written as .pdf or .png")
+    check_output(args.output)
     chart, layout = write_chart(args.output, args.size, args.dpi)
     print(f"{chart}: {args.size.upper()} calibration chart at {args.dpi} dpi; layout in {layout}")
     return 0
@@ -150,6 +201,7 @@ def cmd_chart(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from . import calibrate as cal
+    from .io import check_output, check_output_folder
     from .profile import load_profile
 
     if args.what == "list":
@@ -158,8 +210,13 @@ def cmd_calibrate(args) -> int:
             about = (c.help + (f" (also: {', '.join(c.aliases)})" if c.aliases else "")) if c else "no such calibration"
             print(f"{name:22s} {', '.join(effects) or '-':24s} {about}")
         return 0
-    out = Path(args.output)
+    out = Path(check_output(args.output, input_files(args, "output", "profile")))
+    if out.suffix.lower() != ".toml":
+        raise LowcamError(f"{out}: a profile is written as .toml")
     plots = Path(args.plots) if args.plots else out.parent / f"{out.stem}-plots"
+    check_output_folder(plots, "--plots")
+    if args.report:
+        check_output_folder(args.report, "--report")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
     if args.what == "all":
         base_from_manifest, results = cal.run_manifest(args.manifest, plots)
@@ -179,8 +236,35 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _check_report_outputs(args) -> None:
+    """Check the ``--json`` file and the ``--report`` folder of compare and diagnose before any work."""
+    from .io import check_output, check_output_folder
+
+    if args.json:
+        check_output(args.json, input_files(args, "json", "output"), "--json")
+    if args.report:
+        check_output_folder(args.report, "--report")
+
+
+_open_line = False  # a progress line without its newline is on stderr
+
+
 def _progress_line(i, n, name):
-    print(f"\r[{i + 1}/{n}] fitting {name:<24s}", end="", file=sys.stderr, flush=True)
+    global _open_line
+    _open_line = sys.stderr.isatty()
+    print(f"{chr(13) if _open_line else ''}[{i + 1}/{n}] fitting {name:<24s}", end="" if _open_line else "\n",
+          file=sys.stderr, flush=True)
+
+
+def _end_progress_lines() -> None:
+    """End an open progress line, and close any progress bar, so that what follows starts on its own line."""
+    global _open_line
+    tqdm = sys.modules.get("tqdm")
+    for bar in list(getattr(getattr(tqdm, "tqdm", None), "_instances", ()) or ()):
+        bar.close()
+    if _open_line:
+        print(file=sys.stderr, flush=True)
+        _open_line = False
 
 
 def cmd_compare(args) -> int:
@@ -189,6 +273,7 @@ def cmd_compare(args) -> int:
     from .measure.sets import load_set
     from .profile import load_profile
 
+    _check_report_outputs(args)
     profile = load_profile(args.profile)
     mset = load_set(args.set, profile)
     print(f"comparing {len(mset.captures)} captures with {profile.name} ...", file=sys.stderr, flush=True)
@@ -213,7 +298,7 @@ def cmd_compare(args) -> int:
 def cmd_diagnose(args) -> int:
     import json
 
-    from .io import atomic_write_bytes
+    from .io import atomic_write_bytes, check_output
     from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, save_candidate_profile
     from .measure.report import write_compare_report
     from .measure.sets import load_set
@@ -221,6 +306,11 @@ def cmd_diagnose(args) -> int:
 
     from .effects import effect_class
 
+    _check_report_outputs(args)
+    if args.add_best and not args.output:
+        raise LowcamError("--add-best needs -o NEW.toml")
+    if args.output:
+        check_output(args.output, input_files(args, "output", "json"))
     profile = load_profile(args.profile)
     for plugin in args.plugin:
         effect_class(plugin, "--plugin")
@@ -231,7 +321,7 @@ def cmd_diagnose(args) -> int:
         if name not in known:
             raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(known)})")
     d = diagnose(mset, profile, only, progress=_progress_line)
-    print("", file=sys.stderr)
+    _end_progress_lines()
     doc = d.as_json()
     atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     print(f"{mset.path}: error {d.error:.3f}, verdict {d.verdict}")
@@ -242,8 +332,6 @@ def cmd_diagnose(args) -> int:
                                     extra={"candidates": doc["candidates"]})
         print(f"{page}: report")
     if args.add_best:
-        if not args.output:
-            raise LowcamError("--add-best needs -o NEW.toml")
         if not d.candidates:
             raise LowcamError("no candidate could be fitted to this set")
         saved = save_candidate_profile(d.candidates[0], args.output)
@@ -252,9 +340,11 @@ def cmd_diagnose(args) -> int:
 
 
 def cmd_synth(args) -> int:
+    from .io import check_output_folder
     from .measure.synth import parse_change, synthesise
     from .profile import load_profile
 
+    check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     folder = synthesise(profile, args.output, [parse_change(a) for a in args.add or []], args.remove or [],
                         args.frames, args.width, args.seed)
@@ -285,53 +375,56 @@ def _unavailable(name: str, problem: Exception) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lowcam", description="Simulate a low-cost camera on CG renders "
-                                     "(Klein & Murray 2010).")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = Parser(prog="lowcam", description="Simulate a low-cost camera on CG renders (Klein & Murray 2010).")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error (for a bug report)")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     def frame_options(p, render_required=True):
         p.add_argument("--profile", default="fire-i", help="profile name or TOML path (default fire-i)")
         p.add_argument("--render", required=render_required, help="premultiplied RGBA render (EXR or PNG)")
+        p.add_argument("--layer", help="the view layer to take from a multilayer EXR with several")
         p.add_argument("--plate", help="the video frame (PNG/JPEG) at the camera's size")
         p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                        help="camera rotation in rad/s, camera frame: x right, y down, z forward")
         p.add_argument("--exposure-s", type=float, default=None, help="exposure time (s); default: the profile's")
-        p.add_argument("--seed", type=int, default=0, help="noise seed")
-        p.add_argument("--frame", type=int, default=0, help="frame number (noise differs per frame)")
+        p.add_argument("--seed", type=seed, default=0, help="noise seed, 0 <= seed < 2^64")
+        p.add_argument("--frame", type=frame_number, default=0, help="frame number (noise differs per frame)")
 
     p = sub.add_parser("apply", help="simulate the camera on one render")
     frame_options(p)
-    p.add_argument("-o", "--output", required=True, help="output frame (.png, or .exr)")
+    p.add_argument("-o", "--output", required=True, help="output frame: .png, .jpg or .exr (code values / 255)")
     p.set_defaults(func=cmd_apply)
 
     p = sub.add_parser("stages", help="write every stage's intermediate output as an image")
     frame_options(p, render_required=False)
-    p.add_argument("-o", "--output", required=True, help="folder for the stage images")
+    p.add_argument("-o", "--output", required=True, help="folder for the stage images (new, empty or Lowcam's)")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.set_defaults(func=cmd_stages)
 
     p = sub.add_parser("batch", help="run the camera over a shot (frame sequence), resumable, optionally on Dask")
     p.add_argument("--profile", default="fire-i")
     p.add_argument("--renders", required=True, help="render pattern, '#' for frame digits: renders/####.exr")
+    p.add_argument("--layer", help="the view layer to take from multilayer EXRs with several")
     p.add_argument("--plates", help="plate pattern (plate/####.png) or one video file")
-    p.add_argument("--video-first-frame", type=int, default=1, help="shot frame shown by the video's first frame")
+    p.add_argument("--video-first-frame", type=frame_number, default=1, help="shot frame shown by the video's first frame")
     p.add_argument("--motion", help="motion.json: per-frame angular velocity and exposure")
     p.add_argument("--gyro", help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
     p.add_argument("--fps", type=float, help="frame rate, for --gyro")
     p.add_argument("--exposure-s", type=float, help="exposure time, for --gyro")
     p.add_argument("--gyro-t0", type=float, default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
-    p.add_argument("--gyro-first-frame", type=int, default=1)
+    p.add_argument("--gyro-first-frame", type=frame_number, default=1)
     p.add_argument("--frames", required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
     p.add_argument("-o", "--output", required=True, help="output pattern: out/####.png")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--force", action="store_true", help="redo frames whose output exists")
-    p.add_argument("--workers", type=int, default=0, help="run on a Dask LocalCluster of N processes")
+    p.add_argument("--workers", type=bounded_int(0, 1024), default=0, help="run on a Dask LocalCluster of N processes")
     p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("chart", help="write the printable calibration chart and its layout")
     p.add_argument("-o", "--output", required=True, help="chart.pdf or chart.png")
-    p.add_argument("--dpi", type=int, default=300)
+    p.add_argument("--dpi", type=bounded_int(72, 1200), default=300)
     p.add_argument("--size", choices=("a4", "a3"), default="a4")
     p.set_defaults(func=cmd_chart)
 
@@ -381,10 +474,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", default="fire-i")
     p.add_argument("--add", action="append", metavar="EFFECT[:k=v,...]", help="hide an effect (or change one)")
     p.add_argument("--remove", action="append", metavar="EFFECT", help="switch one of the profile's effects off")
-    p.add_argument("--frames", type=int, default=5)
-    p.add_argument("--width", type=int, default=640, help="render width of the ideal scenes")
-    p.add_argument("--seed", type=int, default=7)
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--frames", type=bounded_int(1, 1000), default=5)
+    p.add_argument("--width", type=bounded_int(64, 8192), default=640, help="render width of the ideal scenes")
+    p.add_argument("--seed", type=seed, default=7)
+    p.add_argument("-o", "--output", required=True, help="folder for the set (new, empty or Lowcam's)")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("profiles", help="list the bundled profiles")
@@ -396,15 +490,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """The entry point. A :class:`~lowcam.errors.LowcamError`, an operating-system error (a full disk, a folder
+    that cannot be written) or running out of memory is one line on stderr and exit status 2; Ctrl-C is one line
+    and 130. Anything else is a bug and keeps its traceback. ``--debug`` (or ``LOWCAM_DEBUG=1``) shows the
+    traceback of every error; without it, library warnings stay off the terminal."""
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except LowcamError as e:
-        print(f"lowcam: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("lowcam: interrupted", file=sys.stderr)
-        return 130
+    debug = args.debug or os.environ.get("LOWCAM_DEBUG", "") not in ("", "0")
+    with warnings.catch_warnings():
+        if not debug:
+            warnings.simplefilter("ignore")
+        try:
+            return args.func(args)
+        except (LowcamError, OSError, MemoryError) as e:
+            _end_progress_lines()
+            if debug:
+                raise
+            print(f"lowcam {args.command}: error: {_one_line(e)}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            _end_progress_lines()
+            print(f"lowcam {args.command}: interrupted", file=sys.stderr)
+            return 130
+
+
+def _one_line(error: BaseException) -> str:
+    if isinstance(error, MemoryError):
+        return "out of memory" + (f" ({error})" if str(error) else "") + "; try a smaller frame or fewer workers"
+    if isinstance(error, OSError) and not isinstance(error, LowcamError):
+        where = f"{error.filename}: " if error.filename else ""
+        return f"{where}{error.strerror or error}"
+    return " ".join(str(error).split("\n"))
 
 
 if __name__ == "__main__":

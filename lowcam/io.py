@@ -1,29 +1,46 @@
 """Reading renders and plates, writing frames: OpenEXR (via the ``OpenEXR`` package), PNG and JPEG (via OpenCV).
 
 Every problem is a one-line :class:`~lowcam.errors.LowcamError` naming the file. Every write is atomic: the data
-goes to a temporary file in the same folder, which is then renamed over the target, so a crash never leaves a
-half-written frame under the final name.
+goes to a temporary file in the same folder, is fsynced, and is renamed over the target, so a crash never leaves a
+half-written frame under the final name. Outputs are checked before the work that makes them: never a folder, a
+FIFO or one of the inputs. Inputs are told by their bytes, not their names.
 
 Contents
 --------
-- :func:`atomic_write_bytes`: write bytes to a path through a temporary file and an atomic rename
+- :func:`check_output`: check before any work that an output file can be written and is none of the inputs
+- :func:`check_image_output`: :func:`check_output` for an image, its suffix one of :data:`IMAGE_SUFFIXES`
+- :func:`check_output_folder`: check before any work that a folder may receive a whole output
+- :func:`make_output_folder`: create an output folder and mark it as Lowcam's
+- :data:`FOLDER_MARKER`: the file that marks a folder Lowcam wrote
+- :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
+- :func:`remove_stale_temporaries`: remove the temporaries of killed runs, never a live run's or a user's file
+- :func:`quiet_stderr`: keep C libraries' messages off the terminal for a while
 - :func:`read_toml`: a TOML file as a dict; a missing or malformed file is a one-line error naming it
 - :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
+- :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
 - :func:`read_render`: read a render as premultiplied linear RGBA float32 (H, W, 4)
-- :func:`check_render`: validate an in-memory render: (H, W, 4), finite, alpha in [0, 1]
-- :func:`read_image`: read a PNG/JPEG as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)
+- :data:`RENDER_MAX`: the largest render value accepted
+- :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
+- :func:`read_image`: read a PNG/JPEG/TIFF as RGB (H, W, 3) or greyscale (H, W), keeping its dtype
 - :func:`read_plate`: read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
 - :func:`check_plate`: validate an in-memory plate: uint8, the camera's size, RGB (or one channel for raw Bayer)
 - :func:`read_gain_map`: a greyscale PNG gain texture, scaled so the brightest texel is 1
 - :func:`encode_png`: PNG bytes of an RGB(A) or greyscale uint8/uint16 image
 - :func:`write_png`: write an RGB(A) or greyscale uint8/uint16 image as PNG, atomically
-- :func:`write_exr`: write float RGBA (H, W, 4) as a single-layer OpenEXR file, atomically
-- :func:`write_image`: write by extension: ``.exr`` takes float RGBA, anything else is PNG
+- :func:`write_exr`: write float RGB(A) as a single-layer OpenEXR file, atomically
+- :data:`IMAGE_SUFFIXES`: the output formats, by suffix
+- :data:`JPEG_QUALITY`: the quality of JPEG outputs
+- :func:`write_image`: write by suffix: PNG, JPEG or OpenEXR (8-bit frames as code values over 255)
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import re
+import socket
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import cv2
@@ -37,21 +54,167 @@ os.umask(_umask)
 _FILE_MODE = 0o666 & ~_umask
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+#: Temporaries are named ``.lowcam-<host>-<pid>-<random>.<name>.part`` so that a run can tell its own, another
+#: live run's and a killed run's apart, and so that no user file matches.
+_PART = re.compile(r"^\.lowcam-(?P<host>[^-]+)-(?P<pid>\d+)-[A-Za-z0-9_]+\..+\.part$")
+
+
+def _part_prefix(name: str) -> str:
+    return f".lowcam-{socket.gethostname().split('.')[0].replace('-', '_')}-{os.getpid()}-"
+
+
+def _fsync_folder(folder: Path) -> None:
+    if os.name != "posix":
+        return
+    fd = os.open(folder, os.O_RDONLY)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_through_temporary(path, write) -> Path:
+    """Call ``write(temporary_path)``, fsync it, rename it over ``path`` and fsync the folder. An OS error is a
+    one-line :class:`LowcamError` naming ``path``; the temporary never survives a failure."""
+    path = Path(path)
+    check_output(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=_part_prefix(path.name), suffix=f".{path.name}.part", dir=path.parent)
+    except OSError as e:
+        raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
+    try:
+        os.close(fd)
+        write(tmp)
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
+        _fsync_folder(path.parent)
+    except OSError as e:
+        Path(tmp).unlink(missing_ok=True)
+        raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    return path
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file, fsync, an atomic rename and an fsync of the folder."""
+    return _write_through_temporary(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def remove_stale_temporaries(folder) -> int:
+    """Remove the temporaries that killed Lowcam runs left in ``folder``: those of this host whose process is
+    gone, and any older than a day. Temporaries of live runs (a farm's other tasks) and user files stay.
+    Returns how many were removed."""
+    host = _part_prefix("").split("-")[1]
+    removed = 0
+    for p in Path(folder).glob(".lowcam-*.part"):
+        m = _PART.match(p.name)
+        if not m:
+            continue
+        try:
+            old = time.time() - p.stat().st_mtime > 86400
+        except FileNotFoundError:
+            continue
+        if old or (m["host"] == host and not _process_alive(int(m["pid"]))):
+            p.unlink(missing_ok=True)
+            removed += 1
+    return removed
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+def check_output(path, inputs=(), option: str = "-o") -> Path:
+    """Check, before any work, that ``path`` can be written as a regular file and is none of ``inputs``.
+
+    Refused, each as a one-line :class:`LowcamError`: an empty path, a folder or a non-regular file (FIFO, device)
+    at ``path``, a parent that is a file, a name too long for the file system, a folder that cannot be written, and
+    a path that is (by real path or inode) one of ``inputs``."""
+    if path is None or str(path) == "":
+        raise LowcamError(f"{option}: an empty output path")
+    path = Path(path)
+    if path.is_dir():
+        raise LowcamError(f"{path}: is a folder; {option} names the file to write")
+    if path.exists() and not path.is_file():
+        raise LowcamError(f"{path}: is not a regular file (a FIFO or device); Lowcam writes only regular files")
+    for source in inputs:
+        if source and _same_file(path, source):
+            raise LowcamError(f"{path}: the output is the input {source}; choose another {option}")
+    if len(path.name.encode()) > 255:
+        raise LowcamError(f"{path.name[:40]}...: the file name is {len(path.name.encode())} bytes long, "
+                          f"longer than file systems allow (255)")
+    _check_writable_folder(path.parent, path)
+    return path
+
+
+def _same_file(a, b) -> bool:
+    a, b = Path(a), Path(b)
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        return False
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _check_writable_folder(folder: Path, target: Path) -> None:
+    existing = folder if str(folder) else Path(".")
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise LowcamError(f"{target}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise LowcamError(f"{target}: cannot write into {existing} (permission denied)")
+
+
+#: The marker Lowcam leaves in every folder it writes a whole output into (reports, stage images, sets).
+FOLDER_MARKER = ".lowcam-output"
+
+
+def check_output_folder(folder, option: str = "-o", force: bool = False) -> Path:
+    """Check, before any work, that ``folder`` may receive a whole output (a report, stage images, a measurement
+    set): it is new, empty, written by Lowcam before (it holds :data:`FOLDER_MARKER`), or ``force``."""
+    if folder is None or str(folder) == "":
+        raise LowcamError(f"{option}: an empty output folder")
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise LowcamError(f"{folder}: is a file; {option} names a folder to write into")
+    if folder.is_dir() and not force and not (folder / FOLDER_MARKER).exists():
+        try:
+            foreign = next(folder.iterdir(), None)
+        except OSError as e:
+            raise LowcamError(f"{folder}: cannot read the folder ({e.strerror})") from None
+        if foreign is not None:
+            raise LowcamError(f"{folder}: the folder holds files Lowcam did not write (e.g. {foreign.name}); "
+                              f"choose a new or empty folder for {option}")
+    _check_writable_folder(folder, folder)
+    return folder
+
+
+def make_output_folder(folder) -> Path:
+    """Create ``folder`` (checked by :func:`check_output_folder`) and mark it as Lowcam's."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / FOLDER_MARKER).touch()
+    except OSError as e:
+        raise LowcamError(f"{folder}: cannot write ({e.strerror or e})") from None
+    return folder
 
 
 def _check_finite(path, image: np.ndarray) -> None:
@@ -70,6 +233,26 @@ def _exists(path) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def quiet_stderr():
+    """Keep C libraries' messages (libpng, libjpeg, ffmpeg) off the terminal: file descriptor 2 goes to the null
+    device for the duration. Python's own ``sys.stderr`` is flushed first."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no descriptor 2 (a detached process): nothing to keep quiet
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
 def read_toml(path, what: str = "file") -> dict:
     """A TOML file as a dict; a missing or malformed file is a one-line error naming it."""
     import tomllib
@@ -83,6 +266,22 @@ def read_toml(path, what: str = "file") -> dict:
         raise LowcamError(f"{path}: not valid TOML ({e})") from None
 
 
+#: File signatures: the format is told by the bytes, not the name (an EXR named .png is still an EXR).
+_MAGIC = {b"\x76\x2f\x31\x01": "exr", b"\x89PNG": "png", b"\xff\xd8\xff": "jpeg", b"II*\x00": "tiff",
+          b"MM\x00*": "tiff"}
+
+
+def _format(path: Path) -> str:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError as e:
+        raise LowcamError(f"{path}: cannot read ({e.strerror or e})") from None
+    if not head:
+        raise LowcamError(f"{path}: the file is empty")
+    return next((kind for magic, kind in _MAGIC.items() if head.startswith(magic)), "other")
+
+
 def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays)."""
@@ -93,11 +292,28 @@ def read_exr(path) -> dict[str, np.ndarray]:
         with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
             return {name: np.asarray(ch.pixels, np.float32) for part in f.parts for name, ch in part.channels.items()}
     except Exception as e:  # OpenEXR raises bare RuntimeErrors for corrupt files
-        raise LowcamError(f"{path}: not a readable OpenEXR file ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})") from None
 
 
-def _rgba_from_exr(path, channels: dict[str, np.ndarray]) -> np.ndarray:
+#: The view layer of excluded objects that the add-on adds ("Lowcam Overlay"); never taken for the render.
+OVERLAY_LAYER = "Lowcam Overlay"
+
+
+def _rgba_from_exr(path, channels: dict[str, np.ndarray], layer: str | None = None) -> np.ndarray:
+    """The render's RGBA from an EXR's channels: the ``RGBA`` layer, the one ``*.Combined`` layer (Lowcam's
+    overlay layer aside) or view layer ``layer``'s; several candidates without ``layer`` are refused."""
     candidates = [k for k in channels if k == "RGBA" or k.endswith(".Combined") or k == "Combined"]
+    if layer is not None:
+        chosen = [k for k in candidates if k in (layer, f"{layer}.Combined")]
+        if not chosen:
+            raise LowcamError(f"{path}: no layer '{layer}' (layers: {', '.join(candidates) or 'none'})")
+        candidates = chosen
+    elif len(candidates) > 1:
+        candidates = [k for k in candidates if k != f"{OVERLAY_LAYER}.Combined"]
+        if len(candidates) > 1:
+            raise LowcamError(f"{path}: {len(candidates)} render layers ({', '.join(candidates)}); "
+                              "choose one with --layer")
     for key in candidates:
         arr = channels[key]
         if arr.ndim == 3 and arr.shape[2] == 4:
@@ -114,49 +330,79 @@ def _rgba_from_exr(path, channels: dict[str, np.ndarray]) -> np.ndarray:
     raise LowcamError(f"{path}: no RGBA layer found (channels: {', '.join(sorted(channels))})")
 
 
-def read_render(path) -> np.ndarray:
+def read_render(path, layer: str | None = None) -> np.ndarray:
     """Read a render as premultiplied linear RGBA float32 (H, W, 4).
 
-    OpenEXR (single-layer ``RGBA`` or a Blender multilayer ``*.Combined`` layer) is taken as premultiplied, as
-    Blender writes it. PNG is straight alpha (as Blender writes it) and is premultiplied here; its code values are
-    scaled to 0..1 and used as they are.
+    OpenEXR (single-layer ``RGBA``, a Blender multilayer file's one ``*.Combined`` layer, or view layer ``layer``)
+    is taken as premultiplied, as Blender writes it. PNG and TIFF are straight alpha (as Blender writes them) and
+    are premultiplied here; 8- and 16-bit code values are scaled to 0..1, float TIFF values are used as they are.
+    The format is told by the file's first bytes, not its name.
     """
     path = _exists(path)
-    if path.suffix.lower() == ".exr":
-        rgba = _rgba_from_exr(path, read_exr(path))
+    if _format(path) == "exr":
+        rgba = _rgba_from_exr(path, read_exr(path), layer)
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise LowcamError(f"{path}: not a readable image")
+        img = _decode(path)
         if img.ndim != 3 or img.shape[2] != 4:
             raise LowcamError(f"{path}: no alpha channel (a render needs RGBA)")
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0
-        rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / scale
+        scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
+        rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
         rgba[..., :3] *= rgba[..., 3:]
     return check_render(rgba, path)
 
 
+#: The largest render value accepted: half-float's maximum (no real render is brighter; larger finite values
+#: overflow the chain's float32 arithmetic).
+RENDER_MAX = 65504.0
+
+
 def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
-    """Validate an in-memory render: (H, W, 4), finite, alpha in [0, 1]. Returns it as float32."""
+    """Validate an in-memory render: (H, W, 4), finite, within +-:data:`RENDER_MAX`, alpha in [0, 1]. Returns it
+    as float32."""
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4:
         raise LowcamError(f"{name}: a render must be RGBA of shape (H, W, 4), got {rgba.shape}")
     if rgba.shape[0] < 16 or rgba.shape[1] < 16:
         raise LowcamError(f"{name}: a render of {rgba.shape[1]}x{rgba.shape[0]} is too small")
-    rgba = np.ascontiguousarray(rgba, np.float32)
+    if rgba.dtype.kind not in "fiu":
+        raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        rgba = np.ascontiguousarray(rgba, np.float32)
     _check_finite(name, rgba)
+    lo, hi = float(rgba.min()), float(rgba.max())
+    if lo < -RENDER_MAX or hi > RENDER_MAX:
+        raise LowcamError(f"{name}: values up to {max(-lo, hi):.3g} are beyond a render's range "
+                          f"(+-{RENDER_MAX:g}); is it in the right units?")
     lo, hi, _, _ = cv2.minMaxLoc(cv2.extractChannel(rgba, 3))
     if lo < -1e-4 or hi > 1 + 1e-4:
         raise LowcamError(f"{name}: alpha must lie in [0, 1], found {lo:.3g}..{hi:.3g}")
     return rgba
 
 
-def read_image(path) -> np.ndarray:
-    """Read a PNG/JPEG as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)."""
-    path = _exists(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+def _decode(path: Path) -> np.ndarray:
+    """Decode a PNG, JPEG or TIFF with OpenCV, its codecs' chatter kept off the terminal. A truncated file is an
+    error, not a partly grey picture."""
+    kind = _format(path)
+    if kind == "exr":
+        raise LowcamError(f"{path}: an OpenEXR file where a PNG, JPEG or TIFF image was expected")
+    data = path.read_bytes()
+    if kind == "jpeg" and not data.rstrip(b"\x00\r\n ").endswith(b"\xff\xd9"):
+        raise LowcamError(f"{path}: the JPEG file is truncated (no end-of-image marker)")
+    if kind == "png" and b"IEND" not in data[-16:]:
+        raise LowcamError(f"{path}: the PNG file is truncated (no IEND chunk)")
+    with quiet_stderr():
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
     if img is None:
-        raise LowcamError(f"{path}: not a readable image")
+        raise LowcamError(f"{path}: not a readable image (PNG, JPEG or TIFF)")
+    return img
+
+
+def read_image(path) -> np.ndarray:
+    """Read a PNG/JPEG/TIFF as RGB (H, W, 3) or greyscale (H, W), keeping its dtype (uint8 or uint16)."""
+    img = _decode(_exists(path))
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[..., :3]
     if img.ndim == 3:
@@ -206,42 +452,67 @@ def read_gain_map(path) -> np.ndarray:
 
 def encode_png(image: np.ndarray) -> bytes:
     """PNG bytes of an RGB(A) or greyscale uint8/uint16 image."""
+    return _encode(image, ".png")
+
+
+def _encode(image: np.ndarray, suffix: str, params=()) -> bytes:
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR if img.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
-    ok, data = cv2.imencode(".png", img)
+    ok, data = cv2.imencode(suffix, img, list(params))
     if not ok:
-        raise LowcamError("could not encode PNG")
+        raise LowcamError(f"could not encode a {img.shape} {img.dtype} image as {suffix}")
     return data.tobytes()
 
 
 def write_png(path, image: np.ndarray) -> Path:
     """Write an RGB(A) or greyscale uint8/uint16 image as PNG, atomically."""
-    atomic_write_bytes(path, encode_png(image))
-    return Path(path)
+    return atomic_write_bytes(path, encode_png(image))
 
 
 def write_exr(path, rgba: np.ndarray) -> Path:
-    """Write float RGBA (H, W, 4) as a single-layer OpenEXR file, atomically."""
+    """Write a float (H, W, 4) RGBA or (H, W, 3) RGB image as a single-layer OpenEXR file, atomically."""
     import OpenEXR
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part.exr", dir=path.parent)
-    os.close(fd)
-    try:
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        OpenEXR.File(header, {"RGBA": np.ascontiguousarray(rgba, np.float32)}).write(tmp)
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    pixels = np.ascontiguousarray(rgba, np.float32)
+    name = {4: "RGBA", 3: "RGB"}.get(pixels.shape[-1] if pixels.ndim == 3 else 0)
+    if name is None:
+        raise LowcamError(f"{path}: an OpenEXR image must be (H, W, 3) or (H, W, 4), got {pixels.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    return _write_through_temporary(path, lambda tmp: OpenEXR.File(header, {name: pixels}).write(tmp))
+
+
+#: Output formats by file suffix.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
+
+#: JPEG quality of ``.jpg`` outputs (OpenCV's scale, 0-100).
+JPEG_QUALITY = 95
+
+
+def check_image_output(path, inputs=(), option: str = "-o") -> Path:
+    """:func:`check_output` for an image, whose suffix must be one of :data:`IMAGE_SUFFIXES`."""
+    if path and Path(path).suffix.lower() not in IMAGE_SUFFIXES:
+        raise LowcamError(f"{path}: unknown image format '{Path(path).suffix}' (write {', '.join(IMAGE_SUFFIXES)})")
+    return check_output(path, inputs, option)
 
 
 def write_image(path, image: np.ndarray) -> Path:
-    """Write by extension: ``.exr`` takes float RGBA, anything else is PNG."""
-    if Path(path).suffix.lower() == ".exr":
+    """Write by suffix: ``.png`` (lossless), ``.jpg``/``.jpeg`` (quality :data:`JPEG_QUALITY`) or ``.exr``.
+
+    An 8-bit frame goes to OpenEXR as its code values over 255 (0-1, the camera's encoding, not linearised); a
+    float image as it is."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
+        raise LowcamError(f"{path}: unknown image format '{suffix}' (write {', '.join(IMAGE_SUFFIXES)})")
+    image = np.asarray(image)
+    if suffix == ".exr":
+        if image.dtype == np.uint8:
+            image = image.astype(np.float32) / 255.0
+        if image.ndim == 2:
+            image = np.repeat(image[..., None], 3, axis=2)
         return write_exr(path, image)
-    return write_png(path, image)
+    if suffix == ".png":
+        return write_png(path, image)
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]
+    return atomic_write_bytes(path, _encode(image, ".jpg", (cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY)))

@@ -19,12 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import LowcamError
-from .io import _rgba_from_exr, check_render, read_exr, write_image
+from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr, write_image
 from .passes import BLENDER_PASS, RenderPasses, from_blender
 from .pipeline import run
 from .profile import load_profile
 
-OVERLAY_LAYER = "Lowcam Overlay"
 
 
 def read_layers(path, layer: str, overlay_layer: str | None = None,

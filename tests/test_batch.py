@@ -160,3 +160,22 @@ def test_motion_json_from_a_keyframed_blender_camera_round_trips(tmp_path):
     path = write_motion_json(tmp_path / "motion.json", motion, fps=24)
     assert read_motion_json(path) == motion
     assert json.loads(path.read_text())["frames"][0]["frame"] == 5
+
+
+@pytest.mark.slow
+def test_the_farm_recipe_with_concurrent_one_frame_tasks_never_fails(shot_dir, tmp_path):
+    """The README's farm recipe, one frame per task, two tasks at a time into one folder (xargs -P 2), twice:
+    a task's start-up must not remove another live task's temporary, so no task fails."""
+    serial = tmp_path / "serial"
+    assert lowcam_batch(shot_dir, serial, "--frames", "1-8", "--quiet").returncode == 0
+    out = tmp_path / "farm"
+    task = (f"{sys.executable} -m lowcam.cli batch --profile fire-i --renders '{shot_dir}/renders/####.exr' "
+            f"--plates '{shot_dir}/plates/####.png' --motion '{shot_dir}/motion.json' --frames {{}} "
+            f"-o '{out}/####.png' --quiet --force")
+    for _ in range(2):
+        r = subprocess.run(["xargs", "-P", "2", "-I", "{}", "sh", "-c", task], input="\n".join(map(str, range(1, 9))),
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        assert "failed" not in r.stderr and "Traceback" not in r.stderr
+        assert frame_bytes(out) == frame_bytes(serial)
+        assert not list(out.glob(".lowcam-*"))

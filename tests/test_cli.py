@@ -67,7 +67,7 @@ def test_bad_angular_velocity_is_refused():
 def test_stages_writes_one_image_per_stage(tmp_path):
     r = lowcam("stages", "--profile", "fire-i", "--angular-velocity", "0,0.5,0", "-o", tmp_path / "stages")
     assert r.returncode == 0, r.stderr
-    files = sorted(p.name for p in (tmp_path / "stages").iterdir())
+    files = sorted(p.name for p in (tmp_path / "stages").glob("*.png"))
     assert len(files) == 16 and files[0] == "00-lens_distortion.png" and files[-1] == "15-chroma_subsampling.png"
     mosaic = cv2.imread(str(tmp_path / "stages" / "06-bayer_sampling.png"))
     assert mosaic.shape == (480, 640, 3)
