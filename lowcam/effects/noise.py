@@ -8,6 +8,7 @@ the per-sensel one; red and blue are not scaled. Means above 220 DN are left out
 
 Contents
 --------
+- :data:`SEED_RANGE`, :data:`FRAME_RANGE`: the seeds and frame numbers accepted
 - :func:`frame_rng`: the random generator of one frame: reproducible from (seed, frame), independent between frames
 - :class:`Noise`: Gaussian noise per sensel, its sigma a function of the mean (DN), scaled by alpha
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3)
@@ -26,12 +27,27 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import LowcamError
 from .base import Effect, NodeStage, Param
 
 
+#: Seeds are 0 <= seed < 2**64; frames -2**31 <= frame < 2**31 (Blender's frames are well inside).
+SEED_RANGE = (0, 2 ** 64)
+FRAME_RANGE = (-2 ** 31, 2 ** 31)
+
+
 def frame_rng(seed: int, frame: int) -> np.random.Generator:
-    """The random generator of one frame: reproducible from (seed, frame) alone, independent between frames."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(frame) & 0xFFFFFFFF, 0x10CA]))
+    """The random generator of one frame: reproducible from (seed, frame) alone, independent between frames.
+
+    Every seed in :data:`SEED_RANGE` and frame in :data:`FRAME_RANGE` gives its own stream (none is reduced to
+    fewer bits); seeds below 2**32 keep the streams they always had."""
+    seed, frame = int(seed), int(frame)
+    if not SEED_RANGE[0] <= seed < SEED_RANGE[1]:
+        raise LowcamError(f"seed {seed}: must be an integer in [0, 2^64)")
+    if not FRAME_RANGE[0] <= frame < FRAME_RANGE[1]:
+        raise LowcamError(f"frame {frame}: must be an integer in [-2^31, 2^31)")
+    words = [seed & 0xFFFFFFFF, frame & 0xFFFFFFFF, 0x10CA] + ([seed >> 32] if seed >> 32 else [])
+    return np.random.default_rng(np.random.SeedSequence(words))
 
 
 class Noise(Effect):
@@ -53,9 +69,9 @@ class Noise(Effect):
     random = True
     params = {
         "law": Param("sigma_linear", str, choices=("sigma_linear", "variance_linear")),
-        "red": Param([1.5, 0.015], "vector", length=2),
-        "green": Param([1.2, 0.012], "vector", length=2),
-        "blue": Param([1.8, 0.016], "vector", length=2),
+        "red": Param([1.5, 0.015], "vector", length=2, low=0.0, high=255.0),
+        "green": Param([1.2, 0.012], "vector", length=2, low=0.0, high=255.0),
+        "blue": Param([1.8, 0.016], "vector", length=2, low=0.0, high=255.0),
     }
 
     def check(self):
