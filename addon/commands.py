@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from lowcam.cli import vector3
+from lowcam.cli import bounded_int, seed, vector3
 
 
 def _side(name: str):
@@ -31,13 +31,13 @@ def _side(name: str):
 def cmd_demo(args) -> int:
     """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
     and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
-    from lowcam.io import read_image, read_plate, write_png
+    from lowcam.io import check_output_folder, make_output_folder, read_image, read_plate, write_png
     from lowcam.pipeline import plain_composite
     from lowcam.profile import load_profile
     from lowcam.sample import side_by_side
 
-    out = Path(args.output).resolve()
     profile = load_profile(args.profile)
+    out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
     steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
     say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
     say(0)
@@ -82,7 +82,7 @@ def cmd_render(args) -> int:
     from lowcam.batch import parse_frames
 
     frames = parse_frames(args.frames)
-    bar = tqdm(total=len(frames), unit="frame", desc="lowcam render")
+    bar = tqdm(total=len(frames), unit="frame", desc="lowcam render", disable=None)  # on a terminal only
     written = _side("addon.render").render(args.blend, frames, args.output, args.force,
                                                progress=lambda f, p: bar.update(1))
     bar.close()
@@ -92,14 +92,21 @@ def cmd_render(args) -> int:
 
 def cmd_motion(args) -> int:
     from lowcam.batch import parse_frames
+    from lowcam.io import check_output
 
+    check_output(args.output, [args.blend])
     path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
     print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
     return 0
 
 
 def cmd_node_asset(args) -> int:
+    from lowcam.errors import LowcamError
+    from lowcam.io import check_output
 
+    if not args.output.lower().endswith(".blend"):
+        raise LowcamError(f"{args.output}: the asset is written as a .blend file")
+    check_output(args.output)
     path = _side("nodes.asset").write_asset(args.output, args.profile, args.render_width, args.angular_velocity)
     print(f"{path}: \"Lowcam Camera ({args.profile})\" asset ({path.stat().st_size / 1e6:.0f} MB)")
     return 0
@@ -109,11 +116,13 @@ def add_commands(sub) -> None:
     """Add the Blender-driving sub-commands to the ``lowcam`` parser (the ``lowcam.commands`` entry point)."""
     p = sub.add_parser("demo", help="the main job on the bundled sample scene")
     p.add_argument("--profile", default="fire-i")
-    p.add_argument("-o", "--output", default="demo-output", help="folder for the results (default demo-output)")
+    p.add_argument("-o", "--output", default="demo-output",
+                   help="folder for the results, new, empty or Lowcam's (default demo-output)")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.add_argument("--angular-velocity", type=vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
                    help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--render-width", type=int, default=800, help="width of the sample render (px)")
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--render-width", type=bounded_int(64, 8192), default=800, help="width of the sample render (px)")
     p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
     p.set_defaults(func=cmd_demo)
 
@@ -133,7 +142,8 @@ def add_commands(sub) -> None:
     p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
     p.add_argument("-o", "--output", required=True, help="the .blend to write")
     p.add_argument("--profile", default="fire-i")
-    p.add_argument("--render-width", type=int, default=1600, help="width of the renders it will take (px)")
+    p.add_argument("--render-width", type=bounded_int(64, 16384), default=1600,
+                   help="width of the renders it will take (px)")
     p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                    help="camera rotation baked into the maps (rad/s, camera frame)")
     p.set_defaults(func=cmd_node_asset)

@@ -15,6 +15,7 @@ from pathlib import Path
 import bpy
 
 from lowcam.errors import LowcamError
+from lowcam.io import check_image_output
 
 from . import frames, handlers
 
@@ -65,6 +66,10 @@ def render(blend, frame_list, output: str | None = None, force: bool = False, ke
         scene.lowcam.output = str(Path(output).resolve()) if "#" in output or "%" in output else \
             str(Path(output).resolve() / "####.png")
     frames.setup_scene(scene, scene.render.resolution_x)
+    for frame in frame_list:  # before any rendering: every composite can be written, none replaces an input
+        out = frames.output_path(scene, frame)
+        if force or not out.exists():
+            check_image_output(out, [blend])
     written = []
     with tempfile.TemporaryDirectory(prefix="lowcam-render-") as scratch:   # renders not kept are removed
         renders = Path(keep_renders or scratch)

@@ -70,17 +70,20 @@ def test_serial_dask_and_chunked_runs_give_the_same_bytes(shot_dir, tmp_path):
     assert frame_bytes(tmp_path / "chunks") == serial
 
 
-def test_a_killed_run_resumes_without_redoing_finished_frames(shot_dir, tmp_path):
+@pytest.mark.parametrize("workers", [[], pytest.param(["--workers", "2"], marks=pytest.mark.slow)],
+                         ids=["serial", "dask"])
+def test_a_killed_run_resumes_without_redoing_finished_frames(shot_dir, tmp_path, workers):
     out = tmp_path / "resume"
     cmd = [sys.executable, "-m", "lowcam.cli", "batch", "--renders", str(shot_dir / "renders/####.exr"),
            "--plates", str(shot_dir / "plates/####.png"), "--motion", str(shot_dir / "motion.json"),
-           "--frames", "1-12", "-o", str(out / "####.png"), "--quiet"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+           "--frames", "1-12", "-o", str(out / "####.png"), "--quiet", *workers]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 120
     while len(list(out.glob("*.png"))) < 3 and time.time() < deadline:
         time.sleep(0.02)
-    os.kill(proc.pid, signal.SIGKILL)
+    os.killpg(proc.pid, signal.SIGKILL)  # the job and its Dask workers, as a farm kills a task
     proc.wait()
+    time.sleep(0.5)
     done = {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")}
     assert 3 <= len(done) < 12
     for p in out.glob("*.png"):  # every frame that exists is complete

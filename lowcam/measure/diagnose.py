@@ -295,6 +295,7 @@ def per_pixel(name: str) -> bool:
 class Diagnosis:
     comparison: object
     candidates: list
+    scratch: object = None  # the temporary folder of fitted maps; removed with the Diagnosis
 
     @property
     def error(self) -> float:
@@ -341,7 +342,8 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
     later candidate's ``error_after`` then includes the ones before it.
     """
-    workdir = Path(workdir or tempfile.mkdtemp(prefix="lowcam-diagnose-"))
+    scratch = None if workdir else tempfile.TemporaryDirectory(prefix="lowcam-diagnose-")
+    workdir = Path(workdir or scratch.name)
     ctx = Context(mset, profile, workdir)
     base = ctx.compare(profile)
     names = list(only or candidates())
@@ -358,7 +360,7 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
         for c in again:
             c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
         ranked = again
-    return Diagnosis(base, chosen + ranked)
+    return Diagnosis(base, chosen + ranked, scratch)
 
 
 def save_candidate_profile(candidate: Candidate, path) -> Path:

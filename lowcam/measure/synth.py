@@ -89,6 +89,7 @@ def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int =
                only_scenes=None):
     """Write a measurement set made by ``profile`` with hidden changes; returns its folder. ``only_scenes``
     limits it to those of :func:`scenes` (a small, focused set)."""
+    from ..io import make_output_folder
     from ..pipeline import simulate
     from .sets import write_set
 
@@ -103,4 +104,4 @@ def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int =
             continue
         shots = [simulate(ideal, camera, None, omega, None, seed, k) for k in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
-    return write_set(folder, captures)
+    return write_set(make_output_folder(folder), captures)
