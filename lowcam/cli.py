@@ -485,7 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_profiles)
 
     add_plugin_commands(sub)
-
+    for command in set(sub.choices.values()):  # lowcam apply --debug as well as lowcam --debug apply
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parser
 
 
