@@ -65,7 +65,7 @@ def parse_frames(spec: str) -> list[int]:
     frames: set[int] = set()
     count = 0
     for part in spec.split(","):
-        m = re.fullmatch(r"\s*(-?\d+)(?:\s*-\s*(-?\d+)(?:x(\d+))?)?\s*", part)
+        m = re.fullmatch(r"\s*(-?\d{1,12})(?:\s*-\s*(-?\d{1,12})(?:x(\d{1,12}))?)?\s*", part)
         if not m:
             raise LowcamError(f"frames '{spec}': cannot read '{part}' (use e.g. 1-240, 1-10,15 or 1-240x2)")
         a = int(m.group(1))
@@ -95,6 +95,7 @@ class Shot:
     seed: int = 0
     video_first_frame: int = 1
     layer: str | None = None
+    motion_source: str = "the motion file"
 
     def output_path(self, frame: int) -> Path:
         return Path(expand_pattern(self.output, frame))
@@ -123,22 +124,25 @@ def read_video_frame(path: str, index: int):
     """Frame ``index`` (0-based) of a video file as uint8 RGB."""
     import cv2
 
+    from .io import quiet_stderr
+
     if not Path(path).is_file():
         raise LowcamError(f"{path}: no such file")
-    cap = cv2.VideoCapture(path)
-    try:
-        if not cap.isOpened():
-            raise LowcamError(f"{path}: not a readable video")
-        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        if index < 0 or (count > 0 and index >= count):
-            raise LowcamError(f"{path}: the video has {count} frames, frame {index} (0-based) does not exist")
-        cap.set(cv2.CAP_PROP_POS_FRAMES, index)
-        ok, img = cap.read()
-        if not ok:
-            raise LowcamError(f"{path}: frame {index} (0-based) cannot be decoded")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    finally:
-        cap.release()
+    with quiet_stderr():  # FFmpeg's messages stay off the terminal
+        cap = cv2.VideoCapture(path)
+        try:
+            if not cap.isOpened():
+                raise LowcamError(f"{path}: not a readable video")
+            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            if index < 0 or (count > 0 and index >= count):
+                raise LowcamError(f"{path}: the video has {count} frames, frame {index} (0-based) does not exist")
+            cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+            ok, img = cap.read()
+        finally:
+            cap.release()
+    if not ok:
+        raise LowcamError(f"{path}: frame {index} (0-based) cannot be decoded")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def _read_plate(shot: Shot, frame: int, profile):
@@ -164,7 +168,7 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
         profile = _profile(shot.profile)
         motion = shot.motion.get(frame)
         if motion is None and shot.require_motion:
-            raise LowcamError(f"frame {frame}: no entry in the motion file")
+            raise LowcamError(f"{shot.motion_source}: no entry for this frame")
         motion = motion or FrameMotion((0.0, 0.0, 0.0))
         render = read_render(expand_pattern(shot.renders, frame), shot.layer)
         plate = _read_plate(shot, frame, profile) if shot.plates else None
@@ -207,6 +211,8 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
     from .io import remove_stale_temporaries
 
     _profile(shot.profile)  # a bad profile fails here, once, before any frame
+    if shot.plates and Path(shot.plates).suffix.lower() in VIDEO_SUFFIXES:
+        read_video_frame(shot.plates, max(0, frames[0] - shot.video_first_frame))  # an unreadable video, once
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
         raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")
     for folder in {shot.output_path(f).parent for f in frames}:

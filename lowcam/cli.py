@@ -1,11 +1,17 @@
-"""The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2.
+"""The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2; ``--debug``
+shows its traceback.
 
 Other packages add commands through the ``lowcam.commands`` entry-point group: the Blender side adds ``demo``,
 ``render``, ``motion`` and ``node-asset`` (``addon/commands.py``); the engine knows none of them by name.
 
 Contents
 --------
+- :class:`Parser`: an argument parser whose errors are one line
+- :func:`bounded_int`: argparse type: an integer in [low, high]
+- :func:`seed`: argparse type: a noise seed, 0 <= seed < 2**64
+- :func:`frame_number`: argparse type: a frame number in [-2**31, 2**31)
 - :func:`vector3`: argparse type for an angular velocity ``wx,wy,wz`` (rad/s)
+- :func:`input_files`: the files named by the arguments (and a measurement set's files), which no output may replace
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
@@ -79,9 +85,18 @@ def vector3(text: str) -> tuple[float, float, float]:
 
 
 def input_files(args, *outputs: str) -> list[str]:
-    """Every argument that names an existing file, except the ``outputs`` options: the files an output must not
-    replace."""
-    return [v for k, v in vars(args).items() if k not in outputs and isinstance(v, str) and v and Path(v).is_file()]
+    """Every argument that names an existing file, and every file in a folder argument (a measurement set),
+    except the ``outputs`` options: the files an output must not replace."""
+    out = []
+    for key, value in vars(args).items():
+        if key in outputs or not isinstance(value, str) or not value:
+            continue
+        path = Path(value)
+        if path.is_file():
+            out.append(value)
+        elif path.is_dir() and (path / "set.toml").is_file():
+            out.extend(str(p) for p in path.rglob("*") if p.is_file())
+    return out
 
 
 def _load_inputs(args, profile):
@@ -175,7 +190,7 @@ def cmd_batch(args) -> int:
                                 args.gyro_first_frame, source=args.gyro)
         require = True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
-                args.video_first_frame, args.layer)
+                args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file")
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
     done = sum(r.status == "written" for r in results)
@@ -194,6 +209,10 @@ def cmd_chart(args) -> int:
     if Path(args.output).suffix.lower() not in (".pdf", ".png"):
         raise LowcamError(f"{args.output}: the chart is written as .pdf or .png")
     check_output(args.output)
+    layout = Path(args.output).with_suffix(".json")
+    check_output(layout, option="the layout beside -o")
+    if layout.exists() and b'"lowcam-chart"' not in layout.read_bytes()[:200]:
+        raise LowcamError(f"{layout}: exists and is not a chart layout; the chart's layout would replace it")
     chart, layout = write_chart(args.output, args.size, args.dpi)
     print(f"{chart}: {args.size.upper()} calibration chart at {args.dpi} dpi; layout in {layout}")
     return 0
@@ -242,6 +261,8 @@ def _check_report_outputs(args) -> None:
 
     if args.json:
         check_output(args.json, input_files(args, "json", "output"), "--json")
+        if getattr(args, "output", None) and os.path.abspath(args.output) == os.path.abspath(args.json):
+            raise LowcamError(f"{args.json}: --json and -o name the same file")
     if args.report:
         check_output_folder(args.report, "--report")
 
@@ -269,13 +290,14 @@ def _end_progress_lines() -> None:
 
 def cmd_compare(args) -> int:
     from .measure.compare import compare
-    from .measure.report import record_history, write_compare_report
+    from .measure.report import read_history, record_history, write_compare_report
     from .measure.sets import load_set
     from .profile import load_profile
 
     _check_report_outputs(args)
     profile = load_profile(args.profile)
     mset = load_set(args.set, profile)
+    read_history(mset.path)  # a damaged history fails before the work
     print(f"comparing {len(mset.captures)} captures with {profile.name} ...", file=sys.stderr, flush=True)
     cmp = compare(mset, profile)
     history = record_history(mset.path, str(profile.path or profile.name), cmp)
@@ -310,7 +332,7 @@ def cmd_diagnose(args) -> int:
     if args.add_best and not args.output:
         raise LowcamError("--add-best needs -o NEW.toml")
     if args.output:
-        check_output(args.output, input_files(args, "output", "json"))
+        check_output(args.output, input_files(args, "output", "json") + [args.json])
     profile = load_profile(args.profile)
     for plugin in args.plugin:
         effect_class(plugin, "--plugin")

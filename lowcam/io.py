@@ -60,7 +60,7 @@ _PART = re.compile(r"^\.lowcam-(?P<host>[^-]+)-(?P<pid>\d+)-[A-Za-z0-9_]+\..+\.p
 
 
 def _part_prefix(name: str) -> str:
-    return f".lowcam-{socket.gethostname().split('.')[0].replace('-', '_')}-{os.getpid()}-"
+    return f".lowcam-{socket.gethostname().split('.')[0].replace('-', '_')[:32]}-{os.getpid()}-"
 
 
 def _fsync_folder(folder: Path) -> None:
@@ -80,7 +80,7 @@ def _write_through_temporary(path, write) -> Path:
     check_output(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=_part_prefix(path.name), suffix=f".{path.name}.part", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=_part_prefix(path.name), suffix=f".{path.name[:100]}.part", dir=path.parent)
     except OSError as e:
         raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
     try:
@@ -235,22 +235,24 @@ def _exists(path) -> Path:
 
 @contextlib.contextmanager
 def quiet_stderr():
-    """Keep C libraries' messages (libpng, libjpeg, ffmpeg) off the terminal: file descriptor 2 goes to the null
-    device for the duration. Python's own ``sys.stderr`` is flushed first."""
+    """Keep C libraries' messages (libpng, libjpeg, ffmpeg) off the terminal: file descriptor 2 goes to a
+    temporary file for the duration. Yields a dict whose ``"text"`` holds what they said, once the block ends."""
+    said = {"text": ""}
     sys.stderr.flush()
     try:
         saved = os.dup(2)
     except OSError:  # no descriptor 2 (a detached process): nothing to keep quiet
-        yield
+        yield said
         return
-    null = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(null, 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(null)
+    with tempfile.TemporaryFile() as capture:
+        try:
+            os.dup2(capture.fileno(), 2)
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            said["text"] = capture.read(4096).decode(errors="replace")
 
 
 def read_toml(path, what: str = "file") -> dict:
@@ -290,10 +292,19 @@ def read_exr(path) -> dict[str, np.ndarray]:
     path = _exists(path)
     try:
         with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
-            return {name: np.asarray(ch.pixels, np.float32) for part in f.parts for name, ch in part.channels.items()}
+            parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
+                     for part in f.parts]
     except Exception as e:  # OpenEXR raises bare RuntimeErrors for corrupt files
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})") from None
+    channels: dict[str, np.ndarray] = {}
+    for part_name, part_channels in parts:
+        twice = sorted(set(channels) & set(part_channels))
+        if twice:
+            raise LowcamError(f"{path}: parts {', '.join(repr(n) for n, _ in parts)} both hold channel '{twice[0]}'; "
+                              "write one part per view layer, with the layer in the channel names")
+        channels.update(part_channels)
+    return channels
 
 
 #: The view layer of excluded objects that the add-on adds ("Lowcam Overlay"); never taken for the render.
@@ -379,24 +390,25 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     return rgba
 
 
+#: What libjpeg and libpng say of a damaged file that they still decode (partly grey).
+_DAMAGE = re.compile(r"premature end|corrupt|incomplete|crc error|truncat|invalid", re.IGNORECASE)
+
+
 def _decode(path: Path) -> np.ndarray:
-    """Decode a PNG, JPEG or TIFF with OpenCV, its codecs' chatter kept off the terminal. A truncated file is an
-    error, not a partly grey picture."""
+    """Decode a PNG, JPEG or TIFF with OpenCV, its codecs' chatter kept off the terminal. A truncated or damaged
+    file is an error, not a partly grey picture; bytes after the image's end (as phones append) are fine."""
     kind = _format(path)
     if kind == "exr":
         raise LowcamError(f"{path}: an OpenEXR file where a PNG, JPEG or TIFF image was expected")
-    data = path.read_bytes()
-    if kind == "jpeg" and not data.rstrip(b"\x00\r\n ").endswith(b"\xff\xd9"):
-        raise LowcamError(f"{path}: the JPEG file is truncated (no end-of-image marker)")
-    if kind == "png" and b"IEND" not in data[-16:]:
-        raise LowcamError(f"{path}: the PNG file is truncated (no IEND chunk)")
-    with quiet_stderr():
+    with quiet_stderr() as codec:
         try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            img = cv2.imdecode(np.frombuffer(path.read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error:
             img = None
-    if img is None:
-        raise LowcamError(f"{path}: not a readable image (PNG, JPEG or TIFF)")
+    complaint = next((line for line in codec["text"].splitlines() if _DAMAGE.search(line)), None)
+    if img is None or complaint:
+        raise LowcamError(f"{path}: " + (f"the image is truncated or corrupt ({complaint.strip()})" if complaint
+                                         else "not a readable image (PNG, JPEG or TIFF), or truncated"))
     return img
 
 
@@ -418,6 +430,8 @@ def read_plate(path, width: int, height: int, channels: int | None = 3) -> np.nd
     img = read_image(path)
     if img.dtype == np.uint16:
         img = np.round(img / 257.0).astype(np.uint8)
+    if img.dtype != np.uint8:
+        raise LowcamError(f"{path}: the plate holds {img.dtype} values; a video frame is 8- or 16-bit")
     if img.shape[:2] != (height, width):
         raise LowcamError(f"{path}: the plate is {img.shape[1]}x{img.shape[0]}, the camera delivers {width}x{height}")
     if channels == 3 and img.ndim != 3:
@@ -445,6 +459,9 @@ def read_gain_map(path) -> np.ndarray:
     if img.ndim != 2:
         img = img.mean(axis=2)
     img = img.astype(np.float32)
+    _check_finite(path, img)
+    if img.min() < 0:
+        raise LowcamError(f"{path}: the gain map holds negative values (down to {img.min():.3g})")
     if img.max() <= 0:
         raise LowcamError(f"{path}: the gain map is all zero")
     return img / img.max()

@@ -13,10 +13,13 @@ Contents
 from __future__ import annotations
 
 import html
+import io
 import json
 from pathlib import Path
 
 import numpy as np
+
+from .io import atomic_write_bytes, make_output_folder
 
 STYLE = ("body{font-family:sans-serif;max-width:1200px;margin:auto}img{max-width:100%}"
          "pre{background:#f4f4f4;padding:8px;overflow:auto}")
@@ -32,10 +35,10 @@ def figure(path: Path, draw, size=(7, 4.5)) -> Path:
     fig = plt.figure(figsize=size, dpi=100)
     draw(fig)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
     plt.close(fig)
-    return path
+    return atomic_write_bytes(make_output_folder(path.parent) / path.name, buffer.getvalue())
 
 
 def image(folder, path, alt: str) -> str:
@@ -43,8 +46,7 @@ def image(folder, path, alt: str) -> str:
     path, folder = Path(path), Path(folder)
     target = folder / path.name
     if path.resolve() != target.resolve():
-        folder.mkdir(parents=True, exist_ok=True)
-        target.write_bytes(path.read_bytes())
+        atomic_write_bytes(make_output_folder(folder) / path.name, path.read_bytes())
     return f"<img src='{html.escape(path.name)}' alt='{html.escape(alt)}'>"
 
 
@@ -65,10 +67,7 @@ def numbers_block(numbers, summary: str | None = None) -> str:
 def write_page(folder, title: str, heading: str, sections) -> Path:
     """Write ``folder/index.html``: a page titled ``title`` with the heading ``heading`` over ``sections`` (HTML
     fragments, in order); returns its path."""
-    from .io import atomic_write_bytes
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = make_output_folder(folder)
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
              f"<style>{STYLE}</style></head><body>", f"<h1>{html.escape(heading)}</h1>", *sections, "</body></html>"]
     page = folder / "index.html"

@@ -49,6 +49,8 @@ References
 from __future__ import annotations
 
 import html
+import shutil
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -97,13 +99,75 @@ def _write_ca_csv(path: Path, grid: np.ndarray, camera) -> None:
     write_ca_grid(path, grid, camera.width, camera.height)
 
 
+# --- checks shared by the calibrations -----------------------------------------------------------------------------
+# A calibration refuses input that cannot determine what it fits, before it writes anything (plots included).
+
+def _source(patterns) -> str:
+    """The input as named on the command line or in the manifest, for messages: a few names, or the first and
+    last of many."""
+    names = [str(p) for p in patterns]
+    if len(names) <= 3:
+        return " ".join(names) or "(no frames)"
+    return f"{names[0]} ... {names[-1]} ({len(names)} names)"
+
+
+def _load(patterns, min_frames: int, what: str):
+    """(frames, names, source) of a calibration's frames; too few, unreadable or mixed sizes are refused."""
+    patterns = list(patterns)
+    source = _source(patterns)
+    frames, names = load_frames(patterns, min_frames, f"{source}: {what}")
+    return frames, names, source
+
+
+def _contrast(image) -> float:
+    """Spread (1st to 99th percentile, DN) of an image lightly smoothed, so that pixel noise alone shows little."""
+    import cv2
+
+    smooth = cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0)
+    lo, hi = np.percentile(smooth, [1, 99])
+    return float(hi - lo)
+
+
+def _identical(frames) -> bool:
+    return all(np.array_equal(f, frames[0]) for f in frames[1:])
+
+
+def _all_finite(value) -> bool:
+    if isinstance(value, dict):
+        return all(_all_finite(v) for v in value.values())
+    return bool(np.isfinite(np.asarray(value, np.float64)).all())
+
+
+def _require_finite(source: str, what: str, **fitted) -> None:
+    """Refuse a fit whose values came out NaN or infinite: ``what`` names what stays undetermined."""
+    for name, value in fitted.items():
+        if not _all_finite(value):
+            raise LowcamError(f"{source}: the fitted {name.replace('_', ' ')} is not finite, so {what} is "
+                              f"undetermined")
+
+
+#: Below this contrast (DN, :func:`_contrast`) a frame holds no edge or texture to measure.
+_MIN_CONTRAST_DN = 10.0
+
+
 # --- the calibrations ---------------------------------------------------------------------------------------------
+
+def _distinct_views(points, tolerance_px: float = 0.5) -> int:
+    """How many of the target's detections differ (by more than ``tolerance_px`` at some corner)."""
+    kept: list[np.ndarray] = []
+    for p in points:
+        if not any(k.shape == p.shape and np.abs(k - p).max() <= tolerance_px for k in kept):
+            kept.append(p)
+    return len(kept)
+
 
 def calibrate_lens(patterns, target: str = "checkerboard:9x6:0.025", models=("fov", "opencv"),
                    plot_dir: Path | None = None) -> Calibration:
+    import cv2
+
     from ..effects.lens import fit_lens
 
-    frames, names = load_frames(patterns, 3, "lens calibration")
+    frames, names, source = _load(patterns, 3, "lens calibration")
     spec = parse_target(target)
     obj, img, used, missing = [], [], [], []
     for f, n in zip(frames, names):
@@ -116,11 +180,22 @@ def calibrate_lens(patterns, target: str = "checkerboard:9x6:0.025", models=("fo
         used.append(n)
     notes = [f"{n}: {target} not found, frame skipped" for n in missing]
     if len(used) < 3:
-        raise LowcamError(f"lens calibration: the target ({target}) was found in {len(used)} frame(s), at least 3 "
-                          f"are needed" + (f"; not found in {', '.join(Path(m).name for m in missing)}" if missing
-                                           else ""))
+        raise LowcamError(f"{source}: the target ({target}) was found in {len(used)} frame(s), at least 3 are "
+                          f"needed" + (f"; not found in {', '.join(Path(m).name for m in missing)}" if missing
+                                       else ""))
+    views = _distinct_views(img)
+    if views < 3:
+        raise LowcamError(f"{source}: the target ({target}) shows {views} distinct view(s) in {len(used)} frames, "
+                          f"so the lens is undetermined; at least 3 views from different angles are needed")
     h, w = frames[0].shape[:2]
-    fits = {m: fit_lens(obj, img, (w, h), m) for m in models}
+    fits = {}
+    for m in models:
+        try:
+            fits[m] = fit_lens(obj, img, (w, h), m)
+        except cv2.error:  # OpenCV's initial calibration failed on these views
+            raise LowcamError(f"{source}: OpenCV cannot calibrate from these {len(used)} views of the target "
+                              f"({target}); tilt the board more between frames") from None
+        _require_finite(source, f"the {m} lens", **{f"{m} lens": fits[m].params, "RMS error": fits[m].rms})
     best = min(fits, key=lambda m: fits[m].rms)
     numbers = {"frames_used": len(used), "skipped": notes}
     for m, fit in fits.items():
@@ -146,12 +221,21 @@ def calibrate_lens(patterns, target: str = "checkerboard:9x6:0.025", models=("fo
                        figures)
 
 
+#: Flat fields darker than this (DN, 99th percentile) cannot show the fall-off.
+_MIN_FLAT_DN = 10.0
+
+
 def calibrate_vignetting(patterns, plot_dir: Path | None = None) -> Calibration:
     from ..effects.vignetting import fit_vignetting
 
-    frames, names = load_frames(patterns, 1, "vignetting calibration")
+    frames, names, source = _load(patterns, 1, "vignetting calibration")
     refuse_saturated(frames, names)
+    level = float(np.percentile(np.mean(frames, axis=(0, 3)), 99))
+    if level < _MIN_FLAT_DN:
+        raise LowcamError(f"{source}: the flat fields are dark ({level:.1f} DN at the 99th percentile, "
+                          f"{_MIN_FLAT_DN:g} needed), so the vignetting cannot be measured; raise the exposure")
     gain = fit_vignetting(frames)
+    _require_finite(source, "the vignetting", gain_texture=gain)
     corners = float(np.mean([gain[0, 0], gain[0, -1], gain[-1, 0], gain[-1, -1]]))
     figures = []
     if plot_dir:
@@ -173,14 +257,29 @@ def calibrate_vignetting(patterns, plot_dir: Path | None = None) -> Calibration:
                        {"vignetting": Texture("texture", gain, "vignetting.png", _write_gain_png)})
 
 
+#: The Lucas-Kanade patch (px) that aligns red and blue to green.
+_CA_PATCH = 30
+
+
 def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Calibration:
     from ..effects.chromatic_aberration import fit_chromatic_aberration
     from ..geometry import grid_points
 
-    frames, names = load_frames(patterns, 1, "chromatic-aberration calibration")
+    frames, names, source = _load(patterns, 1, "chromatic-aberration calibration")
     refuse_saturated(frames, names, 0.05)
-    grid = fit_chromatic_aberration(frames)
     h, w = frames[0].shape[:2]
+    if min(h, w) < 2 * _CA_PATCH + 4:  # each patch, with its margin, must fit in the frame
+        raise LowcamError(f"{source}: the frames are {w}x{h}; aligning {_CA_PATCH}-px patches needs frames of at "
+                          f"least {2 * _CA_PATCH + 4}x{2 * _CA_PATCH + 4} px")
+    texture = max(_contrast(f[..., 1]) for f in frames)
+    if texture < _MIN_CONTRAST_DN:
+        raise LowcamError(f"{source}: the frames hold no texture (contrast {texture:.1f} DN in green), so the "
+                          f"colour channels cannot be aligned; use the chart's noise field")
+    try:
+        grid = fit_chromatic_aberration(frames, patch=_CA_PATCH)
+    except ValueError as e:  # some cell of the grid had too little texture in every frame
+        raise LowcamError(f"{source}: {e}") from None
+    _require_finite(source, "the chromatic aberration", offset_grid=grid)
     red, blue = np.hypot(grid[..., 0], grid[..., 1]), np.hypot(grid[..., 2], grid[..., 3])
     figures = []
     if plot_dir:
@@ -201,12 +300,55 @@ def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Ca
                        {"chromatic_aberration": Texture("texture", grid, "chromatic_aberration.csv", _write_ca_csv)})
 
 
+#: Unsaturated pixels per channel that the noise law's brightness bins need (40 bins of at least 20 pixels).
+_MIN_NOISE_PIXELS = 1000
+
+
+def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0, needed: int = 3) -> None:
+    """A noise law needs temporal noise and at least ``needed`` brightness levels in every channel.
+
+    Levels count the spread (1st to 99th percentile) of the frame-averaged pixel means that
+    :func:`lowcam.effects.noise.fit_noise_law` uses (2 DN to ``saturation_dn``) in steps of 10 DN, or of five
+    times the noise left in the means if wider, so that one flat grey always counts as one level.
+    """
+    if _identical(frames):
+        raise LowcamError(f"{source}: the {len(frames)} frames are identical, so they hold no noise to measure "
+                          f"(were they copied from one capture?)")
+    stack = np.asarray(frames)
+    mean = stack.mean(axis=0)
+    sample = stack[:, ::4, ::4].astype(np.float64)  # enough pixels for the typical noise
+    for c, channel in enumerate(("red", "green", "blue")):
+        mu = mean[..., c].ravel()
+        mu = mu[(mu > 2.0) & (mu < saturation_dn)]
+        if mu.size == 0:
+            raise LowcamError(f"{source}: no {channel} pixel of the noise stack lies between 2 and "
+                              f"{saturation_dn:g} DN (all dark or saturated), so the noise law cannot be fitted")
+        if mu.size < _MIN_NOISE_PIXELS:
+            raise LowcamError(f"{source}: only {mu.size} {channel} pixels of the noise stack lie between 2 and "
+                              f"{saturation_dn:g} DN; the noise law needs at least {_MIN_NOISE_PIXELS}")
+        scatter = float(np.median(sample[..., c].std(axis=0, ddof=1))) / np.sqrt(len(frames))
+        step = max(10.0, 5.0 * scatter)
+        lo, hi = np.percentile(mu, [1, 99])
+        levels = 1 + int((hi - lo) // step)
+        if levels < needed:
+            count = "one brightness level only" if levels == 1 else f"{levels} brightness levels"
+            raise LowcamError(f"{source}: the noise stack shows {count} in {channel} ({lo:.0f}-{hi:.0f} DN); the "
+                              f"noise law needs at least {needed} levels {step:.0f} DN apart (a static scene "
+                              f"with dark to bright areas)")
+
+
 def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear",
                     plot_dir: Path | None = None) -> Calibration:
     from ..effects.noise import fit_noise
 
-    frames, names = load_frames(patterns, 10, "noise calibration")
-    fit = fit_noise(np.stack(frames), demosaic)
+    frames, names, source = _load(patterns, 10, "noise calibration")
+    _check_noise_stack(source, frames)
+    try:
+        fit = fit_noise(np.stack(frames), demosaic)
+    except ValueError as e:  # too few pixels in the brightness bins, despite the checks above
+        raise LowcamError(f"{source}: {e}") from None
+    _require_finite(source, "the noise law", sigma_linear_law=fit["sigma_linear"],
+                    variance_linear_law=fit["variance_linear"])
     figures = []
     if plot_dir:
         def draw(fig):
@@ -234,11 +376,24 @@ def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear"
                         "frames": len(frames)}, figures)
 
 
+#: 4x4 blocks (over all frames) that the 16x16 noise correlations need.
+_MIN_DEMOSAIC_BLOCKS = 500
+
+
 def calibrate_demosaic(patterns, geometry, plot_dir: Path | None = None) -> Calibration:
     from ..effects.bayer import identify_demosaic
 
-    frames, names = load_frames(patterns, 10, "demosaic identification")
+    frames, names, source = _load(patterns, 10, "demosaic identification")
+    if _identical(frames):
+        raise LowcamError(f"{source}: the {len(frames)} frames are identical, so they hold no noise to identify "
+                          f"the demosaicing from (were they copied from one capture?)")
+    h, w = frames[0].shape[:2]
+    samples = (h // 4) * (w // 4) * len(frames)
+    if samples < _MIN_DEMOSAIC_BLOCKS:
+        raise LowcamError(f"{source}: the {len(frames)} frames of {w}x{h} hold {samples} 4x4 blocks, at least "
+                          f"{_MIN_DEMOSAIC_BLOCKS} are needed to measure the noise correlations")
     result = identify_demosaic(np.stack(frames), geometry)
+    _require_finite(source, "the demosaicing", **{f"{m} error": e for m, e in result["errors"].items()})
     figures = []
     if plot_dir:
         def draw(fig):
@@ -261,10 +416,25 @@ def calibrate_demosaic(patterns, geometry, plot_dir: Path | None = None) -> Cali
 
 
 def calibrate_blur(patterns, plot_dir: Path | None = None) -> Calibration:
-    from ..effects.blur import fit_edge_blur
+    from ..effects.blur import find_edges, fit_edge_blur
 
-    frames, _ = load_frames(patterns, 1, "blur calibration")
-    r = fit_edge_blur(frames)
+    frames, _, source = _load(patterns, 1, "blur calibration")
+    grey = np.mean([f.mean(axis=2) for f in frames], axis=0)
+    contrast = _contrast(grey)
+    if contrast < _MIN_CONTRAST_DN:
+        raise LowcamError(f"{source}: the frames hold no edge (contrast {contrast:.1f} DN), so the blur cannot "
+                          f"be measured; use the chart's slanted squares")
+    boxes = [b[4] for b in find_edges(grey)]
+    found = {k: boxes.count(k) for k in ("vertical", "horizontal")}
+    if not all(found.values()):
+        raise LowcamError(f"{source}: {found['vertical']} vertical and {found['horizontal']} horizontal slanted "
+                          f"edge(s) found, both are needed to measure the blur; use the chart's slanted squares")
+    try:
+        r = fit_edge_blur(frames)
+    except ValueError as e:  # every edge of one orientation failed its fit
+        raise LowcamError(f"{source}: {e}") from None
+    _require_finite(source, "the blur", horizontal_edge_sigma=r["sigma_horizontal_px"],
+                    vertical_edge_sigma=r["sigma_vertical_px"], extra_blur=r["extra_horizontal_sensels"])
     figures = []
     if plot_dir:
         def draw(fig):
@@ -296,14 +466,34 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     """
     from ..effects.sharpening import fit_row_filter, fit_sharpening_to_images, frequency_response
 
-    soft, _ = load_frames(soft_patterns, 1, "sharpening calibration (soft)")
-    sharp, _ = load_frames(sharp_patterns, 1, "sharpening calibration (sharp)")
+    if not np.isfinite(sharpness) or sharpness <= 0:
+        raise LowcamError(f"--sharpness {sharpness:g}: the sharp captures' setting must be above 0 (the soft "
+                          f"captures are at 0), else there is no sharpening to measure")
+    soft, soft_names, soft_source = _load(soft_patterns, 1, "sharpening calibration (soft)")
+    sharp, sharp_names, sharp_source = _load(sharp_patterns, 1, "sharpening calibration (sharp)")
     if soft[0].shape != sharp[0].shape:
-        raise LowcamError("sharpening calibration: the soft and sharp captures differ in size")
+        raise LowcamError(f"{sharp_names[0]}: the sharp capture is {sharp[0].shape[1]}x{sharp[0].shape[0]}, the "
+                          f"soft one ({soft_names[0]}) is {soft[0].shape[1]}x{soft[0].shape[0]}: mixed sizes")
+    height, width = soft[0].shape[:2]
+    if (width + 1) // 2 < taps:  # a row at sensel resolution must hold the whole filter
+        raise LowcamError(f"{soft_source}: the frames are {width}x{height}; the {taps}-tap sharpening filter needs "
+                          f"frames at least {2 * taps} px wide")
     s0 = np.mean(soft, axis=0)[::2, ::2, 0]
     s1 = np.mean(sharp, axis=0)[::2, ::2, 0]
-    h = fit_row_filter(s0, s1, taps)
+    contrast = _contrast(s0)
+    if contrast < _MIN_CONTRAST_DN:
+        raise LowcamError(f"{soft_source}: the frames hold no edge (contrast {contrast:.1f} DN in red), so the "
+                          f"sharpening filter cannot be measured; use the chart's noise field")
+    if np.array_equal(s0, s1):
+        raise LowcamError(f"{sharp_source}: the sharp captures equal the soft ones ({soft_source}), so they show "
+                          f"no sharpening; capture them at sharpness {sharpness:g}")
+    try:
+        h = fit_row_filter(s0, s1, taps)
+    except np.linalg.LinAlgError:  # the rows hold too little detail for every tap
+        raise LowcamError(f"{soft_source}: the rows hold too little detail to determine the {taps}-tap filter "
+                          f"(singular system); use the chart's noise field") from None
     a, sigma = fit_sharpening_to_images(s0, s1)
+    _require_finite(soft_source, "the sharpening", filter=h, strength=a, sigma=sigma)
     figures = []
     if plot_dir:
         def draw(fig):
@@ -323,25 +513,49 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
             ax.set_title("frequency response")
             ax.legend(fontsize=7)
         figures.append(figure(Path(plot_dir) / "sharpening.png", draw, (10, 4)))
-    gain = a / sharpness if sharpness > 0 else 0.0
+    gain = a / sharpness
     return Calibration("sharpening", f"sharpening: a = {a:.3f}, sigma = {sigma:.3f} sensels at sharpness "
                                      f"{sharpness:g} (gain per unit {gain:.4f})",
                        {"sharpening": {"sharpness": sharpness, "gain_per_unit": gain, "sigma": sigma}},
                        {"a": a, "sigma": sigma, "filter": h.tolist()}, figures)
 
 
-def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path | None = None) -> Calibration:
+def _check_patch_colours(source: str, ideal: np.ndarray) -> None:
+    """The colour matrix needs patches whose ideal colours span all three dimensions."""
+    singular = np.linalg.svd(ideal, compute_uv=False)
+    rank = int((singular > 1e-3 * singular[0]).sum()) if singular[0] > 0 else 0
+    if rank < 3:
+        if np.ptp(ideal, axis=0).max() <= 1e-6 * max(np.abs(ideal).max(), 1.0):
+            how = "have identical colours"
+        elif rank <= 1:
+            how = "differ in brightness only (one hue)"
+        else:
+            how = "have colours in one plane (two hues)"
+        raise LowcamError(f"{source}: the {len(ideal)} unclipped patches {how}, so the colour matrix is "
+                          f"undetermined (rank {rank} of 3)")
+
+
+def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path | None = None,
+                     source: str = "colour calibration") -> Calibration:
     """Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255), ``measured_rgb`` the
-    camera's mean patch colours (DN) at saturation setting ``saturation``."""
+    camera's mean patch colours (DN) at saturation setting ``saturation``; ``source`` names them in messages."""
     from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
 
+    if not np.isfinite(saturation) or saturation <= 0:
+        raise LowcamError(f"--saturation {saturation:g}: the patches' saturation setting must be above 0 (at 0 the "
+                          f"camera's output is grey and its crosstalk cannot be recovered)")
     ideal_rgb, measured_rgb = np.asarray(ideal_rgb, np.float64), np.asarray(measured_rgb, np.float64)
+    bad = ~np.isfinite(ideal_rgb).all(axis=1) | ~np.isfinite(measured_rgb).all(axis=1)
+    if bad.any():
+        raise LowcamError(f"{source}: patch {int(np.argmax(bad)) + 1} has a missing or non-numeric colour")
     unclipped = (measured_rgb.min(axis=1) > 3) & (measured_rgb.max(axis=1) < 250)  # clipping breaks linearity
     if unclipped.sum() < 4:
-        raise LowcamError(f"colour calibration: only {int(unclipped.sum())} patches are free of clipping, 4 needed")
+        raise LowcamError(f"{source}: only {int(unclipped.sum())} patches are free of clipping, 4 needed")
     ideal_rgb, measured_rgb = ideal_rgb[unclipped], measured_rgb[unclipped]
+    _check_patch_colours(source, ideal_rgb)
     total = fit_colour_matrix(ideal_rgb, measured_rgb)
     crosstalk = crosstalk_from_colour_matrix(total, saturation)
+    _require_finite(source, "the crosstalk", colour_matrix=total, crosstalk=crosstalk)
     figures = []
     if plot_dir:
         def draw(fig):
@@ -442,21 +656,36 @@ class Option:
         return "--" + self.key.replace("_", "-")
 
     def from_manifest(self, section: dict, where: str, folder: Path):
+        """This option's value from a manifest section: types checked, and every frame pattern and path must
+        name existing files (relative to ``folder``); each problem is one line naming ``where`` and the key."""
         value = section.get(self.key)
         if self.kind == "frames":
-            if not value:
+            if value is None or value == "" or value == []:
                 if self.required:
                     raise LowcamError(f"{where} needs '{self.key}'")
                 return []
-            return [str(folder / p) for p in ([value] if isinstance(value, str) else value)]
+            names = [value] if isinstance(value, str) else value
+            if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+                raise LowcamError(f"{where}: '{self.key}' must be a file name or pattern, or a list of them, got "
+                                  f"{value!r}")
+            for name in names:
+                if not any(p.is_file() for p in expand_paths([folder / name])):
+                    raise LowcamError(f"{where}: '{self.key}' entry {name!r} matches no file in {folder}")
+            return [str(folder / n) for n in names]
         if value is None:
             if self.default is None and self.required:
                 raise LowcamError(f"{where} needs '{self.key}'")
             return self.default
+        if self.kind in ("path", str) and not isinstance(value, str):
+            raise LowcamError(f"{where}: '{self.key}' must be a string, got {value!r}")
         if self.kind == "path":
+            if not (folder / value).is_file():
+                raise LowcamError(f"{where}: '{self.key}' = {value!r}: no such file in {folder}")
             return str(folder / value)
         if self.choices and value not in self.choices:
             raise LowcamError(f"{where}: '{self.key}' must be one of {', '.join(self.choices)}, got {value!r}")
+        if isinstance(value, (bool, list, dict)):  # float(True) would pass silently
+            raise LowcamError(f"{where}: '{self.key}' must be a {self.kind.__name__}, got {value!r}")
         try:
             return self.kind(value)
         except (TypeError, ValueError):
@@ -509,9 +738,12 @@ class Calibrator:
     def from_manifest(self, section: dict, where: str, folder: Path, base,
                       plot_dir: Path | None = None) -> Calibration:
         """Run it with a manifest's section (``where`` names it in messages; paths relative to ``folder``)."""
+        return self.run(self.options_from_manifest(section, where, folder), base, plot_dir)
+
+    def options_from_manifest(self, section: dict, where: str, folder: Path) -> dict:
+        """The options' values from a manifest's section, checked (:meth:`Option.from_manifest`), without running."""
         self.check_section(section, where)
-        return self.run({o.key: o.from_manifest(section, where, Path(folder)) for o in self.options}, base,
-                        plot_dir)
+        return {o.key: o.from_manifest(section, where, Path(folder)) for o in self.options}
 
 
 def _lens_models(model: str) -> tuple[str, ...]:
@@ -521,13 +753,15 @@ def _lens_models(model: str) -> tuple[str, ...]:
 def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
     notes = None
     if o["patches"]:
+        source = str(o["patches"])
         ideal, measured = read_patches_csv(o["patches"])
     elif o["frames"] and o["chart"]:
+        source = _source(o["frames"])
         ideal, measured, notes = chart_patch_colours(o["frames"], o["chart"])
     else:
         raise LowcamError("colour calibration needs --patches CSV, or frames of the chart with --chart chart.json "
                           "(in a manifest: patches, or frames and chart)")
-    cal = calibrate_colour(ideal, measured, o["saturation"], plot_dir)
+    cal = calibrate_colour(ideal, measured, o["saturation"], plot_dir, source)
     if notes is not None:
         cal.numbers["skipped"] = notes
     return cal
@@ -619,10 +853,25 @@ def run_manifest(path, plot_dir: Path | None = None):
     unknown = sorted(set(doc) - known)
     if unknown:
         raise LowcamError(f"{path}: unknown manifest section '{unknown[0]}' (known: {', '.join(sorted(known))})")
-    base = load_profile(doc.get("profile", "fire-i"))
+    profile = doc.get("profile", "fire-i")
+    if not isinstance(profile, str) or not profile:
+        raise LowcamError(f"{path}: 'profile' must be a profile name or file, got {profile!r}")
+    base = load_profile(profile)
     listed = [c for name, c in CALIBRATIONS.items() if name in doc]
     if not listed:
         raise LowcamError(f"{path}: the manifest lists no calibration")
     for c in listed:  # every section's keys before the first (slow) calibration runs
         c.check_section(doc[c.name], f"{path}: [{c.name}]")
-    return base, [c.from_manifest(doc[c.name], f"{path}: [{c.name}]", path.parent, base, plot_dir) for c in listed]
+    options = [c.options_from_manifest(doc[c.name], f"{path}: [{c.name}]", path.parent) for c in listed]
+    if plot_dir is None:
+        return base, [c.run(o, base, None) for c, o in zip(listed, options)]
+    from ..io import make_output_folder
+
+    # plots go to a staging folder until every calibration has succeeded: a refusal leaves no plots behind
+    with tempfile.TemporaryDirectory(prefix="lowcam-plots-") as staging:
+        results = [c.run(o, base, Path(staging)) for c, o in zip(listed, options)]
+        for cal in results:
+            if cal.figures:
+                make_output_folder(plot_dir)
+            cal.figures = [Path(shutil.move(str(f), str(Path(plot_dir) / Path(f).name))) for f in cal.figures]
+    return base, results

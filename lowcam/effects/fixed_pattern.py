@@ -39,12 +39,27 @@ class _PixelMap(Effect):
         "pattern_seed": Param(1, int, low=0, high=2**31 - 1),
     }
 
+    def check(self):
+        self._map = None
+        if not self.texture:
+            return
+        try:
+            m = np.load(self.texture, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as e:
+            raise self.error(f"texture {self.texture} is not a readable .npy array ({e})") from None
+        if not isinstance(m, np.ndarray) or m.dtype.kind not in "fiu" or m.ndim != 3 or m.shape[2] != 3:
+            raise self.error(f"texture {self.texture} must be a numeric (H, W, 3) array, got "
+                             f"{getattr(m, 'dtype', type(m).__name__)} {getattr(m, 'shape', '')}")
+        if not np.isfinite(m).all() or np.abs(m).max() > 255:
+            raise self.error(f"texture {self.texture} holds NaN, Inf or values beyond +-255")
+        self._map = m.astype(np.float32)
+
     def pattern(self, shape) -> np.ndarray:
         if self.texture:
-            m = np.load(self.texture)
+            m = self._map
             if m.shape != shape:
                 raise self.error(f"texture {self.texture} is {m.shape}, the frame needs {shape}")
-            return m.astype(np.float32)
+            return m
         return self.draw(np.random.default_rng(self.pattern_seed), shape)
 
     def draw(self, rng, shape) -> np.ndarray:

@@ -63,9 +63,13 @@ class Vignetting(Effect):
         super().__init__(*args, **kwargs)
         self._texture = None
         if self.texture:
+            from ..errors import LowcamError
             from ..io import read_gain_map
 
-            self._texture = read_gain_map(self.texture)
+            try:
+                self._texture = read_gain_map(self.texture)
+            except LowcamError as e:
+                raise self.error(f"texture: {e}") from None
 
     def gain_texture(self, width: int, height: int) -> np.ndarray:
         if self._texture is not None:

@@ -6,6 +6,7 @@ Contents
 --------
 - :func:`probe_figures`: every probe as (title, PNG path)
 - :func:`history_path`: where a set keeps its comparison history
+- :func:`read_history`: the set's comparison history; a damaged file is a one-line error
 - :func:`record_history`: append this comparison to the set's history (``<set>/.lowcam/history.json``)
 - :func:`history_figure`: the error against model versions, as a PNG
 - :func:`write_compare_report`: the HTML comparison report
@@ -20,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..errors import LowcamError
 from ..reports import figure, image, numbers_block, write_page
 from .compare import row_noise_variance
 
@@ -237,12 +239,25 @@ def history_path(mset_path) -> Path:
     return Path(mset_path) / ".lowcam" / "history.json"
 
 
+def read_history(mset_path) -> list[dict]:
+    """The set's comparison history (``<set>/.lowcam/history.json``); a damaged file is a one-line error."""
+    path = history_path(mset_path)
+    try:
+        entries = json.loads(path.read_text()) if path.is_file() else []
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise LowcamError(f"{path}: the comparison history is not valid JSON ({e}); move it away to start "
+                          "afresh") from None
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise LowcamError(f"{path}: the comparison history is not a list of entries; move it away to start afresh")
+    return entries
+
+
 def record_history(mset_path, profile_name: str, cmp) -> list[dict]:
     """Append this comparison to the set's history (``<set>/.lowcam/history.json``) and return it."""
     from ..io import atomic_write_bytes
 
     path = history_path(mset_path)
-    entries = json.loads(path.read_text()) if path.is_file() else []
+    entries = read_history(mset_path)
     entries.append({"time": time.strftime("%Y-%m-%d %H:%M:%S"), "profile": profile_name,
                     "error": round(cmp.error, 4), "families": {k: round(v, 4) for k, v in cmp.families.items()}})
     atomic_write_bytes(path, json.dumps(entries, indent=1).encode())
@@ -264,8 +279,9 @@ def history_figure(entries, folder: Path) -> Path:
 
 
 def write_compare_report(cmp, folder, title: str, history=None, extra: dict | None = None) -> Path:
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    from ..io import make_output_folder
+
+    folder = make_output_folder(folder)
     figures = probe_figures(cmp, folder)
     if history:
         figures.insert(0, ("Error history", history_figure(history, folder)))
