@@ -212,7 +212,7 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
 
     _profile(shot.profile)  # a bad profile fails here, once, before any frame
     if shot.plates and Path(shot.plates).suffix.lower() in VIDEO_SUFFIXES:
-        read_video_frame(shot.plates, max(0, frames[0] - shot.video_first_frame))  # an unreadable video, once
+        read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
         raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")
     for folder in {shot.output_path(f).parent for f in frames}:

@@ -9,6 +9,7 @@ Capture input and output:
 - :func:`expand_paths`: file names and glob patterns to sorted paths (a pattern matching nothing stays as given)
 - :func:`load_frames`: capture frames (PNG/JPEG) as RGB ``uint8``, every problem naming the frame
 - :func:`refuse_saturated`: refuse clipped flat fields and noise stacks, naming the first clipped frame
+- :data:`PATCH_COLUMNS`: the header of a patch table
 - :func:`read_patches_csv`: a table of ideal (render units 0-1) and measured (DN 0-255) patch colours
 - :func:`srgb_to_linear`: printed sRGB code values (0-255) to linear light (0-1), IEC 61966-2-1
 
@@ -18,6 +19,7 @@ Targets:
 - :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.calibrate.chart`); sizes in metres
 - :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description
 - :func:`detect_target`: the target's object points (metres) and image points (pixels) in one frame, or None
+- :func:`read_chart_layout`: the chart layout JSON's board and patches, every value checked
 - :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it
 
 References
@@ -28,16 +30,18 @@ References
 from __future__ import annotations
 
 import glob
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from . import schema
 from .errors import LowcamError
 
 #: The ArUco dictionary of the chart's ChArUco board.
 DICTIONARY = "DICT_5X5_100"
+#: The header of a patch table (:func:`read_patches_csv`).
+PATCH_COLUMNS = ["ideal_r", "ideal_g", "ideal_b", "measured_r", "measured_g", "measured_b"]
 
 
 # --- captures ------------------------------------------------------------------------------------------------------
@@ -83,16 +87,10 @@ def refuse_saturated(frames, names, fraction: float = 0.01) -> None:
 
 def read_patches_csv(path) -> tuple[np.ndarray, np.ndarray]:
     """Patch colours: header ``ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b`` (ideal in render units
-    0-1, measured in DN 0-255), one row per patch."""
-    path = Path(path)
-    try:
-        data = np.genfromtxt(path, delimiter=",", names=True)
-    except (OSError, ValueError) as e:
-        raise LowcamError(f"{path}: cannot read the patch table ({e})") from None
-    cols = ["ideal_r", "ideal_g", "ideal_b", "measured_r", "measured_g", "measured_b"]
-    if data.dtype.names is None or any(c not in data.dtype.names for c in cols) or data.size < 4:
-        raise LowcamError(f"{path}: the patch table needs the columns {','.join(cols)} and at least 4 patches")
-    table = np.column_stack([np.atleast_1d(data[c]) for c in cols])
+    0-1, measured in DN 0-255), one row per patch, at least 4. Returns (ideal x 255, measured), each (N, 3)."""
+    ideal, measured = PATCH_COLUMNS[:3], PATCH_COLUMNS[3:]
+    table, _ = schema.read_number_csv(path, PATCH_COLUMNS, "patch table", min_rows=4,
+                                      low=0.0, high={**{c: 1.0 for c in ideal}, **{c: 255.0 for c in measured}})
     return table[:, :3] * 255.0, table[:, 3:]
 
 
@@ -115,23 +113,30 @@ def charuco_board(squares=(7, 5), square_mm: float = 30.0, marker_mm: float = 22
     return aruco.CharucoBoard(squares, square_mm / 1000.0, marker_mm / 1000.0, dictionary)
 
 
-def parse_target(spec: str):
+def parse_target(spec: str, where: str = ""):
     """``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's board).
+    ``where`` starts the messages (the file and key that gave ``spec``).
 
     >>> parse_target("checkerboard:9x6:0.025")
     ('checkerboard', (9, 6), 0.025)
     """
+    where = where or "target"
+    spec = schema.string(spec, where, "target")
+    here = f"{where} {schema.shown(spec)}"
     kind, _, rest = spec.partition(":")
     if kind in ("checkerboard", "chessboard"):
         try:
             size, square = rest.split(":")
             cols, rows = (int(v) for v in size.lower().split("x"))
-            return ("checkerboard", (cols, rows), float(square))
+            square = float(square)
         except ValueError:
-            raise LowcamError(f"target '{spec}': use checkerboard:COLSxROWS:SQUARE_M, e.g. checkerboard:9x6:0.025")
+            raise LowcamError(f"{here}: use checkerboard:COLSxROWS:SQUARE_M, e.g. checkerboard:9x6:0.025") from None
+        cols = schema.integer(cols, here, "columns", 2, 100)
+        rows = schema.integer(rows, here, "rows", 2, 100)
+        return ("checkerboard", (cols, rows), schema.number(square, here, "square", 1e-4, 10.0, "m"))
     if kind == "charuco":
         return ("charuco", None, None)
-    raise LowcamError(f"target '{spec}': unknown (use checkerboard:9x6:0.025 or charuco)")
+    raise LowcamError(f"{here}: unknown (use checkerboard:9x6:0.025 or charuco)")
 
 
 def detect_target(image: np.ndarray, target) -> tuple[np.ndarray, np.ndarray] | None:
@@ -155,17 +160,54 @@ def detect_target(image: np.ndarray, target) -> tuple[np.ndarray, np.ndarray] | 
     return np.asarray(obj, np.float64), corners.reshape(-1, 2).astype(np.float64)
 
 
+def read_chart_layout(path) -> tuple[dict, list]:
+    """The chart layout JSON (written by ``lowcam chart``): its ChArUco board element (``rect_mm`` and
+    ``square_mm`` checked) and its colour patches and grey steps as (rect_mm, sRGB 0-255) pairs."""
+    path = Path(path)
+    src = str(path)
+    layout = schema.read_json(path, "chart layout")
+    if not isinstance(layout, dict) or layout.get("format") != "lowcam-chart":
+        raise LowcamError(f"{path}: not a lowcam chart layout (expected \"format\": \"lowcam-chart\")")
+    elements = schema.array_of(layout.get("elements"), src, "elements")
+    board, patches = None, {"colour_patches": [], "grey_steps": []}
+    for i, element in enumerate(elements):
+        where = f"{path}: elements[{i}]"
+        kind = schema.string(schema.table(element, where, required=("type",))["type"], where, "type")
+        if kind == "charuco":
+            if board is not None:
+                raise LowcamError(f"{where}: a second charuco board (the chart has one)")
+            schema.table(element, where, required=("rect_mm", "square_mm"))
+            board = {"rect_mm": _rect_mm(element["rect_mm"], where),
+                     "square_mm": schema.number(element["square_mm"], where, "square_mm", 1.0, 1000.0, "mm")}
+        elif kind in ("colour_patches", "grey_steps"):
+            colour_key = "srgb" if kind == "colour_patches" else "value"
+            listed = schema.table(element, where, required=("patches",))["patches"]
+            for k, patch in enumerate(schema.array_of(listed, where, "patches")):
+                at = f"{where}: patches[{k}]"
+                schema.table(patch, at, required=("rect_mm", colour_key))
+                colour = (schema.numbers(patch["srgb"], at, "srgb", 3, 0.0, 255.0) if kind == "colour_patches"
+                          else [schema.number(patch["value"], at, "value", 0.0, 255.0)] * 3)
+                patches[kind].append((_rect_mm(patch["rect_mm"], at), colour))
+    patches = patches["colour_patches"] + patches["grey_steps"]
+    if board is None:
+        raise LowcamError(f"{path}: the layout has no charuco element")
+    if not patches:
+        raise LowcamError(f"{path}: the layout has no colour_patches or grey_steps")
+    return board, patches
+
+
+def _rect_mm(value, where: str) -> list[float]:
+    """``[x, y, width, height]`` on the page (mm): x, y in [0, 2000], width and height in (0, 2000]."""
+    x, y, w, h = schema.numbers(value, where, "rect_mm", 4, 0.0, 2000.0, "mm")
+    if w <= 0 or h <= 0:
+        raise LowcamError(f"{where}: 'rect_mm' must have a positive width and height, got {[x, y, w, h]}")
+    return [x, y, w, h]
+
+
 def chart_patch_colours(patterns, layout_path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Find the chart (its ChArUco board) in each frame and read the mean colour of every colour patch and grey
     step. Returns (ideal linear colours x 255 from the printed sRGB, measured DN averaged over frames, notes)."""
-    layout = json.loads(Path(layout_path).read_text())
-    if layout.get("format") != "lowcam-chart":
-        raise LowcamError(f"{layout_path}: not a lowcam chart layout")
-    board = next(e for e in layout["elements"] if e["type"] == "charuco")
-    patches = [(p["rect_mm"], p["srgb"]) for e in layout["elements"] if e["type"] == "colour_patches"
-               for p in e["patches"]]
-    patches += [(p["rect_mm"], [p["value"]] * 3) for e in layout["elements"] if e["type"] == "grey_steps"
-                for p in e["patches"]]
+    board, patches = read_chart_layout(layout_path)
     frames, names = load_frames(patterns, 1, "colour calibration")
     spec = parse_target("charuco")
     sums, count, notes = np.zeros((len(patches), 3)), 0, []
@@ -192,6 +234,7 @@ def chart_patch_colours(patterns, layout_path) -> tuple[np.ndarray, np.ndarray, 
             sums[k] += f[mask > 0].reshape(-1, 3).mean(axis=0)
         count += 1
     if count == 0:
-        raise LowcamError("colour calibration: the chart was found in none of the frames")
+        shown = " ".join(names[:3]) + (f" ... ({len(names)} frames)" if len(names) > 3 else "")
+        raise LowcamError(f"{shown}: the chart's ChArUco board was found in none of the frames (colour calibration)")
     ideal = srgb_to_linear([c for _, c in patches]) * 255.0
     return ideal, sums / count, notes

@@ -15,7 +15,6 @@ Contents
 - :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
 - :func:`remove_stale_temporaries`: remove the temporaries of killed runs, never a live run's or a user's file
 - :func:`quiet_stderr`: keep C libraries' messages off the terminal for a while
-- :func:`read_toml`: a TOML file as a dict; a missing or malformed file is a one-line error naming it
 - :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
 - :func:`read_render`: read a render as premultiplied linear RGBA float32 (H, W, 4)
@@ -253,19 +252,6 @@ def quiet_stderr():
             os.close(saved)
             capture.seek(0)
             said["text"] = capture.read(4096).decode(errors="replace")
-
-
-def read_toml(path, what: str = "file") -> dict:
-    """A TOML file as a dict; a missing or malformed file is a one-line error naming it."""
-    import tomllib
-
-    path = Path(path)
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise LowcamError(f"{path}: no such {what}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise LowcamError(f"{path}: not valid TOML ({e})") from None
 
 
 #: File signatures: the format is told by the bytes, not the name (an EXR named .png is still an EXR).

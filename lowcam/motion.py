@@ -13,19 +13,21 @@
 
 ``angular_velocity`` is in rad/s in the camera frame (x right, y down, z forward), averaged over that frame's
 exposure; ``exposure_s`` is the exposure time in seconds (optional; the profile's when absent). ``lowcam motion``
-writes it from a Blender scene's camera.
+writes it from a Blender scene's camera. Each frame is listed once; every value must be finite.
 
 Gyro CSV: a header naming the columns ``t`` (s), ``wx``, ``wy``, ``wz`` (rad/s, camera frame) in any order,
-commas or whitespace between values. Frame ``f`` is exposed from ``t0 + (f - first_frame) / fps`` for
-``exposure_s``; its angular velocity is the time average of the gyro over that interval (trapezoidal rule on the
-samples, linearly interpolated at the ends).
+commas or whitespace between values, times strictly increasing. Frame ``f`` is exposed from
+``t0 + (f - first_frame) / fps`` for ``exposure_s``; its angular velocity is the time average of the gyro over
+that interval (trapezoidal rule on the samples, linearly interpolated at the ends).
 
 Contents
 --------
+- :data:`MOTION_KEYS`, :data:`FRAME_KEYS`: the keys of a motion.json and of each of its frames
+- :data:`MAX_RATE`, :data:`MAX_FRAME`: the largest angular velocity (rad/s) and frame number read
 - :class:`FrameMotion`: one frame's angular velocity (rad/s) and exposure (s)
 - :func:`write_motion_json`: write ``{frame: FrameMotion}`` as motion.json (atomically)
 - :func:`read_motion_json`: a motion.json as ``{frame: FrameMotion}``
-- :func:`read_gyro_csv`: gyro samples as an (N, 4) array of ``t, wx, wy, wz``, sorted by time
+- :func:`read_gyro_csv`: gyro samples as an (N, 4) array of ``t, wx, wy, wz``, times strictly increasing
 - :func:`average_rate`: time average of the angular velocity over [t0, t1] from gyro samples
 - :func:`gyro_to_motion`: per-frame motion from gyro samples: frame f starts at ``t0 + (f - first_frame) / fps``
 - :data:`BLENDER_TO_CAMERA`: Blender's camera axes (x right, y up, looking down -z) to Lowcam's
@@ -39,7 +41,15 @@ from pathlib import Path
 
 import numpy as np
 
+from . import schema
 from .errors import LowcamError
+
+#: The keys of a motion.json, and of each of its frames.
+MOTION_KEYS = {"format", "version", "fps", "frames"}
+FRAME_KEYS = {"frame", "angular_velocity", "exposure_s"}
+#: Largest angular velocity read (rad/s; gyros saturate near 35) and frame number (Blender's limit).
+MAX_RATE = 1000.0
+MAX_FRAME = 1048574
 
 
 @dataclass(frozen=True)
@@ -67,49 +77,41 @@ def write_motion_json(path, motion: dict[int, FrameMotion], fps: float | None = 
 
 
 def read_motion_json(path) -> dict[int, FrameMotion]:
+    """A motion.json as ``{frame: FrameMotion}``; every value is checked (a bad one names the file and the key)."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise LowcamError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise LowcamError(f"{path}: not valid JSON ({e})") from None
+    doc = schema.read_json(path, "motion file")
     if not isinstance(doc, dict) or doc.get("format") != "lowcam-motion":
         raise LowcamError(f"{path}: not a lowcam motion file (expected \"format\": \"lowcam-motion\")")
-    out = {}
-    for i, entry in enumerate(doc.get("frames", [])):
-        try:
-            f = int(entry["frame"])
-            w = tuple(float(v) for v in entry["angular_velocity"])
-            e = entry.get("exposure_s")
-            e = None if e is None else float(e)
-        except (KeyError, TypeError, ValueError):
-            raise LowcamError(f"{path}: frames[{i}] needs 'frame' and 'angular_velocity' [wx, wy, wz]") from None
-        if len(w) != 3 or not np.all(np.isfinite(w)) or (e is not None and not 0 <= e <= 10):
-            raise LowcamError(f"{path}: frames[{i}] (frame {f}) has a bad angular_velocity or exposure_s")
-        out[f] = FrameMotion(w, e)
+    schema.table(doc, str(path), known=MOTION_KEYS, required=("frames",))
+    schema.integer(doc.get("version", 1), str(path), "version", 1, 1)
+    if "fps" in doc:
+        schema.number(doc["fps"], str(path), "fps", 1e-3, 1e4, "frames/s")
+    out, where_listed = {}, {}
+    for i, entry in enumerate(schema.array_of(doc["frames"], str(path), "frames")):
+        where = f"{path}: frames[{i}]"
+        schema.table(entry, where, known=FRAME_KEYS, required=("frame", "angular_velocity"))
+        f = schema.integer(entry["frame"], where, "frame", -MAX_FRAME, MAX_FRAME)
+        if f in where_listed:
+            raise LowcamError(f"{where}: frame {f} is listed twice (also frames[{where_listed[f]}])")
+        w = schema.numbers(entry["angular_velocity"], where, "angular_velocity", 3, -MAX_RATE, MAX_RATE, "rad/s")
+        e = entry.get("exposure_s")
+        e = None if e is None else schema.number(e, where, "exposure_s", 0.0, 10.0, "s")
+        out[f], where_listed[f] = FrameMotion(tuple(w), e), i
     return out
 
 
 def read_gyro_csv(path) -> np.ndarray:
-    """Samples as an (N, 4) array of ``t, wx, wy, wz``, sorted by time."""
+    """Samples as an (N, 4) array of ``t, wx, wy, wz``: at least two, finite, times strictly increasing."""
     path = Path(path)
-    try:
-        lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
-    except FileNotFoundError:
-        raise LowcamError(f"{path}: no such file") from None
-    split = (lambda s: s.split(",")) if "," in lines[0] else str.split
-    header = [h.strip().lower() for h in split(lines[0])]
-    if sorted(header) != ["t", "wx", "wy", "wz"]:
-        raise LowcamError(f"{path}: the gyro CSV needs a header naming t, wx, wy, wz; got {lines[0]!r}")
-    try:
-        data = np.array([[float(v) for v in split(ln)] for ln in lines[1:]])
-    except ValueError:
-        raise LowcamError(f"{path}: the gyro CSV holds a value that is not a number") from None
-    if data.ndim != 2 or data.shape[1] != 4 or len(data) < 2:
-        raise LowcamError(f"{path}: the gyro CSV needs at least two rows of four values")
-    data = data[:, [header.index(c) for c in ("t", "wx", "wy", "wz")]]
-    return data[np.argsort(data[:, 0])]
+    data, lines = schema.read_number_csv(path, ("t", "wx", "wy", "wz"), "gyro CSV", min_rows=2,
+                                         low={"wx": -MAX_RATE, "wy": -MAX_RATE, "wz": -MAX_RATE},
+                                         high={"wx": MAX_RATE, "wy": MAX_RATE, "wz": MAX_RATE})
+    back = np.flatnonzero(np.diff(data[:, 0]) <= 0)
+    if len(back):
+        k = back[0] + 1
+        raise LowcamError(f"{path}: line {lines[k]}: 't' = {data[k, 0]:g} s does not follow the previous sample's "
+                          f"{data[k - 1, 0]:g} s (times must increase)")
+    return data
 
 
 def average_rate(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -126,6 +128,9 @@ def average_rate(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
 def gyro_to_motion(samples: np.ndarray, frames, fps: float, exposure_s: float, t0: float = 0.0,
                    first_frame: int | None = None, source: str = "gyro") -> dict[int, FrameMotion]:
     """Per-frame motion from gyro samples: frame f starts at ``t0 + (f - first_frame) / fps``."""
+    fps = schema.number(fps, source, "fps", 1e-3, 1e4, "frames/s")
+    exposure_s = schema.number(exposure_s, source, "exposure_s", 1e-6, 10.0, "s")
+    t0 = schema.number(t0, source, "t0", unit="s")
     frames = list(frames)
     first = frames[0] if first_frame is None else first_frame
     out = {}

@@ -38,10 +38,10 @@ from __future__ import annotations
 
 import copy
 import os
-import tomllib
 from functools import cached_property
 from pathlib import Path
 
+from . import schema
 from .effects import Effect, Param, ParamSet, effect_class
 from .errors import ProfileError
 from .geometry import FrameGeometry
@@ -212,8 +212,11 @@ def list_profiles() -> list[tuple[str, Path]]:
 
 
 def find_profile(name_or_path) -> Path:
+    """The file of a profile name or path (a clear error naming the known ones)."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or os.sep in str(name_or_path):
+        if p.is_dir():
+            raise ProfileError(f"{p}: is a folder, not a profile file")
         if not p.is_file():
             raise ProfileError(f"{p}: no such profile file")
         return p
@@ -221,7 +224,8 @@ def find_profile(name_or_path) -> Path:
         if (folder / f"{name_or_path}.toml").is_file():
             return folder / f"{name_or_path}.toml"
     known = ", ".join(n for n, _ in list_profiles())
-    raise ProfileError(f"unknown profile '{name_or_path}' (bundled and on LOWCAM_PROFILE_PATH: {known})")
+    raise ProfileError(f"unknown profile {schema.shown(str(name_or_path))} (bundled and on LOWCAM_PROFILE_PATH: "
+                       f"{known})")
 
 
 _LOADED: dict = {}
@@ -239,10 +243,7 @@ def load_profile(name_or_path) -> Profile:
     stat = path.stat()
     key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
     if key not in _LOADED:
-        try:
-            data = tomllib.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise ProfileError(f"{path}: not valid TOML ({e})") from None
+        data = schema.read_toml(path, "profile", error=ProfileError)
         if len(_LOADED) > 16:
             _LOADED.clear()
         _LOADED[key] = profile_from_dict(data, path)
@@ -250,23 +251,23 @@ def load_profile(name_or_path) -> Profile:
 
 
 def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
+    """A validated :class:`Profile` from parsed TOML; every problem is a :class:`ProfileError` naming the file."""
     source = str(path) if path else "<profile>"
     base_dir = path.parent if path else None
+    e = ProfileError
+    data = schema.table(data, source, error=e)
     unknown = sorted(set(data) - {"camera", "effect"})
     if unknown:
-        raise ProfileError(f"{source}: unknown top-level key '{unknown[0]}' (known: camera, effect)")
-    camera = CameraSpec(source, base_dir, **data.get("camera", {}))
+        raise e(f"{source}: unknown top-level key {schema.shown(unknown[0])} (known: camera, effect)")
+    camera = CameraSpec(source, base_dir, **schema.table(data.get("camera", {}), source, "camera", error=e))
     entries = data.get("effect", [])
     if not isinstance(entries, list) or not entries:
-        raise ProfileError(f"{source}: no [[effect]] entries")
+        raise e(f"{source}: no [[effect]] entries ('effect' must be an array of tables)")
     effects = []
     for i, entry in enumerate(entries):
-        entry = dict(entry)
-        if "type" not in entry:
-            raise ProfileError(f"{source}: [[effect]] number {i + 1} has no 'type'")
-        cls = effect_class(entry.pop("type"), source)
-        enabled = entry.pop("enabled", True)
-        if not isinstance(enabled, bool):
-            raise ProfileError(f"{source}: effect '{cls.name}': 'enabled' must be true or false")
+        where = f"{source}: [[effect]] number {i + 1}"
+        entry = dict(schema.table(entry, where, required=("type",), error=e))
+        cls = effect_class(schema.string(entry.pop("type"), where, "type", nonempty=True, error=e), source)
+        enabled = schema.boolean(entry.pop("enabled", True), f"{source}: effect '{cls.name}'", "enabled", error=e)
         effects.append(cls(enabled, source, base_dir, **entry))
     return Profile(camera, effects, path)

@@ -250,8 +250,7 @@ CASES = [lens_flat, lens_one_view, vignetting_black, ca_flat, ca_alias_flat, noi
          noise_all_saturated, noise_too_small, demosaic_identical, demosaic_too_small, ca_too_small, blur_flat, blur_noise_only, sharpening_flat, sharpening_identical,
          sharpening_setting_zero, sharpening_sizes, sharpening_too_small, colour_identical, colour_greys,
          colour_saturation_zero, colour_nan_saturation, colour_missing_layout,
-         pytest.param(colour_chart_not_found, marks=pytest.mark.xfail(
-             reason="lowcam/captures.py: chart_patch_colours' 'found in none of the frames' names no frame")),
+         colour_chart_not_found,
          manifest_unknown_section, manifest_not_a_table, manifest_number_as_frames, manifest_numbers_in_frames,
          manifest_number_as_path, manifest_missing_frames, manifest_missing_later_section,
          manifest_profile_not_a_string, manifest_later_refusal]

@@ -844,7 +844,7 @@ def run_manifest(path, plot_dir: Path | None = None):
         [sharpening]           soft = ["soft/*.png"], sharp = ["sharp/*.png"], sharpness = 80
         [colour]               patches = "patches.csv", saturation = 90   # or frames = [...], chart = "chart.json"
     """
-    from ..io import read_toml
+    from ..schema import read_toml
     from ..profile import load_profile
 
     path = Path(path)

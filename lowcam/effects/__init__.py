@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import importlib
 
+from .. import schema
 from ..errors import ProfileError
 from .base import Effect, NodeStage, Param, ParamSet, Search
 from .bayer import BayerSampling, Demosaic
@@ -106,6 +107,9 @@ def canonical_order() -> list[str]:
 
 def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
     """The class for a profile ``type``: a bundled name, or ``"package.module:ClassName"`` for a plug-in."""
+    if not isinstance(type_name, str):
+        raise ProfileError(f"{source}: effect 'type' must be a string (a bundled effect or 'module:Class'), "
+                           f"got {schema.shown(type_name)}")
     if type_name in EFFECTS:
         return EFFECTS[type_name]
     if type_name in PLUGINS:
@@ -115,16 +119,27 @@ def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
         return loaded
     if ":" in type_name:
         module_name, _, class_name = type_name.partition(":")
+        if not (all(p.isidentifier() for p in module_name.split(".")) and class_name.isidentifier()):
+            raise ProfileError(f"{source}: effect type {schema.shown(type_name)} is not 'package.module:ClassName'")
         try:
             cls = getattr(importlib.import_module(module_name), class_name)
         except (ImportError, AttributeError) as e:
-            raise ProfileError(f"{source}: effect type '{type_name}' cannot be loaded: {e}") from None
+            raise ProfileError(f"{source}: effect type {schema.shown(type_name)} cannot be loaded: "
+                               f"{_first_line(e)}") from None
+        except Exception as e:  # the plug-in's own module fails on import
+            raise ProfileError(f"{source}: effect type {schema.shown(type_name)} fails on import: "
+                               f"{type(e).__name__}: {_first_line(e)}") from None
         if not (isinstance(cls, type) and issubclass(cls, Effect)):
-            raise ProfileError(f"{source}: effect type '{type_name}' is not a lowcam.effects.Effect subclass")
+            raise ProfileError(f"{source}: effect type {schema.shown(type_name)} is not a lowcam.effects.Effect "
+                               "subclass")
         PLUGINS[type_name] = cls
         return cls
-    raise ProfileError(f"{source}: unknown effect type '{type_name}' (known: {', '.join(EFFECTS)}, "
+    raise ProfileError(f"{source}: unknown effect type {schema.shown(type_name)} (known: {', '.join(EFFECTS)}, "
                        "or 'module:Class' for a plug-in)")
+
+
+def _first_line(e: Exception) -> str:
+    return (str(e).splitlines() or [""])[0]
 
 
 __all__ = ["EFFECTS", "PLUGINS", "Effect", "NodeStage", "Param", "ParamSet", "Search", "canonical_order",

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from .. import schema
 from ..errors import ProfileError
 
 
@@ -46,7 +47,9 @@ class Param:
     """Specification of one effect parameter.
 
     ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``"path"`` (a file relative to the profile),
-    ``"vector"`` (a list of floats, ``length`` long) or ``"matrix"`` (a list of ``length`` lists of floats).
+    ``"vector"`` (a list of floats, ``length`` long) or ``"matrix"`` (``length`` lists of ``length`` floats).
+    Numbers are finite; ``low`` and ``high`` bound each entry of a vector or matrix too, and ``whole`` asks for
+    whole-numbered entries (grid cells).
     """
 
     default: Any
@@ -57,6 +60,7 @@ class Param:
     doc: str = ""
     choices: tuple[str, ...] | None = None
     length: int | None = None
+    whole: bool = False
 
 
 class ParamSet:
@@ -71,7 +75,8 @@ class ParamSet:
         where = f"{source}: [{self.name}]" if not isinstance(self, Effect) else f"{source}: effect '{self.name}'"
         unknown = sorted(set(values) - set(self.params))
         if unknown:
-            raise ProfileError(f"{where}: unknown key '{unknown[0]}' (known keys: {', '.join(sorted(self.params))})")
+            raise ProfileError(f"{where}: unknown key {schema.shown(unknown[0])} "
+                               f"(known keys: {', '.join(sorted(self.params))})")
         for key, spec in self.params.items():
             setattr(self, key, _validated(where, key, spec, values.get(key, spec.default), self.base_dir))
         self.check()
@@ -201,54 +206,24 @@ class Effect(ParamSet):
 
 
 def _validated(where: str, key: str, spec: Param, value: Any, base_dir: Path | None) -> Any:
-    def fail(problem: str) -> ProfileError:
-        return ProfileError(f"{where}: '{key}' {problem}")
-
+    """``value`` checked against ``spec`` (:mod:`lowcam.schema`); a miss is a :class:`ProfileError`."""
+    e = ProfileError
     if spec.kind is bool:
-        if not isinstance(value, bool):
-            raise fail(f"must be true or false, got {value!r}")
-        return value
+        return schema.boolean(value, where, key, error=e)
     if spec.kind is str:
-        if not isinstance(value, str):
-            raise fail(f"must be a string, got {value!r}")
-        if spec.choices and value not in spec.choices:
-            raise fail(f"must be one of {', '.join(spec.choices)}, got {value!r}")
-        return value
+        return schema.string(value, where, key, choices=spec.choices, error=e)
     if spec.kind == "path":
         if value is None or value == "":
             return None
-        if not isinstance(value, str):
-            raise fail(f"must be a file name, got {value!r}")
-        path = Path(value)
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-        if not path.is_file():
-            raise fail(f"names a file that does not exist: {path}")
-        return path
+        return schema.existing_file(value, where, key, base_dir, error=e)
     if spec.kind in ("vector", "matrix"):
-        rows = value if spec.kind == "matrix" else [value]
-        if not isinstance(value, (list, tuple)) or not all(isinstance(r, (list, tuple)) for r in rows):
-            raise fail(f"must be a {'list of lists' if spec.kind == 'matrix' else 'list'} of numbers, got {value!r}")
-        if spec.length is not None and (len(rows[0]) if spec.kind == "vector" else len(rows)) != spec.length:
-            raise fail(f"must have {spec.length} entries, got {value!r}")
-        out = []
-        for row in rows:
-            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row):
-                raise fail(f"must hold numbers only, got {value!r}")
-            out.append([float(v) for v in row])
-        return out if spec.kind == "matrix" else out[0]
-    # numbers
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise fail(f"must be a number, got {value!r}")
+        def row(v, w, k):  # one vector: floats, element-wise in [low, high]
+            return [float(x) for x in schema.numbers(v, w, k, spec.length, spec.low, spec.high, spec.unit,
+                                                      spec.whole, error=e)]
+
+        if spec.kind == "vector":
+            return row(value, where, key)
+        return schema.array_of(value, where, key, row, spec.length, error=e)  # length x length
     if spec.kind is int:
-        if float(value) != int(value):
-            raise fail(f"must be a whole number, got {value!r}")
-        value = int(value)
-    else:
-        value = float(value)
-    if value != value:
-        raise fail("is NaN")
-    if (spec.low is not None and value < spec.low) or (spec.high is not None and value > spec.high):
-        unit = f" {spec.unit}" if spec.unit else ""
-        raise fail(f"= {value}{unit} is out of range [{spec.low}, {spec.high}]")
-    return value
+        return schema.integer(value, where, key, spec.low, spec.high, spec.unit, error=e)
+    return schema.number(value, where, key, spec.low, spec.high, spec.unit, error=e)

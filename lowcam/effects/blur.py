@@ -110,7 +110,8 @@ class SpatialBlur(Effect):
     params = {
         "antialias_sigma_px": Param(0.3, low=0.0, high=20.0, unit="px (output)"),
         "corner_softness": Param(0.5, low=0.0, high=20.0, doc="sigma per px of red-blue separation"),
-        "grid": Param([24.0, 18.0], "vector", length=2, doc="cells (columns, rows)"),
+        "grid": Param([24.0, 18.0], "vector", length=2, low=1, high=256, whole=True,
+                       doc="cells (columns, rows)"),
     }
 
     def sigma_grid(self, state) -> np.ndarray:

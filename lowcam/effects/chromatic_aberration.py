@@ -10,6 +10,7 @@ green over patches of a noise target, as the paper does (sec. 4.1).
 Contents
 --------
 - :data:`CSV_COLUMNS`: the header of a grid CSV: ``u,v,red_du,red_dv,blue_du,blue_dv``
+- :data:`MAX_OFFSET_PX`: the largest offset a grid may hold (output px)
 - :func:`read_ca_grid`: read a chromatic-aberration grid CSV as (rows, cols, 4)
 - :func:`write_ca_grid`: write a grid for an output frame of ``width`` x ``height`` in the same format
 - :func:`radial_ca_grid`: a lateral-colour grid from the radial model
@@ -27,16 +28,19 @@ References
 """
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 
+from .. import schema
 from ..errors import LowcamError
 from ..geometry import grid_points
 from .base import Effect, NodeStage, Param, Search
 
 CSV_COLUMNS = ["u", "v", "red_du", "red_dv", "blue_du", "blue_dv"]
+
+#: Largest red or blue offset a grid may hold (output px): the radial model's bound at the corner.
+MAX_OFFSET_PX = 50.0
 
 
 def read_ca_grid(path: Path) -> np.ndarray:
@@ -46,21 +50,24 @@ def read_ca_grid(path: Path) -> np.ndarray:
     output-pixel coordinates: the cell centres of a regular partition of the output frame (24x18 cells in the
     paper), rows in scan order. ``red_du, red_dv`` say where the red sensels sample the image relative to green,
     in output pixels (positive ``du``: to the right); likewise blue. Returns an array (rows, cols, 4).
+
+    Every value must be finite, ``u, v`` within a 16384-px frame and each offset within
+    :data:`MAX_OFFSET_PX`; the points must form a full grid, each point once.
     """
-    try:
-        with open(path, newline="") as f:
-            rows = list(csv.reader(f))
-    except OSError as e:
-        raise LowcamError(f"{path}: cannot read the chromatic-aberration grid: {e.strerror}") from None
-    if not rows or [c.strip() for c in rows[0]] != CSV_COLUMNS:
-        raise LowcamError(f"{path}: the chromatic-aberration grid must start with the header {','.join(CSV_COLUMNS)}")
-    try:
-        data = np.array([[float(c) for c in r] for r in rows[1:] if r], np.float64)
-    except ValueError:
-        raise LowcamError(f"{path}: the chromatic-aberration grid holds a value that is not a number") from None
+    offset = (-MAX_OFFSET_PX, MAX_OFFSET_PX)
+    data, lines = schema.read_number_csv(
+        path, CSV_COLUMNS, "chromatic-aberration grid", min_rows=4,
+        low={"u": -1.0, "v": -1.0, **{c: offset[0] for c in CSV_COLUMNS[2:]}},
+        high={"u": 16384.0, "v": 16384.0, **{c: offset[1] for c in CSV_COLUMNS[2:]}})
+    _, first = np.unique(data[:, :2], axis=0, return_index=True)
+    if len(first) != len(data):
+        twice = np.setdiff1d(np.arange(len(data)), first)[0]
+        raise LowcamError(f"{path}: line {lines[twice]}: the point u={data[twice, 0]:g}, v={data[twice, 1]:g} is "
+                          "listed twice")
     nu, nv = len(np.unique(data[:, 0])), len(np.unique(data[:, 1]))
-    if data.shape != (nu * nv, 6) or not np.all(np.isfinite(data)):
-        raise LowcamError(f"{path}: the chromatic-aberration grid is not a full {nu}x{nv} grid of finite numbers")
+    if len(data) != nu * nv or nu < 2 or nv < 2:
+        raise LowcamError(f"{path}: the chromatic-aberration grid's {len(data)} points do not form a full grid "
+                          f"of at least 2x2 (they have {nu} u and {nv} v values)")
     order = np.lexsort((data[:, 0], data[:, 1]))
     return data[order, 2:].reshape(nv, nu, 4)
 
@@ -111,14 +118,19 @@ class ChromaticAberration(Effect):
                        replace=True, evals=45),)
     params = {
         "texture": Param("", "path", doc="CSV grid; empty: use the radial model"),
-        "red_corner_px": Param(0.0, low=-50.0, high=50.0, unit="px", doc="outward shift of red at the corner"),
-        "blue_corner_px": Param(0.0, low=-50.0, high=50.0, unit="px", doc="outward shift of blue at the corner"),
+        "red_corner_px": Param(0.0, low=-MAX_OFFSET_PX, high=MAX_OFFSET_PX, unit="px",
+                               doc="outward shift of red at the corner"),
+        "blue_corner_px": Param(0.0, low=-MAX_OFFSET_PX, high=MAX_OFFSET_PX, unit="px",
+                                doc="outward shift of blue at the corner"),
         "cubic": Param(0.0, low=0.0, high=100.0, doc="weight of the rho^3 term of the radial model"),
     }
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._grid = read_ca_grid(self.texture) if self.texture else None
+        try:
+            self._grid = read_ca_grid(self.texture) if self.texture else None
+        except LowcamError as e:  # name the profile and the key too
+            raise self.error(f"'texture': {e}") from None
 
     def grid(self, width: int, height: int) -> np.ndarray:
         """(rows, cols, 4) offsets [red_du, red_dv, blue_du, blue_dv] over the output frame."""

@@ -46,7 +46,7 @@ class Crosstalk(Effect):
     searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix",
                        requires="crosstalk"),)
     params = {
-        "matrix": Param(FIRE_I_CROSSTALK, "matrix", length=3),
+        "matrix": Param(FIRE_I_CROSSTALK, "matrix", length=3, low=-10.0, high=10.0),
         "extra_mixing": Param(0.05, low=0.0, high=1.0),
     }
 

@@ -82,7 +82,8 @@ class MotionBlur(Effect):
     params = {
         "taps": Param(16, int, low=2, high=256),
         "exposure_s": Param(0.0, low=0.0, high=10.0, unit="s", doc="0: the camera's exposure_s"),
-        "grid": Param([24.0, 18.0], "vector", length=2, doc="cells (columns, rows)"),
+        "grid": Param([24.0, 18.0], "vector", length=2, low=1, high=256, whole=True,
+                       doc="cells (columns, rows)"),
     }
 
     def apply(self, state):

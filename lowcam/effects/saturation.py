@@ -53,7 +53,7 @@ class Saturation(Effect):
     node = NodeStage("Saturation", "rgb", "saturation")
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
-        "luma": Param(list(SATURATION_LUMA), "vector", length=3),
+        "luma": Param(list(SATURATION_LUMA), "vector", length=3, low=0.0, high=1.0),
     }
 
     def apply(self, state):

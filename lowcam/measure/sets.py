@@ -9,7 +9,7 @@ A folder holds ``set.toml``::
                                         # (one frame works too: its noise is then taken from the model)
     plate = "plates/chart-a.png"        # optional: the real background where the ideal is transparent
     angular_velocity = [0.0, 0.0, 0.0]  # optional, rad/s in the camera frame
-    exposure_s = 0.033                  # optional
+    exposure_s = 0.033                  # optional, s
 
 Instead of ``ideal``, ``target = "checkerboard:9x6:0.025"`` makes Lowcam find the board in the frames, estimate
 its pose with the profile's lens, and render the board's ideal view itself (its white and black are taken from
@@ -20,7 +20,7 @@ Contents
 - :data:`CAPTURE_KEYS`: the keys a ``[[capture]]`` table may hold
 - :class:`Capture`: one capture: its frames, ideal or target, plate and motion
 - :class:`MeasurementSet`: the captures of a set.toml
-- :func:`load_set`: read and validate a measurement set; errors name the file and the problem
+- :func:`load_set`: read and validate a measurement set; errors name the file, the capture and the key
 - :func:`write_set`: write a measurement set
 """
 from __future__ import annotations
@@ -31,7 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import schema
 from ..errors import LowcamError
+from ..motion import MAX_RATE
 
 CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "angular_velocity", "exposure_s"}
 
@@ -63,51 +65,60 @@ class MeasurementSet:
 
 
 def load_set(folder, profile=None) -> MeasurementSet:
-    """Read and validate a measurement set; errors name the file and the problem."""
-    from ..io import read_plate, read_render, read_toml
+    """Read and validate a measurement set; errors name the file, the capture and the key."""
+    from ..captures import load_frames, parse_target
+    from ..io import read_plate, read_render
 
     folder = Path(folder)
     toml_path = folder / "set.toml" if folder.is_dir() else folder
-    folder = toml_path.parent
-    doc = read_toml(toml_path, "measurement set (a folder with set.toml)")
-    if set(doc) - {"capture"}:
-        raise LowcamError(f"{toml_path}: unknown key '{sorted(set(doc) - {'capture'})[0]}' (only [[capture]] tables)")
+    folder, src = toml_path.parent, str(toml_path)
+    doc = schema.read_toml(toml_path, "measurement set (a folder with set.toml)")
+    schema.table(doc, src, known={"capture"})
+    entries = schema.array_of(doc.get("capture", []), src, "capture")
+    if not entries:
+        raise LowcamError(f"{toml_path}: no [[capture]] entries")
     captures = []
-    for i, entry in enumerate(doc.get("capture", [])):
-        where = f"{toml_path}: capture {entry.get('name', i + 1)}"
-        unknown = sorted(set(entry) - CAPTURE_KEYS)
-        if unknown:
-            raise LowcamError(f"{where}: unknown key '{unknown[0]}'")
+    for i, entry in enumerate(entries):
+        where = f"{toml_path}: capture {i + 1}"
+        schema.table(entry, where, known=CAPTURE_KEYS, required=("frames",))
+        name = schema.string(entry.get("name", f"capture-{i + 1}"), where, "name", nonempty=True)
+        where = f"{toml_path}: capture {schema.shown(name)}"
+        if any(c.name == name for c in captures):
+            raise LowcamError(f"{where}: a second capture of that name")
         if ("ideal" in entry) == ("target" in entry):
             raise LowcamError(f"{where}: give exactly one of 'ideal' and 'target'")
-        patterns = entry.get("frames") or []
-        names = sorted({p for pat in ([patterns] if isinstance(patterns, str) else patterns)
-                        for p in glob.glob(str(folder / pat))})
+        files = {k: schema.existing_file(entry[k], where, k, folder) for k in ("ideal", "plate") if k in entry}
+        target = entry.get("target")
+        if target is not None and parse_target(target, f"{where}: 'target'")[0] != "checkerboard":
+            raise LowcamError(f"{where}: 'target': only checkerboard targets can be rendered so far")
+        w = schema.numbers(entry.get("angular_velocity", [0.0, 0.0, 0.0]), where, "angular_velocity", 3,
+                           -MAX_RATE, MAX_RATE, "rad/s")
+        exposure_s = entry.get("exposure_s")
+        if exposure_s is not None:
+            exposure_s = schema.number(exposure_s, where, "exposure_s", 0.0, 10.0, "s")
+        patterns = entry["frames"]
+        patterns = [patterns] if isinstance(patterns, str) else patterns
+        patterns = schema.array_of(patterns, where, "frames", _nonempty, min_length=1)
+        names = sorted({p for pat in patterns for p in glob.glob(str(folder / pat))})
         if not names:
-            raise LowcamError(f"{where}: no frames match {patterns}")
-        from ..captures import load_frames
-
+            raise LowcamError(f"{where}: 'frames': no file matches {', '.join(str(folder / p) for p in patterns)}")
         frames, _ = load_frames(names, 1, where)
         frames = np.stack(frames)
         if profile is not None and frames.shape[1:3] != (profile.camera.height, profile.camera.width):
             raise LowcamError(f"{names[0]}: the frames are {frames.shape[2]}x{frames.shape[1]}, the profile's camera "
                               f"delivers {profile.camera.width}x{profile.camera.height}")
-        cap = Capture(entry.get("name", f"capture-{i + 1}"), frames, frame_names=names)
-        if "ideal" in entry:
-            cap.ideal = read_render(folder / entry["ideal"])
-        else:
-            cap.target = entry["target"]
-        if "plate" in entry:
-            cap.plate = read_plate(folder / entry["plate"], frames.shape[2], frames.shape[1])
-        w = entry.get("angular_velocity", [0.0, 0.0, 0.0])
-        if not (isinstance(w, list) and len(w) == 3):
-            raise LowcamError(f"{where}: angular_velocity must be [wx, wy, wz] in rad/s")
-        cap.angular_velocity = tuple(float(v) for v in w)
-        cap.exposure_s = entry.get("exposure_s")
+        cap = Capture(name, frames, target=target, angular_velocity=tuple(w), exposure_s=exposure_s,
+                      frame_names=names)
+        if "ideal" in files:
+            cap.ideal = read_render(files["ideal"])
+        if "plate" in files:
+            cap.plate = read_plate(files["plate"], frames.shape[2], frames.shape[1])
         captures.append(cap)
-    if not captures:
-        raise LowcamError(f"{toml_path}: no [[capture]] entries")
     return MeasurementSet(folder, captures)
+
+
+def _nonempty(value, where: str, key: str) -> str:
+    return schema.string(value, where, key, nonempty=True)
 
 
 def write_set(folder, captures: list[dict]) -> Path:
