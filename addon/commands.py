@@ -92,8 +92,11 @@ def cmd_render(args) -> int:
 
 def cmd_motion(args) -> int:
     from lowcam.batch import parse_frames
+    from lowcam.errors import LowcamError
     from lowcam.io import check_output
 
+    if not args.output.lower().endswith(".json"):
+        raise LowcamError(f"{args.output}: the motion is written as a .json file")
     check_output(args.output, [args.blend])
     path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
     print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")

@@ -15,7 +15,7 @@ from pathlib import Path
 import bpy
 
 from lowcam.errors import LowcamError
-from lowcam.io import check_image_output
+from lowcam.io import check_image_output, quiet_stderr
 
 from . import frames, handlers
 
@@ -25,7 +25,8 @@ def open_scene(blend) -> "bpy.types.Scene":
     if not path.is_file():
         raise LowcamError(f"{path}: no such .blend file")
     try:
-        bpy.ops.wm.open_mainfile(filepath=str(path.resolve()))
+        with quiet_stderr(stdout=True):  # Blender prints the error too; it is in the message below
+            bpy.ops.wm.open_mainfile(filepath=str(path.resolve()))
     except RuntimeError as e:
         raise LowcamError(f"{path}: Blender cannot open it ({str(e).splitlines()[0]})") from None
     return bpy.context.scene

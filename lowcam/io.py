@@ -233,23 +233,28 @@ def _exists(path) -> Path:
 
 
 @contextlib.contextmanager
-def quiet_stderr():
-    """Keep C libraries' messages (libpng, libjpeg, ffmpeg) off the terminal: file descriptor 2 goes to a
-    temporary file for the duration. Yields a dict whose ``"text"`` holds what they said, once the block ends."""
+def quiet_stderr(stdout: bool = False):
+    """Keep C libraries' messages (libpng, libjpeg, ffmpeg; Blender's with ``stdout``) off the terminal: file
+    descriptor 2 (and 1) goes to a temporary file for the duration. Yields a dict whose ``"text"`` holds what
+    they said, once the block ends."""
     said = {"text": ""}
+    fds = (1, 2) if stdout else (2,)
+    sys.stdout.flush()
     sys.stderr.flush()
     try:
-        saved = os.dup(2)
-    except OSError:  # no descriptor 2 (a detached process): nothing to keep quiet
+        saved = [os.dup(fd) for fd in fds]
+    except OSError:  # no such descriptor (a detached process): nothing to keep quiet
         yield said
         return
     with tempfile.TemporaryFile() as capture:
         try:
-            os.dup2(capture.fileno(), 2)
+            for fd in fds:
+                os.dup2(capture.fileno(), fd)
             yield said
         finally:
-            os.dup2(saved, 2)
-            os.close(saved)
+            for fd, old in zip(fds, saved):
+                os.dup2(old, fd)
+                os.close(old)
             capture.seek(0)
             said["text"] = capture.read(4096).decode(errors="replace")
 
