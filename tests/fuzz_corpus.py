@@ -145,27 +145,25 @@ def write_plate(path: Path, image=None) -> Path:
     return write_png(path, plate_array() if image is None else image)
 
 
-def write_renders(folder: Path, frames, pattern: str = "renders/{:04d}.exr") -> str:
-    """The sample render as frames ``frames`` of a sequence (copies of one file); returns the #### pattern."""
+def _sequence(folder: Path, frames, pattern: str, write_first) -> str:
+    """Frames ``frames`` of a sequence: ``write_first(path)`` once, then copies; returns the #### pattern."""
     first = None
     for f in frames:
         p = folder / pattern.format(f)
         if first is None:
-            first = write_render(p)
+            first = write_first(p)
         else:
             shutil.copyfile(first, p)
     return str(folder / pattern.replace("{:04d}", "####"))
+
+
+def write_renders(folder: Path, frames, pattern: str = "renders/{:04d}.exr") -> str:
+    """The sample render as frames ``frames`` of a sequence (copies of one file); returns the #### pattern."""
+    return _sequence(folder, frames, pattern, write_render)
 
 
 def write_plates(folder: Path, frames, pattern: str = "plates/{:04d}.png") -> str:
-    first = None
-    for f in frames:
-        p = folder / pattern.format(f)
-        if first is None:
-            first = write_plate(p)
-        else:
-            shutil.copyfile(first, p)
-    return str(folder / pattern.replace("{:04d}", "####"))
+    return _sequence(folder, frames, pattern, write_plate)
 
 
 def reference_frame(folder: Path, name: str, rgba=None, seed: int = 0, frame: int = 0, plate: bool = True) -> Path:
