@@ -58,8 +58,11 @@ _FILE_MODE = 0o666 & ~_umask
 _PART = re.compile(r"^\.lowcam-(?P<host>[^-]+)-(?P<pid>\d+)-[A-Za-z0-9_]+\..+\.part$")
 
 
-def _part_prefix(name: str) -> str:
-    return f".lowcam-{socket.gethostname().split('.')[0].replace('-', '_')[:32]}-{os.getpid()}-"
+_HOST = socket.gethostname().split(".")[0].replace("-", "_")[:32] or "host"
+
+
+def _part_prefix() -> str:
+    return f".lowcam-{_HOST}-{os.getpid()}-"
 
 
 def _fsync_folder(folder: Path) -> None:
@@ -79,7 +82,7 @@ def _write_through_temporary(path, write) -> Path:
     check_output(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=_part_prefix(path.name), suffix=f".{path.name[:100]}.part", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=_part_prefix(), suffix=f".{path.name[:100]}.part", dir=path.parent)
     except OSError as e:
         raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
     try:
@@ -108,7 +111,6 @@ def remove_stale_temporaries(folder) -> int:
     """Remove the temporaries that killed Lowcam runs left in ``folder``: those of this host whose process is
     gone, and any older than a day. Temporaries of live runs (a farm's other tasks) and user files stay.
     Returns how many were removed."""
-    host = _part_prefix("").split("-")[1]
     removed = 0
     for p in Path(folder).glob(".lowcam-*.part"):
         m = _PART.match(p.name)
@@ -118,7 +120,7 @@ def remove_stale_temporaries(folder) -> int:
             old = time.time() - p.stat().st_mtime > 86400
         except FileNotFoundError:
             continue
-        if old or (m["host"] == host and not _process_alive(int(m["pid"]))):
+        if old or (m["host"] == _HOST and not _process_alive(int(m["pid"]))):
             p.unlink(missing_ok=True)
             removed += 1
     return removed

@@ -86,3 +86,27 @@ def test_writes_are_atomic_and_leave_no_partial_file(tmp_path):
     assert target.read_bytes() == before  # the old complete frame is still there
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.png"]
     assert oct(target.stat().st_mode & 0o777) != oct(0o600)  # readable like a normal file
+
+
+def test_only_temporaries_of_dead_processes_are_removed(tmp_path):
+    """A farm task's start-up removes what killed runs left, never a live task's temporary or a user's file."""
+    import subprocess
+    import sys
+
+    from lowcam.io import _HOST, remove_stale_temporaries
+
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    try:
+        names = {"live": f".lowcam-{_HOST}-{live.pid}-abc123.0001.png.part",
+                 "dead": f".lowcam-{_HOST}-{dead.pid}-abc123.0002.png.part",
+                 "other_host": f".lowcam-elsewhere-{dead.pid}-abc123.0003.png.part",
+                 "user": ".0004.png.part", "frame": "0005.png"}
+        for name in names.values():
+            (tmp_path / name).write_bytes(b"x")
+        assert remove_stale_temporaries(tmp_path) == 1
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items() if k != "dead")
+    finally:
+        live.kill()
+        live.wait()
