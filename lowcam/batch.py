@@ -248,14 +248,17 @@ def _dask_client(workers: int, scheduler: str | None):
 
     from dask.distributed import Client
 
-    for name in ("distributed", "tornado", "asyncio"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    for name in ["distributed", "tornado", "asyncio", *logging.root.manager.loggerDict]:  # Dask set some itself
+        if name.split(".")[0] in ("distributed", "tornado", "asyncio"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
     cluster = None
     try:
         if scheduler:
             client = Client(scheduler, timeout="10s")
         else:
-            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the spawned workers
+            # the workers spawned now inherit an ignored Ctrl-C: it reaches only this process, which shuts them
+            # down (one pressed in these two seconds of start-up is lost)
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
             try:
                 cluster = local_cluster(workers)
             finally:
