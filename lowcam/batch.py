@@ -145,11 +145,15 @@ def read_video_frame(path: str, index: int):
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def _is_video(plates: str | None) -> bool:
+    return bool(plates) and Path(plates).suffix.lower() in VIDEO_SUFFIXES
+
+
 def _read_plate(shot: Shot, frame: int, profile):
     from .io import check_plate, read_plate
 
     c = profile.camera
-    if Path(shot.plates).suffix.lower() in VIDEO_SUFFIXES:
+    if _is_video(shot.plates):
         img = read_video_frame(shot.plates, frame - shot.video_first_frame)
         return check_plate(img, c.width, c.height, name=f"{shot.plates} frame {frame}", raw=profile.is_raw)
     return read_plate(expand_pattern(shot.plates, frame), c.width, c.height, None if profile.is_raw else 3)
@@ -185,7 +189,7 @@ def check_shot_outputs(output: str, renders: str, plates: str | None, frames: li
     from .io import check_image_output
 
     check_image_output(expand_pattern(output, frames[0]), inputs)
-    video = plates if plates and Path(plates).suffix.lower() in VIDEO_SUFFIXES else None
+    video = plates if _is_video(plates) else None
     for option, pattern in (("--renders", renders), ("--plates", None if video else plates)):
         if pattern and os.path.realpath(pattern) == os.path.realpath(output):
             raise LowcamError(f"{output}: the output pattern is the {option} pattern; choose another -o")
@@ -211,7 +215,7 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
     from .io import remove_stale_temporaries
 
     _profile(shot.profile)  # a bad profile fails here, once, before any frame
-    if shot.plates and Path(shot.plates).suffix.lower() in VIDEO_SUFFIXES:
+    if _is_video(shot.plates):
         read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
         raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")

@@ -261,8 +261,6 @@ def _check_report_outputs(args) -> None:
 
     if args.json:
         check_output(args.json, input_files(args, "json", "output"), "--json")
-        if getattr(args, "output", None) and os.path.abspath(args.output) == os.path.abspath(args.json):
-            raise LowcamError(f"{args.json}: --json and -o name the same file")
     if args.report:
         check_output_folder(args.report, "--report")
 
@@ -428,7 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--renders", required=True, help="render pattern, '#' for frame digits: renders/####.exr")
     p.add_argument("--layer", help="the view layer to take from multilayer EXRs with several")
     p.add_argument("--plates", help="plate pattern (plate/####.png) or one video file")
-    p.add_argument("--video-first-frame", type=frame_number, default=1, help="shot frame shown by the video's first frame")
+    p.add_argument("--video-first-frame", type=frame_number, default=1,
+                   help="shot frame shown by the video's first frame")
     p.add_argument("--motion", help="motion.json: per-frame angular velocity and exposure")
     p.add_argument("--gyro", help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
     p.add_argument("--fps", type=float, help="frame rate, for --gyro")
@@ -439,7 +438,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output pattern: out/####.png")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--force", action="store_true", help="redo frames whose output exists")
-    p.add_argument("--workers", type=bounded_int(0, 1024), default=0, help="run on a Dask LocalCluster of N processes")
+    p.add_argument("--workers", type=bounded_int(0, 1024), default=0,
+                   help="run on a Dask LocalCluster of N processes")
     p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_batch)
@@ -539,7 +539,7 @@ def main(argv=None) -> int:
 def _one_line(error: BaseException) -> str:
     if isinstance(error, MemoryError):
         return "out of memory" + (f" ({error})" if str(error) else "") + "; try a smaller frame or fewer workers"
-    if isinstance(error, OSError) and not isinstance(error, LowcamError):
+    if isinstance(error, OSError):
         where = f"{error.filename}: " if error.filename else ""
         return f"{where}{error.strerror or error}"
     return " ".join(str(error).split("\n"))

@@ -133,7 +133,7 @@ def _process_alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, OSError):
+    except OSError:  # alive, but another user's
         return True
     return True
 
@@ -219,8 +219,6 @@ def make_output_folder(folder) -> Path:
 
 
 def _check_finite(path, image: np.ndarray) -> None:
-    if np.isfinite(image).all():
-        return
     bad = ~np.isfinite(image)
     if bad.any():
         y, x = np.argwhere(bad)[0][:2]
@@ -294,8 +292,8 @@ def read_exr(path) -> dict[str, np.ndarray]:
     for part_name, part_channels in parts:
         twice = sorted(set(channels) & set(part_channels))
         if twice:
-            raise LowcamError(f"{path}: parts {', '.join(repr(n) for n, _ in parts)} both hold channel '{twice[0]}'; "
-                              "write one part per view layer, with the layer in the channel names")
+            raise LowcamError(f"{path}: part '{part_name}' holds channel '{twice[0]}' again; write one part per "
+                              "view layer, with the layer in the channel names")
         channels.update(part_channels)
     return channels
 
@@ -372,8 +370,9 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
         raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         rgba = np.ascontiguousarray(rgba, np.float32)
-    _check_finite(name, rgba)
     lo, hi = float(rgba.min()), float(rgba.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN and Inf show in the extremes: one pass when all is well
+        _check_finite(name, rgba)
     if lo < -RENDER_MAX or hi > RENDER_MAX:
         raise LowcamError(f"{name}: values up to {max(-lo, hi):.3g} are beyond a render's range "
                           f"(+-{RENDER_MAX:g}); is it in the right units?")

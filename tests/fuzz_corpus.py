@@ -774,22 +774,13 @@ def _(folder):
                 subprocess=True, mem_limit_gb=4, timeout=90, outputs=(folder / "out.png",))
 
 
-@case("size-synth-width-0")
-def _(folder):
-    return Case(["synth", "--frames", "1", "--width", "0", "-o", str(folder / "set")], names=("--width",),
-                outputs=(folder / "set" / "set.toml",))
-
-
-@case("size-synth-width-8")
-def _(folder):
-    return Case(["synth", "--frames", "1", "--width", "8", "-o", str(folder / "set")], names=("--width",),
-                outputs=(folder / "set" / "set.toml",))
-
-
-@case("size-synth-frames-0")
-def _(folder):
-    return Case(["synth", "--frames", "0", "--width", "64", "-o", str(folder / "set")], names=("--frames",),
-                outputs=(folder / "set" / "set.toml",))
+for _name, _frames, _width, _option in (("size-synth-width-0", "1", "0", "--width"),
+                                        ("size-synth-width-8", "1", "8", "--width"),
+                                        ("size-synth-frames-0", "0", "64", "--frames")):
+    @case(_name)
+    def _(folder, frames=_frames, width=_width, option=_option):
+        return Case(["synth", "--frames", frames, "--width", width, "-o", str(folder / "set")], names=(option,),
+                    outputs=(folder / "set" / "set.toml",))
 
 
 @case("size-apply-exposure-inf")

@@ -110,3 +110,19 @@ def test_only_temporaries_of_dead_processes_are_removed(tmp_path):
     finally:
         live.kill()
         live.wait()
+
+
+def test_a_jpeg_damaged_in_the_middle_is_refused_and_one_with_a_trailer_is_read(tmp_path):
+    """OpenCV decodes a JPEG whose scan data is damaged as a partly grey picture; libjpeg's complaint (captured off
+    the terminal) makes it an error. Bytes after the end-of-image marker, as phones append, are fine."""
+    from lowcam.io import read_image
+    from lowcam.sample import sample_plate
+
+    data = cv2.imencode(".jpg", sample_plate("fire-i"))[1].tobytes()
+    damaged, trailer = tmp_path / "damaged.jpg", tmp_path / "trailer.jpg"
+    damaged.write_bytes(data[:3000] + bytes(200) + data[3200:])
+    trailer.write_bytes(data + b"an appended clip" * 100)
+    assert cv2.imread(str(damaged)) is not None  # what OpenCV alone would take as a picture
+    with pytest.raises(LowcamError, match=r"damaged\.jpg: the image is truncated or corrupt \(Corrupt JPEG data"):
+        read_image(damaged)
+    assert read_image(trailer).shape == (480, 640, 3)

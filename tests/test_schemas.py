@@ -34,6 +34,12 @@ def refused(call, *names, error=LowcamError):
     return message
 
 
+def refused_file(path, content: bytes, read, *names):
+    """Write ``content`` to ``path``; ``read(path)`` must refuse it in one line that starts with the path."""
+    path.write_bytes(content)
+    assert refused(lambda: read(path), *names).startswith(str(path))
+
+
 # --- the helpers ---------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("value, key_part", [
@@ -220,10 +226,7 @@ def _ca_rows(offset=0.5):
     ("\n".join([",".join(CSV_COLUMNS)] + _ca_rows()[:3] + ["50,30,0,0,0,0"]).encode(), ["full grid"]),
 ])
 def test_bad_chromatic_aberration_grids_are_refused(tmp_path, content, names):
-    path = tmp_path / "ca.csv"
-    path.write_bytes(content)
-    message = refused(lambda: read_ca_grid(path), *names)
-    assert message.startswith(str(path))
+    refused_file(tmp_path / "ca.csv", content, read_ca_grid, *names)
 
 
 def test_a_bad_grid_in_a_profile_names_the_profile_the_key_and_the_csv(tmp_path):
@@ -299,10 +302,7 @@ def test_good_motion_files_read(tmp_path):
     (b"t wx wy wz\n0 0 0 0\n1 0 0 1e9\n", ["line 3", "'wz'", "out of range"]),
 ])
 def test_bad_gyro_logs_are_refused(tmp_path, content, names):
-    path = tmp_path / "gyro.csv"
-    path.write_bytes(content)
-    message = refused(lambda: read_gyro_csv(path), *names)
-    assert message.startswith(str(path))
+    refused_file(tmp_path / "gyro.csv", content, read_gyro_csv, *names)
 
 
 def test_a_good_gyro_log_reads_and_bad_rates_are_refused(tmp_path):
@@ -436,10 +436,7 @@ HEADER = "ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b"
     (b"\xff\xd8\xff\xe0 a JPEG", ["not UTF-8"]),
 ])
 def test_bad_patch_tables_are_refused(tmp_path, content, names):
-    path = tmp_path / "patches.csv"
-    path.write_bytes(content)
-    message = refused(lambda: read_patches_csv(path), *names)
-    assert message.startswith(str(path))
+    refused_file(tmp_path / "patches.csv", content, read_patches_csv, *names)
 
 
 def test_a_good_patch_table_reads(tmp_path):
