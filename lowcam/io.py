@@ -370,10 +370,9 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
         raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         rgba = np.ascontiguousarray(rgba, np.float32)
-    lo, hi = float(rgba.min()), float(rgba.max())
-    if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN and Inf show in the extremes: one pass when all is well
+    if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once
         _check_finite(name, rgba)
-    if lo < -RENDER_MAX or hi > RENDER_MAX:
+        lo, hi = float(rgba.min()), float(rgba.max())
         raise LowcamError(f"{name}: values up to {max(-lo, hi):.3g} are beyond a render's range "
                           f"(+-{RENDER_MAX:g}); is it in the right units?")
     lo, hi, _, _ = cv2.minMaxLoc(cv2.extractChannel(rgba, 3))
