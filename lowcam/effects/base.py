@@ -128,7 +128,9 @@ class Search:
     (low, high)), from ``start``; ``grid`` discrete values tried in turn (key -> values; scored on the full
     error when ``full_error``), then ``refine`` steps around the best; ``fixed`` values set without a search
     (e.g. ``method = "bilinear"``). ``when``: values the profile's effect must already have (the lens model).
-    ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise).
+    ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise), or is
+    the effect's own fit, a function ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
+    (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``).
     ``captures``: which captures show it (``"all"``, ``"textured"`` or ``"moving"``). ``requires``: an
     effect the profile must already have (a candidate that changes a parameter). ``replace``: start from the
     effect's defaults rather than the profile's values. ``evidence`` is formatted with the fitted values
@@ -143,7 +145,7 @@ class Search:
     refine: dict = field(default_factory=dict)
     fixed: dict = field(default_factory=dict)
     when: dict = field(default_factory=dict)
-    fit: str = ""
+    fit: Any = ""
     captures: str = "all"
     requires: str = ""
     replace: bool = False

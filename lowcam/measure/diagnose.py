@@ -168,7 +168,8 @@ def fit_candidate(ctx, name: str):
         if search.fixed and have is not None and have.enabled and all(
                 getattr(have, k) == v for k, v in search.fixed.items()):
             continue
-        fitted = CLOSED_FORM[search.fit](ctx, cls.name) if search.fit else _fit_search(ctx, cls, search)
+        fit = CLOSED_FORM[search.fit] if isinstance(search.fit, str) and search.fit else search.fit
+        fitted = fit(ctx, cls.name) if fit else _fit_search(ctx, cls, search)
         if fitted is None:
             continue
         profile, params, shown = fitted
