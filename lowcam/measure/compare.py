@@ -65,6 +65,13 @@ class Comparison:
     noise_floor: float = 1.0
 
     @property
+    def measured(self) -> dict:
+        """Family -> True when the frames measure it, False when it is assumed (1.0: one frame per capture has no
+        temporal noise to compare, and the mean's noise is then the diagnosed profile's)."""
+        several = any(len(s.measured) > 1 for s in self.captures)
+        return {"mean": True, "variance": several, "rows": several}
+
+    @property
     def where(self) -> dict:
         if not hasattr(self, "_where"):
             self._where = where(self.captures)
@@ -125,8 +132,8 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400) -> list[float]:
 def row_noise_variance(frames: np.ndarray) -> np.ndarray:
     """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
     and frames (row noise shows here; pixel noise averages out over a row)."""
-    d = frames.astype(np.float64) - frames.mean(axis=0, keepdims=True)
-    return d.mean(axis=2).var(axis=(0, 1))
+    rows = frames.mean(axis=2, dtype=np.float64)  # the row means of the noise are those of the frames, less their
+    return (rows - rows.mean(axis=0)).var(axis=(0, 1))  # temporal mean
 
 
 def _row_log_ratios(F, G) -> list[float]:
@@ -134,16 +141,27 @@ def _row_log_ratios(F, G) -> list[float]:
     return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
 
 
-def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "") -> CaptureStats:
+def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None
+                  ) -> CaptureStats:
+    """The error sums of one capture's measured frames F against simulated frames G (see the module docstring).
+
+    With one measured frame its noise cannot be measured: the per-pixel variance ``assumed_noise`` (the diagnosed
+    profile's, fixed while candidates are compared) stands for both, or the model's own when None. Then a model
+    cannot lower its error by adding noise."""
     Ff, Gf = F.astype(np.float32), G.astype(np.float32)
     n, k = len(F), len(G)
     mF, mG = Ff.mean(0), Gf.mean(0)
-    vG = ((Gf - mG) ** 2).sum(0) / (k - 1)
-    vF = ((Ff - mF) ** 2).sum(0) / (n - 1) if n > 1 else vG  # one frame: its noise is the model's
+    vG = np.maximum(((Gf - mG) ** 2).sum(0) / (k - 1), 1 / 12)
+    if n > 1:
+        vF = np.maximum(((Ff - mF) ** 2).sum(0) / (n - 1), 1 / 12)
+        noise = vF / n + vG / k
+    else:  # one frame: its noise is assumed
+        vF = vG if assumed_noise is None else assumed_noise
+        noise = vF * (1 / n + 1 / k)
     r = mF - mG
-    noise = np.maximum(vF, 1 / 12) / n + np.maximum(vG, 1 / 12) / k
     sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
-            "noise_map": noise, "variance": _variance_log_ratios(vF, vG, mG) if n > 1 else [],
+            "model_noise": float(vG.sum(dtype=np.float64)) / k, "noise_map": noise, "variance_map": vF,
+            "variance": _variance_log_ratios(vF, vG, mG) if n > 1 else [],
             "rows": _row_log_ratios(Ff, Gf) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
@@ -205,16 +223,22 @@ def where(stats: list[CaptureStats]) -> dict:
     return out
 
 
-def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=None) -> Comparison:
+def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=None, assumed_noise=None,
+            subset=None) -> Comparison:
     """Compare a profile with a measurement set (see the module docstring for the error). ``cache`` (a dict)
-    keeps the deterministic front of the chain between calls that share it."""
+    keeps the deterministic front of the chain between calls that share it; ``assumed_noise`` (per capture, from
+    :attr:`CaptureStats.sums` ``["variance_map"]`` of an earlier comparison) fixes the noise of one-frame
+    captures; ``subset`` compares only those captures (by index)."""
     stats = []
     for i, cap in enumerate(mset.captures):
+        if subset is not None and i not in subset:
+            continue
         if cap.frames.shape[1:3] != (profile.camera.height, profile.camera.width):
             raise LowcamError(f"capture {cap.name}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
                               f"profile delivers {profile.camera.width}x{profile.camera.height}")
         k = sim_frames or max(len(cap.frames), 4)
-        sim = simulate_capture(profile, cap, k, inputs=inputs[i] if inputs else None, cache=cache)
-        stats.append(capture_stats(cap.frames, sim, cap.name))
+        sim = simulate_capture(profile, cap, k, inputs=inputs[i] if inputs else None, cache=cache,
+                               until="bayer_sampling")  # the front diagnosis's noise-free frames share
+        stats.append(capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None))
     error, families = combine(stats)
     return Comparison(error, families, stats)

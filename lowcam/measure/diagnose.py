@@ -1,34 +1,60 @@
 """Which physical effect does the profile lack? Fit each candidate, re-simulate, rank by how far the error falls.
 
-Every candidate is an effect the profile lacks, or one whose parameters may be wrong. Each is fitted to the
-measured frames (most by a bounded search on a noise-free simulation against the measured temporal means; the
-fixed-pattern maps in closed form; noise-shaped candidates against the full error), then the full noise-aware
-error (:mod:`lowcam.measure.compare`) is computed with it. Candidates are ranked by that error, best first,
-after correcting per-pixel maps for what they absorb of the noise (:attr:`Candidate.score`).
+Every candidate is an effect the profile lacks, one whose parameters may be wrong, or one it should not have
+(``without_EFFECT``, and ``monochrome``). Each is fitted to the measured temporal means on a noise-free simulation
+(:meth:`Context.clean`), in two passes so that a diagnosis takes seconds:
 
-Verdict: ``explained`` when the profile's own error is below 1.1; ``missing-effect`` when the best candidate's
-score is at most 1.25; ``unexplained`` otherwise (``where`` then still says where the residual lives).
+1. **Screening.** Every candidate is fitted coarsely: its grid values, its closed-form fit, or one Gauss-Newton
+   step of its continuous parameters from finite differences (:func:`gauss_newton`).
+2. **Fitting.** The :data:`FITTED` best screened candidates are fitted to convergence (more Gauss-Newton steps
+   and the grid's refinement).
+
+Each candidate's error is then estimated from its noise-free residual and the noise the first comparison measured
+(:meth:`Context.estimate`), and the :data:`FULL_ERRORS` best estimates, and every candidate that changes the
+noise itself, get the full noise-aware error of :mod:`lowcam.measure.compare`. Ranking is by the error expected on
+new frames (:attr:`Candidate.score`): a dense per-pixel map absorbs part of the noise of the means it was fitted
+to, so its mean family is corrected out of sample.
+
+Measured and assumed. With one frame per capture the frames' noise cannot be measured; every candidate is then
+compared against the noise of the diagnosed profile (``assumed_noise`` in :func:`lowcam.measure.compare.compare`),
+so a candidate cannot lower the error by only adding model noise. ``Diagnosis.as_json()["measured"]`` says which
+families were measured.
+
+Verdict (:attr:`Diagnosis.verdict`): ``explained`` when the profile's own error is at most 1.1; ``missing-effect``
+when the best candidate's expected error is at most :data:`UNEXPLAINED_ABOVE` (it is named, with that error);
+``unexplained`` otherwise (``where`` then still says where the residual lives).
 
 Contents
 --------
-- :data:`UNEXPLAINED_ABOVE`: the best candidate's score above which the verdict is ``unexplained`` (1.25)
+- :data:`UNEXPLAINED_ABOVE`: the best candidate's expected error above which the verdict is ``unexplained`` (1.25)
+- :data:`FITTED`: how many screened candidates are fitted to convergence
+- :data:`FULL_ERRORS`: how many of the best estimates get the full noise-aware error (when within :data:`CLOSE`)
+- :data:`CLOSE`: a runner-up whose estimate is within this factor of the best's error is fully compared too
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
-- :class:`Candidate`: one fitted candidate: its error after, score, params and evidence
-- :class:`Context`: the measured set, the profile, cached inputs and the noise-free objective
+- :data:`NOT_REMOVABLE`: effects no ``without_EFFECT`` candidate removes (the chain needs them)
+- :class:`Candidate`: one fitted candidate: its error after (in sample and expected), params and evidence
+- :class:`Context`: the measured set, the profile, memoised noise-free simulations and the error estimate
 - :func:`candidates`: candidate name -> (effect class, :class:`~lowcam.effects.Search`) pairs, in chain order
+- :func:`removal_candidates`: the ``without_EFFECT`` candidates of a profile
 - :func:`candidate_effect`: the profile effect a candidate adds or changes
+- :func:`gauss_newton`: bounded Gauss-Newton (Levenberg-Marquardt) steps on the noise-free residual
 - :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence), or None
 - :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
 - :func:`fit_pixel_offset`: DSNU: the per-pixel mean offset of the measured means from the clean model
 - :func:`fit_hot_pixels`: pixels far brighter than the model in every capture that can show it
 - :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
 - :func:`fit_colour_matrix`: a crosstalk matrix from a colour matrix between the clean model and the means
+- :func:`fit_monochrome`: a sensor without colour: no saturation, no lateral colour
 - :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
 - :data:`PER_PIXEL_FITS`: the closed-form fits that give a dense per-pixel map
+- :data:`NOISE_FITS`: the closed-form fits whose candidates change the noise (always fully compared)
 - :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
-- :class:`Diagnosis`: the comparison, the ranked candidates and the verdict
-- :func:`rank`: fit every named candidate and rank them by score
-- :func:`diagnose`: rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set
+- :class:`Diagnosis`: the comparison, the ranked candidates, the verdict and the time taken
+- :func:`rank`: screen, fit and rank the named candidates
+- :func:`polish`: refit every continuous parameter of several added effects together
+- :func:`diagnose`: rank the candidates (all, or ``only``) for a measurement set, with forward selection
+- :class:`Step`: one step of :func:`explain`: the diagnosis, the effect added and the error after
+- :func:`explain`: add the best candidate and refit, step by step, until the error reaches the floor
 - :func:`save_candidate_profile`: write a candidate's profile, its fitted maps (.npy) copied beside it
 
 References
@@ -39,24 +65,38 @@ References
   Digital-Video Cameras", Measurement Science and Technology 19(4), 2008 (fixed-pattern and row noise).
 - [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
   (PRNU and DSNU).
+- [Nocedal2006] J. Nocedal and S. J. Wright, "Numerical Optimization", 2nd ed., Springer 2006, ch. 10
+  (Gauss-Newton and Levenberg-Marquardt).
 """
 from __future__ import annotations
 
 import tempfile
+import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .compare import EXPLAINED_BELOW, capture_inputs, compare, row_noise_variance, simulate_capture
+from .compare import EXPLAINED_BELOW, capture_inputs, combine, compare, prefix_key, row_noise_variance, \
+    simulate_capture
 
 UNEXPLAINED_ABOVE = 1.25
+FITTED = 4
+FULL_ERRORS = 2
+CLOSE = 1.2
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
+#: Effects no ``without_EFFECT`` candidate removes: the chain cannot run without them, or they are its noise.
+NOT_REMOVABLE = ("bayer_sampling", "demosaic", "yuv_blend", "noise", "raw_blend")
+_MEMO_ENTRIES = 160  # noise-free frames kept (one capture each, about 4 MB at 640x480)
 
 
 @dataclass
 class Candidate:
+    """One fitted candidate. ``error_after`` is the error with it, in sample (the full noise-aware error when
+    ``full``, else estimated from the noise-free fit: :meth:`Context.estimate`); ``families`` its families."""
+
     effect: str
     error_after: float
     params: dict
@@ -64,36 +104,68 @@ class Candidate:
     profile: object = field(repr=False, default=None)
     per_pixel: bool = False  # fitted as a map with one value per pixel and channel
     captures: int = 1
+    families: dict = field(default_factory=dict)
+    full: bool = False
+    seconds: float = 0.0
+    bounds: dict = field(default_factory=dict, repr=False)  # effect -> {key: (low, high)}: what polish may refit
+    comparison: object = field(default=None, repr=False)  # the full comparison, when ``full``
 
     @property
     def score(self) -> float:
-        """The error expected on new frames, by which candidates are ranked. A per-pixel map fitted to C captures
-        absorbs 1/C of the noise of the means it was fitted to, so its in-sample error is inflated by
-        ``sqrt((1 + 1/C) / (1 - 1/C))``; effects with a handful of parameters keep their error."""
-        if not self.per_pixel:
+        """The error expected on new frames, by which candidates are ranked. A per-pixel map fitted to the means
+        of C captures absorbs 1/C of their noise, so its mean family is inflated by ``sqrt((1 + 1/C) / (1 - 1/C))``
+        (in sample the residual variance is (1 - 1/C) of the noise, on new frames (1 + 1/C)); effects with a
+        handful of parameters keep their error."""
+        if not self.per_pixel or not self.families:
             return self.error_after
         f = 1.0 / max(self.captures, 2)
-        return self.error_after * float(np.sqrt((1 + f) / (1 - f)))
+        families = dict(self.families, mean=self.families["mean"] * float(np.sqrt((1 + f) / (1 - f))))
+        return float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
 
     def as_json(self) -> dict:
-        return {"effect": self.effect, "error_after": round(self.error_after, 4), "score": round(self.score, 4),
+        return {"effect": self.effect, "error_after": round(self.error_after, 4),
+                "error_out_of_sample": round(self.score, 4), "score": round(self.score, 4),
+                "error_is_estimate": not self.full, "seconds": round(self.seconds, 3),
+                "families": {k: round(v, 4) for k, v in self.families.items()},
                 "params": {k: (v if not isinstance(v, float) else round(v, 6)) for k, v in self.params.items()},
                 "evidence": self.evidence}
 
 
 class Context:
-    """The measured set, the profile, cached inputs and the noise-free objective."""
+    """The measured set, the profile, memoised noise-free simulations and the error estimate.
 
-    def __init__(self, mset, profile, workdir: Path):
+    ``assumed_noise`` (per capture, or None) is the noise that one-frame captures are compared against; by
+    default the diagnosed profile's own, from its first comparison (:attr:`base`)."""
+
+    def __init__(self, mset, profile, workdir: Path, assumed_noise=None, parent=None, base=None):
         self.mset, self.profile, self.workdir = mset, profile, Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
-        self.inputs = [capture_inputs(profile, c) for c in mset.captures]
-        self.cache: dict = {}
-        self.means = [c.mean for c in mset.captures]
+        if parent is not None:  # the same set: share the inputs, the chain's cached front and the simulations
+            self.inputs, self.cache, self.memo = parent.inputs, parent.cache, parent.memo
+            assumed_noise = assumed_noise or parent.assumed_noise
+        else:
+            self.inputs = [capture_inputs(profile, c) for c in mset.captures]
+            self.cache, self.memo = {}, OrderedDict()
+        self.means = [c.mean.astype(np.float32) for c in mset.captures]
         self.moving = any(np.any(c.angular_velocity) for c in mset.captures)
+        texture = [ideal[..., :3].std() for ideal, _ in self.inputs]
         # Captures with structure: flat fields say nothing about geometry or blur.
-        self.textured = [i for i, (ideal, _) in enumerate(self.inputs) if ideal[..., :3].std() > 0.02]
+        self.textured = [i for i, t in enumerate(texture) if t > 0.02]
         self.moving_ones = [i for i, c in enumerate(mset.captures) if np.any(c.angular_velocity)]
+        # a few captures for screening and quick full errors: the two flattest and the most textured
+        by_texture = [int(i) for i in np.argsort(texture)]
+        self.quick = list(dict.fromkeys((*by_texture[:2], by_texture[-1])))
+        self.screen_textured = sorted(self.textured, key=lambda i: -texture[i])[:2]
+        first = base or compare(mset, profile, cache=self.cache, inputs=self.inputs, assumed_noise=assumed_noise)
+        self.assumed_noise = assumed_noise or [s.sums["variance_map"] if len(s.measured) == 1 else None
+                                               for s in first.captures]
+        self.base = first
+        # per capture: the noise the mean family divides by, the model's noise in the simulated frames' mean, and
+        # the offset of noisy from noise-free frames (clipping, rounding), measured once and kept
+        self._noise = np.array([s.sums["mean"][1] for s in first.captures])
+        self._model_noise = np.array([s.sums["model_noise"] for s in first.captures])
+        self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - self._sse_per_capture(profile) - \
+            self._model_noise
 
     def quiet(self, profile):
         """The profile without its random and step effects, for a smooth, deterministic objective."""
@@ -101,38 +173,59 @@ class Context:
         return profile.without(*names) if names else profile
 
     def clean(self, profile, subset=None) -> list[np.ndarray]:
+        """Noise-free frames (float32) of the captures (all, or ``subset``) through ``profile``, memoised."""
         q = self.quiet(profile)
-        idx = range(len(self.inputs)) if subset is None else subset
-        return [simulate_capture(q, self.mset.captures[i], 1, inputs=self.inputs[i], cache=self.cache,
-                                 until="bayer_sampling")[0].astype(np.float64) for i in idx]
+        key = prefix_key(q, len(q.effects))
+        out = []
+        for i in range(len(self.inputs)) if subset is None else subset:
+            frame = self.memo.get((key, i))
+            if frame is None:
+                frame = simulate_capture(q, self.mset.captures[i], 1, inputs=self.inputs[i], cache=self.cache,
+                                         until="bayer_sampling")[0].astype(np.float32)
+                self.memo[(key, i)] = frame
+                if len(self.memo) > _MEMO_ENTRIES:
+                    self.memo.popitem(last=False)
+            else:
+                self.memo.move_to_end((key, i))
+            out.append(frame)
+        return out
 
-    def compare(self, profile):
-        return compare(self.mset, profile, cache=self.cache, inputs=self.inputs)
+    def residual(self, profile, subset=None) -> np.ndarray:
+        """The measured means less the noise-free frames, flattened over the captures (all, or ``subset``)."""
+        idx = range(len(self.inputs)) if subset is None else subset
+        return np.concatenate([(self.means[i] - s).ravel() for i, s in zip(idx, self.clean(profile, subset))])
+
+    def _sse_per_capture(self, profile, subset=None) -> np.ndarray:
+        idx = range(len(self.inputs)) if subset is None else subset
+        return np.array([np.square(self.means[i] - s).sum(dtype=np.float64)
+                         for i, s in zip(idx, self.clean(profile, subset))])
 
     def sse(self, profile, subset=None) -> float:
-        idx = range(len(self.inputs)) if subset is None else subset
-        return float(sum(((self.means[i] - s) ** 2).sum() for i, s in zip(idx, self.clean(profile, subset))))
+        """The noise-free SSE of ``profile`` against the measured means (all captures, or ``subset``)."""
+        return float(self._sse_per_capture(profile, subset).sum())
 
+    def compare(self, profile, subset=None, sim_frames=None):
+        """The full noise-aware comparison (:func:`~lowcam.measure.compare.compare`) against the assumed noise."""
+        return compare(self.mset, profile, sim_frames, self.cache, self.inputs, self.assumed_noise, subset)
 
-def _search(ctx, build, bounds, x0, evals: int = 30, subset=None):
-    """Minimise the noise-free SSE over continuous parameters (bounded Brent in 1-D, Nelder-Mead otherwise)."""
-    from scipy.optimize import minimize, minimize_scalar
+    def estimate(self, profile, subset=None) -> tuple[float, dict]:
+        """(error, families) expected of ``profile`` (over all captures, or ``subset``) from its noise-free
+        residual: the mean family's residual is the noise-free one plus the model's noise in the mean of the
+        simulated frames and the first comparison's offset of noisy from noise-free frames; the noise families are
+        the first comparison's."""
+        idx = list(range(len(self.inputs))) if subset is None else list(subset)
+        num = max(float((self._sse_per_capture(profile, subset) + self._model_noise[idx] + self._offset[idx]).sum()),
+                  0.0)
+        families = dict(self.base.families, mean=float(np.sqrt(num / self._noise[idx].sum())))
+        return float(np.sqrt(sum(v * v for v in families.values()) / len(families))), families
 
-    def cost(x):
-        x = np.clip(np.atleast_1d(x), [b[0] for b in bounds], [b[1] for b in bounds])
-        return ctx.sse(build(x), subset)
+    def subset(self, captures: str):
+        """The captures (indices, or None for all) a search with ``captures`` fits on."""
+        return {"all": None, "textured": self.textured, "moving": self.moving_ones}[captures]
 
-    if len(bounds) == 1:
-        r = minimize_scalar(lambda v: cost([v]), bounds=bounds[0], method="bounded",
-                            options={"xatol": 1e-3 * (bounds[0][1] - bounds[0][0]), "maxiter": evals})
-        return np.array([r.x])
-    r = minimize(cost, x0, method="Nelder-Mead", options={"maxfev": evals, "xatol": 1e-3, "fatol": 1e-6})
-    return np.clip(r.x, [b[0] for b in bounds], [b[1] for b in bounds])
-
-
-def _grid(ctx, build, values, full: bool = False):
-    scores = [(ctx.compare(build(v)).error if full else ctx.sse(build(v))) for v in values]
-    return values[int(np.argmin(scores))]
+    def screening_subset(self, captures: str):
+        """Fewer captures for screening: the two most textured, or :attr:`quick`."""
+        return {"all": self.quick, "textured": self.screen_textured, "moving": self.moving_ones}[captures]
 
 
 # --- the candidates: each effect's declared searches (lowcam.effects.Search) ---------------------------------------
@@ -149,14 +242,129 @@ def candidates() -> dict:
     return out
 
 
+def removal_candidates(profile) -> list[str]:
+    """The ``without_EFFECT`` candidates of ``profile``: each enabled effect the chain can run without."""
+    return [f"without_{e.name}" for e in profile.effects
+            if e.enabled and not e.always_runs and e.name not in NOT_REMOVABLE]
+
+
 def candidate_effect(name: str) -> str:
     """The profile effect a candidate adds or changes."""
+    if name.startswith("without_"):
+        return name[len("without_"):]
     return candidates()[name][0][0].name
 
 
-def fit_candidate(ctx, name: str):
-    """Fit candidate ``name`` on ``ctx.profile``: (profile with it, fitted params, evidence), or None when the
-    profile or the captures cannot show it."""
+def gauss_newton(ctx, build, x0, bounds, subset=None, steps: int = 4):
+    """Bounded Gauss-Newton steps minimising the noise-free SSE of ``build(x)`` ([Nocedal2006] ch. 10).
+
+    Parameters are scaled to their bounds; the Jacobian comes from forward differences of 5 % of each range
+    (towards the inside; 25 % where that changes nothing); each step is clipped to the bounds and halved until the SSE falls (backtracking), which
+    copes with effects that hardly act near their start (a blur of sigma 0). Returns (x, SSE)."""
+    lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
+    span = np.maximum(hi - lo, 1e-12)
+    x = np.clip(np.asarray(x0, float), lo, hi)
+    r = ctx.residual(build(x), subset)
+    sse = float(np.dot(r, r))
+    for _ in range(steps):
+        jac = np.zeros((r.size, len(x)), np.float32)
+        for k in range(len(x)):
+            for size in (0.05, 0.25):  # a wider difference where the effect hardly acts
+                h = size * span[k] if x[k] + size * span[k] <= hi[k] else -size * span[k]
+                xk = x.copy()
+                xk[k] += h
+                jac[:, k] = (r - ctx.residual(build(xk), subset)) / (h / span[k])  # d(model)/d(scaled x)
+                if np.abs(jac[:, k]).max() > 1e-3:
+                    break
+        jtj = (jac.T @ jac).astype(np.float64)
+        ridge = 1e-3 * np.diag(np.diag(jtj)) + 1e-9 * np.trace(jtj) * np.eye(len(x))
+        target = np.clip(x + np.linalg.lstsq(jtj + ridge, (jac.T @ r).astype(np.float64), rcond=None)[0] * span,
+                         lo, hi)
+        moved = False
+        for t in (1.0, 0.5, 0.25, 0.125, 0.0625):
+            x_new = x + t * (target - x)
+            if np.all(np.abs(x_new - x) < 1e-4 * span):
+                break
+            r_new = ctx.residual(build(x_new), subset)
+            sse_new = float(np.dot(r_new, r_new))
+            if sse_new < sse:
+                moved = np.all(np.abs(x_new - x) >= 2e-3 * span) or t == 1.0
+                x, r, sse = x_new, r_new, sse_new
+                break
+        if not moved:
+            break
+    return x, sse
+
+
+class _Fit:
+    """One candidate's fit in progress: :meth:`screen` (coarse), then :meth:`finish` (to convergence)."""
+
+    def __init__(self, ctx, name, cls, search):
+        self.ctx, self.name, self.cls, self.search = ctx, name, cls, search
+        self.values = dict(search.fixed)
+        self.keys = list(search.bounds)
+        self.bounds = list(search.bounds.values())
+        self.subset = ctx.screening_subset(search.captures)  # fitted on a few captures; polish uses all
+        have = ctx.profile.effect(cls.name)
+        current = have.values() if have is not None and have.enabled and not search.replace else {}
+        self.x = np.array([search.start.get(k, current.get(k, cls.params[k].default)) for k in self.keys], float)
+        self.result = None  # (profile, params, shown) once fitted in closed form
+        self.done = False
+        self.sse = np.inf
+        self.seconds = 0.0
+
+    def build(self, x=None, extra=None):
+        values = dict(self.values, **(extra or {}))
+        if self.keys:
+            values.update(zip(self.keys, map(float, self.x if x is None else x)))
+        return self.ctx.profile.with_effect(self.cls.name, replace=self.search.replace,
+                                            **({"after": self.search.after} if getattr(self.search, "after", "")
+                                               else {}), **values)
+
+    def _grid(self, key, options):  # on the full error (a few captures) when the noise shows it
+        if self.search.full_error:
+            score = [self.ctx.compare(self.build(extra={key: v}), self.ctx.quick[:2], 4).error for v in options]
+        else:
+            score = [self.ctx.sse(self.build(extra={key: v}), self.subset) for v in options]
+        self.values[key] = options[int(np.argmin(score))]
+
+    def screen(self):
+        started = time.perf_counter()
+        fit = CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
+        if fit:
+            self.result, self.done = fit(self.ctx, self.cls.name), True
+        else:
+            for key, options in self.search.grid.items():
+                self._grid(key, list(options))
+            if self.keys:
+                self.x, self.sse = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=1)
+            else:
+                self.sse, self.done = self.ctx.sse(self.build(), self.subset), not self.search.refine
+        self.seconds += time.perf_counter() - started
+
+    def finish(self):
+        started = time.perf_counter()
+        for key in self.search.refine:
+            low, high = self.cls.params[key].low, self.cls.params[key].high
+            best = self.values[key]
+            self._grid(key, sorted({min(high, max(low, best + d)) for d in self.search.refine[key]}))
+        if self.keys:
+            self.x, self.sse = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset,
+                                               steps=max(1, self.search.evals // 10))
+        self.done = True
+        self.seconds += time.perf_counter() - started
+
+    def fitted(self):
+        """(profile with it, fitted params, values shown in the evidence), or None."""
+        if self.result is not None or self.search.fit:
+            return self.result
+        values = dict(self.values, **dict(zip(self.keys, map(float, self.x))))
+        return self.build(), values, values
+
+
+def _fits(ctx, name):
+    """The :class:`_Fit` of candidate ``name`` on ``ctx.profile``, or None when the profile or the captures cannot
+    show it."""
     for cls, search in candidates()[name]:
         have = ctx.profile.effect(cls.name)
         if search.requires and ctx.profile.effect(search.requires) is None:
@@ -168,43 +376,44 @@ def fit_candidate(ctx, name: str):
         if search.fixed and have is not None and have.enabled and all(
                 getattr(have, k) == v for k, v in search.fixed.items()):
             continue
-        fit = CLOSED_FORM[search.fit] if isinstance(search.fit, str) and search.fit else search.fit
-        fitted = fit(ctx, cls.name) if fit else _fit_search(ctx, cls, search)
-        if fitted is None:
-            continue
-        profile, params, shown = fitted
-        was = {f"was_{k}": v for k, v in (have.values() if have is not None else {}).items()}
-        return profile, params, search.evidence.format(**shown, **was)
+        return _Fit(ctx, name, cls, search)
     return None
 
 
-def _fit_search(ctx, cls, search):
-    """Grid values first (with refinement steps), then a bounded search over the continuous parameters."""
-    p, effect = ctx.profile, cls.name
-    subset = {"all": None, "textured": ctx.textured, "moving": ctx.moving_ones}[search.captures]
-    values = dict(search.fixed)
+def fit_candidate(ctx, name: str):
+    """Fit candidate ``name`` on ``ctx.profile`` to convergence: (profile with it, fitted params, evidence), or
+    None when the profile or the captures cannot show it."""
+    if name.startswith("without_"):
+        return _removal(ctx, name)
+    f = _fits(ctx, name)
+    if f is None:
+        return None
+    f.screen()
+    if not f.done:
+        f.finish()
+    return _evidence(ctx, f)
 
-    def build(extra):
-        return p.with_effect(effect, replace=search.replace, **values, **extra)
 
-    for key, options in search.grid.items():
-        best = _grid(ctx, lambda v: build({key: v}), list(options), search.full_error)
-        if key in search.refine:
-            low, high = cls.params[key].low, cls.params[key].high
-            best = _grid(ctx, lambda v: build({key: v}), sorted({min(high, max(low, best + d))
-                                                                 for d in search.refine[key]}), search.full_error)
-        values[key] = best
-    if search.bounds:
-        keys, bounds = list(search.bounds), list(search.bounds.values())
-        x0 = [search.start.get(k, 0.5 * (lo + hi)) for k, (lo, hi) in zip(keys, bounds)]
-        x = _search(ctx, lambda x: build(dict(zip(keys, map(float, x)))), bounds, x0, search.evals, subset)
-        values.update(zip(keys, map(float, x)))
-    return build({}), values, values
+def _evidence(ctx, f):
+    fitted = f.fitted()
+    if fitted is None:
+        return None
+    profile, params, shown = fitted
+    have = ctx.profile.effect(f.cls.name)
+    was = {f"was_{k}": v for k, v in (have.values() if have is not None else {}).items()}
+    return profile, params, f.search.evidence.format(**shown, **was)
+
+
+def _removal(ctx, name):
+    effect = candidate_effect(name)
+    if ctx.profile.effect(effect) is None:
+        return None
+    return ctx.profile.without(effect), {}, f"the frames look as if the camera had no {effect}"
 
 
 def _pixel_maps(ctx):
     """The clean model and the measured means of every capture, stacked."""
-    return np.stack(ctx.clean(ctx.profile)), np.stack(ctx.means)
+    return np.stack(ctx.clean(ctx.profile)).astype(np.float64), np.stack(ctx.means).astype(np.float64)
 
 
 def _with_map(ctx, effect: str, values: np.ndarray):
@@ -249,15 +458,13 @@ def fit_hot_pixels(ctx, effect):
 
 
 def fit_row_noise(ctx, effect):
-    """Row noise from the excess variance of row means over the model's, refined on the full error."""
-    base = ctx.compare(ctx.profile)
+    """Row noise from the excess variance of row means over the model's (:func:`row_noise_variance`)."""
     excess = float(np.mean([row_noise_variance(st.measured) - row_noise_variance(st.simulated)
-                           for st in base.captures]))
+                            for st in ctx.base.captures if len(st.measured) > 1] or [0.0]))
     if excess <= 0:
         return None
-    sigmas = [np.sqrt(excess) * f for f in (0.8, 1.0, 1.25)]
-    best = float(_grid(ctx, lambda v: ctx.profile.with_effect(effect, sigma_dn=v), sigmas, full=True))
-    return ctx.profile.with_effect(effect, sigma_dn=best), {"sigma_dn": best}, {"sigma_dn": float(np.sqrt(excess))}
+    sigma = float(np.sqrt(excess))
+    return ctx.profile.with_effect(effect, sigma_dn=sigma), {"sigma_dn": sigma}, {"sigma_dn": sigma}
 
 
 def fit_colour_matrix(ctx, effect):
@@ -281,15 +488,29 @@ def fit_colour_matrix(ctx, effect):
         {"rows": rows}
 
 
+def fit_monochrome(ctx, effect):
+    """A sensor without colour: the saturation control at 0 (every channel the luma) and no lateral colour."""
+    p = ctx.profile.with_effect(effect, saturation=0.0)
+    if p.effect("chromatic_aberration") is not None and p.effect("chromatic_aberration").enabled:
+        p = p.without("chromatic_aberration")
+    return p, {"saturation": 0.0}, {}
+
+
 #: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
 CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "pixel_offset": fit_pixel_offset, "hot_pixels": fit_hot_pixels,
-               "row_noise": fit_row_noise, "colour_matrix": fit_colour_matrix}
+               "row_noise": fit_row_noise, "colour_matrix": fit_colour_matrix, "monochrome": fit_monochrome}
 PER_PIXEL_FITS = ("pixel_gain", "pixel_offset")
+NOISE_FITS = ("row_noise",)
 
 
 def per_pixel(name: str) -> bool:
     """True for a candidate fitted as a dense per-pixel map (it absorbs noise: :attr:`Candidate.score`)."""
-    return any(search.fit in PER_PIXEL_FITS for _, search in candidates()[name])
+    return not name.startswith("without_") and any(search.fit in PER_PIXEL_FITS for _, search in candidates()[name])
+
+
+def _changes_noise(name: str) -> bool:
+    return not name.startswith("without_") and any(search.fit in NOISE_FITS or search.full_error
+                                                   for _, search in candidates()[name])
 
 
 @dataclass
@@ -297,57 +518,154 @@ class Diagnosis:
     comparison: object
     candidates: list
     scratch: object = None  # the temporary folder of fitted maps; removed with the Diagnosis
+    seconds: float = 0.0
+    added: list = field(default_factory=list)  # forward selection: the candidates added before the last round
 
     @property
     def error(self) -> float:
         return self.comparison.error
 
     @property
+    def best(self):
+        """The best candidate (the polished combination after forward selection), or None."""
+        return self.candidates[0] if self.candidates else None
+
+    @property
     def verdict(self) -> str:
-        if self.error <= EXPLAINED_BELOW:
+        if self.error <= EXPLAINED_BELOW * self.comparison.noise_floor:
             return "explained"
-        if self.candidates and self.candidates[0].score <= UNEXPLAINED_ABOVE:
+        if self.best is not None and self.best.score <= UNEXPLAINED_ABOVE:
             return "missing-effect"
         return "unexplained"
 
+    def summary(self) -> str:
+        """One line: the error, the verdict and the numbers it rests on."""
+        v, b = self.verdict, self.best
+        if v == "explained":
+            why = f"at the noise floor (explained up to {EXPLAINED_BELOW})"
+        elif v == "missing-effect":
+            why = f"{b.effect} brings it to {b.score:.3f} (at most {UNEXPLAINED_ABOVE})"
+        else:
+            why = (f"the best candidate, {b.effect}, leaves {b.score:.3f} (above {UNEXPLAINED_ABOVE})" if b else
+                   "no candidate could be fitted")
+        return f"error {self.error:.3f}, verdict {v}: {why}"
+
     def as_json(self) -> dict:
         return {"error": round(self.error, 4), "noise_floor": self.comparison.noise_floor,
-                "verdict": self.verdict,
+                "verdict": self.verdict, "summary": self.summary(), "seconds": round(self.seconds, 2),
                 "families": {k: round(v, 4) for k, v in self.comparison.families.items()},
+                "measured": self.comparison.measured, "added": [c.effect for c in self.added],
                 "candidates": [c.as_json() for c in self.candidates], "where": self.comparison.where}
 
 
+def _candidate(ctx, name, fitted, seconds, subset) -> Candidate:
+    """A fitted candidate with its estimated error on ``subset`` (the captures it was fitted on, so no more
+    simulations are needed); a candidate that changes the noise gets the full error on :attr:`Context.quick`."""
+    profile, params, evidence = fitted
+    if _changes_noise(name):
+        cmp = ctx.compare(profile, ctx.quick, 4)
+        error, families = cmp.error, cmp.families
+    else:
+        error, families = ctx.estimate(profile, subset)
+    clean = {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in params.items()}
+    return Candidate(name, error, clean, evidence, profile, per_pixel(name), len(ctx.mset.captures), dict(families),
+                     False, seconds)
+
+
+def _full(ctx, c: Candidate) -> None:
+    started = time.perf_counter()
+    c.comparison = ctx.compare(c.profile)
+    c.error_after, c.families, c.full = c.comparison.error, dict(c.comparison.families), True
+    c.seconds += time.perf_counter() - started
+
+
 def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
-    """Fit every named candidate on ``ctx.profile`` and rank them by score."""
-    out = []
+    """Screen every named candidate on ``ctx.profile``, fit the :data:`FITTED` most promising to convergence,
+    estimate each one's error and compute the full error of the :data:`FULL_ERRORS` best (and of every
+    candidate that changes the noise); ranked by :attr:`Candidate.score`."""
+    fits, out = [], []
     for i, name in enumerate(names):
         if progress:
             progress(i, len(names), name)
-        fitted = fit_candidate(ctx, name)
-        if fitted is None:
+        if name.startswith("without_"):
+            started = time.perf_counter()
+            fitted = _removal(ctx, name)
+            if fitted is not None:
+                out.append(_candidate(ctx, name, fitted, time.perf_counter() - started, ctx.quick))
             continue
-        cand_profile, params, evidence = fitted
-        after = ctx.compare(cand_profile).error
-        out.append(Candidate(name, after, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
-                                           for k, v in params.items()},
-                             f"{evidence}; error {base_error:.2f} -> {after:.2f}", cand_profile,
-                             per_pixel(name), len(ctx.mset.captures)))
+        f = _fits(ctx, name)
+        if f is not None:
+            f.screen()
+            fits.append(f)
+    # refine the most promising: by the error estimated on the captures each was screened on (no new simulations)
+    screened = sorted(((ctx.estimate(f.build(), f.subset)[0], k) for k, f in enumerate(fits) if not f.done))
+    pending = [fits[k] for e, k in screened[:FITTED] if e <= 2 * screened[0][0]]
+    for i, f in enumerate(pending):
+        if progress:
+            progress(i, len(pending), f"{f.name} (refining)")
+        f.finish()
+    for f in fits:
+        if progress:
+            progress(len(fits) - 1, len(fits), f"{f.name} (estimating)")
+        started = time.perf_counter()
+        fitted = _evidence(ctx, f)
+        if fitted is not None:
+            out.append(_candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
+                                  ctx.quick if f.search.fit else f.subset))
+            if f.keys:
+                out[-1].bounds = {f.cls.name: dict(zip(f.keys, f.bounds))}
     out.sort(key=lambda c: c.score)
+    while out and not out[0].full:  # the best is always fully compared, and close runners-up too
+        if progress:
+            progress(0, 1, f"{out[0].effect} (full error)")
+        _full(ctx, out[0])
+        out.sort(key=lambda c: c.score)
+        close = [c for c in out[1:FULL_ERRORS] if not c.full and c.score <= CLOSE * out[0].score]
+        for c in close:
+            _full(ctx, c)
+        out.sort(key=lambda c: c.score)
+    for c in out:
+        c.evidence += f"; error {base_error:.2f} -> {c.error_after:.2f}" + ("" if c.full else " (estimated)")
     return out
 
 
-def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2) -> Diagnosis:
-    """Rank the candidates (all of :func:`candidates`, or ``only``) for a measurement set.
+def polish(ctx, chosen: list[Candidate], profile) -> tuple[object, dict]:
+    """Refit every continuous parameter of the ``chosen`` candidates together on ``profile`` (which holds them
+    all), by Gauss-Newton on every capture. Returns (polished profile, {effect: {key: value}})."""
+    keys = [(effect, key, bounds) for c in chosen for effect, spec in c.bounds.items() for key, bounds in spec.items()]
+    if not keys:
+        return profile, {}
+
+    def build(x):
+        p = profile
+        for (effect, key, _), v in zip(keys, x):
+            p = p.with_effect(effect, **{key: float(v)})
+        return p
+
+    x0 = [getattr(profile.effect(effect), key) for effect, key, _ in keys]
+    x, _ = gauss_newton(ctx, build, x0, [b for _, _, b in keys], None, steps=3)
+    values: dict = {}
+    for (effect, key, _), v in zip(keys, x):
+        values.setdefault(effect, {})[key] = float(v)
+    return build(x), values
+
+
+def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2, assumed_noise=None,
+             ) -> Diagnosis:
+    """Rank the candidates (all of :func:`candidates` and :func:`removal_candidates`, or ``only``) for a
+    measurement set.
 
     Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
-    later candidate's ``error_after`` then includes the ones before it.
+    later candidate's ``error_after`` then includes the ones before it, and the best of the last round has every
+    added effect's continuous parameters refitted together (:func:`polish`) before its full error is computed.
     """
+    started = time.perf_counter()
     scratch = None if workdir else tempfile.TemporaryDirectory(prefix="lowcam-diagnose-")
     workdir = Path(workdir or scratch.name)
-    ctx = Context(mset, profile, workdir)
-    base = ctx.compare(profile)
-    names = list(only or candidates())
+    ctx = Context(mset, profile, workdir, assumed_noise)
+    base = ctx.base
+    names = list(only or [*candidates(), *removal_candidates(profile)])
     ranked = rank(ctx, base.error, names, progress)
     chosen: list[Candidate] = []
     for _ in range(rounds - 1):
@@ -355,26 +673,70 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
             break
         best = ranked[0]
         chosen.append(best)
-        ctx = Context(mset, best.profile, workdir / f"after-{best.effect}")
+        ctx = Context(mset, best.profile, workdir / f"after-{best.effect}", parent=ctx, base=best.comparison)
         remaining = [n for n in names if n not in {c.effect for c in chosen}]
         again = rank(ctx, best.error_after, remaining, progress)
         for c in again:
             c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
         ranked = again
-    return Diagnosis(base, chosen + ranked, scratch)
+    if chosen and ranked and ranked[0].bounds and ranked[0].error_after > EXPLAINED_BELOW:
+        top = ranked[0]
+        top.profile, values = polish(ctx, chosen + [top], top.profile)
+        _full(ctx, top)
+        if values:
+            top.evidence += "; polished together: " + ", ".join(
+                f"{e}.{k} = {v:.4g}" for e, kv in values.items() for k, v in kv.items())
+    return Diagnosis(base, chosen + ranked, scratch, time.perf_counter() - started, chosen)
 
 
-def save_candidate_profile(candidate: Candidate, path) -> Path:
-    """Write the candidate's profile; fitted maps (.npy) are copied into a folder beside it."""
+@dataclass
+class Step:
+    """One step of :func:`explain`: the diagnosis of the profile so far, the candidate added (None at the end)
+    and the profile after it."""
+
+    diagnosis: Diagnosis
+    added: Candidate | None
+    profile: object
+
+
+def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain: float = 0.03) -> list[Step]:
+    """``diagnose --until-explained``: diagnose, add the best candidate, refit every continuous parameter added so
+    far together (:func:`polish`), and repeat until the error is explained, no candidate lowers it by at least
+    ``min_gain`` (relative), or ``max_steps`` effects were added. The last step's ``added`` is None."""
+    workdir = Path(workdir)
+    steps: list[Step] = []
+    added: list[Candidate] = []
+    assumed = None
+    for k in range(max_steps + 1):
+        d = diagnose(mset, profile, workdir=workdir / f"step-{k}", progress=progress, rounds=1,
+                     assumed_noise=assumed)
+        assumed = assumed or [s.sums["variance_map"] if len(s.measured) == 1 else None
+                              for s in d.comparison.captures]
+        best = d.best
+        if d.verdict == "explained" or best is None or best.error_after > d.error * (1 - min_gain) or \
+                k == max_steps:
+            steps.append(Step(d, None, profile))
+            return steps
+        added.append(best)
+        profile = best.profile
+        if len(added) > 1 and any(c.bounds for c in added):
+            ctx = Context(mset, profile, workdir / f"polish-{k}", assumed, base=best.comparison)
+            profile, _ = polish(ctx, added, profile)
+        steps.append(Step(d, best, profile))
+    return steps
+
+
+def save_candidate_profile(candidate: Candidate, path, profile=None) -> Path:
+    """Write the candidate's profile (or ``profile``); fitted maps (.npy) are copied into a folder beside it."""
     import shutil
 
     path = Path(path).resolve()
-    profile = candidate.profile
-    effect = profile.effect(candidate_effect(candidate.effect))
-    if effect is not None and getattr(effect, "texture", None) and Path(effect.texture).suffix == ".npy":
-        target = path.parent / path.stem / Path(effect.texture).name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(effect.texture, target)
-        profile = profile.with_effect(effect.name, texture=str(target), source=str(path), base_dir=path.parent)
+    profile = profile or candidate.profile
+    for effect in profile.effects:
+        texture = getattr(effect, "texture", None)
+        if texture and Path(texture).suffix == ".npy" and not Path(texture).is_relative_to(path.parent / path.stem):
+            target = path.parent / path.stem / Path(texture).name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(texture, target)
+            profile = profile.with_effect(effect.name, texture=str(target), source=str(path), base_dir=path.parent)
     return profile.save(path)
-
