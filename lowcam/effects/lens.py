@@ -38,6 +38,9 @@ Contents
 - :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
+- :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
+- :func:`fit_radial_distortion`: the candidate: distortion, focal length and centre from the optical flow, the
+  render's field of view held
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
 - :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
 
@@ -392,20 +395,8 @@ class LensDistortion(Effect):
     order = 20
     calibration = "lens"
     node = NodeStage("Lens Distortion", "image", "lens_distortion")
-    searches = (
-        Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)},
-               when={"model": "fov"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
-               when={"model": "opencv"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
-               when={"model": "polynomial"}, captures="textured"),
-        Search("radial_distortion", "lens division_k1 = {division_k1:.4f} (was {was_division_k1:.4f})",
-               bounds={"division_k1": (-1.0, 1.0)}, when={"model": "division"}, captures="textured"),
-        Search("radial_distortion", "lens nuke_k1 = {nuke_k1:.4f} (was {was_nuke_k1:.4f})",
-               bounds={"nuke_k1": (-1.0, 1.0)}, when={"model": "nuke"}, captures="textured"),
-        Search("radial_distortion", "lens brown_k1 = {brown_k1:.4f} (was {was_brown_k1:.4f})",
-               bounds={"brown_k1": (-1.0, 1.0)}, when={"model": "brown"}, captures="textured"),
-    )
+    searches = tuple(Search("radial_distortion", "lens {fitted}", when={"model": m}, captures="textured",
+                            fit=lambda ctx, effect: fit_radial_distortion(ctx, effect)) for m in _MODEL_KEYS)
     always_runs = True
     params = {
         "model": Param("fov", str, choices=tuple(_MODEL_KEYS)),
@@ -585,6 +576,151 @@ class LensDistortion(Effect):
         m1, m2 = self.render_maps(state, state.render.shape[:2])
         state.working = cv2.remap(state.render, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                   borderValue=0)
+
+
+# --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------
+
+#: Per lens model, the parameters the ``radial_distortion`` candidate fits: (key, index into a vector key or None).
+#: The focal length and the centre always; fy follows fx (square pixels kept).
+FIT_KEYS = {
+    "fov": (("fx", None), ("cx", None), ("cy", None), ("w", None)),
+    "opencv": (("fx_px", None), ("cx_px", None), ("cy_px", None), ("k1", None), ("k2", None), ("k3", None)),
+    "polynomial": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("k1", None),
+                   ("k2", None), ("k3", None)),
+    "division": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("division_k1", None),
+                 ("division_k2", None)),
+    "nuke": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("nuke_k1", None),
+             ("nuke_k2", None)),
+    "brown": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("brown_k1", None),
+              ("brown_k2", None), ("brown_k3", None)),
+    "poly3": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None)),
+    "poly5": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None),
+              ("lensfun_k2", None)),
+    "ptlens": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_a", None),
+               ("lensfun_b", None), ("lensfun_c", None)),
+}
+_TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
+
+
+def _lens_values(values: dict, model: str, theta) -> dict:
+    """The lens's parameters with the fitted ones (:data:`FIT_KEYS`) set to ``theta``."""
+    out = {k: (list(v) if isinstance(v, list) else v) for k, v in values.items()}
+    for (key, index), value in zip(FIT_KEYS[model], theta):
+        if index is None:
+            out[key] = float(value)
+        else:
+            out[key][index] = float(value)
+    if model in _TIED:
+        follower, leader = _TIED[model]
+        out[follower] = values[follower] * out[leader] / values[leader]
+    return out
+
+
+def _flow_targets(means, clean, lens_model, stride: int = 6):
+    """Where the measured frames look: at sample pixels u of the output frame, the camera-plane point the
+    model's lens sees at ``u + d``, ``d`` being the optical flow from the measured mean to the clean model
+    (OpenCV's DIS flow, Kroeger et al. 2016), kept where the texture is strong and the flow is consistent both
+    ways. Returns (u, v, x, y) arrays."""
+    import cv2 as _cv2
+
+    dis = _cv2.DISOpticalFlow_create(_cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    out = []
+    for m, s in zip(means, clean):
+        a = np.clip(m.mean(-1), 0, 255).astype(np.uint8)
+        b = np.clip(s.mean(-1), 0, 255).astype(np.uint8)
+        fwd = dis.calc(a, b, None)
+        bwd = dis.calc(b, a, None)
+        h, w = a.shape
+        v, u = np.mgrid[stride // 2:h:stride, stride // 2:w:stride].astype(np.float64)
+        iu, iv = u.astype(int), v.astype(int)
+        du, dv = fwd[iv, iu, 0].astype(np.float64), fwd[iv, iu, 1].astype(np.float64)
+        back = _cv2.remap(bwd, (u + du).astype(np.float32), (v + dv).astype(np.float32), _cv2.INTER_LINEAR,
+                          borderMode=_cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
+        gy, gx = np.gradient(_cv2.GaussianBlur(b.astype(np.float32), (0, 0), 1.5))
+        texture = np.hypot(gx, gy)[iv, iu]
+        ok = (np.hypot(du + back[..., 0], dv + back[..., 1]) < 0.5) & (texture > 2.0)
+        ok &= (u + du > 0) & (u + du < w - 1) & (v + dv > 0) & (v + dv < h - 1)
+        x, y = lens_model.undistort(u[ok] + du[ok], v[ok] + dv[ok])
+        out.append((u[ok], v[ok], x, y))
+    return tuple(np.concatenate(c) for c in zip(*out))
+
+
+def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
+    """The ``radial_distortion`` candidate: the lens model's distortion coefficients, focal length and centre
+    (:data:`FIT_KEYS`) fitted together, with the render's field of view held where the profile has it (the
+    captures' ideal renders are given: a lens change must not change what they show).
+
+    The geometry is fitted, not the pixels: the optical flow from each measured mean to the clean model says
+    where the measured frames look (:func:`_flow_targets`), and the lens parameters are fitted to those
+    camera-plane points by robust least squares (no simulation per step); then the model is simulated again and
+    the flow measured again (``rounds`` in all). A round is kept only when it lowers the noise-free SSE against
+    the measured means. Returns (profile, params, shown values) or None when no textured capture shows the
+    geometry or nothing improves.
+    """
+    from scipy.optimize import least_squares
+
+    p = ctx.profile
+    lens = p.effect(effect)
+    subset = list(ctx.textured)
+    if lens is None or not subset or lens.model not in FIT_KEYS:
+        return None
+    geometry = p.geometry
+    half_x, _ = lens.render_field_of_view(geometry)
+    hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
+    values = dict(lens.values(), render_hfov_deg=hfov)
+    model = lens.model
+    keys = FIT_KEYS[model]
+    theta = np.array([values[k] if i is None else values[k][i] for k, i in keys], np.float64)
+    scale = np.maximum(1e-2 * np.abs(theta), 1e-2)  # typical parameter steps, for the solver
+
+    def lens_at(t):
+        return LensDistortion(**_lens_values(values, model, t)).lens_model(geometry)
+
+    def simulate(t):
+        try:
+            return ctx.clean(p.with_effect(effect, **_lens_values(values, model, t)), subset)
+        except (LowcamError, ValueError):  # out of range, or the lens would see beyond the render
+            return None
+
+    def sse(images):
+        return sum(float(((m - s) ** 2).sum()) for m, s in zip(means, images))
+
+    means = [ctx.means[i].astype(np.float64) for i in subset]
+    clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
+    start = best = sse(clean)
+    for _ in range(rounds):
+        here = lens_at(theta)
+        pu, pv, tx, ty = _flow_targets(means, clean, here)
+        if len(pu) < 20 * len(theta):
+            break
+        focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
+
+        def residual(t):
+            try:
+                x, y = lens_at(t).undistort(pu, pv)
+            except LowcamError:
+                return np.full(2 * len(pu), 1e3)
+            return np.concatenate([x - tx, y - ty]) * focal
+
+        r = least_squares(residual, theta, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
+        trial = simulate(r.x)
+        if trial is None or sse(trial) >= best:
+            break
+        theta, clean, best = r.x, trial, sse(trial)
+    if best >= start:
+        return None
+    fitted = _lens_values(values, model, theta)
+    changed = {k: fitted[k] for k in dict.fromkeys(k for k, _ in keys)}
+    if model in _TIED:
+        changed[_TIED[model][0]] = fitted[_TIED[model][0]]
+    changed["render_hfov_deg"] = hfov
+
+    def shown(value):
+        return "[" + ", ".join(f"{x:.4g}" for x in value) + "]" if isinstance(value, list) else f"{value:.4g}"
+
+    text = ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
+                     for k in dict.fromkeys(k for k, _ in keys))
+    return p.with_effect(effect, **_lens_values(values, model, theta)), changed, {"fitted": f"{model}: {text} (render field {hfov:.2f} deg kept)"}
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------
