@@ -18,6 +18,11 @@ Models
     ``pixel_aspect`` and ``k1, k2, k3`` / ``division_k1, division_k2`` / ``nuke_k1, nuke_k2`` /
     ``brown_k1..brown_k4, brown_p1, brown_p2``. They are evaluated in Blender's pixel frame (origin bottom-left,
     y up), so a camera solved in Blender is used as it is.
+``poly3``, ``poly5``, ``ptlens``
+    Lensfun's distortion models with lensfun's normalisation and crop factors, so a lens-database entry is used
+    as it is: ``focal_length`` (mm), ``crop_factor`` (the camera's), ``calibration_crop_factor`` and
+    ``calibration_aspect_ratio`` (the lens entry's ``cropfactor`` and ``aspect-ratio``), ``lensfun_center`` and
+    ``lensfun_k1`` / ``lensfun_k1, lensfun_k2`` / ``lensfun_a, lensfun_b, lensfun_c`` (see :class:`LensfunLens`).
 
 Fitting (sec. 4.1): from views of a chessboard or ChArUco board, the poses start from OpenCV's pinhole
 calibration (Zhang's method); intrinsics, distortion and poses are then refined together by Levenberg-Marquardt
@@ -30,7 +35,12 @@ Contents
 - :class:`FovLens`: Devernay & Faugeras' FOV model with PTAM's normalised parameters (``fov`` above)
 - :class:`OpenCVLens`: Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2
 - :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame
+- :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
+- :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
+- :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
+- :func:`fit_radial_distortion`: the candidate: distortion, focal length and centre from the optical flow, the
+  render's field of view held
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
 - :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
 
@@ -42,6 +52,9 @@ References
   13(1), 14-24, 2001.
 - [Klein2007] G. Klein and D. Murray, "Parallel Tracking and Mapping for Small AR Workspaces", ISMAR 2007 (PTAM).
 - [Brown1966] D. C. Brown, "Decentering Distortion of Lenses", Photogrammetric Engineering 32(3), 444-462, 1966.
+- [Lensfun] A. Zabolotny et al., lensfun 0.3.4, ``libs/lensfun/modifier.cpp`` (the ``lfModifier`` constructor:
+  normalisation and crop factors) and ``libs/lensfun/mod-coord.cpp`` (``ModifyCoord_Dist_Poly3/Poly5/PTLens``),
+  https://github.com/lensfun/lensfun (tag v0.3.4).
 - [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
 """
 from __future__ import annotations
@@ -270,6 +283,85 @@ class BlenderLens(LensModel):
         return xn, -yn
 
 
+#: Half the diagonal of a 36 x 24 mm frame, the crop factors' reference (lensfun's ``NormalizedInMillimeters``).
+FULL_FRAME_HALF_DIAGONAL_MM = 0.5 * float(np.hypot(36.0, 24.0))
+
+
+class LensfunLens(LensModel):
+    """Lensfun's distortion models (``poly3``, ``poly5``, ``ptlens``), normalised as lensfun 0.3 does.
+
+    ``Rd = Ru (1 - k1 + k1 Ru^2)`` (poly3), ``Rd = Ru (1 + k1 Ru^2 + k2 Ru^4)`` (poly5) and
+    ``Rd = Ru (a Ru^3 + b Ru^2 + c Ru + 1 - a - b - c)`` (ptlens), with the radii in lensfun's normalised unit:
+    half the shorter side of the *calibration* sensor. On a frame of ``W x H`` pixels (pixel centres at
+    integers) taken with crop factor ``crop_factor``, one unit is ``hypot(W - 1, H - 1) / 2 * crop_factor /
+    calibration_crop_factor / sqrt(1 + calibration_aspect_ratio^2)`` pixels (lensfun's ``lfModifier``
+    constructor: ``NormScale = 2 / size * coordinate_correction``; crop factors are ratios of sensor
+    diagonals). The distortion centre is the frame centre ``((W - 1) / 2, (H - 1) / 2)`` moved by ``center``
+    (lensfun's ``CenterX, CenterY``) in units of half the frame's shorter side (``size / 2``, not corrected).
+    The undistorted radius is ``focal_length`` (mm) times the camera-plane radius, over the unit in mm:
+    ``hypot(36, 24) / 2 / calibration_crop_factor / sqrt(1 + calibration_aspect_ratio^2)`` (lensfun's
+    ``NormalizedInMillimeters``; as lensfun and Hugin do for poly3 and ptlens, the focal length is the one of
+    the undistorted coordinates, so the centre's scale is ``1 - k1`` or ``1 - a - b - c`` of it).
+    """
+
+    def __init__(self, width, height, model, terms, focal_length, crop_factor=1.0, calibration_crop_factor=1.0,
+                 calibration_aspect_ratio=1.5, center=(0.0, 0.0)):
+        super().__init__(width, height)
+        self.model, self.terms = model, tuple(float(t) for t in terms)
+        a = float(np.sqrt(1.0 + calibration_aspect_ratio ** 2))
+        self.unit_px = 0.5 * np.hypot(width - 1.0, height - 1.0) * crop_factor / calibration_crop_factor / a
+        self.unit_mm = FULL_FRAME_HALF_DIAGONAL_MM / calibration_crop_factor / a
+        self.scale = focal_length / self.unit_mm  # camera plane -> normalised undistorted radius
+        half = 0.5 * min(width - 1.0, height - 1.0)
+        self.u0 = 0.5 * (width - 1.0) + center[0] * half
+        self.v0 = 0.5 * (height - 1.0) + center[1] * half
+
+    def pinhole_intrinsics(self):
+        f = self.unit_px * self.scale
+        return f, f, self.u0, self.v0
+
+    def factor(self, ru):
+        """Rd / Ru at normalised undistorted radius ``ru``."""
+        t = self.terms
+        if self.model == "poly3":
+            return 1.0 - t[0] + t[0] * ru * ru
+        if self.model == "poly5":
+            r2 = ru * ru
+            return 1.0 + r2 * (t[0] + r2 * t[1])
+        a, b, c = t
+        return ((a * ru + b) * ru + c) * ru + 1.0 - a - b - c
+
+    def _slope(self, ru):
+        """d(Rd)/d(Ru)."""
+        t = self.terms
+        if self.model == "poly3":
+            return 1.0 - t[0] + 3.0 * t[0] * ru * ru
+        if self.model == "poly5":
+            r2 = ru * ru
+            return 1.0 + r2 * (3.0 * t[0] + 5.0 * r2 * t[1])
+        a, b, c = t
+        return ((4.0 * a * ru + 3.0 * b) * ru + 2.0 * c) * ru + 1.0 - a - b - c
+
+    def distort(self, x, y):
+        xn = self.scale * np.asarray(x, np.float64)
+        yn = self.scale * np.asarray(y, np.float64)
+        f = self.factor(np.hypot(xn, yn)) * self.unit_px
+        return self.u0 + f * xn, self.v0 + f * yn
+
+    def undistort(self, u, v):
+        xd = (np.asarray(u, np.float64) - self.u0) / self.unit_px
+        yd = (np.asarray(v, np.float64) - self.v0) / self.unit_px
+        rd = np.hypot(xd, yd)
+        ru = rd / max(self.factor(0.0), 1e-6)
+        for _ in range(50):  # Newton on Ru (Rd), as lensfun's ModifyCoord_UnDist_*
+            step = (ru * self.factor(ru) - rd) / np.where(np.abs(s := self._slope(ru)) < 1e-9, 1e-9, s)
+            ru = np.maximum(ru - step, 0.0)
+            if np.abs(step).max(initial=0.0) < 1e-13:
+                break
+        g = np.where(rd > 0, ru / np.maximum(rd, 1e-300), 1.0 / max(self.factor(0.0), 1e-6)) / self.scale
+        return xd * g, yd * g
+
+
 _MODEL_KEYS = {
     "fov": ("fx", "fy", "cx", "cy", "w"),
     "opencv": ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3", "p1", "p2"),
@@ -277,7 +369,14 @@ _MODEL_KEYS = {
     "division": ("division_k1", "division_k2"),
     "nuke": ("nuke_k1", "nuke_k2"),
     "brown": ("brown_k1", "brown_k2", "brown_k3", "brown_k4", "brown_p1", "brown_p2"),
+    "poly3": ("lensfun_k1",),
+    "poly5": ("lensfun_k1", "lensfun_k2"),
+    "ptlens": ("lensfun_a", "lensfun_b", "lensfun_c"),
 }
+_BLENDER_MODELS = ("polynomial", "division", "nuke", "brown")
+_LENSFUN_MODELS = ("poly3", "poly5", "ptlens")
+_LENSFUN_KEYS = ("focal_length", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
+                 "lensfun_center")
 _BLENDER_KEYS = ("focal_length", "sensor_width", "principal_point", "pixel_aspect")
 
 
@@ -296,20 +395,8 @@ class LensDistortion(Effect):
     order = 20
     calibration = "lens"
     node = NodeStage("Lens Distortion", "image", "lens_distortion")
-    searches = (
-        Search("radial_distortion", "lens w = {w:.4f} (was {was_w:.4f})", bounds={"w": (0.0, 1.6)},
-               when={"model": "fov"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
-               when={"model": "opencv"}, captures="textured"),
-        Search("radial_distortion", "lens k1 = {k1:.4f} (was {was_k1:.4f})", bounds={"k1": (-1.0, 1.0)},
-               when={"model": "polynomial"}, captures="textured"),
-        Search("radial_distortion", "lens division_k1 = {division_k1:.4f} (was {was_division_k1:.4f})",
-               bounds={"division_k1": (-1.0, 1.0)}, when={"model": "division"}, captures="textured"),
-        Search("radial_distortion", "lens nuke_k1 = {nuke_k1:.4f} (was {was_nuke_k1:.4f})",
-               bounds={"nuke_k1": (-1.0, 1.0)}, when={"model": "nuke"}, captures="textured"),
-        Search("radial_distortion", "lens brown_k1 = {brown_k1:.4f} (was {was_brown_k1:.4f})",
-               bounds={"brown_k1": (-1.0, 1.0)}, when={"model": "brown"}, captures="textured"),
-    )
+    searches = tuple(Search("radial_distortion", "lens {fitted}", when={"model": m}, captures="textured",
+                            fit=lambda ctx, effect: fit_radial_distortion(ctx, effect)) for m in _MODEL_KEYS)
     always_runs = True
     params = {
         "model": Param("fov", str, choices=tuple(_MODEL_KEYS)),
@@ -327,7 +414,8 @@ class LensDistortion(Effect):
         "k3": Param(0.0, low=-100.0, high=100.0),
         "p1": Param(0.0, low=-10.0, high=10.0),
         "p2": Param(0.0, low=-10.0, high=10.0),
-        "focal_length": Param(4.0, low=0.01, high=5000.0, unit="mm"),
+        "focal_length": Param(4.0, low=0.01, high=5000.0, unit="mm",
+                              doc="Blender and lensfun models (lensfun: of the undistorted coordinates)"),
         "sensor_width": Param(3.6, low=0.01, high=500.0, unit="mm"),
         "principal_point": Param([0.0, 0.0], "vector", length=2, low=-3.0, high=3.0,
                                  doc="Blender's normalised (-1..1, y up)"),
@@ -342,6 +430,19 @@ class LensDistortion(Effect):
         "brown_k4": Param(0.0, low=-100.0, high=100.0),
         "brown_p1": Param(0.0, low=-10.0, high=10.0),
         "brown_p2": Param(0.0, low=-10.0, high=10.0),
+        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun models: the camera's crop factor"),
+        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
+                                         doc="lensfun models: crop factor of the camera the lens was calibrated on"),
+        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
+                                          doc="lensfun models: long / short side of the calibration sensor"),
+        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
+                                doc="lensfun models: distortion centre from the frame centre, in half the shorter "
+                                    "side, y down"),
+        "lensfun_k1": Param(0.0, low=-10.0, high=10.0, doc="lensfun poly3 / poly5 k1"),
+        "lensfun_k2": Param(0.0, low=-10.0, high=10.0, doc="lensfun poly5 k2"),
+        "lensfun_a": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens a"),
+        "lensfun_b": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens b"),
+        "lensfun_c": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens c"),
         "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg", doc="0: automatic"),
     }
 
@@ -349,8 +450,10 @@ class LensDistortion(Effect):
     def keys_of(model: str) -> set[str]:
         """The parameter names that belong to a lens ``model``."""
         allowed = {"model", "render_hfov_deg", *_MODEL_KEYS.get(model, ())}
-        if model in ("polynomial", "division", "nuke", "brown"):
+        if model in _BLENDER_MODELS:
             allowed.update(_BLENDER_KEYS)
+        if model in _LENSFUN_MODELS:
+            allowed.update(_LENSFUN_KEYS)
         return allowed
 
     def values(self):
@@ -367,6 +470,19 @@ class LensDistortion(Effect):
                              f"(its keys: {', '.join(sorted(allowed - {'model'}))})")
         self._maps: dict = {}
 
+    def check(self):
+        if self.model in _LENSFUN_MODELS:
+            # The frame's corner in lensfun's normalised units (the crop factors are ratios of diagonals); the
+            # distortion must stay invertible (Rd rising with Ru) a little beyond it.
+            corner = np.sqrt(1 + self.calibration_aspect_ratio ** 2) * self.calibration_crop_factor / self.crop_factor
+            probe = LensfunLens(2, 2, self.model, [getattr(self, k) for k in _MODEL_KEYS[self.model]], 1.0)
+            rd = np.linspace(0.0, 1.25 * corner, 400)
+            rd = rd * probe.factor(rd)
+            if np.any(np.diff(rd) <= 0):
+                raise self.error(f"the {self.model} distortion folds over inside the frame (its radius stops "
+                                 f"rising before the corner, normalised radius {corner:.2f}): check the "
+                                 f"coefficients and the crop factors")
+
     def __deepcopy__(self, memo):
         """Copies share the cache of render maps: its keys hold every parameter, so sharing is safe and saves
         recomputing (and copying) maps of several million pixels whenever a profile is varied."""
@@ -374,6 +490,7 @@ class LensDistortion(Effect):
 
         new = copy.copy(self)
         new.principal_point = list(self.principal_point)
+        new.lensfun_center = list(self.lensfun_center)
         return new
 
     def model_for(self, width: int, height: int) -> LensModel:
@@ -383,6 +500,10 @@ class LensDistortion(Effect):
         if self.model == "opencv":
             return OpenCVLens(width, height, self.fx_px, self.fy_px, self.cx_px, self.cy_px,
                               self.k1, self.k2, self.k3, self.p1, self.p2)
+        if self.model in _LENSFUN_MODELS:
+            return LensfunLens(width, height, self.model, [getattr(self, k) for k in _MODEL_KEYS[self.model]],
+                               self.focal_length, self.crop_factor, self.calibration_crop_factor,
+                               self.calibration_aspect_ratio, tuple(self.lensfun_center))
         coefficients = {k: getattr(self, k) for k in _MODEL_KEYS[self.model]}
         return BlenderLens(width, height, self.model, self.focal_length, self.sensor_width,
                            tuple(self.principal_point), self.pixel_aspect, **coefficients)
@@ -455,6 +576,151 @@ class LensDistortion(Effect):
         m1, m2 = self.render_maps(state, state.render.shape[:2])
         state.working = cv2.remap(state.render, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                   borderValue=0)
+
+
+# --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------
+
+#: Per lens model, the parameters the ``radial_distortion`` candidate fits: (key, index into a vector key or None).
+#: The focal length and the centre always; fy follows fx (square pixels kept).
+FIT_KEYS = {
+    "fov": (("fx", None), ("cx", None), ("cy", None), ("w", None)),
+    "opencv": (("fx_px", None), ("cx_px", None), ("cy_px", None), ("k1", None), ("k2", None), ("k3", None)),
+    "polynomial": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("k1", None),
+                   ("k2", None), ("k3", None)),
+    "division": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("division_k1", None),
+                 ("division_k2", None)),
+    "nuke": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("nuke_k1", None),
+             ("nuke_k2", None)),
+    "brown": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("brown_k1", None),
+              ("brown_k2", None), ("brown_k3", None)),
+    "poly3": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None)),
+    "poly5": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None),
+              ("lensfun_k2", None)),
+    "ptlens": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_a", None),
+               ("lensfun_b", None), ("lensfun_c", None)),
+}
+_TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
+
+
+def _lens_values(values: dict, model: str, theta) -> dict:
+    """The lens's parameters with the fitted ones (:data:`FIT_KEYS`) set to ``theta``."""
+    out = {k: (list(v) if isinstance(v, list) else v) for k, v in values.items()}
+    for (key, index), value in zip(FIT_KEYS[model], theta):
+        if index is None:
+            out[key] = float(value)
+        else:
+            out[key][index] = float(value)
+    if model in _TIED:
+        follower, leader = _TIED[model]
+        out[follower] = values[follower] * out[leader] / values[leader]
+    return out
+
+
+def _flow_targets(means, clean, lens_model, stride: int = 6):
+    """Where the measured frames look: at sample pixels u of the output frame, the camera-plane point the
+    model's lens sees at ``u + d``, ``d`` being the optical flow from the measured mean to the clean model
+    (OpenCV's DIS flow, Kroeger et al. 2016), kept where the texture is strong and the flow is consistent both
+    ways. Returns (u, v, x, y) arrays."""
+    import cv2 as _cv2
+
+    dis = _cv2.DISOpticalFlow_create(_cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    out = []
+    for m, s in zip(means, clean):
+        a = np.clip(m.mean(-1), 0, 255).astype(np.uint8)
+        b = np.clip(s.mean(-1), 0, 255).astype(np.uint8)
+        fwd = dis.calc(a, b, None)
+        bwd = dis.calc(b, a, None)
+        h, w = a.shape
+        v, u = np.mgrid[stride // 2:h:stride, stride // 2:w:stride].astype(np.float64)
+        iu, iv = u.astype(int), v.astype(int)
+        du, dv = fwd[iv, iu, 0].astype(np.float64), fwd[iv, iu, 1].astype(np.float64)
+        back = _cv2.remap(bwd, (u + du).astype(np.float32), (v + dv).astype(np.float32), _cv2.INTER_LINEAR,
+                          borderMode=_cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
+        gy, gx = np.gradient(_cv2.GaussianBlur(b.astype(np.float32), (0, 0), 1.5))
+        texture = np.hypot(gx, gy)[iv, iu]
+        ok = (np.hypot(du + back[..., 0], dv + back[..., 1]) < 0.5) & (texture > 2.0)
+        ok &= (u + du > 0) & (u + du < w - 1) & (v + dv > 0) & (v + dv < h - 1)
+        x, y = lens_model.undistort(u[ok] + du[ok], v[ok] + dv[ok])
+        out.append((u[ok], v[ok], x, y))
+    return tuple(np.concatenate(c) for c in zip(*out))
+
+
+def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
+    """The ``radial_distortion`` candidate: the lens model's distortion coefficients, focal length and centre
+    (:data:`FIT_KEYS`) fitted together, with the render's field of view held where the profile has it (the
+    captures' ideal renders are given: a lens change must not change what they show).
+
+    The geometry is fitted, not the pixels: the optical flow from each measured mean to the clean model says
+    where the measured frames look (:func:`_flow_targets`), and the lens parameters are fitted to those
+    camera-plane points by robust least squares (no simulation per step); then the model is simulated again and
+    the flow measured again (``rounds`` in all). A round is kept only when it lowers the noise-free SSE against
+    the measured means. Returns (profile, params, shown values) or None when no textured capture shows the
+    geometry or nothing improves.
+    """
+    from scipy.optimize import least_squares
+
+    p = ctx.profile
+    lens = p.effect(effect)
+    subset = list(ctx.textured)
+    if lens is None or not subset or lens.model not in FIT_KEYS:
+        return None
+    geometry = p.geometry
+    half_x, _ = lens.render_field_of_view(geometry)
+    hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
+    values = dict(lens.values(), render_hfov_deg=hfov)
+    model = lens.model
+    keys = FIT_KEYS[model]
+    theta = np.array([values[k] if i is None else values[k][i] for k, i in keys], np.float64)
+    scale = np.maximum(1e-2 * np.abs(theta), 1e-2)  # typical parameter steps, for the solver
+
+    def lens_at(t):
+        return LensDistortion(**_lens_values(values, model, t)).lens_model(geometry)
+
+    def simulate(t):
+        try:
+            return ctx.clean(p.with_effect(effect, **_lens_values(values, model, t)), subset)
+        except (LowcamError, ValueError):  # out of range, or the lens would see beyond the render
+            return None
+
+    def sse(images):
+        return sum(float(((m - s) ** 2).sum()) for m, s in zip(means, images))
+
+    means = [ctx.means[i].astype(np.float64) for i in subset]
+    clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
+    start = best = sse(clean)
+    for _ in range(rounds):
+        here = lens_at(theta)
+        pu, pv, tx, ty = _flow_targets(means, clean, here)
+        if len(pu) < 20 * len(theta):
+            break
+        focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
+
+        def residual(t):
+            try:
+                x, y = lens_at(t).undistort(pu, pv)
+            except LowcamError:
+                return np.full(2 * len(pu), 1e3)
+            return np.concatenate([x - tx, y - ty]) * focal
+
+        r = least_squares(residual, theta, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
+        trial = simulate(r.x)
+        if trial is None or sse(trial) >= best:
+            break
+        theta, clean, best = r.x, trial, sse(trial)
+    if best >= start:
+        return None
+    fitted = _lens_values(values, model, theta)
+    changed = {k: fitted[k] for k in dict.fromkeys(k for k, _ in keys)}
+    if model in _TIED:
+        changed[_TIED[model][0]] = fitted[_TIED[model][0]]
+    changed["render_hfov_deg"] = hfov
+
+    def shown(value):
+        return "[" + ", ".join(f"{x:.4g}" for x in value) + "]" if isinstance(value, list) else f"{value:.4g}"
+
+    text = ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
+                     for k in dict.fromkeys(k for k, _ in keys))
+    return p.with_effect(effect, **_lens_values(values, model, theta)), changed, {"fitted": f"{model}: {text} (render field {hfov:.2f} deg kept)"}
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------
