@@ -197,10 +197,7 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
         out.images[f"demosaic_uv_{name}"] = stmap(2 * j + dx, 2 * i + dy, wm, hm)
 
     if "saturation" in stages:
-        from .effects.saturation import saturation_matrix
-
-        sat = profile.effect("saturation")
-        s = saturation_matrix(sat.saturation, sat.luma)
+        s = profile.effect("saturation").total_matrix()
         out.values["saturation_matrix"] = s.ravel().tolist()
         out.values["saturation_inverse"] = np.linalg.pinv(s).ravel().tolist()
     if "chroma_subsampling" in stages:

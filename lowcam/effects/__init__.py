@@ -36,7 +36,7 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.sharpening`: in-camera sharpening (sec. 4.4.3, 5.2 step 7)
 - :mod:`~lowcam.effects.quantisation`: quantisation (sec. 4.3, 5.2 step 7)
 - :mod:`~lowcam.effects.raw_blend`: blending into a raw Bayer frame (sec. 7)
-- :mod:`~lowcam.effects.saturation`: the saturation control (sec. 4.4.2)
+- :mod:`~lowcam.effects.saturation`: colour correction and the saturation control (sec. 4.4.2)
 - :mod:`~lowcam.effects.tone_curve`: the tone curve (not in the paper; sec. 8)
 - :mod:`~lowcam.effects.yuv`: YUV blending and 4:1:1 chroma (sec. 5.2 steps 8-10)
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)

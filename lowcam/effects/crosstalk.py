@@ -5,12 +5,19 @@ Fire-i's from its sensor's spectral chart, rows summing to 1), ``N`` the paper's
 added to every other, rows renormalised so white stays white. The calibration fits the camera's total colour
 matrix to chart patches and divides the saturation setting out: ``S(beta)^-1 M``, rows renormalised to 1.
 
+Diagnosis fits the colour mixing the profile lacks as one 3x3 matrix between its noise-free frames and the
+measured means, and places it where the noise says it acts: in the sensor (this crosstalk, before the noise) or
+in the image processor after demosaicing (the saturation stage's colour correction, which mixes the noise too).
+Entries may be negative (real colour-correction matrices have negative off-diagonals); rows sum to 1, so white
+stays white.
+
 Contents
 --------
 - :data:`FIRE_I_CROSSTALK`: the Fire-i filter response to 700/546/438 nm primaries (sec. 4.2)
 - :class:`Crosstalk`: mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
 - :func:`fit_colour_matrix`: the 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches)
 - :func:`crosstalk_from_colour_matrix`: the sensor's own mixing, the saturation setting undone (sec. 4.2, 4.4.2)
+- :func:`fit_colour_mixing`: the ``colour_matrix`` candidate's fit: a matrix placed in the sensor or after demosaicing
 
 References
 ----------
@@ -29,6 +36,48 @@ from .saturation import SATURATION_LUMA, saturation_matrix
 FIRE_I_CROSSTALK = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]
 
 
+def _rows_to_one(m: np.ndarray) -> np.ndarray:
+    return m / m.sum(axis=1, keepdims=True)
+
+
+def fit_colour_mixing(ctx, effect: str):
+    """The ``colour_matrix`` candidate's fit (``fit(ctx, effect)``, see :class:`~lowcam.effects.Search`).
+
+    ``T`` with ``measured ~ T clean`` by least squares over pixels unclipped in both (the chain between the
+    mixing and the output is linear). With ``P`` the processor's matrix ``S(beta) C`` and ``K`` the crosstalk,
+    the same change is the crosstalk ``P^-1 T P K`` (before the noise) or the colour correction ``S^-1 T S C``
+    (after the noise); each is renormalised to rows summing to 1 and the one with the lower full error (on a few captures) is kept.
+    """
+    p = ctx.profile
+    s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])
+    m = np.concatenate([c.reshape(-1, 3) for c in ctx.means])
+    ok = (s.max(1) < 250) & (m.max(1) < 250) & (s.min(1) > 3) & (m.min(1) > 3)
+    if ok.sum() < 100:
+        return None
+    t = fit_colour_matrix(s[ok], m[ok])
+    old = p.effect(effect)
+    k = old.total_matrix() if old.enabled else np.eye(3)
+    sat = p.effect("saturation")
+    options = []
+    if sat is not None and sat.enabled:
+        S = saturation_matrix(sat.saturation, sat.luma)
+        c = np.asarray(sat.colour_correction, np.float64)
+        pm = S @ c
+        new_c = _rows_to_one(np.linalg.solve(S, t @ pm))
+        options.append(("after demosaicing (colour correction)", "saturation",
+                        p.with_effect("saturation", colour_correction=new_c.tolist()), new_c))
+    else:
+        pm = np.eye(3)
+    new_k = _rows_to_one(np.linalg.solve(pm, t @ pm @ k))
+    options.append(("in the sensor (crosstalk)", effect,
+                    p.with_effect(effect, matrix=new_k.tolist(), extra_mixing=0.0), new_k))
+    if len(options) > 1:
+        options.sort(key=lambda o: ctx.compare(o[2], ctx.quick, 4).error)  # the noise tells them apart
+    where, stage, profile, new = options[0]
+    rows = "; ".join(" ".join(f"{v:.3f}" for v in r) for r in new)
+    return profile, {"matrix": new.round(4).tolist(), "stage": stage}, {"rows": rows, "where": where}
+
+
 class Crosstalk(Effect):
     """Mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``.
 
@@ -43,8 +92,8 @@ class Crosstalk(Effect):
     order = 40
     calibration = "colour"
     node = NodeStage("Crosstalk", "image", "matrix")
-    searches = (Search("colour_matrix", "colours are mixed differently: crosstalk rows {rows}", fit="colour_matrix",
-                       requires="crosstalk"),)
+    searches = (Search("colour_matrix", "colours are mixed differently {where}: rows {rows}",
+                       fit=fit_colour_mixing, requires="crosstalk"),)
     params = {
         "matrix": Param(FIRE_I_CROSSTALK, "matrix", length=3, low=-10.0, high=10.0),
         "extra_mixing": Param(0.05, low=0.0, high=1.0),
@@ -77,3 +126,4 @@ def crosstalk_from_colour_matrix(total: np.ndarray, saturation: float, luma=SATU
     (sec. 4.2, 4.4.2). Pass the setting the patches were captured at."""
     m = np.linalg.solve(saturation_matrix(saturation, luma), total)
     return m / m.sum(axis=1, keepdims=True)
+

@@ -661,7 +661,7 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
 
     p = ctx.profile
     lens = p.effect(effect)
-    subset = list(ctx.textured)
+    subset = list(ctx.screen_textured)  # the two most textured captures
     if lens is None or not subset or lens.model not in FIT_KEYS:
         return None
     geometry = p.geometry

@@ -1,13 +1,18 @@
-"""The camera's saturation control after demosaicing (Klein & Murray 2010, sec. 4.4.2).
+"""The camera's colour processing after demosaicing: colour correction and the saturation control (Klein & Murray
+2010, sec. 4.4.2).
 
 ``S(beta) = A + (beta / 65) (I - A)``, every row of A equal to ``[0.2915 0.5887 0.1113]``: the paper's
 ``A + beta B`` with ``B = (I - A) / 65``, so ``beta = 65`` is the identity (the Fire-i's default is 90).
+Before it, the image processor's colour-correction matrix ``C`` (identity for the Fire-i): the frame becomes
+``S(beta) C rgb``. Real cameras' C map the sensor's white-balanced RGB to the output primaries and have negative
+off-diagonal entries, rows summing to 1 so white stays white (e.g. Adobe DNG specification 1.6, "Camera to XYZ
+(D50) transformation"); being digital, it mixes the sensor noise too, unlike the optical crosstalk.
 
 Contents
 --------
 - :data:`SATURATION_LUMA`: the rows of the control's fixed part A (sec. 4.4.2)
 - :func:`saturation_matrix`: the Fire-i saturation control ``S(beta)``
-- :class:`Saturation`: the saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2)
+- :class:`Saturation`: colour correction and the saturation control on the demosaiced premultiplied colour
 
 References
 ----------
@@ -40,7 +45,8 @@ def saturation_matrix(beta: float, luma=SATURATION_LUMA) -> np.ndarray:
 
 
 class Saturation(Effect):
-    """The camera's saturation control applied to the demosaiced premultiplied colour (sec. 4.4.2).
+    """Colour correction and the saturation control on the demosaiced premultiplied colour: ``S(beta) C rgb``
+    (sec. 4.4.2; ``colour_correction`` C is the image processor's matrix, identity by default).
 
     The matrix is also recorded in the state, so blending can take it into account: the video frame already went
     through it, and with per-channel alpha the camera mixes the channels of the light behind the graphics too.
@@ -54,9 +60,20 @@ class Saturation(Effect):
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
         "luma": Param(list(SATURATION_LUMA), "vector", length=3, low=0.0, high=1.0),
+        "colour_correction": Param(np.eye(3).tolist(), "matrix", length=3, low=-10.0, high=10.0,
+                                   doc="the image processor's colour-correction matrix C, applied before S"),
     }
 
-    def apply(self, state):
+    def check(self):
+        if any(len(row) != 3 for row in self.colour_correction):
+            raise self.error("'colour_correction' must be 3x3")
+
+    def total_matrix(self) -> np.ndarray:
+        """``S(beta) C``: what the stage does to the colour."""
         s = saturation_matrix(self.saturation, self.luma)
+        return s @ np.asarray(self.colour_correction, np.float64)
+
+    def apply(self, state):
+        s = self.total_matrix()
         state.rgb = cv2.transform(state.rgb, s.astype(np.float32))
         state.colour_matrix = s if state.colour_matrix is None else s @ state.colour_matrix

@@ -43,7 +43,6 @@ Contents
 - :func:`fit_pixel_offset`: DSNU: the per-pixel mean offset of the measured means from the clean model
 - :func:`fit_hot_pixels`: pixels far brighter than the model in every capture that can show it
 - :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
-- :func:`fit_colour_matrix`: a crosstalk matrix from a colour matrix between the clean model and the means
 - :func:`fit_monochrome`: a sensor without colour: no saturation, no lateral colour
 - :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
 - :data:`PER_PIXEL_FITS`: the closed-form fits that give a dense per-pixel map
@@ -467,27 +466,6 @@ def fit_row_noise(ctx, effect):
     return ctx.profile.with_effect(effect, sigma_dn=sigma), {"sigma_dn": sigma}, {"sigma_dn": sigma}
 
 
-def fit_colour_matrix(ctx, effect):
-    """A crosstalk matrix from a least-squares colour matrix between the clean model and the means."""
-    from ..effects.crosstalk import fit_colour_matrix as fit_matrix
-    from ..effects.saturation import saturation_matrix
-
-    p = ctx.profile
-    s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])
-    m = np.concatenate([c.reshape(-1, 3) for c in ctx.means])
-    ok = (s.max(1) < 250) & (m.max(1) < 250) & (s.min(1) > 3)
-    t = fit_matrix(s[ok], m[ok])
-    sat = p.effect("saturation")
-    sat = saturation_matrix(sat.saturation) if sat is not None and sat.enabled else np.eye(3)
-    old = p.effect(effect)
-    old = old.total_matrix() if old.enabled else np.eye(3)
-    new = np.linalg.solve(sat, t @ sat @ old)
-    new = new / new.sum(axis=1, keepdims=True)
-    rows = "; ".join(" ".join(f"{v:.3f}" for v in r) for r in new)
-    return p.with_effect(effect, matrix=new.tolist(), extra_mixing=0.0), {"matrix": new.round(4).tolist()}, \
-        {"rows": rows}
-
-
 def fit_monochrome(ctx, effect):
     """A sensor without colour: the saturation control at 0 (every channel the luma) and no lateral colour."""
     p = ctx.profile.with_effect(effect, saturation=0.0)
@@ -498,7 +476,7 @@ def fit_monochrome(ctx, effect):
 
 #: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
 CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "pixel_offset": fit_pixel_offset, "hot_pixels": fit_hot_pixels,
-               "row_noise": fit_row_noise, "colour_matrix": fit_colour_matrix, "monochrome": fit_monochrome}
+               "row_noise": fit_row_noise, "monochrome": fit_monochrome}
 PER_PIXEL_FITS = ("pixel_gain", "pixel_offset")
 NOISE_FITS = ("row_noise",)
 
