@@ -43,6 +43,8 @@ HIDDEN = {
     "jpeg": ([("jpeg", {"quality": int(draw(11, 50, 75))})], []),
     "veiling_glare": ([("veiling_glare", {"strength": draw(12, 0.05, 0.1), "radius_px": draw(12, 40, 80)})], []),
     "bilinear_demosaic": ([("demosaic", {"method": "bilinear"})], []),
+    "gradient_corrected_demosaic": ([("demosaic", {"method": "gradient_corrected"})], []),
+    "edge_aware_demosaic": ([("demosaic", {"method": "edge_aware"})], []),
     "colour_matrix": ([("crosstalk", {"matrix": [[0.85, 0.1, 0.05], [0.12, 0.8, 0.08], [0.05, 0.12, 0.83]]})], []),
     "quantisation_bits": ([("quantisation", {"bits": 5})], []),
     "horizontal_blur": ([], []),  # the profile's sigma is wrong: see the parametrisation below
@@ -70,6 +72,8 @@ FOCUS = {
     "jpeg": (("photo", "noise-field"), ("chroma_subsampling", "defocus")),
     "veiling_glare": (("chart", "photo"), ("tone_curve", "vignetting")),
     "bilinear_demosaic": (("noise-field", "photo"), ("horizontal_blur", "chroma_subsampling")),
+    "gradient_corrected_demosaic": (("noise-field", "photo"), ("bilinear_demosaic", "horizontal_blur")),
+    "edge_aware_demosaic": (("noise-field", "photo"), ("bilinear_demosaic", "gradient_corrected_demosaic")),
     "colour_matrix": (("photo", "chart"), ("tone_curve", "chroma_subsampling")),
     "quantisation_bits": (("flat-bright", "photo"), ("tone_curve", "row_noise")),
     "horizontal_blur": (("chart", "noise-field"), ("defocus", "vertical_blur")),

@@ -12,6 +12,9 @@ Contents
 - :func:`mosaic`: interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
 - :func:`unmosaic`: split a Bayer (or mosaic-sampled RGB) frame into four planes with replicated borders
 - :func:`demosaic_bilinear`: bilinear demosaicing (the raw-Bayer pipeline, sec. 7); returns (H, W, 3)
+- :func:`demosaic_gradient_corrected`: Malvar-He-Cutler gradient-corrected bilinear demosaicing; returns (H, W, 3)
+- :func:`demosaic_edge_aware`: OpenCV's edge-aware demosaicing of the planes; returns (H, W, 3)
+- :data:`DEMOSAICERS`: method name -> demosaicing function, the ``method`` choices of :class:`Demosaic`
 - :class:`Demosaic`: full-colour premultiplied RGB and per-channel alpha from the planes (sec. 5.2 step 8)
 - :data:`DEMOSAIC_METHODS`: the methods identification compares: block, bilinear and OpenCV's edge-aware
 - :func:`block_correlations`: 16x16 noise correlations between the pixels of 4x4 blocks (Fig. 4)
@@ -22,6 +25,10 @@ References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Malvar2004] H. S. Malvar, L.-W. He and R. Cutler, "High-Quality Linear Interpolation for Demosaicing of
+  Bayer-Patterned Color Images", Proc. IEEE ICASSP 2004, vol. 3, 485-488 (the 5x5 filters of Fig. 2).
+- [OpenCV-EA] OpenCV ``cv::demosaicing`` with ``COLOR_Bayer*2RGB_EA``: edge-aware demosaicing (imgproc,
+  ``demosaicing.cpp``), interpolating green along the smaller of the horizontal and vertical gradients.
 """
 from __future__ import annotations
 
@@ -161,12 +168,79 @@ def demosaic_bilinear(planes: np.ndarray, geometry) -> np.ndarray:
     return out
 
 
+def _sensor_mosaic(planes: np.ndarray, geometry) -> tuple[np.ndarray, dict]:
+    """The four planes interleaved with their borders into one (2 rows, 2 cols) float32 mosaic, and the masks of
+    its R, Gr, Gb and B sensels. The output frame is ``[2 by : 2 by + H, 2 bx : 2 bx + W]`` of it
+    (:func:`_crop`), so 5x5 filters at the frame's edge read real border sensels."""
+    hb, wb = planes.shape[1:]
+    out = np.empty((2 * hb, 2 * wb), np.float32)
+    masks = {}
+    for k, name in enumerate(CFA_CHANNELS):
+        dy, dx = geometry.cfa[name]
+        out[dy::2, dx::2] = planes[k]
+        masks[name] = np.zeros(out.shape, bool)
+        masks[name][dy::2, dx::2] = True
+    return out, masks
+
+
+def _crop(full: np.ndarray, geometry) -> np.ndarray:
+    by, bx = BAYER_BORDER
+    return np.ascontiguousarray(full[2 * by:2 * by + geometry.height, 2 * bx:2 * bx + geometry.width])
+
+
+# [Malvar2004] Fig. 2, times 8: green at red/blue sensels; red (blue) at green sensels whose row holds red (blue),
+# at green sensels whose column holds it, and at blue (red) sensels.
+_MHC_GREEN = np.array([[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]])
+_MHC_ROW = np.array([[0, 0, .5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0], [0, 0, .5, 0, 0]])
+_MHC_COLUMN = _MHC_ROW.T
+_MHC_DIAGONAL = np.array([[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0],
+                          [0, 0, -1.5, 0, 0]])
+
+
+def demosaic_gradient_corrected(planes: np.ndarray, geometry) -> np.ndarray:
+    """Gradient-corrected bilinear demosaicing [Malvar2004]: each missing colour is the bilinear estimate
+    corrected by the Laplacian of the sensel's own colour (the four 5x5 filters of Fig. 2, gains 1/2, 5/8, 3/4).
+    ``planes`` is (4, rows, cols) in R, Gr, Gb, B order; returns (H, W, 3). Linear: noise keeps its mean."""
+    frame, m = _sensor_mosaic(planes, geometry)
+
+    def filtered(kernel):
+        return cv2.filter2D(frame, -1, (kernel / 8.0).astype(np.float32), borderType=cv2.BORDER_REFLECT_101)
+
+    green, row, column, diagonal = (filtered(k) for k in (_MHC_GREEN, _MHC_ROW, _MHC_COLUMN, _MHC_DIAGONAL))
+    out = np.empty(frame.shape + (3,), np.float32)
+    # red: known at R; from the row at Gr (green in a red row), the column at Gb, the diagonal at B
+    out[..., 0] = np.select([m["R"], m["Gr"], m["Gb"]], [frame, row, column], diagonal)
+    out[..., 1] = np.where(m["Gr"] | m["Gb"], frame, green)
+    out[..., 2] = np.select([m["B"], m["Gb"], m["Gr"]], [frame, row, column], diagonal)
+    return _crop(out, geometry)
+
+
+def demosaic_edge_aware(planes: np.ndarray, geometry) -> np.ndarray:
+    """OpenCV's edge-aware demosaicing [OpenCV-EA] of the four sensel planes; returns (H, W, 3).
+
+    OpenCV takes integers: the frame is mapped linearly onto 16 bits (1000-61000) and back, which keeps 1/240 of
+    its range per step. Its Bayer code is the one that reads our red sensels as red."""
+    frame, _ = _sensor_mosaic(planes, geometry)
+    lo, hi = float(frame.min()), float(frame.max())
+    scale = 60000.0 / max(hi - lo, 1e-9)
+    u16 = np.round((frame - lo) * scale + 1000).astype(np.uint16)
+    out = _crop(cv2.cvtColor(u16, _bayer_code(geometry, "_EA")), geometry).astype(np.float32)
+    return (out - np.float32(1000)) / np.float32(scale) + np.float32(lo)
+
+
+#: Method name -> demosaicing function ``fn(planes, geometry) -> (H, W, 3)``: the ``method`` choices of
+#: :class:`Demosaic`.
+DEMOSAICERS = {"block": demosaic_block, "bilinear": demosaic_bilinear,
+               "gradient_corrected": demosaic_gradient_corrected, "edge_aware": demosaic_edge_aware}
+
+
 class Demosaic(Effect):
     """Reconstructs full-colour premultiplied RGB and per-channel alpha from the sensel planes.
 
     ``method = "block"``: the Fire-i's 2x2-block scheme (sec. 4.4.1); ``"bilinear"``: bilinear interpolation
-    (sec. 7, and the assumption of the paper's earlier version). Alpha travels with colour, so each output
-    channel carries its own alpha (sec. 5.2 step 8).
+    (sec. 7, and the assumption of the paper's earlier version); ``"gradient_corrected"``: Malvar-He-Cutler
+    [Malvar2004]; ``"edge_aware"``: OpenCV's edge-aware method [OpenCV-EA]. Alpha travels with colour, so each
+    output channel carries its own alpha (sec. 5.2 step 8).
     """
 
     name = "demosaic"
@@ -176,12 +250,16 @@ class Demosaic(Effect):
     calibration = "demosaic"
     node = NodeStage("Demosaic", "mosaic", "demosaic")
     searches = (Search("bilinear_demosaic", "fine detail and noise correlations follow bilinear demosaicing",
-                       fixed={"method": "bilinear"}, requires="demosaic"),)
+                       fixed={"method": "bilinear"}, requires="demosaic"),
+                Search("gradient_corrected_demosaic", "colour edges follow gradient-corrected (Malvar-He-Cutler) "
+                       "demosaicing", fixed={"method": "gradient_corrected"}, requires="demosaic"),
+                Search("edge_aware_demosaic", "colour edges follow edge-aware demosaicing",
+                       fixed={"method": "edge_aware"}, requires="demosaic"))
     always_runs = True
-    params = {"method": Param("block", str, choices=("block", "bilinear"))}
+    params = {"method": Param("block", str, choices=tuple(DEMOSAICERS))}
 
     def apply(self, state):
-        fn = demosaic_block if self.method == "block" else demosaic_bilinear
+        fn = DEMOSAICERS[self.method]
         state.rgb = fn(state.bayer, state.geometry)
         state.rgb_alpha = fn(state.bayer_alpha, state.geometry)
 
@@ -202,17 +280,19 @@ def block_correlations(frames: np.ndarray, channel: int) -> np.ndarray:
         return np.corrcoef(blocks.reshape(-1, 16).T)
 
 
-def _opencv_demosaic(planes: np.ndarray, geometry, code_kind: str) -> np.ndarray:
-    """OpenCV's demosaicing of our planes (``code_kind`` "_EA": edge-aware, "_VNG"), with the Bayer code chosen
-    by test so that OpenCV's pattern naming matches ours."""
-    frame = mosaic(planes, geometry)
-    lo, hi = float(frame.min()), float(frame.max())
-    u16 = np.round((frame - lo) / max(hi - lo, 1e-9) * 60000 + 1000).astype(np.uint16)
-    code = _bayer_code(geometry, code_kind)
-    return cv2.cvtColor(u16, code).astype(np.float32)
+_BAYER_CODES: dict = {}
 
 
 def _bayer_code(geometry, kind: str):
+    """The OpenCV Bayer conversion code (``kind`` "_EA", "_VNG" or "") that reads our red sensels as red, found
+    by test so that OpenCV's pattern naming cannot be misread; cached per pattern."""
+    key = (tuple(sorted(geometry.cfa.items())), kind)
+    if key not in _BAYER_CODES:
+        _BAYER_CODES[key] = _find_bayer_code(geometry, kind)
+    return _BAYER_CODES[key]
+
+
+def _find_bayer_code(geometry, kind: str):
     probe = np.zeros((4,) + geometry.bayer_shape, np.float32)
     probe[0] = 1.0  # red sensels only
     frame = np.round(mosaic(probe, geometry) * 1000).astype(np.uint16)
@@ -228,13 +308,7 @@ def predicted_correlations(geometry, method: str, channel: int, frames: int = 40
     """The 4x4-block correlations that independent sensel noise produces through a demosaicing ``method``."""
     rng = np.random.default_rng(seed)
     shape = (4,) + geometry.bayer_shape
-    if method == "block":
-        fn = demosaic_block
-    elif method == "bilinear":
-        fn = demosaic_bilinear
-    else:
-        def fn(p, g):
-            return _opencv_demosaic(p, g, "_EA")
+    fn = DEMOSAICERS[method]
     out = np.stack([fn(rng.standard_normal(shape).astype(np.float32), geometry) for _ in range(frames)])
     return block_correlations(out, channel)
 
