@@ -69,7 +69,8 @@ def jpeg_roundtrip(frame: np.ndarray, quality: int, subsampling: str = "4:2:0", 
 
 def fit_jpeg(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): the subsampling, quality and chroma quality whose coded
-    frames' temporal means best match the measured means (squared residual summed over every capture).
+    frames' temporal means best match the measured means (squared residual summed over the context's few
+    :attr:`~lowcam.measure.diagnose.Context.quick` captures).
 
     The model's frames keep their noise: JPEG is not linear, so the mean of coded noisy frames is not the coding
     of the clean frame (quantisation of noisy coefficients shrinks them less), and a noise-free fit picks too
@@ -82,15 +83,16 @@ def fit_jpeg(ctx, effect):
     from ..measure.compare import simulate_capture
 
     p = ctx.profile
+    caps, idx = ctx.mset.captures, ctx.quick  # a few captures: the flattest and the most textured
+    means = [ctx.means[i] for i in idx]
     with_it = p.with_effect(effect)
     names = [e.name for e in with_it.effects if e.enabled or e.always_runs]
     shortcut = names[-1] == effect
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        caps = ctx.mset.captures
-        uncoded = [simulate_capture(base, c, max(len(c.frames), 4), inputs=ctx.inputs[i], cache=ctx.cache)
-                   for i, c in enumerate(caps)]
+        uncoded = [simulate_capture(base, caps[i], max(len(caps[i].frames), 4), inputs=ctx.inputs[i],
+                                    cache=ctx.cache) for i in idx]
     scores: dict = {}
 
     def sse(q, s, qc=None):  # the residual of the temporal means, model frames with their noise
@@ -100,12 +102,12 @@ def fit_jpeg(ctx, effect):
         if key not in scores:
             if shortcut:
                 scores[key] = float(sum(((m - np.mean([jpeg_roundtrip(f, *key) for f in g], axis=0)) ** 2).sum()
-                                        for m, g in zip(ctx.means, uncoded)))
+                                        for m, g in zip(means, uncoded)))
             else:
                 frames = [simulate_capture(p.with_effect(effect, quality=q, subsampling=s, chroma_quality=key[2]),
-                                           c, max(len(c.frames), 4), inputs=ctx.inputs[i], cache=ctx.cache)
-                          for i, c in enumerate(ctx.mset.captures)]
-                scores[key] = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(ctx.means, frames)))
+                                           caps[i], max(len(caps[i].frames), 4), inputs=ctx.inputs[i],
+                                           cache=ctx.cache) for i in idx]
+                scores[key] = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
         return scores[key]
 
     def refine(best, steps, score):
