@@ -71,11 +71,14 @@ def fit_colour_mixing(ctx, effect: str):
     new_k = _rows_to_one(np.linalg.solve(pm, t @ pm @ k))
     options.append(("in the sensor (crosstalk)", effect,
                     p.with_effect(effect, matrix=new_k.tolist(), extra_mixing=0.0), new_k))
-    if len(options) > 1:
+    if len(options) > 1 and not getattr(ctx, "screening", False):
         options.sort(key=lambda o: ctx.compare(o[2], ctx.quick, 4).error)  # the noise tells them apart
     where, stage, profile, new = options[0]
     rows = "; ".join(" ".join(f"{v:.3f}" for v in r) for r in new)
     return profile, {"matrix": new.round(4).tolist(), "stage": stage}, {"rows": rows, "where": where}
+
+
+fit_colour_mixing.refines = True  # screening keeps the first placement; the full fit compares both
 
 
 class Crosstalk(Effect):

@@ -78,7 +78,8 @@ def fit_jpeg(ctx, effect):
     and each trial only codes them again (the frames :func:`lowcam.measure.compare.compare` makes); otherwise
     each trial re-simulates the chain. Every subsampling is tried on a coarse quality grid; for the best, the
     quality is refined, then the chroma quality on its own (an encoder's tables rarely have the standard
-    luma/chroma balance), then the quality again.
+    luma/chroma balance), then the quality again. While diagnosis screens (``ctx.screening``), only the coarse
+    grid at 4:2:0.
     """
     from ..measure.compare import simulate_capture
 
@@ -113,6 +114,10 @@ def fit_jpeg(ctx, effect):
     def refine(best, steps, score):
         return int(min(100, max(1, min((best + d for d in steps), key=score))))
 
+    if getattr(ctx, "screening", False):  # screening: the usual subsampling on the coarse grid only
+        q = min(_COARSE_QUALITY, key=lambda v: sse(v, "4:2:0"))
+        return p.with_effect(effect, quality=q, subsampling="4:2:0"), {"quality": q, "subsampling": "4:2:0"}, \
+            {"quality": q, "subsampling": "4:2:0", "chroma_quality": q}
     q, s = min(((q, s) for s in SUBSAMPLINGS for q in _COARSE_QUALITY), key=lambda qs: sse(*qs))
     for steps in ((-12, -6, 0, 6, 12), (-3, 0, 3), (-1, 0, 1)):
         q = refine(q, steps, lambda v: sse(v, s))
@@ -123,6 +128,9 @@ def fit_jpeg(ctx, effect):
         q = refine(q, steps, lambda v: sse(v, s, qc))
     values = {"quality": q, "subsampling": s, "chroma_quality": 0 if qc == q else qc}
     return p.with_effect(effect, **values), values, dict(values, chroma_quality=qc)
+
+
+fit_jpeg.refines = True  # diagnosis calls it again, in full, for a promising candidate
 
 
 class Jpeg(Effect):

@@ -132,8 +132,12 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400) -> list[float]:
 def row_noise_variance(frames: np.ndarray) -> np.ndarray:
     """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
     and frames (row noise shows here; pixel noise averages out over a row)."""
-    rows = frames.mean(axis=2, dtype=np.float64)  # the row means of the noise are those of the frames, less their
-    return (rows - rows.mean(axis=0)).var(axis=(0, 1))  # temporal mean
+    import cv2
+
+    # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
+    sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
+    rows = sums / frames.shape[2]
+    return (rows - rows.mean(axis=0)).var(axis=(0, 1))
 
 
 def _row_log_ratios(F, G) -> list[float]:

@@ -27,7 +27,9 @@ when the best candidate's expected error is at most :data:`UNEXPLAINED_ABOVE` (i
 Contents
 --------
 - :data:`UNEXPLAINED_ABOVE`: the best candidate's expected error above which the verdict is ``unexplained`` (1.25)
-- :data:`FITTED`: how many screened candidates are fitted to convergence
+- :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
+- :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its estimated error is within this
+  factor of the best screened candidate's
 - :data:`FULL_ERRORS`: how many of the best estimates get the full noise-aware error (when within :data:`CLOSE`)
 - :data:`CLOSE`: a runner-up whose estimate is within this factor of the best's error is fully compared too
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
@@ -82,6 +84,7 @@ from .compare import EXPLAINED_BELOW, capture_inputs, combine, compare, prefix_k
 
 UNEXPLAINED_ABOVE = 1.25
 FITTED = 4
+REFINE_WITHIN = 1.5
 FULL_ERRORS = 2
 CLOSE = 1.2
 #: Candidates renamed after their effect; the old names are still accepted.
@@ -327,11 +330,19 @@ class _Fit:
             score = [self.ctx.sse(self.build(extra={key: v}), self.subset) for v in options]
         self.values[key] = options[int(np.argmin(score))]
 
+    def _fit(self):
+        return CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
+
     def screen(self):
         started = time.perf_counter()
-        fit = CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
+        fit = self._fit()
         if fit:
-            self.result, self.done = fit(self.ctx, self.cls.name), True
+            self.ctx.screening = True  # a fit with ``refines`` does a coarse version now, the full one in finish
+            try:
+                self.result = fit(self.ctx, self.cls.name)
+            finally:
+                self.ctx.screening = False
+            self.done = self.result is None or not getattr(fit, "refines", False)
         else:
             for key, options in self.search.grid.items():
                 self._grid(key, list(options))
@@ -343,6 +354,10 @@ class _Fit:
 
     def finish(self):
         started = time.perf_counter()
+        if self.search.fit:  # a fit that refines: its full version
+            self.result, self.done = self._fit()(self.ctx, self.cls.name), True
+            self.seconds += time.perf_counter() - started
+            return
         for key in self.search.refine:
             low, high = self.cls.params[key].low, self.cls.params[key].high
             best = self.values[key]
@@ -536,6 +551,12 @@ class Diagnosis:
                 "candidates": [c.as_json() for c in self.candidates], "where": self.comparison.where}
 
 
+def _screened_error(ctx, f) -> float:
+    if f.search.fit:
+        return ctx.estimate(f.result[0], ctx.quick)[0] if f.result is not None else np.inf
+    return ctx.estimate(f.build(), f.subset)[0]
+
+
 def _candidate(ctx, name, fitted, seconds, subset) -> Candidate:
     """A fitted candidate with its estimated error on ``subset`` (the captures it was fitted on, so no more
     simulations are needed); a candidate that changes the noise gets the full error on :attr:`Context.quick`."""
@@ -575,9 +596,11 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
         if f is not None:
             f.screen()
             fits.append(f)
-    # refine the most promising: by the error estimated on the captures each was screened on (no new simulations)
-    screened = sorted(((ctx.estimate(f.build(), f.subset)[0], k) for k, f in enumerate(fits) if not f.done))
-    pending = [fits[k] for e, k in screened[:FITTED] if e <= 2 * screened[0][0]]
+    # refine the most promising: by the error estimated on the captures each was screened on (no new simulations
+    # for searched ones), against the best of every candidate screened
+    screened = sorted((_screened_error(ctx, f), k) for k, f in enumerate(fits))
+    best = screened[0][0] if screened else 0.0
+    pending = [fits[k] for e, k in screened if not fits[k].done and e <= REFINE_WITHIN * best][:FITTED]
     for i, f in enumerate(pending):
         if progress:
             progress(i, len(pending), f"{f.name} (refining)")
