@@ -327,8 +327,8 @@ def cmd_diagnose(args) -> int:
     from .effects import effect_class
 
     _check_report_outputs(args)
-    if args.add_best and not args.output:
-        raise LowcamError("--add-best needs -o NEW.toml")
+    if (args.add_best or args.until_explained) and not args.output:
+        raise LowcamError(f"{'--add-best' if args.add_best else '--until-explained'} needs -o NEW.toml")
     if args.output:
         check_output(args.output, input_files(args, "output", "json") + [args.json])
     profile = load_profile(args.profile)
@@ -340,22 +340,72 @@ def cmd_diagnose(args) -> int:
     for name in only or []:
         if name not in known:
             raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(known)})")
+    if args.until_explained:
+        return _explain(args, mset, profile)
     d = diagnose(mset, profile, only, progress=_progress_line)
     _end_progress_lines()
     doc = d.as_json()
     atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
-    print(f"{mset.path}: error {d.error:.3f}, verdict {d.verdict}")
+    print(f"{mset.path}: {d.summary()} ({d.seconds:.1f} s)")
     for c in d.candidates[:5]:
-        print(f"  {c.effect:24s} error after {c.error_after:.3f}  {c.evidence}")
+        expected = f" (expected on new frames {c.score:.3f})" if c.score != c.error_after else ""
+        print(f"  {c.effect:28s} error after {c.error_after:.3f}{expected}  {c.evidence}")
     if args.report:
         page = write_compare_report(d.comparison, args.report, f"Diagnosis of {profile.name} against {mset.path}",
-                                    extra={"candidates": doc["candidates"]})
+                                    extra={"candidates": doc["candidates"], "measured": doc["measured"]})
         print(f"{page}: report")
     if args.add_best:
-        if not d.candidates:
+        if d.best is None:
             raise LowcamError("no candidate could be fitted to this set")
-        saved = save_candidate_profile(d.candidates[0], args.output)
-        print(f"{saved}: {profile.name} with {d.candidates[0].effect} added")
+        saved = save_candidate_profile(d.best, args.output)
+        added = [c.effect for c in d.added] + [d.best.effect]
+        print(f"{saved}: {profile.name} with {' and '.join(dict.fromkeys(added))} added")
+    return 0
+
+
+def _explain(args, mset, profile) -> int:
+    """``diagnose --until-explained``: add and refit until explained; every step's profile and the history."""
+    import json
+    import tempfile
+
+    from .io import atomic_write_bytes, check_output_folder, make_output_folder
+    from .measure.diagnose import explain, save_candidate_profile
+    from .measure.report import history_figure
+
+    out = Path(args.output)
+    steps_dir = out.parent / f"{out.stem}-steps"
+    check_output_folder(steps_dir, "-o (its steps folder)")
+    with tempfile.TemporaryDirectory(prefix="lowcam-explain-") as work:
+        steps = explain(mset, profile, work, args.max_steps, progress=_progress_line)
+        _end_progress_lines()
+        make_output_folder(steps_dir)
+        history, doc = [], []
+        for k, step in enumerate(steps):
+            d = step.diagnosis
+            history.append({"profile": "start" if k == 0 else f"+ {steps[k - 1].added.effect}", "error": d.error})
+            entry = {"step": k, "error": round(d.error, 4), "verdict": d.verdict, "summary": d.summary(),
+                     "measured": d.comparison.measured, "candidates": [c.as_json() for c in d.candidates[:8]]}
+            if step.added is not None:
+                path = save_candidate_profile(step.added, steps_dir / f"{k + 1:02d}-{step.added.effect}.toml",
+                                              step.profile)
+                entry.update(added=step.added.effect, profile=str(path))
+            doc.append(entry)
+            print(f"step {k}: {d.summary()}" + (f"; adding {step.added.effect}" if step.added else ""))
+        final = steps[-1]
+        saved = save_candidate_profile(final.diagnosis.best, out, final.profile) if len(steps) > 1 else \
+            profile.save(out)
+        figure = history_figure(history, steps_dir)
+    atomic_write_bytes(args.json, json.dumps({"steps": doc, "error": doc[-1]["error"],
+                                              "verdict": doc[-1]["verdict"]}, indent=1).encode())
+    print(f"{saved}: the profile after {len(steps) - 1} added effect(s); each step's profile and {figure.name} "
+          f"in {steps_dir}")
+    if args.report:
+        from .measure.report import write_compare_report
+
+        page = write_compare_report(final.diagnosis.comparison, args.report,
+                                    f"{profile.name} made to explain {mset.path}", history,
+                                    extra={"steps": doc})
+        print(f"{page}: report")
     return 0
 
 
@@ -489,7 +539,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plugin", action="append", default=[], metavar="MODULE:CLASS",
                    help="also try this plug-in effect's declared searches (repeatable)")
     p.add_argument("--add-best", action="store_true", help="write the profile with the best candidate added")
-    p.add_argument("-o", "--output", help="profile to write with --add-best")
+    p.add_argument("--until-explained", action="store_true",
+                   help="add the best candidate and refit, step by step, until the error reaches the noise floor "
+                        "or no candidate helps; writes each step's profile and the error history beside -o")
+    p.add_argument("--max-steps", type=bounded_int(1, 20), default=6, help="effects --until-explained may add")
+    p.add_argument("-o", "--output", help="profile to write with --add-best or --until-explained")
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("synth", help="make a measurement set from bundled scenes, with hidden effects")
