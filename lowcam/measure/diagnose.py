@@ -185,7 +185,7 @@ def _fit_search(ctx, cls, search):
     values = dict(search.fixed)
 
     def build(extra):
-        return p.with_effect(effect, replace=search.replace, **values, **extra)
+        return p.with_effect(effect, replace=search.replace, after=search.after or None, **values, **extra)
 
     for key, options in search.grid.items():
         best = _grid(ctx, lambda v: build({key: v}), list(options), search.full_error)
