@@ -116,15 +116,27 @@ class Profile:
         return copy.deepcopy(self)
 
     def with_effect(self, name: str, replace: bool = False, source: str | None = None, base_dir=None,
-                    **values) -> "Profile":
+                    after: str | None = None, **values) -> "Profile":
         """A copy with effect ``name`` set to ``values`` (merged into the existing effect's, or all new with
         ``replace``), enabled; an effect the chain lacks is inserted at its place (``Effect.order``: before the
-        first effect of the chain that comes after it). Plug-ins without an order go to the end."""
+        first effect of the chain that comes after it). Plug-ins without an order go to the end.
+
+        ``after`` names an effect of the chain: the effect set is then the one standing right after it (e.g. a
+        second vertical blur after ``"sharpening"``, where a scaler or codec blurs the output), inserted there
+        new (from its defaults and ``values``) unless the effect right after it is already of type ``name``."""
         from .effects import effect_class
 
         out = self.copy()
         cls = effect_class(name, self.source)
-        old = out.effect(cls.name)
+        if after is None:
+            old = out.effect(cls.name)
+        else:
+            anchor = out.effect(effect_class(after, self.source).name)
+            if anchor is None:
+                raise ProfileError(f"{self.source}: no effect '{after}' to place '{cls.name}' after (the chain: "
+                                   f"{', '.join(e.name for e in out.effects)})")
+            at = out.effects.index(anchor) + 1
+            old = out.effects[at] if at < len(out.effects) and out.effects[at].name == cls.name else None
         merged = {} if old is None or replace else old.values()
         merged.update(values)
         src = source or (old.source if old is not None else self.source)
@@ -132,6 +144,8 @@ class Profile:
         new = cls(True, src, bdir, **merged)
         if old is not None:
             out.effects[out.effects.index(old)] = new
+        elif after is not None:
+            out.effects.insert(at, new)
         else:
             pos = len(out.effects) if cls.order is None else next(
                 (i for i, e in enumerate(out.effects) if e.order is not None and e.order > cls.order), len(out.effects))

@@ -250,7 +250,7 @@ def _noise(t, s, b, img):
                              for k, c in zip("RGB", ("red", "green", "blue"))))
     mean_dn = t.math("MINIMUM", t.math("MAXIMUM", t.math("MULTIPLY", t.math("DIVIDE", v, t.math("MAXIMUM", a, 1e-6)),
                                                                       255.0), 0.0), 255.0)
-    law = t.math("MULTIPLY_ADD", pick(1), mean_dn, pick(0))
+    law = t.math("MAXIMUM", t.math("MULTIPLY_ADD", pick(1), mean_dn, pick(0)), 0.0)  # a < 0: a black level
     sigma_dn = law if b.values["noise_law"] == "sigma_linear" else t.math("SQRT", law)
     alpha = t.math("MINIMUM", t.math("MAXIMUM", a, 0.0), 1.0)
     noise = t.math("MULTIPLY", t.math("MULTIPLY", z, alpha), t.math("DIVIDE", sigma_dn, 255.0))

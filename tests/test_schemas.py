@@ -129,7 +129,7 @@ def _variant(tmp_path, old, new, name="variant.toml"):
     ("grid = [24.0, 18.0]", 'grid = [24.0, "18"]', ["'grid[1]' must be a number"]),
     ("grid = [24.0, 18.0]", "grid = [nan, 18.0]", ["'grid[0]' must be a finite number"]),
     ("grid = [24.0, 18.0]", "grid = 24", ["'grid' must be a list"]),
-    ("red = [1.5, 0.015]", "red = [-1.5, 0.015]", ["effect 'noise'", "'red[0]'", "out of range"]),
+    ("red = [1.5, 0.015]", "red = [-300.0, 0.015]", ["effect 'noise'", "'red[0]'", "out of range"]),
     ("red = [1.5, 0.015]", "red = [inf, 0.015]", ["'red[0]' must be a finite number"]),
     ("matrix = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]",
      "matrix = [[0.95, 0.04, 0.01], [0.07, 0.89], [0.00, 0.06, 0.94]]", ["'matrix[1]' must have 3 entries"]),

@@ -304,13 +304,12 @@ def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Ca
 _MIN_NOISE_PIXELS = 1000
 
 
-def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0, needed: int = 3) -> None:
-    """A noise law needs temporal noise and at least ``needed`` brightness levels in every channel.
+def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0) -> None:
+    """A noise law needs temporal noise and at least :data:`~lowcam.effects.noise.MIN_LEVELS` brightness levels
+    in every channel (:func:`lowcam.effects.noise.brightness_levels`: bands of 16 DN, or of five times the noise
+    left in the means if wider, so that one flat grey never counts as more than two levels)."""
+    from ..effects.noise import MIN_LEVELS, brightness_levels
 
-    Levels count the spread (1st to 99th percentile) of the frame-averaged pixel means that
-    :func:`lowcam.effects.noise.fit_noise_law` uses (2 DN to ``saturation_dn``) in steps of 10 DN, or of five
-    times the noise left in the means if wider, so that one flat grey always counts as one level.
-    """
     if _identical(frames):
         raise LowcamError(f"{source}: the {len(frames)} frames are identical, so they hold no noise to measure "
                           f"(were they copied from one capture?)")
@@ -326,14 +325,12 @@ def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0, needed
         if mu.size < _MIN_NOISE_PIXELS:
             raise LowcamError(f"{source}: only {mu.size} {channel} pixels of the noise stack lie between 2 and "
                               f"{saturation_dn:g} DN; the noise law needs at least {_MIN_NOISE_PIXELS}")
-        scatter = float(np.median(sample[..., c].std(axis=0, ddof=1))) / np.sqrt(len(frames))
-        step = max(10.0, 5.0 * scatter)
-        lo, hi = np.percentile(mu, [1, 99])
-        levels = 1 + int((hi - lo) // step)
-        if levels < needed:
+        levels, step = brightness_levels(mu, sample[..., c].std(axis=0, ddof=1), len(frames), saturation_dn)
+        if levels < MIN_LEVELS:
             count = "one brightness level only" if levels == 1 else f"{levels} brightness levels"
+            lo, hi = np.percentile(mu, [1, 99])
             raise LowcamError(f"{source}: the noise stack shows {count} in {channel} ({lo:.0f}-{hi:.0f} DN); the "
-                              f"noise law needs at least {needed} levels {step:.0f} DN apart (a static scene "
+                              f"noise law needs at least {MIN_LEVELS} levels {step:.0f} DN apart (a static scene "
                               f"with dark to bright areas)")
 
 

@@ -133,8 +133,11 @@ class Search:
     (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``).
     ``captures``: which captures show it (``"all"``, ``"textured"`` or ``"moving"``). ``requires``: an
     effect the profile must already have (a candidate that changes a parameter). ``replace``: start from the
-    effect's defaults rather than the profile's values. ``evidence`` is formatted with the fitted values
-    (``{key}``) and the profile's (``{was_key}``).
+    effect's defaults rather than the profile's values. ``after``: the effect is placed (or found) right after
+    this one in the chain rather than at its ``order`` (:meth:`lowcam.profile.Profile.with_effect`; a blur that
+    acts after sharpening). ``per_pixel``: the fit is a dense map with a value per pixel, which absorbs part of
+    the noise (diagnosis corrects its error out of sample). ``evidence`` is formatted with the fitted values (``{key}``) and the profile's
+    (``{was_key}``).
     """
 
     candidate: str
@@ -151,6 +154,8 @@ class Search:
     replace: bool = False
     full_error: bool = False
     evals: int = 20
+    after: str = ""
+    per_pixel: bool = False
 
 
 class Effect(ParamSet):

@@ -18,7 +18,8 @@ Contents
 - :func:`edge_sigma`: Gaussian sigma (px) of the edge spread across one slanted edge, and its normal's angle
 - :func:`find_edges`: boxes around the sides of every slanted square in a greyscale image
 - :func:`fit_edge_blur`: horizontal and vertical edge-spread sigmas, and the extra horizontal blur (sec. 4.3)
-- :class:`VerticalBlur`: vertical Gaussian blur of every sensel plane: a candidate the paper's camera did not show
+- :class:`VerticalBlur`: vertical Gaussian blur of every sensel plane: a candidate the paper's camera did not show,
+  before the sharpening (``vertical_blur``) or after it (``vertical_blur_after_sharpening``)
 
 References
 ----------
@@ -262,18 +263,33 @@ def fit_edge_blur(frames) -> dict:
 
 class VerticalBlur(Effect):
     """Vertical Gaussian blur of every sensel plane (sigma in sensels): blur the paper's camera did not show, as
-    a candidate for others (sec. 4.3 measured only a horizontal one)."""
+    a candidate for others (sec. 4.3 measured only a horizontal one). It stands at its ``order`` (before the
+    sharpening) or, as a second one, after the sharpening (``Profile.with_effect(..., after="demosaic")``):
+    placed after the demosaic, it blurs the demosaiced frame's columns with the same Gaussian in output pixels
+    (2 px per sensel, ``2 taps + 1`` taps), as a scaler or codec blurs the delivered frame."""
 
     name = "vertical_blur"
     section = "4.3"
     writes = "bayer"
     order = 160
     searches = (Search("vertical_blur", "edges are soft vertically as by a {sigma:.2f}-sensel Gaussian",
-                       bounds={"sigma": (0.0, 3.0)}, captures="textured"),)
+                       bounds={"sigma": (0.0, 3.0)}, captures="textured"),
+                # the same blur acting after the sharpening, on the demosaiced frame (a scaler or codec softening
+                # the delivered frame): sharpening's overshoots and the 2x2 demosaic blocks come out blurred too,
+                # which a blur of the sensel planes before the sharpening cannot give
+                Search("vertical_blur_after_sharpening", "edges are soft vertically as by a {sigma:.2f}-sensel "
+                       "Gaussian acting on the frame after the sharpening and demosaic (a scaler or codec blur)",
+                       bounds={"sigma": (0.0, 3.0)}, captures="textured", requires="sharpening",
+                       after="demosaic"))
     params = {"sigma": Param(0.0, low=0.0, high=10.0, unit="sensels"), "taps": Param(7, int, low=1, high=31)}
 
     def apply(self, state):
         if self.sigma <= 0:
+            return
+        if state.rgb is not None:  # placed after the demosaic: the frame's columns, 2 px per sensel
+            k = gaussian_taps(2 * self.sigma, 2 * self.taps + 1).reshape(-1, 1)
+            state.rgb = cv2.filter2D(state.rgb, -1, k, borderType=cv2.BORDER_REPLICATE)
+            state.rgb_alpha = cv2.filter2D(state.rgb_alpha, -1, k, borderType=cv2.BORDER_REPLICATE)
             return
         k = gaussian_taps(self.sigma, self.taps).reshape(-1, 1)
         for planes in (state.bayer, state.bayer_alpha):

@@ -10,6 +10,10 @@ Contents
 - :class:`PRNU`: photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)
 - :class:`DSNU`: dark-signal non-uniformity: a fixed offset per pixel (DN; ``strength``: its sigma)
 - :class:`HotPixels`: a ``fraction`` of pixels with a large fixed offset (``strength`` DN, all channels)
+- :data:`OUTLIER_SIGMAS`, :data:`SPARSE_PIXELS`, :data:`SPARSE_ENERGY`: when an offset map is sparse (hot pixels)
+- :func:`offset_evidence`: where a fixed offset's energy sits: a few outliers (hot pixels) or a dense map (DSNU)
+- :func:`fit_dense_offset`: DSNU's diagnosis fit: the mean offset map, refused when its energy is in a few pixels
+- :func:`fit_hot_pixels`: hot pixels' diagnosis fit: the outliers of the offset map, refused when the map is dense
 - :class:`RowNoise`: temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``)
 
 References
@@ -26,6 +30,97 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Effect, Param, Search
+
+
+# --- diagnosis: hot pixels (a few outliers) against DSNU (a dense map), told apart by where the offset sits -------
+
+#: Offsets further than this many robust sigmas (1.4826 MAD) from the map's median are outliers.
+OUTLIER_SIGMAS = 6.0
+#: The offset is "sparse" (hot pixels, not DSNU) when outliers are at most this share of the pixels...
+SPARSE_PIXELS = 0.01
+#: ... and hold at least this share of its fixed energy (:func:`offset_evidence`).
+SPARSE_ENERGY = 0.5
+
+
+def offset_evidence(offsets: np.ndarray, noise_var: float = 0.0) -> dict:
+    """Where the energy of a fixed per-pixel offset sits, from its maps in C captures (C, H, W, 3), DN.
+
+    Outliers are values of the mean map further than :data:`OUTLIER_SIGMAS` robust sigmas (1.4826 MAD) from
+    its median. The *fixed* energy of each value is what repeats from capture to capture: the mean product of
+    its deviations in two different captures, so the temporal noise and the model's mismatch in each scene
+    (which differ between captures) add nothing; with one capture, the squared deviation less ``noise_var``.
+    Returns the median, robust sigma, outlier mask, the outliers' share of the pixels (any channel) and of the
+    fixed energy, and whether that makes the offset sparse (hot pixels: :data:`SPARSE_PIXELS`,
+    :data:`SPARSE_ENERGY`) rather than dense (DSNU) [EMVA1288, sec. 8]."""
+    offsets = np.asarray(offsets, np.float64)
+    mean = offsets.mean(0)
+    med = float(np.median(mean))
+    dev = offsets - np.median(offsets, axis=(1, 2, 3), keepdims=True)
+    spread = max(1.4826 * float(np.median(np.abs(mean - med))), 1e-3)
+    out = np.abs(mean - med) > OUTLIER_SIGMAS * spread
+    c = len(offsets)
+    if c > 1:
+        total = dev.sum(0)
+        fixed = (total ** 2 - (dev ** 2).sum(0)) / (c * (c - 1))
+    else:
+        fixed = dev[0] ** 2 - noise_var
+    energy = float(np.maximum(fixed, 0.0).sum())
+    share = min(max(float(fixed[out].sum()), 0.0) / energy, 1.0) if energy > 0 else 0.0
+    pixels = float(out.any(axis=-1).mean())
+    return {"median": med, "spread": spread, "outliers": out, "pixels": pixels, "share": share,
+            "sparse": bool(out.any()) and pixels <= SPARSE_PIXELS and share >= SPARSE_ENERGY}
+
+
+def _offsets(ctx):
+    """Per-pixel offsets of the measured means from the clean model, one per capture (C, H, W, 3), DN, as
+    measured and with NaN where the measurement clips (a bright pixel over a bright area shows its offset only
+    where there is headroom); and the variance the temporal noise leaves in one capture's mean (0 where a
+    capture has one frame)."""
+    s, m = np.stack(ctx.clean(ctx.profile)), np.stack(ctx.means)
+    var = [float(c.frames.astype(np.float32).var(axis=0, ddof=1).mean()) / len(c.frames)
+           for c in ctx.mset.captures if len(c.frames) > 1]
+    noise_var = sum(var) / len(var) if len(var) == len(ctx.mset.captures) else 0.0
+    return np.where(m < 250, m - s, np.nan), m - s, noise_var
+
+
+def _with_map(ctx, effect: str, values: np.ndarray):
+    """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy in the workdir)."""
+    path = ctx.workdir / f"{effect}.npy"
+    np.save(path, values.astype(np.float32))
+    return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path)}
+
+
+def fit_dense_offset(ctx, effect: str):
+    """DSNU's fit: the per-pixel mean offset of the measured means from the clean model (closed form), or None
+    when its energy sits in a few outliers (:func:`offset_evidence`: hot pixels, not a dense map)."""
+    _, diff, noise_var = _offsets(ctx)
+    offset = diff.mean(0)
+    ev = offset_evidence(diff, noise_var)
+    if ev["sparse"]:
+        return None
+    profile, params = _with_map(ctx, effect, offset)
+    shown = {"sigma_dn": float(offset.std()), "tail_percent": 100 * ev["pixels"], "share": 100 * ev["share"]}
+    return profile, dict(params, sigma_dn=shown["sigma_dn"]), shown
+
+
+def fit_hot_pixels(ctx, effect: str):
+    """Hot pixels' fit: the pixels far brighter than the model (outliers of the offset map, :func:`offset_evidence`)
+    in every capture that can show them; their mean offset per channel. None when there are none, or when the
+    map is dense (the outliers are many, or hold little of the offset energy: DSNU)."""
+    clipped, diff, noise_var = _offsets(ctx)
+    with np.errstate(all="ignore"):
+        offset = np.nan_to_num(np.nanmean(clipped, axis=0))
+        low = np.nan_to_num(np.nanmin(clipped, axis=0))  # bright in every capture that can show it
+    ev = offset_evidence(diff, noise_var)
+    cut = OUTLIER_SIGMAS * ev["spread"]
+    hot = (offset - ev["median"] > cut) & (low - ev["median"] > 0.5 * cut)
+    if not hot.any() or not ev["sparse"]:
+        return None
+    n = int(hot.any(axis=-1).sum())
+    profile, params = _with_map(ctx, effect, np.where(hot, offset, 0.0))
+    shown = {"count": n, "percent": 100 * n / hot[..., 0].size, "median_dn": float(np.median(offset[hot])),
+             "share": 100 * ev["share"]}
+    return profile, dict(params, count=n), shown
 
 
 class _PixelMap(Effect):
@@ -73,7 +168,7 @@ class PRNU(_PixelMap):
     section = "4.3 (PRNU, after Irie et al.)"
     order = 210
     searches = (Search("prnu", "a fixed per-pixel gain pattern, sigma {sigma:.4f}, proportional to brightness",
-                       fit="pixel_gain"),)
+                       fit="pixel_gain", per_pixel=True),)
     params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=1.0))
 
     def apply(self, state):
@@ -87,9 +182,12 @@ class DSNU(_PixelMap):
     name = "dsnu"
     section = "4.3 (fixed-pattern offsets)"
     order = 220
-    searches = (Search("dsnu",
-                       "a fixed per-pixel offset pattern, sigma {sigma_dn:.2f} DN, the same at every brightness",
-                       fit="pixel_offset"),)
+    searches = (Search("dsnu", "a dense per-pixel offset map, sigma {sigma_dn:.2f} DN, the same at every "
+                               "brightness ({tail_percent:.2f} % of pixels are outliers holding {share:.0f} % of "
+                               "its fixed energy)", fit=fit_dense_offset),
+                # never run (no profile has that effect): its closed-form name marks "dsnu" as a per-pixel map,
+                # for diagnosis's out-of-sample correction (diagnose.per_pixel reads the fit names)
+                Search("dsnu", "", fit="pixel_offset", requires="(per-pixel map marker)"))
 
     def apply(self, state):
         state.rgb += self.pattern(state.rgb.shape) * state.rgb_alpha
@@ -101,8 +199,9 @@ class HotPixels(_PixelMap):
     name = "hot_pixels"
     section = "4.3 (defective pixels)"
     order = 230
-    searches = (Search("hot_pixels", "{count} pixels stay bright by {median_dn:.0f} DN or more in every capture",
-                       fit="hot_pixels"),)
+    searches = (Search("hot_pixels", "{count} pixels ({percent:.3f} % of the frame) stay bright by {median_dn:.0f} "
+                                     "DN in every capture and hold {share:.0f} % of the fixed offset energy: "
+                                     "sparse outliers, not a dense map", fit=fit_hot_pixels),)
     params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=255.0),
                   fraction=Param(0.0005, low=0.0, high=0.1))
 

@@ -4,14 +4,20 @@ Gaussian noise per sensel, independent in space and time, in 8-bit DN, under one
 ``sigma = a + b mu`` (the paper's linear fit, sec. 4.3) or ``sigma^2 = a + b mu`` (photon transfer: read noise
 plus shot noise, the form Irie et al. and EMVA 1288 predict). Under the Fire-i's 2x2-block demosaicing each
 green pixel averages two sensels, so the measured green law is scaled by sqrt 2 (sigma) or 2 (variance) to give
-the per-sensel one; red and blue are not scaled. Means above 220 DN are left out of the fits (saturation).
+the per-sensel one; red and blue are not scaled. Means above 220 DN are left out of the fits (saturation). A
+sensor with a black level has a negative variance intercept (EMVA 1288: ``a = K^2 sigma_d^2 - K mu_dark``), so
+``a`` may be negative; the variance is clamped at 0 where the law falls below it. A law is fitted only to a stack
+that shows at least :data:`MIN_LEVELS` brightness levels.
 
 Contents
 --------
 - :data:`SEED_RANGE`, :data:`FRAME_RANGE`: the seeds and frame numbers accepted
 - :func:`frame_rng`: the random generator of one frame: reproducible from (seed, frame), independent between frames
 - :class:`Noise`: Gaussian noise per sensel, its sigma a function of the mean (DN), scaled by alpha
-- :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3)
+- :data:`MIN_LEVELS`, :data:`LEVEL_STEP_DN`: the brightness levels (bands of DN) a noise stack must show
+- :func:`brightness_levels`: how many distinct brightness levels per-pixel temporal means show
+- :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
+  ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
 
 References
@@ -69,22 +75,28 @@ class Noise(Effect):
     random = True
     params = {
         "law": Param("sigma_linear", str, choices=("sigma_linear", "variance_linear")),
-        "red": Param([1.5, 0.015], "vector", length=2, low=0.0, high=255.0),
-        "green": Param([1.2, 0.012], "vector", length=2, low=0.0, high=255.0),
-        "blue": Param([1.8, 0.016], "vector", length=2, low=0.0, high=255.0),
+        "red": Param([1.5, 0.015], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
+        "green": Param([1.2, 0.012], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
+        "blue": Param([1.8, 0.016], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
     }
 
     def check(self):
         for key in ("red", "green", "blue"):
             a, b = getattr(self, key)
-            if a < 0 or b < 0 or a > 255 or b > 255:
-                raise self.error(f"'{key}' = {[a, b]}: both coefficients must lie in [0, 255]")
+            if not (-255 <= a <= 255 and 0 <= b <= 255):
+                raise self.error(f"'{key}' = {[a, b]}: the intercept a must lie in [-255, 255] (negative under a "
+                                 f"black level) and the slope b in [0, 255]")
 
     def sigma(self, channel: str, mean_dn):
-        """Noise sigma (DN) of ``channel`` ("red", "green", "blue") at mean signal ``mean_dn``."""
+        """Noise sigma (DN) of ``channel`` ("red", "green", "blue") at mean signal ``mean_dn``.
+
+        A negative intercept (a black level: EMVA 1288's ``sigma_y^2 = K^2 sigma_d^2 + K (mu_y - mu_y.dark)``
+        has ``a = K^2 sigma_d^2 - K mu_y.dark``) gives no noise where the law falls below 0: the variance (or
+        sigma) is clamped at 0, the coefficients are kept."""
         a, b = getattr(self, channel)
         mu = np.clip(mean_dn, 0.0, 255.0)
-        return a + b * mu if self.law == "sigma_linear" else np.sqrt(a + b * mu)
+        law = np.maximum(a + b * mu, 0.0)
+        return law if self.law == "sigma_linear" else np.sqrt(law)
 
     def apply(self, state):
         rng = frame_rng(state.seed, state.frame)
@@ -95,21 +107,58 @@ class Noise(Effect):
             state.bayer[k] += z[k] * np.clip(alpha[k], 0.0, 1.0) * self.sigma(channel, mean[k]).astype(np.float32)
 
 
+#: A noise law is fitted only to a stack showing this many distinct brightness levels (:func:`brightness_levels`):
+#: with one level the intercept is an extrapolation across the whole range (443 % off on an EMVA 1288 sensor).
+MIN_LEVELS = 3
+#: The width (DN) of the brightness bands that :func:`brightness_levels` counts.
+LEVEL_STEP_DN = 16.0
+
+
+def brightness_levels(mean_dn: np.ndarray, sigma_dn: np.ndarray | None = None, frames: int | None = None,
+                      saturation_dn: float = 220.0) -> tuple[int, float]:
+    """How many distinct brightness levels the per-pixel temporal means show, and the band width (DN) counted.
+
+    The usable means (2 DN to ``saturation_dn``, as :func:`fit_noise_law` uses them) are cut into bands
+    :data:`LEVEL_STEP_DN` wide, or five times the noise left in the means (``median(sigma) / sqrt(frames)``)
+    if wider, so that the scatter of one flat grey never spans more than two bands; a level is a band holding
+    at least 1 % of those pixels. One flat grey thus counts 1 or 2, a ramp or a chart of greys many.
+    """
+    mu = np.asarray(mean_dn, np.float64).ravel()
+    mu = mu[(mu > 2.0) & (mu < saturation_dn)]
+    step = LEVEL_STEP_DN
+    if sigma_dn is not None and frames:
+        step = max(step, 5.0 * float(np.median(np.asarray(sigma_dn, np.float64))) / np.sqrt(frames))
+    if mu.size == 0:
+        return 0, step
+    count = np.bincount(((mu - 2.0) // step).astype(np.int64))
+    return int((count >= max(0.01 * mu.size, 1)).sum()), step
+
+
 def fit_noise_law(mean_dn: np.ndarray, sigma_dn: np.ndarray, law: str, saturation_dn: float = 220.0,
-                  bins: int = 40) -> tuple[float, float]:
+                  bins: int = 40, frames: int | None = None) -> tuple[float, float]:
     """Fit ``[a, b]`` of a noise law to per-pixel temporal means and standard deviations (sec. 4.3).
 
     Means above ``saturation_dn`` are ignored (clipped pixels lose their noise), as are the darkest 2 DN. The
     pixels are binned by mean; each bin's variance is the average of its pixels' variances (robust to the many
     pixels of one brightness), less the 1/12 DN^2 that rounding to 8 bits adds (the simulator rounds its output
-    too), and the law is fitted to the bins by weighted least squares.
+    too), and the law is fitted to the bins by weighted least squares. The intercept ``a`` may be negative: a
+    sensor with a black level ``mu_dark`` (DN) has ``sigma^2 = K^2 sigma_d^2 + K (mu - mu_dark)`` [EMVA1288],
+    an intercept ``K^2 sigma_d^2 - K mu_dark`` below 0 when the offset exceeds the read noise's share; the
+    slope ``b`` is at least 0. Means of fewer than :data:`MIN_LEVELS` brightness levels are refused
+    (:func:`brightness_levels`; ``frames``: how many frames the means average).
     """
     mu = np.asarray(mean_dn, np.float64).ravel()
-    var = np.asarray(sigma_dn, np.float64).ravel() ** 2
+    sd = np.asarray(sigma_dn, np.float64).ravel()
+    var = sd ** 2
     keep = (mu < saturation_dn) & (mu > 2.0)
     mu, var = mu[keep], var[keep]
     if mu.size < 10:
         raise ValueError("too few unsaturated pixels to fit a noise law")
+    levels, step = brightness_levels(mu, sd[keep], frames, saturation_dn)
+    if levels < MIN_LEVELS:
+        raise ValueError(f"the means show {levels} brightness level{'s' * (levels != 1)} ({mu.min():.0f}-"
+                         f"{mu.max():.0f} DN); a noise law needs at least {MIN_LEVELS} levels {step:.0f} DN apart "
+                         f"(a static scene with dark to bright areas)")
     edges = np.linspace(mu.min(), mu.max(), bins + 1)
     idx = np.clip(np.digitize(mu, edges) - 1, 0, bins - 1)
     count = np.bincount(idx, minlength=bins)
@@ -124,7 +173,7 @@ def fit_noise_law(mean_dn: np.ndarray, sigma_dn: np.ndarray, law: str, saturatio
     else:
         a, b = np.linalg.lstsq(np.column_stack([np.ones_like(bm), bm]) * w[:, None], np.sqrt(bv) * w,
                                rcond=None)[0]
-    return float(max(a, 0.0)), float(max(b, 0.0))
+    return float(a), float(max(b, 0.0))
 
 
 def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> dict:
@@ -143,7 +192,7 @@ def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> d
     for law in ("sigma_linear", "variance_linear"):
         out[law] = {}
         for c, channel in enumerate(("red", "green", "blue")):
-            a, b = fit_noise_law(mean[..., c], sigma[..., c], law, saturation_dn)
+            a, b = fit_noise_law(mean[..., c], sigma[..., c], law, saturation_dn, frames=x.shape[0])
             if channel == "green" and demosaic == "block":
                 k = np.sqrt(2.0) if law == "sigma_linear" else 2.0
                 a, b = a * k, b * k

@@ -42,12 +42,9 @@ Contents
 - :func:`gauss_newton`: bounded Gauss-Newton (Levenberg-Marquardt) steps on the noise-free residual
 - :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence), or None
 - :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
-- :func:`fit_pixel_offset`: DSNU: the per-pixel mean offset of the measured means from the clean model
-- :func:`fit_hot_pixels`: pixels far brighter than the model in every capture that can show it
 - :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
 - :func:`fit_monochrome`: a sensor without colour: no saturation, no lateral colour
 - :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
-- :data:`PER_PIXEL_FITS`: the closed-form fits that give a dense per-pixel map
 - :data:`NOISE_FITS`: the closed-form fits whose candidates change the noise (always fully compared)
 - :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
 - :class:`Diagnosis`: the comparison, the ranked candidates, the verdict and the time taken
@@ -320,8 +317,7 @@ class _Fit:
         if self.keys:
             values.update(zip(self.keys, map(float, self.x if x is None else x)))
         return self.ctx.profile.with_effect(self.cls.name, replace=self.search.replace,
-                                            **({"after": self.search.after} if getattr(self.search, "after", "")
-                                               else {}), **values)
+                                            after=self.search.after or None, **values)
 
     def _grid(self, key, options):  # on the full error (a few captures) when the noise shows it
         if self.search.full_error:
@@ -430,45 +426,14 @@ def _pixel_maps(ctx):
     return np.stack(ctx.clean(ctx.profile)).astype(np.float64), np.stack(ctx.means).astype(np.float64)
 
 
-def _with_map(ctx, effect: str, values: np.ndarray):
-    """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy), and its params."""
-    path = ctx.workdir / f"{effect}.npy"
-    np.save(path, values.astype(np.float32))
-    return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path)}
-
-
 def fit_pixel_gain(ctx, effect):
     """PRNU: per-pixel least-squares gain of the measured means against the clean model."""
+    from ..effects.fixed_pattern import _with_map
+
     s, m = _pixel_maps(ctx)
     gain = ((m - s) * s).sum(0) / np.maximum((s * s).sum(0), 1e-6)
     profile, params = _with_map(ctx, effect, gain)
     return profile, dict(params, sigma=float(gain.std())), {"sigma": float(gain.std())}
-
-
-def fit_pixel_offset(ctx, effect):
-    """DSNU: the per-pixel mean offset of the measured means from the clean model."""
-    s, m = _pixel_maps(ctx)
-    offset = (m - s).mean(0)
-    profile, params = _with_map(ctx, effect, offset)
-    return profile, dict(params, sigma_dn=float(offset.std())), {"sigma_dn": float(offset.std())}
-
-
-def fit_hot_pixels(ctx, effect):
-    """Pixels far brighter than the model in every capture that can show it (robust threshold)."""
-    s, m = _pixel_maps(ctx)
-    unclipped = m < 250  # a hot pixel over a bright area clips: its offset shows only where there is headroom
-    diff = np.where(unclipped, m - s, np.nan)
-    with np.errstate(all="ignore"):
-        low = np.nanmin(diff, axis=0)  # bright in every capture that can show it
-        offset = np.nanmean(diff, axis=0)
-    low, offset = np.nan_to_num(low), np.nan_to_num(offset)
-    spread = 1.4826 * np.median(np.abs(low - np.median(low)))
-    hot = low > max(8 * spread, 10.0)
-    if not hot.any():
-        return None
-    n = int(hot.any(axis=-1).sum())
-    profile, params = _with_map(ctx, effect, np.where(hot, offset, 0.0))
-    return profile, dict(params, count=n), {"count": n, "median_dn": float(np.median(offset[hot]))}
 
 
 def fit_row_noise(ctx, effect):
@@ -490,15 +455,13 @@ def fit_monochrome(ctx, effect):
 
 
 #: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
-CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "pixel_offset": fit_pixel_offset, "hot_pixels": fit_hot_pixels,
-               "row_noise": fit_row_noise, "monochrome": fit_monochrome}
-PER_PIXEL_FITS = ("pixel_gain", "pixel_offset")
+CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "row_noise": fit_row_noise, "monochrome": fit_monochrome}
 NOISE_FITS = ("row_noise",)
 
 
 def per_pixel(name: str) -> bool:
     """True for a candidate fitted as a dense per-pixel map (it absorbs noise: :attr:`Candidate.score`)."""
-    return not name.startswith("without_") and any(search.fit in PER_PIXEL_FITS for _, search in candidates()[name])
+    return not name.startswith("without_") and any(search.per_pixel for _, search in candidates()[name])
 
 
 def _changes_noise(name: str) -> bool:
