@@ -187,7 +187,7 @@ class Profile:
                      f"{type(e).__module__}:{type(e).__name__}"}
             if not e.enabled:
                 entry["enabled"] = False
-            entry.update(e.values())
+            entry.update({k: v for k, v in e.values().items() if v is not None})  # TOML has no null: unset paths
             out["effect"].append(entry)
         return out
 

@@ -49,7 +49,7 @@ Contents
 - :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
 - :class:`Diagnosis`: the comparison, the ranked candidates, the verdict and the time taken
 - :func:`rank`: screen, fit and rank the named candidates
-- :func:`polish`: refit every continuous parameter of several added effects together
+- :func:`polish`: refit several added effects together (each in turn with the others held)
 - :func:`diagnose`: rank the candidates (all, or ``only``) for a measurement set, with forward selection
 - :class:`Step`: one step of :func:`explain`: the diagnosis, the effect added and the error after
 - :func:`explain`: add the best candidate and refit, step by step, until the error reaches the floor
@@ -106,7 +106,6 @@ class Candidate:
     families: dict = field(default_factory=dict)
     full: bool = False
     seconds: float = 0.0
-    bounds: dict = field(default_factory=dict, repr=False)  # effect -> {key: (low, high)}: what polish may refit
     comparison: object = field(default=None, repr=False)  # the full comparison, when ``full``
 
     @property
@@ -306,7 +305,7 @@ class _Fit:
         self.subset = ctx.screening_subset(search.captures)  # fitted on a few captures; polish uses all
         have = ctx.profile.effect(cls.name)
         current = have.values() if have is not None and have.enabled and not search.replace else {}
-        self.x = np.array([search.start.get(k, current.get(k, cls.params[k].default)) for k in self.keys], float)
+        self.x = np.array([current.get(k, search.start.get(k, cls.params[k].default)) for k in self.keys], float)
         self.result = None  # (profile, params, shown) once fitted in closed form
         self.done = False
         self.sse = np.inf
@@ -576,8 +575,6 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
         if fitted is not None:
             out.append(_candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
                                   ctx.quick if f.search.fit else f.subset))
-            if f.keys:
-                out[-1].bounds = {f.cls.name: dict(zip(f.keys, f.bounds))}
     out.sort(key=lambda c: c.score)
     while out and not out[0].full:  # the best is always fully compared, and close runners-up too
         if progress:
@@ -593,25 +590,19 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
     return out
 
 
-def polish(ctx, chosen: list[Candidate], profile) -> tuple[object, dict]:
-    """Refit every continuous parameter of the ``chosen`` candidates together on ``profile`` (which holds them
-    all), by Gauss-Newton on every capture. Returns (polished profile, {effect: {key: value}})."""
-    keys = [(effect, key, bounds) for c in chosen for effect, spec in c.bounds.items() for key, bounds in spec.items()]
-    if not keys:
-        return profile, {}
-
-    def build(x):
-        p = profile
-        for (effect, key, _), v in zip(keys, x):
-            p = p.with_effect(effect, **{key: float(v)})
-        return p
-
-    x0 = [getattr(profile.effect(effect), key) for effect, key, _ in keys]
-    x, _ = gauss_newton(ctx, build, x0, [b for _, _, b in keys], None, steps=3)
-    values: dict = {}
-    for (effect, key, _), v in zip(keys, x):
-        values.setdefault(effect, {})[key] = float(v)
-    return build(x), values
+def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
+    """Refit the ``chosen`` candidates together on ``profile`` (which holds them all): each is fitted again with
+    the others held, in turn, ``sweeps`` times (backfitting, a block coordinate descent); a refit is kept when it
+    lowers the noise-free SSE. Per-pixel maps and removals keep their fit. Returns the polished profile."""
+    for _ in range(sweeps):
+        for c in chosen:
+            if c.per_pixel or c.effect.startswith("without_"):
+                continue
+            here = Context(ctx.mset, profile, ctx.workdir / "polish", parent=ctx, base=ctx.base)
+            fitted = fit_candidate(here, c.effect)
+            if fitted is not None and here.sse(fitted[0]) < here.sse(profile):
+                profile = fitted[0]
+    return profile
 
 
 def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2, assumed_noise=None,
@@ -622,7 +613,7 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
     later candidate's ``error_after`` then includes the ones before it, and the best of the last round has every
-    added effect's continuous parameters refitted together (:func:`polish`) before its full error is computed.
+    added effect refitted together (:func:`polish`) before its full error is computed.
     """
     started = time.perf_counter()
     scratch = None if workdir else tempfile.TemporaryDirectory(prefix="lowcam-diagnose-")
@@ -643,13 +634,11 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
         for c in again:
             c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
         ranked = again
-    if chosen and ranked and ranked[0].bounds and ranked[0].error_after > EXPLAINED_BELOW:
+    if chosen and ranked and ranked[0].error_after > EXPLAINED_BELOW:
         top = ranked[0]
-        top.profile, values = polish(ctx, chosen + [top], top.profile)
+        top.profile = polish(ctx, chosen + [top], top.profile)
         _full(ctx, top)
-        if values:
-            top.evidence += "; polished together: " + ", ".join(
-                f"{e}.{k} = {v:.4g}" for e, kv in values.items() for k, v in kv.items())
+        top.evidence += f"; all {len(chosen) + 1} refitted together: error {top.error_after:.2f}"
     return Diagnosis(base, chosen + ranked, scratch, time.perf_counter() - started, chosen)
 
 
@@ -683,9 +672,9 @@ def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain:
             return steps
         added.append(best)
         profile = best.profile
-        if len(added) > 1 and any(c.bounds for c in added):
-            ctx = Context(mset, profile, workdir / f"polish-{k}", assumed, base=best.comparison)
-            profile, _ = polish(ctx, added, profile)
+        if len(added) > 1:
+            profile = polish(Context(mset, profile, workdir / f"polish-{k}", assumed, base=best.comparison), added,
+                             profile)
         steps.append(Step(d, best, profile))
     return steps
 

@@ -99,9 +99,10 @@ def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int =
     unknown = sorted(set(only_scenes or ()) - set(every))
     if unknown:
         raise LowcamError(f"unknown scene '{unknown[0]}' (known: {', '.join(every)})")
-    for name, (ideal, omega) in every.items():
+    for i, (name, (ideal, omega)) in enumerate(every.items()):
         if only_scenes and name not in only_scenes:
             continue
-        shots = [simulate(ideal, camera, None, omega, None, seed, k) for k in range(frames)]
+        # each capture its own noise (a noise repeated across captures would look like a fixed pattern)
+        shots = [simulate(ideal, camera, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
     return write_set(make_output_folder(folder), captures)
