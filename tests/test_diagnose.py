@@ -48,6 +48,7 @@ HIDDEN = {
     "edge_aware_demosaic": ([("demosaic", {"method": "edge_aware"})], []),
     "colour_matrix": ([("crosstalk", {"matrix": [[0.85, 0.1, 0.05], [0.12, 0.8, 0.08], [0.05, 0.12, 0.83]]})], []),
     "quantisation_bits": ([("quantisation", {"bits": 5})], []),
+    "monochrome": ([("saturation", {"saturation": 0.0})], []),
     "horizontal_blur": ([], []),  # the profile's sigma is wrong: see the parametrisation below
 }
 
@@ -78,14 +79,32 @@ FOCUS = {
     "edge_aware_demosaic": (("noise-field", "photo"), ("bilinear_demosaic", "gradient_corrected_demosaic")),
     "colour_matrix": (("photo", "chart"), ("tone_curve", "chroma_subsampling")),
     "quantisation_bits": (("flat-bright", "photo"), ("tone_curve", "row_noise")),
+    "monochrome": (("photo", "chart"), ("colour_matrix", "chroma_subsampling")),
     "horizontal_blur": (("chart", "noise-field"), ("defocus", "vertical_blur")),
 }
+
+
+def assert_verdict_matches_numbers(d):
+    """The verdict follows from the numbers printed beside it, and the summary prints them."""
+    best = d.best
+    if d.error <= 1.1:
+        assert d.verdict == "explained", d.summary()
+    elif best is not None and best.score <= 1.25:
+        assert d.verdict == "missing-effect" and f"{best.score:.3f}" in d.summary(), d.summary()
+    else:
+        assert d.verdict == "unexplained", d.summary()
+    assert best is None or best.full, "the best candidate's error is always the full one"
+    doc = d.as_json()
+    for c in doc["candidates"]:
+        assert c["error_out_of_sample"] >= c["error_after"] - 1e-9 and "error_is_estimate" in c
 
 
 def run_case(tmp_path, fire_i, add, remove, seed, diagnosed=None, only=None, only_scenes=None, frames=6):
     folder = synthesise(fire_i, tmp_path / "set", add=add, seed=seed, frames=frames, only_scenes=only_scenes)
     profile = diagnosed or (fire_i.without(*remove) if remove else fire_i)
-    return diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work")
+    d = diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work")
+    assert_verdict_matches_numbers(d)
+    return d
 
 
 def hidden_case(fire_i, candidate):
@@ -220,3 +239,81 @@ def test_compare_on_real_chessboard_frames_writes_a_report(tmp_path):
     assert doc["error"] > 3 and len(doc["where"]["regions"]) == 9
     assert bands["low"] > bands["mid"] > bands["high"], bands
     assert (tmp_path / "report" / "residual_maps.png").stat().st_size > 5000
+
+
+def test_with_one_frame_per_capture_added_model_noise_cannot_lower_the_error(tmp_path, fire_i):
+    """The frames' noise cannot be measured from one frame: candidates are compared against the diagnosed
+    profile's noise, so a profile that only adds noise does not look better (it would with its own noise)."""
+    from lowcam.measure.compare import compare
+    from lowcam.measure.diagnose import Context
+
+    folder = synthesise(fire_i, tmp_path / "set", add=[("tone_curve", {"gamma": 1.3})], frames=1, seed=41,
+                        only_scenes=("photo", "flat-dark"))
+    mset = load_set(folder, fire_i)
+    ctx = Context(mset, fire_i, tmp_path / "w")
+    noisier = fire_i.with_effect("row_noise", sigma_dn=4.0).with_effect("quantisation", bits=4)
+    assert compare(mset, noisier).error < 0.9 * ctx.base.error  # with its own noise as the yardstick it games
+    assert ctx.compare(noisier).error >= ctx.base.error
+    assert ctx.base.measured == {"mean": True, "variance": False, "rows": False}
+
+
+def test_removing_an_effect_is_a_candidate(tmp_path, fire_i):
+    """The camera lacks the profile's sharpening: ``without_sharpening`` wins against changing it."""
+    folder = synthesise(fire_i, tmp_path / "set", remove=["sharpening"], seed=42, frames=4,
+                        only_scenes=("chart", "noise-field"))
+    d = diagnose(load_set(folder, fire_i), fire_i, workdir=tmp_path / "work",
+                 only=["without_sharpening", "asymmetric_sharpening", "defocus", "without_vignetting"])
+    assert_verdict_matches_numbers(d)
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    assert d.error > 1.5 and d.candidates[0].effect == "without_sharpening", ranking
+    assert d.candidates[0].error_after <= 1.25, ranking
+
+
+def test_a_grey_camera_is_found_monochrome(tmp_path, fire_i):
+    """Frames of a monochrome camera, made here by OpenCV's own RGB -> grey (BT.601 luma) of the profile's frames:
+    ``monochrome`` beats the colour candidates."""
+    import cv2
+
+    from lowcam.measure.sets import write_set
+    from lowcam.measure.synth import scenes
+    from lowcam.pipeline import simulate
+
+    captures = []
+    for name, (ideal, omega) in scenes(fire_i).items():
+        if name in ("photo", "chart"):
+            frames = [cv2.cvtColor(cv2.cvtColor(simulate(ideal, fire_i, None, omega, None, 43 + len(name), k),
+                                                cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB) for k in range(4)]
+            captures.append({"name": name, "ideal": ideal, "frames": frames, "angular_velocity": omega})
+    folder = write_set(tmp_path / "grey", captures)
+    d = diagnose(load_set(folder, fire_i), fire_i, only=["monochrome", "colour_matrix", "chroma_subsampling"],
+                 workdir=tmp_path / "w")
+    assert_verdict_matches_numbers(d)
+    ranking = {c.effect: round(c.error_after, 3) for c in d.candidates}
+    # a colour matrix with three equal rows is a grey camera too: both explain it, chroma subsampling does not
+    assert d.error > 2 and ranking["monochrome"] <= 1.25 and ranking["chroma_subsampling"] > 2, ranking
+    assert d.candidates[0].effect in ("monochrome", "colour_matrix"), ranking
+    luma = d.candidates[[c.effect for c in d.candidates].index("monochrome")].params["luma"]
+    assert np.allclose(luma, [0.299, 0.587, 0.114], atol=0.03), luma  # OpenCV's BT.601 weights, found
+
+
+def test_until_explained_adds_effects_step_by_step_and_draws_the_history(tmp_path):
+    """Two hidden effects (a tone curve, and no vignetting): the loop adds both, refits them together and stops
+    at the noise floor; each step's profile, the history plot and the JSON are written."""
+    r = subprocess.run([sys.executable, "-m", "lowcam.cli", "synth", "--add", "tone_curve:gamma=1.8", "--remove",
+                        "vignetting", "--frames", "4", "-o", str(tmp_path / "set")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-m", "lowcam.cli", "diagnose", str(tmp_path / "set"), "--until-explained",
+                        "-o", str(tmp_path / "fixed.toml"), "--json", str(tmp_path / "d.json")],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "d.json").read_text())
+    errors = [s["error"] for s in doc["steps"]]
+    added = [s.get("added") for s in doc["steps"][:-1]]
+    assert {"tone_curve", "vignetting"} <= set(added), doc["steps"]
+    assert all(b < a for a, b in zip(errors, errors[1:])), errors
+    assert doc["verdict"] == "explained" and errors[-1] <= 1.1, errors
+    steps = tmp_path / "fixed-steps"
+    assert (steps / "history.png").stat().st_size > 10_000
+    assert len(list(steps.glob("*.toml"))) == len(added)
+    assert lowcam.load_profile(tmp_path / "fixed.toml").effect("vignetting").enabled

@@ -59,6 +59,8 @@ def fit_colour_mixing(ctx, effect: str):
     k = old.total_matrix() if old.enabled else np.eye(3)
     sat = p.effect("saturation")
     options = []
+    if sat is not None and sat.enabled and abs(np.linalg.det(saturation_matrix(sat.saturation, sat.luma))) < 1e-9:
+        return None  # a monochrome output: no colour mixing can be told
     if sat is not None and sat.enabled:
         S = saturation_matrix(sat.saturation, sat.luma)
         c = np.asarray(sat.colour_correction, np.float64)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .base import Effect, NodeStage, Param
+from .base import Effect, NodeStage, Param, Search
 
 #: Rows of the saturation control's fixed part A (sec. 4.4.2).
 SATURATION_LUMA = (0.2915, 0.5887, 0.1113)
@@ -57,6 +57,9 @@ class Saturation(Effect):
     writes = "rgb"
     order = 240
     node = NodeStage("Saturation", "rgb", "saturation")
+    searches = (Search("monochrome", "the frames carry no colour: a monochrome sensor (saturation 0, luma "
+                                     "weights {weights})", fit="monochrome",
+                       requires="saturation"),)
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
         "luma": Param(list(SATURATION_LUMA), "vector", length=3, low=0.0, high=1.0),

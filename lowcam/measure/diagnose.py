@@ -30,8 +30,7 @@ Contents
 - :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
 - :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its estimated error is within this
   factor of the best screened candidate's
-- :data:`FULL_ERRORS`: how many of the best estimates get the full noise-aware error (when within :data:`CLOSE`)
-- :data:`CLOSE`: a runner-up whose estimate is within this factor of the best's error is fully compared too
+- :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
 - :data:`NOT_REMOVABLE`: effects no ``without_EFFECT`` candidate removes (the chain needs them)
 - :class:`Candidate`: one fitted candidate: its error after (in sample and expected), params and evidence
@@ -43,7 +42,7 @@ Contents
 - :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence), or None
 - :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
 - :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
-- :func:`fit_monochrome`: a sensor without colour: no saturation, no lateral colour
+- :func:`fit_monochrome`: a sensor without colour: the saturation control at 0, its luma weights fitted
 - :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
 - :data:`NOISE_FITS`: the closed-form fits whose candidates change the noise (always fully compared)
 - :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
@@ -82,8 +81,7 @@ from .compare import EXPLAINED_BELOW, capture_inputs, combine, compare, prefix_k
 UNEXPLAINED_ABOVE = 1.25
 FITTED = 4
 REFINE_WITHIN = 1.5
-FULL_ERRORS = 2
-CLOSE = 1.2
+FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
 #: Effects no ``without_EFFECT`` candidate removes: the chain cannot run without them, or they are its noise.
@@ -119,6 +117,14 @@ class Candidate:
         f = 1.0 / max(self.captures, 2)
         families = dict(self.families, mean=self.families["mean"] * float(np.sqrt((1 + f) / (1 - f))))
         return float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
+
+    @property
+    def optimistic(self) -> float:
+        """The lowest error the candidate could have: its expected error with its noise families at the floor."""
+        if not self.families:
+            return self.score
+        return Candidate(self.effect, 0.0, {}, "", per_pixel=self.per_pixel, captures=self.captures,
+                         families=dict(self.families, variance=1.0, rows=1.0)).score
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "error_after": round(self.error_after, 4),
@@ -446,11 +452,28 @@ def fit_row_noise(ctx, effect):
 
 
 def fit_monochrome(ctx, effect):
-    """A sensor without colour: the saturation control at 0 (every channel the luma) and no lateral colour."""
-    p = ctx.profile.with_effect(effect, saturation=0.0)
-    if p.effect("chromatic_aberration") is not None and p.effect("chromatic_aberration").enabled:
-        p = p.without("chromatic_aberration")
-    return p, {"saturation": 0.0}, {}
+    """A sensor without colour: the saturation control at 0 (every channel the luma), the luma's weights fitted
+    by least squares to the measured grey (the means' channel average) from the model's colour before the
+    saturation control. Lateral colour stays: through a grey sensor it is a slight blur, and no fringe. None when
+    the measured frames are not grey."""
+    from ..effects.saturation import saturation_matrix
+
+    p = ctx.profile
+    sat = p.effect(effect)
+    s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p, ctx.quick)]).astype(np.float64)
+    m = np.concatenate([ctx.means[i].reshape(-1, 3) for i in ctx.quick]).astype(np.float64)
+    grey = m.mean(axis=1)
+    if np.abs(m - grey[:, None]).mean() > 0.1 * max(m.std(), 1e-6):
+        return None  # the frames carry colour
+    control = saturation_matrix(sat.saturation, sat.luma)
+    if abs(np.linalg.det(control)) < 1e-9:
+        return None  # the model is monochrome already
+    ok = (s.max(1) < 250) & (grey < 250) & (s.min(1) > 3)
+    before = np.linalg.solve(control, s[ok].T).T  # the colour before the control
+    luma = np.clip(np.linalg.lstsq(before, grey[ok], rcond=None)[0], 0.0, 1.0)
+    p = p.with_effect(effect, saturation=0.0, luma=luma.tolist())
+    weights = " ".join(f"{w:.3f}" for w in luma)
+    return p, {"saturation": 0.0, "luma": luma.round(4).tolist()}, {"weights": weights}
 
 
 #: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
@@ -576,15 +599,20 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
             out.append(_candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
                                   ctx.quick if f.search.fit else f.subset))
     out.sort(key=lambda c: c.score)
-    while out and not out[0].full:  # the best is always fully compared, and close runners-up too
+    while out and not out[0].full:  # the best is always fully compared
         if progress:
             progress(0, 1, f"{out[0].effect} (full error)")
         _full(ctx, out[0])
         out.sort(key=lambda c: c.score)
-        close = [c for c in out[1:FULL_ERRORS] if not c.full and c.score <= CLOSE * out[0].score]
-        for c in close:
+    # an estimate keeps the first comparison's noise families; a runner-up that could still win with noise
+    # families at the floor is fully compared too (the best first, at most FULL_ERRORS of them)
+    hopeful = sorted((c for c in out if not c.full and c.optimistic < out[0].score), key=lambda c: c.optimistic)
+    for c in hopeful[:FULL_ERRORS]:
+        if c.optimistic < out[0].score:
+            if progress:
+                progress(0, 1, f"{c.effect} (full error)")
             _full(ctx, c)
-        out.sort(key=lambda c: c.score)
+            out.sort(key=lambda c: c.score)
     for c in out:
         c.evidence += f"; error {base_error:.2f} -> {c.error_after:.2f}" + ("" if c.full else " (estimated)")
     return out

@@ -1,0 +1,61 @@
+"""Benchmark: a full diagnosis of the standard ``lowcam synth`` set (issue 12's speed target: 10 s median).
+
+Makes the standard set (Fire-i, every bundled scene, 5 frames, a tone curve of gamma 2.0 hidden), then diagnoses
+it with every candidate ``--repeats`` times. Prints the median total, the median per candidate (screening,
+fitting and error together) and the number of noise-free and noisy capture simulations.
+
+    .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    import lowcam
+    import lowcam.pipeline as pipeline
+    from lowcam.measure.diagnose import diagnose
+    from lowcam.measure.sets import load_set
+    from lowcam.measure.synth import synthesise
+
+    counts = defaultdict(int)
+    prepare, resume = pipeline.prepare, pipeline.resume
+
+    def counted(name, fn):
+        def wrapper(*a, **k):
+            counts[name] += 1
+            return fn(*a, **k)
+        return wrapper
+
+    pipeline.prepare, pipeline.resume = counted("chain fronts", prepare), counted("chain tails", resume)
+    profile = lowcam.load_profile("fire-i")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = synthesise(profile, Path(tmp) / "set", add=[("tone_curve", {"gamma": 2.0})], frames=5)
+        mset = load_set(folder, profile)
+        totals, per = [], defaultdict(list)
+        for k in range(args.repeats):
+            counts.clear()
+            started = time.perf_counter()
+            d = diagnose(mset, profile)
+            totals.append(time.perf_counter() - started)
+            for c in d.candidates:
+                per[c.effect].append(c.seconds)
+            print(f"run {k + 1}: {totals[-1]:.1f} s, {d.summary()}; simulations: "
+                  + ", ".join(f"{n} {v}" for n, v in counts.items()), flush=True)
+    print(f"\ndiagnosis of the standard synth set ({len(per)} candidates): median {statistics.median(totals):.1f} s "
+          f"(min {min(totals):.1f}, max {max(totals):.1f}) over {len(totals)} runs")
+    for name, times in sorted(per.items(), key=lambda kv: -statistics.median(kv[1])):
+        print(f"  {name:32s} {statistics.median(times):6.2f} s")
+
+
+if __name__ == "__main__":
+    main()
