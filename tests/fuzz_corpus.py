@@ -512,7 +512,7 @@ for _name, _mutate, _also in [
     ("unknown-top-level-key", lambda d: d.update(extra={"a": 1}), ("extra",)),
     ("noise-vector-nan", _set("noise.red", [NAN, 0.015]), ("red",)),
     ("noise-vector-inf", _set("noise.green", [INF, 0.012]), ("green",)),
-    ("noise-vector-negative", _set("noise.blue", [-1.8, 0.016]), ("blue",)),
+    ("noise-vector-negative", _set("noise.blue", [1.8, -0.016]), ("blue",)),  # a negative intercept is allowed
     ("noise-vector-absurd", _set("noise.red", [1e30, 1e30]), ("red",)),
     ("noise-vector-strings", _set("noise.red", ["a", "b"]), ("red",)),
     ("motion-blur-grid-nan", _set("motion_blur.grid", [NAN, 18.0]), ("grid",)),

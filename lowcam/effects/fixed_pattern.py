@@ -184,10 +184,7 @@ class DSNU(_PixelMap):
     order = 220
     searches = (Search("dsnu", "a dense per-pixel offset map, sigma {sigma_dn:.2f} DN, the same at every "
                                "brightness ({tail_percent:.2f} % of pixels are outliers holding {share:.0f} % of "
-                               "its fixed energy)", fit=fit_dense_offset),
-                # never run (no profile has that effect): its closed-form name marks "dsnu" as a per-pixel map,
-                # for diagnosis's out-of-sample correction (diagnose.per_pixel reads the fit names)
-                Search("dsnu", "", fit="pixel_offset", requires="(per-pixel map marker)"))
+                               "its fixed energy)", fit=fit_dense_offset, per_pixel=True),)
 
     def apply(self, state):
         state.rgb += self.pattern(state.rgb.shape) * state.rgb_alpha

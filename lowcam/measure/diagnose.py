@@ -388,6 +388,8 @@ def _fits(ctx, name):
             continue
         if search.captures == "moving" and not ctx.moving:
             continue
+        if search.per_pixel and any(len(c.frames) < 2 for c in ctx.mset.captures):
+            continue  # a dense map's out-of-sample correction assumes a residual of noise: measure the noise first
         if search.fixed and have is not None and have.enabled and all(
                 getattr(have, k) == v for k, v in search.fixed.items()):
             continue
@@ -621,12 +623,15 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
 def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
     """Refit the ``chosen`` candidates together on ``profile`` (which holds them all): each is fitted again with
     the others held, in turn, ``sweeps`` times (backfitting, a block coordinate descent); a refit is kept when it
-    lowers the noise-free SSE. Per-pixel maps and removals keep their fit. Returns the polished profile."""
+    lowers the noise-free SSE. Unlike screening, the refits use every capture. Per-pixel maps and removals keep
+    their fit. Returns the polished profile."""
     for _ in range(sweeps):
         for c in chosen:
             if c.per_pixel or c.effect.startswith("without_"):
                 continue
             here = Context(ctx.mset, profile, ctx.workdir / "polish", parent=ctx, base=ctx.base)
+            here.quick = here.screen_textured = list(range(len(ctx.mset.captures)))  # every capture
+            here.screen_textured = list(here.textured)
             fitted = fit_candidate(here, c.effect)
             if fitted is not None and here.sse(fitted[0]) < here.sse(profile):
                 profile = fitted[0]
