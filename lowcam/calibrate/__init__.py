@@ -294,7 +294,8 @@ def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Ca
             ax.set_title("red and blue sampling offsets relative to green (x20)")
         figures.append(figure(Path(plot_dir) / "chromatic_aberration.png", draw))
     return Calibration("chromatic_aberration",
-                       f"chromatic aberration: {len(frames)} frames, max red {red.max():.2f} px, blue {blue.max():.2f} px",
+                       f"chromatic aberration: {len(frames)} frames, max red {red.max():.2f} px, "
+                       f"blue {blue.max():.2f} px",
                        {"chromatic_aberration": {}},
                        {"max_red_px": float(red.max()), "max_blue_px": float(blue.max())}, figures,
                        {"chromatic_aberration": Texture("texture", grid, "chromatic_aberration.csv", _write_ca_csv)})
@@ -449,7 +450,8 @@ def calibrate_blur(patterns, plot_dir: Path | None = None) -> Calibration:
             ax.legend(fontsize=8)
         figures.append(figure(Path(plot_dir) / "blur.png", draw))
     return Calibration("blur", f"blur: edge sigma horizontal {r['sigma_horizontal_px']:.3f} px, vertical "
-                               f"{r['sigma_vertical_px']:.3f} px -> horizontal blur {r['extra_horizontal_sensels']:.3f} sensels",
+                               f"{r['sigma_vertical_px']:.3f} px -> horizontal blur "
+                               f"{r['extra_horizontal_sensels']:.3f} sensels",
                        {"horizontal_blur": {"sigma": r["extra_horizontal_sensels"]}}, r, figures)
 
 

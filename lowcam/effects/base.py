@@ -136,7 +136,8 @@ class Search:
     effect's defaults rather than the profile's values. ``after``: the effect is placed (or found) right after
     this one in the chain rather than at its ``order`` (:meth:`lowcam.profile.Profile.with_effect`; a blur that
     acts after sharpening). ``per_pixel``: the fit is a dense map with a value per pixel, which absorbs part of
-    the noise (diagnosis corrects its error out of sample). ``evidence`` is formatted with the fitted values (``{key}``) and the profile's
+    the noise (diagnosis corrects its error out of sample). ``evidence`` is formatted with the fitted values
+    (``{key}``) and the profile's
     (``{was_key}``).
     """
 

@@ -46,7 +46,8 @@ def fit_colour_mixing(ctx, effect: str):
     ``T`` with ``measured ~ T clean`` by least squares over pixels unclipped in both (the chain between the
     mixing and the output is linear). With ``P`` the processor's matrix ``S(beta) C`` and ``K`` the crosstalk,
     the same change is the crosstalk ``P^-1 T P K`` (before the noise) or the colour correction ``S^-1 T S C``
-    (after the noise); each is renormalised to rows summing to 1 and the one with the lower full error (on a few captures) is kept.
+    (after the noise); each is renormalised to rows summing to 1 and the one with the lower full error (on a few
+    captures) is kept.
     """
     p = ctx.profile
     s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])

@@ -135,7 +135,8 @@ fit_jpeg.refines = True  # diagnosis calls it again, in full, for a promising ca
 
 class Jpeg(Effect):
     """Encodes the final 8-bit frame as JPEG at ``quality`` (IJG scaling of the standard tables; the chroma table
-    at ``chroma_quality`` when set) with chroma ``subsampling`` and decodes it again (OpenCV's libjpeg). The whole frame is recompressed, so no pixel keeps
+    at ``chroma_quality`` when set) with chroma ``subsampling`` and decodes it again (OpenCV's libjpeg). The whole
+    frame is recompressed, so no pixel keeps
     the plate's exact bytes."""
 
     name = "jpeg"

@@ -720,7 +720,8 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
 
     text = ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
                      for k in dict.fromkeys(k for k, _ in keys))
-    return p.with_effect(effect, **_lens_values(values, model, theta)), changed, {"fitted": f"{model}: {text} (render field {hfov:.2f} deg kept)"}
+    return p.with_effect(effect, **_lens_values(values, model, theta)), changed, \
+        {"fitted": f"{model}: {text} (render field {hfov:.2f} deg kept)"}
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------

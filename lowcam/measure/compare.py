@@ -15,7 +15,8 @@ For a capture with ``n`` measured frames F and ``K`` simulated frames G (the pro
 The error is ``sqrt((e_mean^2 + e_var^2 + e_rows^2) / 3)``, over all captures: 1.0 (the noise floor) when the
 model explains the frames down to their noise. A capture with one frame has no temporal noise to measure: its
 noise families are not compared (:attr:`Comparison.measured`), and the noise of its mean is the model's, or a
-fixed ``assumed_noise`` (diagnosis passes the diagnosed profile's, so a candidate cannot win by adding noise). The verdict is ``explained`` up to 1.1 times the noise floor
+fixed ``assumed_noise`` (diagnosis passes the diagnosed profile's, so a candidate cannot win by adding noise). The
+verdict is ``explained`` up to 1.1 times the noise floor
 (:attr:`Comparison.noise_floor`, 1.0 unless set), ``not explained`` above.
 
 Contents

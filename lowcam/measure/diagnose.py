@@ -144,6 +144,7 @@ class Context:
     def __init__(self, mset, profile, workdir: Path, assumed_noise=None, parent=None, base=None):
         self.mset, self.profile, self.workdir = mset, profile, Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
+        self.screening = False  # True while candidates are screened: a fit with ``refines`` may be coarse
         if parent is not None:  # the same set: share the inputs, the chain's cached front and the simulations
             self.inputs, self.cache, self.memo = parent.inputs, parent.cache, parent.memo
             assumed_noise = assumed_noise or parent.assumed_noise
@@ -263,7 +264,8 @@ def gauss_newton(ctx, build, x0, bounds, subset=None, steps: int = 4):
     """Bounded Gauss-Newton steps minimising the noise-free SSE of ``build(x)`` ([Nocedal2006] ch. 10).
 
     Parameters are scaled to their bounds; the Jacobian comes from forward differences of 5 % of each range
-    (towards the inside; 25 % where that changes nothing); each step is clipped to the bounds and halved until the SSE falls (backtracking), which
+    (towards the inside; 25 % where that changes nothing); each step is clipped to the bounds and halved until the
+    SSE falls (backtracking), which
     copes with effects that hardly act near their start (a blur of sigma 0). Returns (x, SSE)."""
     lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
     span = np.maximum(hi - lo, 1e-12)
@@ -314,7 +316,6 @@ class _Fit:
         self.x = np.array([current.get(k, search.start.get(k, cls.params[k].default)) for k in self.keys], float)
         self.result = None  # (profile, params, shown) once fitted in closed form
         self.done = False
-        self.sse = np.inf
         self.seconds = 0.0
 
     def build(self, x=None, extra=None):
@@ -338,7 +339,7 @@ class _Fit:
         started = time.perf_counter()
         fit = self._fit()
         if fit:
-            self.ctx.screening = True  # a fit with ``refines`` does a coarse version now, the full one in finish
+            self.ctx.screening = True  # a fit that ``refines`` does a coarse version now, the full one in finish
             try:
                 self.result = fit(self.ctx, self.cls.name)
             finally:
@@ -348,9 +349,9 @@ class _Fit:
             for key, options in self.search.grid.items():
                 self._grid(key, list(options))
             if self.keys:
-                self.x, self.sse = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=1)
+                self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=1)
             else:
-                self.sse, self.done = self.ctx.sse(self.build(), self.subset), not self.search.refine
+                self.done = not self.search.refine
         self.seconds += time.perf_counter() - started
 
     def finish(self):
@@ -364,8 +365,8 @@ class _Fit:
             best = self.values[key]
             self._grid(key, sorted({min(high, max(low, best + d)) for d in self.search.refine[key]}))
         if self.keys:
-            self.x, self.sse = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset,
-                                               steps=max(1, self.search.evals // 10))
+            self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset,
+                                     steps=max(1, self.search.evals // 10))
         self.done = True
         self.seconds += time.perf_counter() - started
 
@@ -630,8 +631,7 @@ def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
             if c.per_pixel or c.effect.startswith("without_"):
                 continue
             here = Context(ctx.mset, profile, ctx.workdir / "polish", parent=ctx, base=ctx.base)
-            here.quick = here.screen_textured = list(range(len(ctx.mset.captures)))  # every capture
-            here.screen_textured = list(here.textured)
+            here.quick, here.screen_textured = list(range(len(ctx.mset.captures))), list(here.textured)
             fitted = fit_candidate(here, c.effect)
             if fitted is not None and here.sse(fitted[0]) < here.sse(profile):
                 profile = fitted[0]

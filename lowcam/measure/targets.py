@@ -335,7 +335,8 @@ def board_pose(profile, capture):
 
 
 def _refine_pose(profile, capture, spec, rvec, tvec, fitted, plate):
-    """(rvec, tvec, the quiet profile's frame of the fitted board). One pass of render-then-simulate: the corners found in the quiet profile's view of the fitted board are
+    """(rvec, tvec, the quiet profile's frame of the fitted board). One pass of render-then-simulate: the corners
+    found in the quiet profile's view of the fitted board are
     where the camera chain moves them (half-pixel boxes, blur, aberration); the measured corners are moved back by
     that much and the pose solved again, so the chain's shift is not counted twice."""
     from ..captures import detect_target
