@@ -145,22 +145,24 @@ class Context:
         self.mset, self.profile, self.workdir = mset, profile, Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.screening = False  # True while candidates are screened: a fit with ``refines`` may be coarse
-        if parent is not None:  # the same set: share the inputs, the chain's cached front and the simulations
-            self.inputs, self.cache, self.memo = parent.inputs, parent.cache, parent.memo
+        if parent is not None:  # the same set: share its inputs, means, capture choices and simulations
+            for name in ("inputs", "cache", "memo", "means", "moving", "textured", "moving_ones", "quick",
+                         "screen_textured"):
+                setattr(self, name, getattr(parent, name))
             assumed_noise = assumed_noise or parent.assumed_noise
         else:
             self.inputs = [capture_inputs(profile, c) for c in mset.captures]
             self.cache, self.memo = {}, OrderedDict()
-        self.means = [c.mean.astype(np.float32) for c in mset.captures]
-        self.moving = any(np.any(c.angular_velocity) for c in mset.captures)
-        texture = [ideal[..., :3].std() for ideal, _ in self.inputs]
-        # Captures with structure: flat fields say nothing about geometry or blur.
-        self.textured = [i for i, t in enumerate(texture) if t > 0.02]
-        self.moving_ones = [i for i, c in enumerate(mset.captures) if np.any(c.angular_velocity)]
-        # a few captures for screening and quick full errors: the two flattest and the most textured
-        by_texture = [int(i) for i in np.argsort(texture)]
-        self.quick = list(dict.fromkeys((*by_texture[:2], by_texture[-1])))
-        self.screen_textured = sorted(self.textured, key=lambda i: -texture[i])[:2]
+            self.means = [c.mean.astype(np.float32) for c in mset.captures]
+            self.moving = any(np.any(c.angular_velocity) for c in mset.captures)
+            texture = [ideal[..., :3].std() for ideal, _ in self.inputs]
+            # Captures with structure: flat fields say nothing about geometry or blur.
+            self.textured = [i for i, t in enumerate(texture) if t > 0.02]
+            self.moving_ones = [i for i, c in enumerate(mset.captures) if np.any(c.angular_velocity)]
+            # a few captures for screening and quick full errors: the two flattest and the most textured
+            by_texture = [int(i) for i in np.argsort(texture)]
+            self.quick = list(dict.fromkeys((*by_texture[:2], by_texture[-1])))
+            self.screen_textured = sorted(self.textured, key=lambda i: -texture[i])[:2]
         first = base or compare(mset, profile, cache=self.cache, inputs=self.inputs, assumed_noise=assumed_noise)
         self.assumed_noise = assumed_noise or [s.sums["variance_map"] if len(s.measured) == 1 else None
                                                for s in first.captures]
