@@ -15,7 +15,7 @@ Contents
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
-- :func:`cmd_profiles`: ``lowcam profiles``: list the profiles
+- :func:`cmd_profiles`: ``lowcam profiles [NAME]``: list the profiles, or one profile's provenance
 - :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
 - :func:`cmd_chart`: ``lowcam chart``: the printable calibration chart and its layout
 - :func:`cmd_calibrate`: ``lowcam calibrate``, through :data:`lowcam.calibrate.CALIBRATIONS`
@@ -161,10 +161,22 @@ def cmd_stages(args) -> int:
 def cmd_profiles(args) -> int:
     from .profile import list_profiles, load_profile
 
+    if args.name:
+        p = load_profile(args.name)
+        print(f"{p.name}: {p.camera.name} ({p.source})")
+        print(f"  {'camera':22s} {p.provenance.get('camera', '(not stated)')}")
+        for e in p.effects:
+            print(f"  {e.name:22s} {p.provenance_of(e.name) or '(not stated)'}")
+            for key, source in p.provenance.items():
+                if key.startswith(f"{e.name}."):
+                    print(f"    {key.partition('.')[2]:20s} {source}")
+        return 0
     for name, path in list_profiles():
         try:
             p = load_profile(path)
-            desc = f"{p.camera.name}: {p.camera.width}x{p.camera.height}, {len(p.effects)} effects"
+            stated = sum(1 for e in p.effects if p.provenance_of(e.name))
+            desc = (f"{p.camera.name}: {p.camera.width}x{p.camera.height}, {len(p.effects)} effects, "
+                    f"provenance stated for {stated}")
         except LowcamError as e:
             desc = f"INVALID: {e}"
         print(f"{name:12s} {desc}  ({path})")
@@ -557,7 +569,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.set_defaults(func=cmd_synth)
 
-    p = sub.add_parser("profiles", help="list the bundled profiles")
+    p = sub.add_parser("profiles", help="list the profiles; with a name, where each of its numbers came from")
+    p.add_argument("name", nargs="?", help="a profile name or file: show its provenance, effect by effect")
     p.set_defaults(func=cmd_profiles)
 
     add_plugin_commands(sub)

@@ -15,6 +15,11 @@ Layout (see ``profiles/fire-i.toml`` for a complete, commented example)::
     model = "fov"
     ...
 
+    [provenance]                  # optional: where the numbers came from
+    camera = "..."                # the [camera] table
+    lens_distortion = "lensfun database: Canon PowerShot G12 at 6.1 mm"   # a whole effect
+    "noise.read_noise_dn" = "DNG NoiseProfile of IMG_0001.dng"           # one parameter
+
 Everything is validated on load: an unknown key, a wrong type or a value out of range is a one-line
 :class:`~lowcam.errors.ProfileError` naming the file and the key.
 
@@ -28,6 +33,7 @@ Contents
 - :func:`find_profile`: the file of a profile name or path (a clear error naming the known ones)
 - :func:`load_profile`: load and validate a profile by name (``"fire-i"``) or path (``"my-camera.toml"``)
 - :func:`profile_from_dict`: a validated :class:`Profile` from parsed TOML
+- :func:`check_provenance`: validate a ``[provenance]`` table against a profile's camera and effects
 
 References
 ----------
@@ -73,10 +79,13 @@ class CameraSpec(ParamSet):
 class Profile:
     """A validated camera profile: :class:`CameraSpec` plus an ordered list of :class:`~lowcam.effects.Effect`."""
 
-    def __init__(self, camera: CameraSpec, effects: list[Effect], path: Path | None = None):
+    def __init__(self, camera: CameraSpec, effects: list[Effect], path: Path | None = None,
+                 provenance: dict[str, str] | None = None):
         self.camera = camera
         self.effects = list(effects)
         self.path = Path(path) if path else None
+        #: Where the numbers came from: ``{"camera" | "EFFECT" | "EFFECT.PARAM": source}`` (:func:`check_provenance`)
+        self.provenance = dict(provenance or {})
         names = [e.name for e in self.effects]
         for needed in ("lens_distortion", "half_sampling", "bayer_sampling", "demosaic"):
             if needed not in names:
@@ -105,6 +114,12 @@ class Profile:
     def geometry(self) -> FrameGeometry:
         c = self.camera
         return FrameGeometry(c.width, c.height, c.margin_px, c.oversample, c.bayer_pattern)
+
+    def provenance_of(self, effect: str, param: str | None = None) -> str:
+        """Where ``effect`` (or its ``param``) came from: the most specific ``[provenance]`` entry, or ``""``."""
+        if param and f"{effect}.{param}" in self.provenance:
+            return self.provenance[f"{effect}.{param}"]
+        return self.provenance.get(effect, "")
 
     @property
     def lens(self):
@@ -189,6 +204,8 @@ class Profile:
                 entry["enabled"] = False
             entry.update({k: v for k, v in e.values().items() if v is not None})  # TOML has no null: unset paths
             out["effect"].append(entry)
+        if self.provenance:
+            out["provenance"] = dict(self.provenance)
         return out
 
     def save(self, path) -> Path:
@@ -270,9 +287,9 @@ def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
     base_dir = path.parent if path else None
     e = ProfileError
     data = schema.table(data, source, error=e)
-    unknown = sorted(set(data) - {"camera", "effect"})
+    unknown = sorted(set(data) - {"camera", "effect", "provenance"})
     if unknown:
-        raise e(f"{source}: unknown top-level key {schema.shown(unknown[0])} (known: camera, effect)")
+        raise e(f"{source}: unknown top-level key {schema.shown(unknown[0])} (known: camera, effect, provenance)")
     camera = CameraSpec(source, base_dir, **schema.table(data.get("camera", {}), source, "camera", error=e))
     entries = data.get("effect", [])
     if not isinstance(entries, list) or not entries:
@@ -284,4 +301,25 @@ def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
         cls = effect_class(schema.string(entry.pop("type"), where, "type", nonempty=True, error=e), source)
         enabled = schema.boolean(entry.pop("enabled", True), f"{source}: effect '{cls.name}'", "enabled", error=e)
         effects.append(cls(enabled, source, base_dir, **entry))
-    return Profile(camera, effects, path)
+    profile = Profile(camera, effects, path)
+    profile.provenance = check_provenance(data.get("provenance", {}), profile)
+    return profile
+
+
+def check_provenance(table, profile: Profile) -> dict[str, str]:
+    """The ``[provenance]`` table, checked: each key is ``camera``, ``camera.KEY``, an effect of the chain or
+    ``EFFECT.PARAM``; each value a non-empty string saying where the numbers came from (a one-line
+    :class:`ProfileError` otherwise)."""
+    e, source = ProfileError, profile.source
+    table = schema.table(table, source, "provenance", error=e)
+    owners = {"camera": profile.camera, **{x.name: x for x in profile.effects}}
+    for key, value in table.items():
+        owner, _, param = key.partition(".")
+        if owner not in owners:
+            raise e(f"{source}: [provenance] key {schema.shown(key)} names no effect of the chain "
+                    f"(known: {', '.join(owners)})")
+        if param and param not in owners[owner].params:
+            raise e(f"{source}: [provenance] key {schema.shown(key)}: '{owner}' has no parameter "
+                    f"{schema.shown(param)}")
+        schema.string(value, f"{source}: [provenance]", key, nonempty=True, error=e)
+    return dict(table)

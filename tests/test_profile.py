@@ -112,3 +112,24 @@ def test_controls_read_and_set_the_cameras_user_settings():
     assert p.effect("sharpening").sharpness == 80.0                      # the original is untouched
     raw = lowcam.load_profile("ueye")
     assert "saturation" not in raw.controls() and raw.with_controls(saturation=80.0).to_dict() == raw.to_dict()
+
+
+def test_provenance_round_trips_and_bad_keys_are_named(tmp_path):
+    chain = FIRE_I_TEXT.split("\n[provenance]")[0]
+    text = chain + '\n[provenance]\ncamera = "data sheet"\nnoise = "sec. 4.3"\n"noise.red" = "dark frame"\n'
+    path = tmp_path / "p.toml"
+    (tmp_path / "fire-i").symlink_to(lowcam.profile.BUNDLED_PROFILES / "fire-i")
+    path.write_text(text)
+    p = lowcam.load_profile(path)
+    assert p.provenance_of("noise", "red") == "dark frame"
+    assert p.provenance_of("noise", "green") == "sec. 4.3"
+    assert p.provenance_of("vignetting") == ""
+    assert lowcam.load_profile("fire-i").provenance_of("quantisation").startswith("Klein & Murray 2010")
+    again = lowcam.load_profile(p.save(tmp_path / "q.toml"))
+    assert again.provenance == p.provenance
+    for bad, message in [('"noize" = "x"', "names no effect of the chain"),
+                         ('"noise.sigmaa" = "x"', "'noise' has no parameter 'sigmaa'"),
+                         ('"camera" = ""', "provenance")]:
+        path.write_text(chain + f"\n[provenance]\n{bad}\n")
+        with pytest.raises(ProfileError, match=message):
+            lowcam.load_profile(path)
