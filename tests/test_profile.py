@@ -85,6 +85,7 @@ def test_a_user_effect_from_their_own_module_runs_in_the_chain(tmp_path, monkeyp
     hazy = lowcam.simulate(render, p, seed=1).astype(float).mean()
     assert hazy - base > 25
     sys.modules.pop("my_effects", None)
+    lowcam.effects.PLUGINS.pop("my_effects:Haze", None)  # another test registers its own "haze"
 
 
 def test_render_camera_reports_the_field_the_render_must_cover():
