@@ -1,5 +1,7 @@
-"""Test scenes: exact, analytic renders."""
+"""Test scenes: exact, analytic renders; measurement sets whose hidden effect a test makes."""
 import numpy as np
+
+import lowcam
 
 from lowcam.pipeline import render_field_of_view
 
@@ -67,3 +69,39 @@ def chessboard_view(profile, rvec, tvec, width=1600):
     out[..., :3] += 0.9 * (1 - board[..., 3:])
     out[..., 3] = 1.0
     return out
+
+
+def quiet_fire_i():
+    """Fire-i with RGB output (no 4:1:1 chroma) and saturation at identity: its output frame is its demosaiced
+    frame, so an offset added to the output is an offset at the sensor's pixels."""
+    p = lowcam.load_profile("fire-i").without("chroma_subsampling")
+    p.effect("saturation").saturation = 65.0
+    return p
+
+
+def make_set(profile, folder, scenes, frames=4, seed=7, post=None, pre=None):
+    """A measurement set of bundled scenes through ``profile``; ``pre(ideal)`` changes the render before the
+    camera (optical), ``post(frame)`` each delivered 8-bit frame (after everything)."""
+    from lowcam.measure.sets import write_set
+    from lowcam.measure.synth import scenes as bundled
+    from lowcam.pipeline import simulate
+
+    every = bundled(profile, 640)
+    captures = []
+    for i, name in enumerate(scenes):
+        ideal, omega = every[name]
+        render = pre(ideal) if pre else ideal
+        # each capture its own noise: with one seed, frame k's noise would repeat in every capture, a fixed
+        # pattern across captures that per-pixel maps would take for DSNU
+        shots = [simulate(render, profile, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
+        captures.append({"name": name, "ideal": ideal, "frames": [post(s) if post else s for s in shots],
+                         "angular_velocity": omega})
+    return write_set(folder, captures)
+
+
+def diagnose_set(tmp_path, profile, only, rounds=2, **kw):
+    from lowcam.measure.diagnose import diagnose
+    from lowcam.measure.sets import load_set
+
+    folder = make_set(profile, tmp_path / "set", **kw)
+    return diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work", rounds=rounds)

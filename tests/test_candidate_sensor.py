@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import lowcam
+from helpers import diagnose_set, quiet_fire_i
 from lowcam.errors import LowcamError, ProfileError
 from lowcam.io import write_png
 
@@ -99,42 +100,6 @@ def test_the_noise_law_takes_a_negative_intercept_but_no_negative_slope(fire_i):
 
 
 # --- measurement sets whose hidden effect is made here ------------------------------------------------------------
-
-def quiet_fire_i():
-    """Fire-i with RGB output (no 4:1:1 chroma) and saturation at identity: its output frame is its demosaiced
-    frame, so an offset added to the output is an offset at the sensor's pixels."""
-    p = lowcam.load_profile("fire-i").without("chroma_subsampling")
-    p.effect("saturation").saturation = 65.0
-    return p
-
-
-def make_set(profile, folder, scenes, frames=4, seed=7, post=None, pre=None):
-    """A measurement set of bundled scenes through ``profile``; ``pre(ideal)`` changes the render before the
-    camera (optical), ``post(frame)`` each delivered 8-bit frame (after everything)."""
-    from lowcam.measure.sets import write_set
-    from lowcam.measure.synth import scenes as bundled
-    from lowcam.pipeline import simulate
-
-    every = bundled(profile, 640)
-    captures = []
-    for i, name in enumerate(scenes):
-        ideal, omega = every[name]
-        render = pre(ideal) if pre else ideal
-        # each capture its own noise: with one seed, frame k's noise would repeat in every capture, a fixed
-        # pattern across captures that per-pixel maps would take for DSNU
-        shots = [simulate(render, profile, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
-        captures.append({"name": name, "ideal": ideal, "frames": [post(s) if post else s for s in shots],
-                         "angular_velocity": omega})
-    return write_set(folder, captures)
-
-
-def diagnose_set(tmp_path, profile, only, rounds=2, **kw):
-    from lowcam.measure.diagnose import diagnose
-    from lowcam.measure.sets import load_set
-
-    folder = make_set(profile, tmp_path / "set", **kw)
-    return diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work", rounds=rounds)
-
 
 def add_offset(offset):
     return lambda frame: np.clip(np.round(frame + offset), 0, 255).astype(np.uint8)

@@ -68,8 +68,10 @@ References
 from __future__ import annotations
 
 import tempfile
+import threading
 import time
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,6 +89,8 @@ RENAMED_CANDIDATES = {"gamma": "tone_curve"}
 #: Effects no ``without_EFFECT`` candidate removes: the chain cannot run without them, or they are its noise.
 NOT_REMOVABLE = ("bayer_sampling", "demosaic", "yuv_blend", "noise", "raw_blend")
 _MEMO_ENTRIES = 160  # noise-free frames kept (one capture each, about 4 MB at 640x480)
+#: Candidates fitted at once (threads: OpenCV and numpy release the GIL); the results do not depend on it.
+WORKERS = 2
 
 
 @dataclass
@@ -123,8 +127,10 @@ class Candidate:
         """The lowest error the candidate could have: its expected error with its noise families at the floor."""
         if not self.families:
             return self.score
-        return Candidate(self.effect, 0.0, {}, "", per_pixel=self.per_pixel, captures=self.captures,
-                         families=dict(self.families, variance=1.0, rows=1.0)).score
+        families = {k: 1.0 if k in ("variance", "rows") else v for k, v in self.families.items()}
+        error = float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
+        return Candidate(self.effect, error, {}, "", per_pixel=self.per_pixel, captures=self.captures,
+                         families=families).score
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "error_after": round(self.error_after, 4),
@@ -144,9 +150,9 @@ class Context:
     def __init__(self, mset, profile, workdir: Path, assumed_noise=None, parent=None, base=None):
         self.mset, self.profile, self.workdir = mset, profile, Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
-        self.screening = False  # True while candidates are screened: a fit with ``refines`` may be coarse
+        self._local, self._lock = threading.local(), threading.Lock()  # candidates are fitted in threads
         if parent is not None:  # the same set: share its inputs, means, capture choices and simulations
-            for name in ("inputs", "cache", "memo", "means", "moving", "textured", "moving_ones", "quick",
+            for name in ("inputs", "cache", "memo", "_lock", "means", "moving", "textured", "moving_ones", "quick",
                          "screen_textured"):
                 setattr(self, name, getattr(parent, name))
             assumed_noise = assumed_noise or parent.assumed_noise
@@ -174,6 +180,15 @@ class Context:
         self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - self._sse_per_capture(profile) - \
             self._model_noise
 
+    @property
+    def screening(self) -> bool:
+        """True while this thread screens a candidate: a fit with ``refines`` may be coarse."""
+        return getattr(self._local, "screening", False)
+
+    @screening.setter
+    def screening(self, value: bool):
+        self._local.screening = value
+
     def quiet(self, profile):
         """The profile without its random and step effects, for a smooth, deterministic objective."""
         names = [n for n in ("noise", "row_noise", "quantisation") if profile.effect(n) is not None]
@@ -185,15 +200,17 @@ class Context:
         key = prefix_key(q, len(q.effects))
         out = []
         for i in range(len(self.inputs)) if subset is None else subset:
-            frame = self.memo.get((key, i))
+            with self._lock:
+                frame = self.memo.get((key, i))
+                if frame is not None:
+                    self.memo.move_to_end((key, i))
             if frame is None:
                 frame = simulate_capture(q, self.mset.captures[i], 1, inputs=self.inputs[i], cache=self.cache,
                                          until="bayer_sampling")[0].astype(np.float32)
-                self.memo[(key, i)] = frame
-                if len(self.memo) > _MEMO_ENTRIES:
-                    self.memo.popitem(last=False)
-            else:
-                self.memo.move_to_end((key, i))
+                with self._lock:
+                    self.memo[(key, i)] = frame
+                    if len(self.memo) > _MEMO_ENTRIES:
+                        self.memo.popitem(last=False)
             out.append(frame)
         return out
 
@@ -572,37 +589,44 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
     """Screen every named candidate on ``ctx.profile``, fit the :data:`FITTED` most promising to convergence,
     estimate each one's error and compute the full error of the :data:`FULL_ERRORS` best (and of every
     candidate that changes the noise); ranked by :attr:`Candidate.score`."""
-    fits, out = [], []
-    for i, name in enumerate(names):
-        if progress:
-            progress(i, len(names), name)
+    def in_turn(work, items, label):  # ``work`` on each item, WORKERS at a time, results in order
+        done = iter(range(len(items)))
+
+        def one(item):
+            if progress:
+                progress(next(done), len(items), label(item))
+            return work(item)
+
+        with ThreadPoolExecutor(WORKERS) as pool:
+            return list(pool.map(one, items))
+
+    def screened(name):
+        started = time.perf_counter()
         if name.startswith("without_"):
-            started = time.perf_counter()
             fitted = _removal(ctx, name)
-            if fitted is not None:
-                out.append(_candidate(ctx, name, fitted, time.perf_counter() - started, ctx.quick))
-            continue
+            return None if fitted is None else _candidate(ctx, name, fitted, time.perf_counter() - started, ctx.quick)
         f = _fits(ctx, name)
         if f is not None:
             f.screen()
-            fits.append(f)
+        return f
+
+    found = in_turn(screened, names, str)
+    out = [x for x in found if isinstance(x, Candidate)]
+    fits = [x for x in found if isinstance(x, _Fit)]
     # refine the most promising: by the error estimated on the captures each was screened on (no new simulations
     # for searched ones), against the best of every candidate screened
-    screened = sorted((_screened_error(ctx, f), k) for k, f in enumerate(fits))
-    best = screened[0][0] if screened else 0.0
-    pending = [fits[k] for e, k in screened if not fits[k].done and e <= REFINE_WITHIN * best][:FITTED]
-    for i, f in enumerate(pending):
-        if progress:
-            progress(i, len(pending), f"{f.name} (refining)")
-        f.finish()
-    for f in fits:
-        if progress:
-            progress(len(fits) - 1, len(fits), f"{f.name} (estimating)")
+    screened_errors = sorted((_screened_error(ctx, f), k) for k, f in enumerate(fits))
+    best = screened_errors[0][0] if screened_errors else 0.0
+    pending = [fits[k] for e, k in screened_errors if not fits[k].done and e <= REFINE_WITHIN * best][:FITTED]
+    in_turn(_Fit.finish, pending, lambda f: f"{f.name} (refining)")
+
+    def estimated(f):
         started = time.perf_counter()
         fitted = _evidence(ctx, f)
-        if fitted is not None:
-            out.append(_candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
-                                  ctx.quick if f.search.fit else f.subset))
+        return None if fitted is None else _candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
+                                                      ctx.quick if f.search.fit else f.subset)
+
+    out += [c for c in in_turn(estimated, fits, lambda f: f"{f.name} (estimating)") if c is not None]
     out.sort(key=lambda c: c.score)
     while out and not out[0].full:  # the best is always fully compared
         if progress:
