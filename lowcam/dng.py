@@ -393,7 +393,10 @@ def profile_from_dng(path, base):
         notes.append("no NoiseProfile: noise kept from the base profile; estimate it from the plate with "
                      "`lowcam calibrate plate`")
     else:
-        out = out.with_effect("noise", law="variance_linear", **laws)
+        try:
+            out = out.with_effect("noise", law="variance_linear", **laws)
+        except LowcamError as e:
+            raise DngError(f"{path}: NoiseProfile gives a noise law Lowcam cannot hold ({e})") from None
         pairs = " ".join(f"({s:.4g}, {o:.4g})" for s, o in sensor.noise_profile)
         gains = "" if sensor.as_shot_neutral is None else \
             f", white-balance gains 1/g from AsShotNeutral {np.round(sensor.as_shot_neutral, 4).tolist()}"

@@ -2,8 +2,9 @@
 
 The DNGs are written with PiDNG (an independent DNG writer) carrying known tags; the expected numbers are
 computed by hand in the tests from the DNG specification (1.6, ch. 4-6) with colour-science's own sRGB matrix and
-Bradford adaptation, never with Lowcam's converter. No package available here ships a real DNG (rawpy, tifffile,
-imageio and exifread ship none in their wheels), so every DNG here is written by PiDNG.
+Bradford adaptation, never with Lowcam's converter. No real DNG is installed on this machine (none in tifffile,
+imageio, colour-science or any other installed package; rawpy and exifread are not installed and their source
+packages could not be unpacked), so every DNG here is written by PiDNG, or laid out with SubIFDs by tifffile.
 """
 import subprocess
 import sys
@@ -206,6 +207,13 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, make, message):
     assert r.returncode == 2 and message in r.stderr and str(path) in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o.toml").exists()
+
+
+def test_a_noise_profile_too_large_for_lowcam_is_one_line_naming_the_file(tmp_path):
+    path = write_dng(tmp_path / "loud.dng", noise=((0.5, 0.01),))
+    r = run_cli("profile", "from-dng", path, "-o", tmp_path / "o.toml")
+    assert r.returncode == 2 and str(path) in r.stderr and "NoiseProfile" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
 
 
 def test_a_plain_tiff_is_not_a_dng(tmp_path):
