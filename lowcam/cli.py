@@ -22,6 +22,7 @@ Contents
 - :func:`cmd_compare`: ``lowcam compare``: the model against measured frames
 - :func:`cmd_diagnose`: ``lowcam diagnose``: rank the effects the profile may lack
 - :func:`cmd_synth`: ``lowcam synth``: a measurement set from bundled scenes, with hidden effects
+- :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
 - :func:`add_plugin_commands`: commands other packages add through the ``lowcam.commands`` entry points
 - :func:`build_parser`: the argument parser of every sub-command
 - :func:`main`: the entry point: one line on stderr and exit status 2 for a :class:`~lowcam.errors.LowcamError`
@@ -436,6 +437,25 @@ def cmd_synth(args) -> int:
     return 0
 
 
+# --- profile from-dng (issue 15, part 2) ------------------------------------------------------------------------
+def cmd_profile_from_dng(args) -> int:
+    from .dng import profile_from_dng
+    from .profile import load_profile
+
+    if Path(args.output).resolve() == Path(args.dng).resolve():
+        raise LowcamError(f"{args.output}: -o would replace the DNG it reads")
+    profile, notes = profile_from_dng(args.dng, load_profile(args.base))
+    for note in notes:
+        print(f"note: {note}")
+    path = profile.save(args.output)
+    noise = profile.effect("noise")
+    laws = "; ".join(f"{c} [{getattr(noise, c)[0]:.4g}, {getattr(noise, c)[1]:.4g}]" for c in ("red", "green", "blue"))
+    print(f"{path}: {profile.camera.name}, Bayer {profile.camera.bayer_pattern}, noise variance_linear {laws} DN"
+          if noise is not None and noise.law == "variance_linear" else f"{path}: {profile.camera.name}")
+    return 0
+# --- end profile from-dng ---------------------------------------------------------------------------------------
+
+
 def add_plugin_commands(sub) -> None:
     """Commands other packages add through the ``lowcam.commands`` entry-point group: each entry is a function
     that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``, ``motion`` and
@@ -572,6 +592,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("profiles", help="list the profiles; with a name, where each of its numbers came from")
     p.add_argument("name", nargs="?", help="a profile name or file: show its provenance, effect by effect")
     p.set_defaults(func=cmd_profiles)
+
+    # --- profile from-dng (issue 15, part 2): the `profile` group; other `profile` commands add their own blocks --
+    profile_group = sub.choices.get("profile") or sub.add_parser(
+        "profile", help="make a profile from published data (DNG metadata, lens databases)")
+    psub = next((a for a in profile_group._actions if isinstance(a, argparse._SubParsersAction)), None) or \
+        profile_group.add_subparsers(dest="what", required=True, parser_class=Parser)
+    q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
+    q.add_argument("dng", help="a DNG file (a phone's or camera's raw)")
+    q.add_argument("--base", default="fire-i", help="profile whose frame, optics and processing are kept")
+    q.add_argument("-o", "--output", required=True, help="profile TOML to write")
+    q.set_defaults(func=cmd_profile_from_dng)
+    # --- end profile from-dng ---------------------------------------------------------------------------------
 
     add_plugin_commands(sub)
     for command in set(sub.choices.values()):  # lowcam apply --debug as well as lowcam --debug apply
