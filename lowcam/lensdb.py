@@ -6,10 +6,12 @@ distance, lensfun's own interpolation of its three calibrations (``Lens.interpol
 ``interpolate_tca``, ``interpolate_vignetting``): nothing of the database lookup or interpolation is redone here.
 The terms go into Lowcam's effects unchanged, in lensfun's own models and normalisation:
 
-- distortion (poly3, poly5, ptlens) -> ``lens_distortion`` with the same model (:class:`~lowcam.effects.lens.LensfunLens`);
+- distortion (poly3, poly5, ptlens) -> ``lens_distortion`` with the same model
+  (:class:`~lowcam.effects.lens.LensfunLens`);
 - transverse chromatic aberration (linear, poly3) -> ``chromatic_aberration`` with ``model = "lensfun"``
   (:func:`~lowcam.effects.chromatic_aberration.lensfun_tca_offsets`);
-- vignetting (pa) -> ``vignetting`` with ``model = "lensfun_pa"`` (:func:`~lowcam.effects.vignetting.lensfun_vignetting`).
+- vignetting (pa) -> ``vignetting`` with ``model = "lensfun_pa"``
+  (:func:`~lowcam.effects.vignetting.lensfun_vignetting`).
 
 Every number written gets a ``[provenance]`` entry naming the lens, the setting and the database.
 
@@ -58,6 +60,14 @@ def _database():
     return require_lensfunpy().Database()
 
 
+def _f32(x) -> float:
+    """A lensfun number (float32) as the shortest decimal that reads back as the same float32 ("6.118", not
+    "6.118000030517578")."""
+    import numpy as np
+
+    return float(str(np.float32(x)))
+
+
 def _model_name(calibration) -> str:
     return calibration.model.name.lower()
 
@@ -93,8 +103,8 @@ class LensEntry:
 
 def _entry(lens) -> LensEntry:
     kinds = lambda cals: "/".join(sorted({_model_name(c) for c in cals}))  # noqa: E731
-    return LensEntry(lens.maker, lens.model, tuple(lens.mounts), (float(lens.min_focal or 0.0),
-                     float(lens.max_focal or lens.min_focal or 0.0)), float(lens.crop_factor),
+    return LensEntry(lens.maker, lens.model, tuple(lens.mounts), (_f32(lens.min_focal or 0.0),
+                     _f32(lens.max_focal or lens.min_focal or 0.0)), _f32(lens.crop_factor),
                      lens.type.name.lower(), kinds(lens.calib_distortion), kinds(lens.calib_tca),
                      len(lens.calib_vignetting), lens)
 
@@ -162,7 +172,7 @@ def camera_crop_factor(maker: str, model: str) -> tuple[float, str]:
         names = sorted({f"{c.maker} {c.model}" for c in _database().cameras})
         raise LowcamError(f"camera '{maker} {model}' is not in the lensfun database; nearest: "
                           f"{_suggest(f'{maker} {model}', names)}")
-    return float(cameras[0].crop_factor), f"{cameras[0].maker} {cameras[0].model}"
+    return _f32(cameras[0].crop_factor), f"{cameras[0].maker} {cameras[0].model}"
 
 
 @functools.lru_cache(maxsize=1)
@@ -210,7 +220,7 @@ class LensSetting:
         lens = self.entry.lens
         return {"crop_factor": self.crop_factor, "calibration_crop_factor": self.entry.crop_factor,
                 "calibration_aspect_ratio": self.aspect_ratio,
-                "lensfun_center": [float(lens.center_x), float(lens.center_y)]}
+                "lensfun_center": [_f32(lens.center_x), _f32(lens.center_y)]}
 
     def effects(self) -> dict[str, dict]:
         """``{effect: values}`` for ``lens_distortion``, ``chromatic_aberration`` and ``vignetting`` (the last two
@@ -266,7 +276,7 @@ def lens_setting(entry: LensEntry, focal_mm: float, aperture: float | None = Non
     if lo and not lo * 0.999 <= focal_mm <= hi * 1.001:
         raise LowcamError(f"{entry.name}: focal length {focal_mm:g} mm is outside the lens's range "
                           f"{lo:g}-{hi:g} mm")
-    widest = float(lens.min_aperture or 0.0)
+    widest = _f32(lens.min_aperture or 0.0)
     if aperture is None:
         aperture = widest or 2.8
     elif widest and aperture < widest * 0.999:
@@ -281,11 +291,11 @@ def lens_setting(entry: LensEntry, focal_mm: float, aperture: float | None = Non
     return LensSetting(
         entry, float(focal_mm), float(aperture), float(distance_m), float(crop_factor), crop_source,
         calibration_aspect_ratio(entry),
-        None if dist is None or _model_name(dist) == "none" else (_model_name(dist), [float(t) for t in
+        None if dist is None or _model_name(dist) == "none" else (_model_name(dist), [_f32(t) for t in
                                                                   dist.terms[:{"poly3": 1, "poly5": 2}.get(
                                                                       _model_name(dist), 3)]]),
-        None if tca is None or _model_name(tca) == "none" else (_model_name(tca), [float(t) for t in tca.terms]),
-        None if vig is None or _model_name(vig) != "pa" else [float(t) for t in vig.terms[:3]])
+        None if tca is None or _model_name(tca) == "none" else (_model_name(tca), [_f32(t) for t in tca.terms]),
+        None if vig is None or _model_name(vig) != "pa" else [_f32(t) for t in vig.terms[:3]])
 
 
 def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture: float | None = None,

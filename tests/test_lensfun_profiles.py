@@ -224,3 +224,28 @@ def test_camera_crop_factor_comes_from_the_database(tmp_path):
     assert q.effect("lens_distortion").crop_factor == pytest.approx(cams[0].crop_factor)
     assert "Canon PowerShot G12 in the lensfun database" in q.provenance["lens_distortion"]
     assert p.effect("lens_distortion").calibration_crop_factor == pytest.approx(4.63, abs=1e-3)
+
+
+def test_the_bundled_lensfun_profile_is_what_its_script_makes(tmp_path):
+    """profiles/iphone-xs-lens.toml is what profiles/make_profiles.sh's command writes today, and states where every
+    number came from."""
+    import shlex
+
+    from lowcam.profile import BUNDLED_PROFILES
+
+    script = (BUNDLED_PROFILES / "make_profiles.sh").read_text().replace("\\\n", " ")
+    line = next(line for line in script.splitlines() if "iphone-xs-lens.toml" in line)
+    args = shlex.split(line)[2:]  # drop "$PY" -m
+    args = [a for a in args if a != "lowcam.cli"]
+    args[args.index("--base") + 1] = str(BUNDLED_PROFILES / "fire-i.toml")
+    args[args.index("-o") + 1] = str(tmp_path / "again.toml")
+    assert main(args) == 0
+    bundled, again = load_profile("iphone-xs-lens"), load_profile(tmp_path / "again.toml")
+    for name in ("lens_distortion", "chromatic_aberration", "vignetting"):
+        assert bundled.effect(name).values() == again.effect(name).values(), name
+        assert "lensfun 0.3" in bundled.provenance_of(name) and "iPhone XS" in bundled.provenance_of(name)
+    assert bundled.effect("chromatic_aberration").model == "lensfun"
+    assert bundled.effect("vignetting").model == "lensfun_pa"
+    for e in bundled.effects:
+        assert bundled.provenance_of(e.name), e.name
+    assert "(from base fire-i)" in bundled.provenance["camera"]

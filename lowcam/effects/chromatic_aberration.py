@@ -7,8 +7,9 @@ red and blue outward by ``s (rho + cubic rho^3) / (1 + cubic)``, ``rho`` = radiu
 displacement at the corner. A lens from the lensfun database uses lensfun's own transverse-chromatic-aberration
 model instead (``model = "lensfun"``, :func:`lensfun_tca_grid`): the red (blue) image is the green one scaled
 radially by ``Rd = Ru (b Ru^2 + c Ru + v)`` in lensfun's normalised coordinates (lensfun 0.3.4
-``ModifyCoord_TCA_Poly3``; its ``linear`` model is ``v = k``, ``b = c = 0``). The calibration measures the offsets by Lucas-Kanade alignment of red and blue to
-green over patches of a noise target, as the paper does (sec. 4.1).
+``ModifyCoord_TCA_Poly3``; its ``linear`` model is ``v = k``, ``b = c = 0``). The calibration measures the
+offsets by Lucas-Kanade alignment of red and blue to green over patches of a noise target, as the paper does
+(sec. 4.1).
 
 Contents
 --------
