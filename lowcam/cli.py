@@ -593,17 +593,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", nargs="?", help="a profile name or file: show its provenance, effect by effect")
     p.set_defaults(func=cmd_profiles)
 
-    # --- profile from-dng (issue 15, part 2): the `profile` group; other `profile` commands add their own blocks --
-    profile_group = sub.choices.get("profile") or sub.add_parser(
-        "profile", help="make a profile from published data (DNG metadata, lens databases)")
-    psub = next((a for a in profile_group._actions if isinstance(a, argparse._SubParsersAction)), None) or \
-        profile_group.add_subparsers(dest="what", required=True, parser_class=Parser)
+    # --- lowcam profile: profiles from outside data (issue 15): a lens database, DNG metadata ---
+    p = sub.add_parser("profile", help="make a profile from outside data: a lens database, DNG metadata")
+    psub = p.add_subparsers(dest="what", required=True, parser_class=Parser)
+
+    # profile from-lensfun / profile search (lowcam.lensdb)
+    def _lensdb(name):
+        def run(args):
+            from . import lensdb
+            return getattr(lensdb, name)(args)
+        return run
+
+    q = psub.add_parser("from-lensfun", help="a lens of the lensfun database (distortion, TCA, vignetting) on a "
+                        "base profile (needs pip install lowcam[lensfun])")
+    q.add_argument("--maker", required=True, help="lens maker, as 'lowcam profile search' lists it")
+    q.add_argument("--model", required=True, help="lens model (or a unique part of it)")
+    q.add_argument("--focal-mm", type=float, required=True, help="focal length (mm) within the lens's range")
+    q.add_argument("--aperture", type=float, default=None, help="f-number for the vignetting (default: widest)")
+    q.add_argument("--distance-m", type=float, default=1000.0, help="focus distance (m) for the vignetting")
+    q.add_argument("--camera-maker", default=None, help="the camera, for its crop factor (with --camera-model)")
+    q.add_argument("--camera-model", default=None)
+    q.add_argument("--crop-factor", type=float, default=None,
+                   help="the camera's crop factor (default: the one the lens was calibrated on)")
+    q.add_argument("--base", required=True, help="profile for everything else (name or file)")
+    q.add_argument("--name", default=None, help="the new camera's name (default: the base's)")
+    q.add_argument("-o", "--output", required=True, help="the new profile (.toml)")
+    q.set_defaults(func=_lensdb("cmd_from_lensfun"))
+    q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
+    q.add_argument("text", nargs="+")
+    q.set_defaults(func=_lensdb("cmd_search"))
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
     q.add_argument("dng", help="a DNG file (a phone's or camera's raw)")
     q.add_argument("--base", default="fire-i", help="profile whose frame, optics and processing are kept")
     q.add_argument("-o", "--output", required=True, help="profile TOML to write")
     q.set_defaults(func=cmd_profile_from_dng)
-    # --- end profile from-dng ---------------------------------------------------------------------------------
+    for q in psub.choices.values():
+        q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
     add_plugin_commands(sub)
     for command in set(sub.choices.values()):  # lowcam apply --debug as well as lowcam --debug apply

@@ -4,8 +4,12 @@ Red and blue sensels sample the image through their own offset grids; green is t
 cols, 4) ``[red_du, red_dv, blue_du, blue_dv]`` in output pixels at the cell centres of the output frame (24x18
 cells in the paper), stored as a CSV (:data:`CSV_COLUMNS`). Without a measured grid, a radial model displaces
 red and blue outward by ``s (rho + cubic rho^3) / (1 + cubic)``, ``rho`` = radius / half-diagonal, ``s`` the
-displacement at the corner. The calibration measures the offsets by Lucas-Kanade alignment of red and blue to
-green over patches of a noise target, as the paper does (sec. 4.1).
+displacement at the corner. A lens from the lensfun database uses lensfun's own transverse-chromatic-aberration
+model instead (``model = "lensfun"``, :func:`lensfun_tca_grid`): the red (blue) image is the green one scaled
+radially by ``Rd = Ru (b Ru^2 + c Ru + v)`` in lensfun's normalised coordinates (lensfun 0.3.4
+``ModifyCoord_TCA_Poly3``; its ``linear`` model is ``v = k``, ``b = c = 0``). The calibration measures the
+offsets by Lucas-Kanade alignment of red and blue to green over patches of a noise target, as the paper does
+(sec. 4.1).
 
 Contents
 --------
@@ -14,6 +18,8 @@ Contents
 - :func:`read_ca_grid`: read a chromatic-aberration grid CSV as (rows, cols, 4)
 - :func:`write_ca_grid`: write a grid for an output frame of ``width`` x ``height`` in the same format
 - :func:`radial_ca_grid`: a lateral-colour grid from the radial model
+- :func:`lensfun_tca_offsets`: where red and blue sample relative to green under lensfun's TCA model (px)
+- :func:`lensfun_tca_grid`: a dense lateral-colour grid from lensfun's TCA model
 - :class:`ChromaticAberration`: red and blue sample through their own offset grids; green is the reference
 - :func:`lk_shift`: Lucas-Kanade sub-pixel translation of one patch (Gauss-Newton) [Lucas1981]
 - :func:`channel_shifts`: where red and blue sample relative to green around given points, by Lucas-Kanade
@@ -23,6 +29,8 @@ References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Lensfun] lensfun 0.3.4, ``libs/lensfun/mod-subpix.cpp`` (``ModifyCoord_TCA_Poly3``, ``ModifyCoord_UnTCA_Poly3``,
+  ``ModifyCoord_TCA_Linear``) and ``libs/lensfun/modifier.cpp`` (normalisation), https://github.com/lensfun/lensfun.
 - [Lucas1981] B. D. Lucas and T. Kanade, "An Iterative Image Registration Technique with an Application to Stereo
   Vision", IJCAI 1981, 674-679.
 """
@@ -36,6 +44,7 @@ from .. import schema
 from ..errors import LowcamError
 from ..geometry import grid_points
 from .base import Effect, NodeStage, Param, Search
+from .lens import lensfun_frame
 
 CSV_COLUMNS = ["u", "v", "red_du", "red_dv", "blue_du", "blue_dv"]
 
@@ -97,11 +106,57 @@ def radial_ca_grid(width, height, red_px, blue_px, cells=(24, 18), cubic=0.0) ->
     return np.stack([red_px * du * gain, red_px * dv * gain, blue_px * du * gain, blue_px * dv * gain], -1)
 
 
+def lensfun_tca_offsets(u, v, width, height, red, blue, crop_factor=1.0, calibration_crop_factor=1.0,
+                        calibration_aspect_ratio=1.5, center=(0.0, 0.0)) -> np.ndarray:
+    """Where red and blue sample relative to green at output pixels (``u``, ``v``) under lensfun's TCA model:
+    ``(..., 4)`` ``[red_du, red_dv, blue_du, blue_dv]`` px.
+
+    ``red`` and ``blue`` are lensfun's ``[v, c, b]`` of ``Rd = Ru (b Ru^2 + c Ru + v)``: the colour's image is
+    green's scaled radially about the distortion centre, radii in lensfun's normalised unit
+    (:func:`~lowcam.effects.lens.lensfun_frame`). A sensel at radius ``Rd`` therefore sees what green sees at
+    ``Ru`` (solved by Newton's method, as lensfun's ``ModifyCoord_UnTCA_Poly3`` does when it simulates the lens).
+    """
+    unit, u0, v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor, calibration_aspect_ratio,
+                                 center)
+    x = (np.asarray(u, np.float64) - u0) / unit
+    y = (np.asarray(v, np.float64) - v0) / unit
+    rd = np.hypot(x, y)
+    out = []
+    for vv, cc, bb in (red, blue):
+        ru = rd / vv
+        for _ in range(30):
+            step = (ru * (vv + ru * (cc + ru * bb)) - rd) / (vv + ru * (2 * cc + 3 * bb * ru))
+            ru = ru - step
+            if np.abs(step).max(initial=0.0) < 1e-14:
+                break
+        ratio = np.where(rd > 0, ru / np.where(rd > 0, rd, 1.0), 1.0 / vv) - 1.0
+        out += [unit * x * ratio, unit * y * ratio]
+    return np.stack(out, -1)
+
+
+def lensfun_tca_grid(width, height, red, blue, crop_factor=1.0, calibration_crop_factor=1.0,
+                     calibration_aspect_ratio=1.5, center=(0.0, 0.0), max_cells: int = 1024) -> np.ndarray:
+    """:func:`lensfun_tca_offsets` on a dense grid over the frame (a texel per pixel, or per few pixels on frames
+    wider than ``max_cells``), so the bilinear lookup at Bayer sampling reproduces the model to well under
+    0.01 px."""
+    step = max(1, -(-max(width, height) // max_cells))
+    u, v = grid_points((-0.5, -0.5, width - 0.5, height - 0.5), (-(-width // step), -(-height // step)))
+    return lensfun_tca_offsets(u, v, width, height, red, blue, crop_factor, calibration_crop_factor,
+                               calibration_aspect_ratio, center)
+
+
+_LENSFUN_KEYS = ("lensfun_red", "lensfun_blue", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
+                 "lensfun_center")
+_RADIAL_KEYS = ("red_corner_px", "blue_corner_px", "cubic")
+
+
 class ChromaticAberration(Effect):
     """Red and blue sensels sample the image through their own offset grids; green is the reference.
 
-    Either ``texture`` (a CSV grid, see :func:`read_ca_grid`) or the radial model of :func:`radial_ca_grid`
-    with ``red_corner_px``, ``blue_corner_px`` and ``cubic``.
+    Either ``texture`` (a CSV grid, see :func:`read_ca_grid`), or ``model = "radial"``: :func:`radial_ca_grid`
+    with ``red_corner_px``, ``blue_corner_px`` and ``cubic``, or ``model = "lensfun"``: lensfun's TCA model
+    (:func:`lensfun_tca_offsets`) with ``lensfun_red``, ``lensfun_blue`` and the lens's crop factors, aspect
+    ratio and centre (the same keys as the lens_distortion effect's lensfun models).
     """
 
     name = "chromatic_aberration"
@@ -123,7 +178,23 @@ class ChromaticAberration(Effect):
         "blue_corner_px": Param(0.0, low=-MAX_OFFSET_PX, high=MAX_OFFSET_PX, unit="px",
                                 doc="outward shift of blue at the corner"),
         "cubic": Param(0.0, low=0.0, high=100.0, doc="weight of the rho^3 term of the radial model"),
+        "model": Param("radial", str, choices=("radial", "lensfun"), doc="without a texture: the model"),
+        "lensfun_red": Param([1.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
+                             doc="lensfun TCA of red: [v, c, b] of Rd = Ru (b Ru^2 + c Ru + v)"),
+        "lensfun_blue": Param([1.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
+                              doc="lensfun TCA of blue: [v, c, b]"),
+        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun model: the camera's crop factor"),
+        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
+                                         doc="lensfun model: crop factor of the camera the lens was calibrated on"),
+        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
+                                          doc="lensfun model: long / short side of the calibration sensor"),
+        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
+                                doc="lensfun model: centre from the frame centre, in half the shorter side, y down"),
     }
+
+    def values(self):
+        drop = _RADIAL_KEYS if self.model == "lensfun" else _LENSFUN_KEYS
+        return {k: v for k, v in super().values().items() if k not in drop}
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -132,10 +203,25 @@ class ChromaticAberration(Effect):
         except LowcamError as e:  # name the profile and the key too
             raise self.error(f"'texture': {e}") from None
 
+    def check(self):
+        if self.model == "lensfun" and not self.texture:
+            for colour in ("red", "blue"):
+                v = getattr(self, f"lensfun_{colour}")[0]
+                if not 0.5 <= v <= 2.0:
+                    raise self.error(f"lensfun_{colour}: the scale v = {v:g} must lie in 0.5..2 (lensfun TCA "
+                                     "terms are [v, c, b] with v close to 1)")
+
     def grid(self, width: int, height: int) -> np.ndarray:
         """(rows, cols, 4) offsets [red_du, red_dv, blue_du, blue_dv] over the output frame."""
         if self._grid is not None:
             return self._grid
+        if self.model == "lensfun":
+            key = (width, height, repr(self.values()))
+            if getattr(self, "_dense", (None,))[0] != key:
+                self._dense = (key, lensfun_tca_grid(
+                    width, height, self.lensfun_red, self.lensfun_blue, self.crop_factor,
+                    self.calibration_crop_factor, self.calibration_aspect_ratio, tuple(self.lensfun_center)))
+            return self._dense[1]
         return radial_ca_grid(width, height, self.red_corner_px, self.blue_corner_px, cubic=self.cubic)
 
     def apply(self, state):

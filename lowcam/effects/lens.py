@@ -36,6 +36,8 @@ Contents
 - :class:`OpenCVLens`: Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2
 - :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame
 - :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
+- :func:`lensfun_frame`: lensfun's normalised unit (px) and distortion centre on a frame (shared by TCA and
+  vignetting)
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
@@ -287,6 +289,23 @@ class BlenderLens(LensModel):
 FULL_FRAME_HALF_DIAGONAL_MM = 0.5 * float(np.hypot(36.0, 24.0))
 
 
+def lensfun_frame(width, height, crop_factor=1.0, calibration_crop_factor=1.0, calibration_aspect_ratio=1.5,
+                  center=(0.0, 0.0)) -> tuple[float, float, float]:
+    """Lensfun's normalised coordinates on a ``width`` x ``height`` frame (pixel centres at integers):
+    ``(unit_px, u0, v0)``, the length of one normalised unit in pixels and the centre of the distortion, TCA and
+    vignetting models (lensfun 0.3.4 ``lfModifier`` constructor: ``NormScale``, ``CenterX``, ``CenterY``).
+
+    One unit is half the shorter side of the *calibration* sensor: ``hypot(W - 1, H - 1) / 2 * crop_factor /
+    calibration_crop_factor / sqrt(1 + calibration_aspect_ratio^2)`` px; the centre is the frame centre moved by
+    ``center`` (the lens entry's ``center``) in half the frame's shorter side. Lensfun's vignetting radius is this
+    normalised radius over ``sqrt(1 + calibration_aspect_ratio^2)`` (1 at the calibration sensor's corner).
+    """
+    a = float(np.sqrt(1.0 + calibration_aspect_ratio ** 2))
+    unit_px = 0.5 * float(np.hypot(width - 1.0, height - 1.0)) * crop_factor / calibration_crop_factor / a
+    half = 0.5 * min(width - 1.0, height - 1.0)
+    return unit_px, 0.5 * (width - 1.0) + center[0] * half, 0.5 * (height - 1.0) + center[1] * half
+
+
 class LensfunLens(LensModel):
     """Lensfun's distortion models (``poly3``, ``poly5``, ``ptlens``), normalised as lensfun 0.3 does.
 
@@ -309,12 +328,10 @@ class LensfunLens(LensModel):
         super().__init__(width, height)
         self.model, self.terms = model, tuple(float(t) for t in terms)
         a = float(np.sqrt(1.0 + calibration_aspect_ratio ** 2))
-        self.unit_px = 0.5 * np.hypot(width - 1.0, height - 1.0) * crop_factor / calibration_crop_factor / a
+        self.unit_px, self.u0, self.v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor,
+                                                       calibration_aspect_ratio, center)
         self.unit_mm = FULL_FRAME_HALF_DIAGONAL_MM / calibration_crop_factor / a
         self.scale = focal_length / self.unit_mm  # camera plane -> normalised undistorted radius
-        half = 0.5 * min(width - 1.0, height - 1.0)
-        self.u0 = 0.5 * (width - 1.0) + center[0] * half
-        self.v0 = 0.5 * (height - 1.0) + center[1] * half
 
     def pinhole_intrinsics(self):
         f = self.unit_px * self.scale

@@ -2,12 +2,15 @@
 
 Each sensel's colour (not its alpha) is multiplied by a gain texture over the output frame (80x60 in the paper,
 Fig. 2; brightest texel = 1) at Bayer sampling (sec. 5.2 step 5). Without a measured texture, a radial model
-``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) is used. The calibration averages flat fields, blurs
+``1 + k2 rho^2 + k4 rho^4`` (rho = radius / half-diagonal) is used; a lens from the lensfun database uses
+lensfun's ``pa`` model ``1 + k1 r^2 + k2 r^4 + k3 r^6`` (``model = "lensfun_pa"``, :func:`lensfun_vignetting`),
+evaluated at every sensel. The calibration averages flat fields, blurs
 away sensor and target irregularities, subsamples and normalises, as the paper does (sec. 4.1).
 
 Contents
 --------
 - :func:`radial_vignetting`: gain map ``1 + k2 rho^2 + k4 rho^4`` over a (rows, cols) texture, maximum 1
+- :func:`lensfun_vignetting`: lensfun's ``pa`` vignetting gain at output pixels
 - :class:`Vignetting`: multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
 - :func:`fit_vignetting`: the gain texture from flat-field frames (sec. 4.1)
 
@@ -15,6 +18,9 @@ References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Lensfun] lensfun 0.3.4, ``libs/lensfun/mod-color.cpp`` (``AddColorCallbackVignetting``,
+  ``ModifyColor_Vignetting_PA``: ``r`` = normalised radius / sqrt(1 + aspect^2), 1 at the calibration sensor's
+  corner), https://github.com/lensfun/lensfun.
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ import numpy as np
 
 from ..geometry import sample_texture
 from .base import Effect, NodeStage, Param, Search
+from .lens import lensfun_frame
 
 
 def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 80)) -> np.ndarray:
@@ -36,12 +43,32 @@ def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 
     return (gain / gain.max()).astype(np.float32)
 
 
+def lensfun_vignetting(u, v, width, height, terms, crop_factor=1.0, calibration_crop_factor=1.0,
+                       calibration_aspect_ratio=1.5, center=(0.0, 0.0)) -> np.ndarray:
+    """Lensfun's ``pa`` vignetting ``1 + k1 r^2 + k2 r^4 + k3 r^6`` (``terms`` = [k1, k2, k3]) at output pixels
+    (``u``, ``v``) of a ``width`` x ``height`` frame; ``r`` is lensfun's normalised radius
+    (:func:`~lowcam.effects.lens.lensfun_frame`) over ``sqrt(1 + calibration_aspect_ratio^2)``: 1 at the corner
+    of the calibration sensor. The gain is 1 at the centre, not renormalised (lensfun's own convention)."""
+    unit, u0, v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor, calibration_aspect_ratio,
+                                 center)
+    scale = unit * np.sqrt(1.0 + calibration_aspect_ratio ** 2)
+    r2 = ((np.asarray(u, np.float64) - u0) ** 2 + (np.asarray(v, np.float64) - v0) ** 2) / scale ** 2
+    k1, k2, k3 = terms
+    return np.clip(1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)), 0.0, None)
+
+
+_LENSFUN_KEYS = ("lensfun_terms", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
+                 "lensfun_center")
+
+
 class Vignetting(Effect):
     """Multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1).
 
     ``texture``: a greyscale PNG (80x60 in the paper; 16-bit recommended) covering the output frame, gain =
     value / maximum code value, normalised so the brightest texel is 1. Without a texture the radial model of
-    :func:`radial_vignetting` with ``k2`` and ``k4`` is used.
+    :func:`radial_vignetting` with ``k2`` and ``k4`` is used, or with ``model = "lensfun_pa"`` lensfun's model
+    (:func:`lensfun_vignetting`) evaluated at every sensel, with ``lensfun_terms`` and the lens's crop factors,
+    aspect ratio and centre (the keys of the lens_distortion effect's lensfun models).
     """
 
     name = "vignetting"
@@ -57,7 +84,26 @@ class Vignetting(Effect):
         "texture": Param("", "path", doc="greyscale PNG gain map; empty: radial model"),
         "k2": Param(0.0, low=-10.0, high=10.0),
         "k4": Param(0.0, low=-10.0, high=10.0),
+        "model": Param("radial", str, choices=("radial", "lensfun_pa"), doc="without a texture: the model"),
+        "lensfun_terms": Param([0.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
+                               doc="lensfun pa model: [k1, k2, k3] of 1 + k1 r^2 + k2 r^4 + k3 r^6"),
+        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun model: the camera's crop factor"),
+        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
+                                         doc="lensfun model: crop factor of the camera the lens was calibrated on"),
+        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
+                                          doc="lensfun model: long / short side of the calibration sensor"),
+        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
+                                doc="lensfun model: centre from the frame centre, in half the shorter side, y down"),
     }
+
+    def values(self):
+        drop = ("k2", "k4") if self.model == "lensfun_pa" else _LENSFUN_KEYS
+        return {k: v for k, v in super().values().items() if k not in drop}
+
+    def _lensfun_gain(self, u, v, width, height):
+        return lensfun_vignetting(u, v, width, height, self.lensfun_terms, self.crop_factor,
+                                  self.calibration_crop_factor, self.calibration_aspect_ratio,
+                                  tuple(self.lensfun_center))
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -74,11 +120,19 @@ class Vignetting(Effect):
     def gain_texture(self, width: int, height: int) -> np.ndarray:
         if self._texture is not None:
             return self._texture
+        if self.model == "lensfun_pa":  # for display and export; the stage itself evaluates every sensel
+            rows, cols = 60, 80
+            u = (np.arange(cols) + 0.5) * width / cols - 0.5
+            v = (np.arange(rows) + 0.5) * height / rows - 0.5
+            uu, vv = np.meshgrid(u, v)
+            return self._lensfun_gain(uu, vv, width, height).astype(np.float32)
         return radial_vignetting(width, height, self.k2, self.k4)
 
     def gain_planes(self, geometry) -> np.ndarray:
         """The gain of every sensel, (4, hb, wb) like the sensel planes (the node group bakes the same)."""
         pos = geometry.sensel_positions
+        if self._texture is None and self.model == "lensfun_pa":
+            return self._lensfun_gain(pos[..., 0], pos[..., 1], geometry.width, geometry.height).astype(np.float32)
         return sample_texture(self.gain_texture(geometry.width, geometry.height), geometry.frame_extent,
                               pos[..., 0], pos[..., 1]).astype(np.float32)
 
