@@ -19,6 +19,8 @@ Contents
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
   ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
+- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of a stack of frames
+- :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
 References
 ----------
@@ -198,3 +200,13 @@ def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> d
                 a, b = a * k, b * k
             out[law][channel] = [a, b]
     return out
+
+
+def noise_level_statistic(frames) -> dict:
+    """The noise level function of a stack (T, H, W, 3) float32 DN: binned mean levels and sigma per channel."""
+    raise NotImplementedError
+
+
+def noise_level_function_from_plate(footage, base=None):
+    """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`."""
+    raise NotImplementedError

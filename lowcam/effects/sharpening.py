@@ -12,6 +12,8 @@ Contents
 - :func:`fit_row_filter`: the free FIR filter mapping soft rows onto sharp rows (the paper's 101-tap estimate)
 - :func:`frequency_response`: |H(f)| of a centred FIR kernel from 0 to Nyquist (cycles/sample)
 - :func:`fit_sharpening_to_images`: (a, sigma) of ``F = I + a (I - L_sigma)`` fitted to the images themselves
+- :func:`edge_profile_statistic`: the mean edge profile across strong natural edges: 10-90 % width, overshoot
+- :func:`edge_profile_from_plate`: horizontal blur and sharpening from footage's natural edges (a PlateEstimate)
 
 References
 ----------
@@ -115,3 +117,13 @@ def fit_sharpening_to_images(soft: np.ndarray, sharp: np.ndarray, taps: int = 7)
 
     sol = least_squares(residual, [1.0, 0.6], bounds=([0.0, 0.2], [20.0, 3.0]))
     return float(sol.x[0]), float(sol.x[1])
+
+
+def edge_profile_statistic(frames) -> dict:
+    """The mean edge profile across strong natural edges of a stack (T, H, W, 3) float32 DN."""
+    raise NotImplementedError
+
+
+def edge_profile_from_plate(footage, base=None):
+    """Horizontal blur sigma and sharpening gain from footage's natural edges, as a PlateEstimate."""
+    raise NotImplementedError

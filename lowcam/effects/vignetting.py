@@ -10,6 +10,8 @@ Contents
 - :func:`radial_vignetting`: gain map ``1 + k2 rho^2 + k4 rho^4`` over a (rows, cols) texture, maximum 1
 - :class:`Vignetting`: multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
 - :func:`fit_vignetting`: the gain texture from flat-field frames (sec. 4.1)
+- :func:`vignetting_statistic`: the radial fall-off of a moving shot (the same scene points at different radii)
+- :func:`vignetting_from_plate`: k2, k4 of the radial model from a moving shot (a PlateEstimate)
 
 References
 ----------
@@ -98,3 +100,13 @@ def fit_vignetting(frames, shape=(60, 80), blur_fraction: float = 1 / 40) -> np.
     blurred = cv2.GaussianBlur(mean, (0, 0), blur_fraction * mean.shape[1])
     small = cv2.resize(blurred, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     return (small / small.max()).astype(np.float32)
+
+
+def vignetting_statistic(frames) -> dict:
+    """The radial fall-off (k2, k4) of a moving shot (T, H, W, 3) float32 DN."""
+    raise NotImplementedError
+
+
+def vignetting_from_plate(footage, base=None):
+    """k2, k4 of the radial vignetting model from a moving shot, as a PlateEstimate."""
+    raise NotImplementedError

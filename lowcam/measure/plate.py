@@ -1,0 +1,312 @@
+"""A profile from the plate itself: no chart, no ideal (issue 15, part 3).
+
+The footage a user films is itself a measurement of the camera. Each :class:`PlateProbe` measures one no-reference
+statistic on the footage (the noise level function, the edge spread and overshoot, the radial fall-off, the gyro's
+angular velocity, ...), and its estimator (a plain function in the effect's own module, beside the effect it sets)
+turns the statistic into that effect's parameters with a confidence in 0..1. :func:`estimate_profile` applies the
+confident estimates to a copy of a base profile and records where each number came from in the profile's
+``[provenance]`` table; estimates below :data:`MIN_CONFIDENCE` are reported, not applied. :func:`model_statistics`
+measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
+frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
+
+The probes are walked in the order of :data:`PLATE_PROBES`; further probes (JPEG blockiness, chroma bandwidth) are
+added there with their estimators in their own effect modules.
+
+Contents
+--------
+- :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
+- :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
+- :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
+- :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
+- :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
+- :data:`PLATE_PROBES`: every plate probe, in the order they run
+- :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
+- :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
+- :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
+- :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
+- :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
+- :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
+- :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
+
+References
+----------
+- [Liu2008] C. Liu, R. Szeliski, S. B. Kang, C. L. Zitnick and W. T. Freeman, "Automatic Estimation and Removal of
+  Noise from a Single Image", IEEE TPAMI 30(2), 299-314, 2008 (the noise level function).
+- [Foi2008] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, "Practical Poissonian-Gaussian Noise Modeling and
+  Fitting for Single-Image Raw-Data", IEEE TIP 17(10), 1737-1754, 2008.
+- [Goldman2010] D. B. Goldman, "Vignette and Exposure Calibration and Compensation", IEEE TPAMI 32(12),
+  2276-2288, 2010 (vignetting from the same scene points seen at different image positions).
+- [ISO12233] ISO 12233:2017 (edge spread, 10-90 % rise).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import LowcamError
+
+#: Estimates below this confidence are reported, not applied to the profile.
+MIN_CONFIDENCE = 0.5
+
+#: A shot needs at least this many frames.
+MIN_FRAMES = 2
+
+_VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp"}
+_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr"}
+
+
+@dataclass
+class Footage:
+    """The frames of one shot as the camera delivered them: ``frames`` (T, H, W, 3) uint8 or float32, DN 0-255,
+    RGB (a sequence of (H, W, 3) arrays also works); ``fps`` (frames/s); ``path`` (for messages); ``gyro``:
+    optional samples (N, 4) ``t, wx, wy, wz`` (s, rad/s, Lowcam's camera axes) with ``frame_times`` (s, the start
+    of each frame on the gyro's clock; None: frame i starts at ``i / fps`` after the first sample)."""
+
+    frames: Sequence[np.ndarray]
+    fps: float = 30.0
+    path: str = "footage"
+    gyro: np.ndarray | None = None
+    frame_times: np.ndarray | None = None
+    names: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) in px."""
+        return tuple(np.shape(self.frames[0])[:2])
+
+    def frame(self, i: int) -> np.ndarray:
+        """Frame ``i`` as float32 RGB, DN 0-255."""
+        return np.asarray(self.frames[i], np.float32)
+
+    def stack(self, indices=None, max_frames: int | None = None) -> np.ndarray:
+        """Frames (T, H, W, 3) float32 DN: ``indices`` (default all), evenly thinned to ``max_frames``."""
+        idx = list(range(len(self))) if indices is None else list(indices)
+        if max_frames is not None and len(idx) > max_frames:
+            idx = [idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, max_frames)]
+        return np.stack([self.frame(i) for i in idx])
+
+
+def _frame_paths(path: Path) -> list[Path]:
+    from ..captures import expand_paths
+
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES and p.is_file())
+        return sorted(files, key=_natural_key)
+    return sorted((p for p in expand_paths([path]) if p.is_file()), key=_natural_key)
+
+
+def _natural_key(p: Path):
+    import re
+
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
+
+
+def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 2000) -> Footage:
+    """Read a shot: a video file (OpenCV's VideoCapture), a folder of frames (PNG/JPEG/TIFF, in natural name
+    order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro` or a gyro CSV,
+    :func:`lowcam.motion.read_gyro_csv`). Every problem is one line naming the file: missing, unreadable, too few
+    frames, mismatched sizes."""
+    from ..captures import load_frames
+
+    p = Path(path)
+    name = str(path)
+    if p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
+        frames, rate = _read_video(p, max_frames)
+        footage = Footage(frames, fps or rate or 30.0, name)
+    else:
+        paths = _frame_paths(p)
+        if not paths:
+            raise LowcamError(f"{name}: no such video file, folder or frames")
+        if len(paths) < MIN_FRAMES:
+            raise LowcamError(f"{name}: {len(paths)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+        paths = paths[:max_frames]
+        frames, names = load_frames(paths, MIN_FRAMES, name)
+        footage = Footage(np.stack(frames), fps or 30.0, name, names=names)
+    if len(footage) < MIN_FRAMES:
+        raise LowcamError(f"{name}: {len(footage)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+    if gyro is not None:
+        footage.gyro, footage.frame_times = read_phone_gyro(gyro)
+    return footage
+
+
+def _read_video(path: Path, max_frames: int):
+    import cv2
+
+    from ..io import quiet_stderr
+
+    with quiet_stderr():
+        cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise LowcamError(f"{path}: cannot be read as a video")
+    rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+    frames = []
+    try:
+        while len(frames) < max_frames:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            if frames and bgr.shape != frames[0].shape:
+                raise LowcamError(f"{path}: frame {len(frames)} is {bgr.shape[1]}x{bgr.shape[0]}, the first is "
+                                  f"{frames[0].shape[1]}x{frames[0].shape[0]}: mismatched sizes")
+            frames.append(bgr[..., ::-1].copy())
+    finally:
+        cap.release()
+    if not frames:
+        raise LowcamError(f"{path}: no frame could be decoded")
+    return np.stack(frames), (rate if 0 < rate < 1000 else None)
+
+
+def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a gyro CSV with a
+    header (:func:`lowcam.motion.read_gyro_csv`) or the phone format: whitespace-separated rows ``wx wy wz t``
+    (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s)."""
+    raise NotImplementedError  # filled in below the skeleton commit
+
+
+@dataclass
+class PlateEstimate:
+    """One statistic measured on the footage and what it implies for the profile.
+
+    ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
+    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports);
+    ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
+    simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
+    :func:`estimate_profile` wrote ``params`` into the profile."""
+
+    statistic: str
+    effect: str
+    measured: dict
+    params: dict
+    confidence: float
+    reason: str
+    model: dict | None = None
+    applied: bool = False
+
+    def line(self) -> str:
+        """One line for the terminal: what was found, how sure, whether it went into the profile."""
+        what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
+        state = "applied" if self.applied else "not applied"
+        return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+@dataclass(frozen=True)
+class PlateProbe:
+    """One no-reference statistic of footage.
+
+    ``estimate(footage, base)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it at
+    all); ``base`` is the profile being refined (or None), for the parameters an estimate depends on.
+    ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
+    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured)."""
+
+    name: str
+    effect: str
+    estimate: Callable
+    statistic: Callable[[np.ndarray], dict]
+    about: str = ""
+
+
+def _noise_estimate(footage, base=None):
+    from ..effects.noise import noise_level_function_from_plate
+
+    return noise_level_function_from_plate(footage, base)
+
+
+def _noise_statistic(frames):
+    from ..effects.noise import noise_level_statistic
+
+    return noise_level_statistic(frames)
+
+
+def _edge_estimate(footage, base=None):
+    from ..effects.sharpening import edge_profile_from_plate
+
+    return edge_profile_from_plate(footage, base)
+
+
+def _edge_statistic(frames):
+    from ..effects.sharpening import edge_profile_statistic
+
+    return edge_profile_statistic(frames)
+
+
+def _vignetting_estimate(footage, base=None):
+    from ..effects.vignetting import vignetting_from_plate
+
+    return vignetting_from_plate(footage, base)
+
+
+def _vignetting_statistic(frames):
+    from ..effects.vignetting import vignetting_statistic
+
+    return vignetting_statistic(frames)
+
+
+def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
+    """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
+    over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
+    parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
+    raise NotImplementedError
+
+
+def _no_statistic(frames):
+    return {}
+
+
+#: Every plate probe, in the order they run (h/platecmp adds JPEG blockiness and chroma bandwidth after
+#: vignetting).
+PLATE_PROBES: list[PlateProbe] = [
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
+    PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
+               "10-90 % edge width and overshoot across strong natural edges"),
+    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
+               "brightness of the same scene points at different radii over a moving shot"),
+    # -- JPEG blockiness and chroma bandwidth probes go here (h/platecmp) --
+    PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
+               "angular velocity per frame from a gyro log"),
+]
+
+
+def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
+    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves."""
+    raise NotImplementedError
+
+
+def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
+    """The footage's per-pixel temporal median (a denoised frame), scaled to ``width`` x ``height``, as an
+    opaque premultiplied RGBA ideal render (0-1)."""
+    raise NotImplementedError
+
+
+def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) -> np.ndarray:
+    """``frames`` frames (T, H, W, 3) float32 DN of ``profile`` filming :func:`similar_content` (a still
+    camera), each with its own noise."""
+    raise NotImplementedError
+
+
+def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], frames: int = 4) -> None:
+    """Fill each estimate's ``model`` with its statistic measured on ``profile`` filming similar content."""
+    raise NotImplementedError
+
+
+def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
+                     probes: list[PlateProbe] | None = None):
+    """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
+    with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
+    with a ``[provenance]`` entry per parameter. Progress goes to stderr."""
+    raise NotImplementedError
