@@ -209,7 +209,9 @@ class PlateEstimate:
     """One statistic measured on the footage and what it implies for the profile.
 
     ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
-    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports);
+    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
+    parameter of ``effect`` or ``"other_effect.param"``; ``base_params``: the base profile's values of the same
+    parameters (None where it lacks them), filled by :func:`estimate_profile`;
     ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
     simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
     :func:`estimate_profile` wrote ``params`` into the profile."""
@@ -222,12 +224,18 @@ class PlateEstimate:
     reason: str
     model: dict | None = None
     applied: bool = False
+    base_params: dict = field(default_factory=dict)
 
     def line(self) -> str:
         """One line for the terminal: what was found, how sure, whether it went into the profile."""
         what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
         state = "applied" if self.applied else "not applied"
         return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
+
+
+def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
+    """(effect, param) of one of an estimate's params: ``"effect.param"`` or a param of ``est.effect``."""
+    return tuple(key.split(".", 1)) if "." in key else (est.effect, key)
 
 
 def _fmt(v) -> str:
@@ -347,10 +355,10 @@ def _no_statistic(frames):
 #: Every plate probe, in the order they run (h/platecmp adds JPEG blockiness and chroma bandwidth after
 #: vignetting).
 PLATE_PROBES: list[PlateProbe] = [
-    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
-               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
     PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
                "brightness of the same scene points at different radii over a moving shot"),
     # -- JPEG blockiness and chroma bandwidth probes go here (h/platecmp) --
@@ -446,15 +454,21 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        est = probe.estimate(footage, base)
+        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters)
         if est is None:
             continue
         estimates.append(est)
+        est.base_params = {}
+        for key in est.params:
+            effect, param = _target(est, key)
+            e = base.effect(effect)
+            est.base_params[key] = getattr(e, param, None) if e is not None else None
         if est.params and est.confidence >= min_confidence:
-            out = out.with_effect(est.effect, **est.params)
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
-            for key in est.params:
-                out.provenance[f"{est.effect}.{key}"] = note
+            for key, value in est.params.items():
+                effect, param = _target(est, key)
+                out = out.with_effect(effect, **{param: value})
+                out.provenance[f"{effect}.{param}"] = note
             est.applied = True
     return out, estimates
