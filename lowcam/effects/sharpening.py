@@ -131,12 +131,15 @@ MIN_EDGES = 20
 def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0) -> list[np.ndarray]:
     """Normalised profiles (0 left plateau, 1 right plateau) along x across strong, near-vertical, straight edges
     of ``grey``, sampled every 0.25 px over +-:data:`EDGE_HALF_PX` about the gradient peak (parabolic sub-pixel
-    position); edges with another edge in the window (uneven plateaus) are dropped."""
+    position, on a copy blurred by 1 px); edges with another edge in the window (uneven plateaus) are dropped."""
     import cv2
 
     g = np.asarray(grey, np.float32)
-    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    # edges are found (and located) on a lightly blurred copy, so that the noise at the sampled pixels does not
+    # choose which edges are kept (that would favour noise that steepens them)
+    soft = cv2.GaussianBlur(g, (0, 0), 1.0)
+    gx = cv2.Sobel(soft, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(soft, cv2.CV_32F, 0, 1, ksize=3)
     a = np.abs(gx)
     r = int(np.ceil(EDGE_HALF_PX)) + 1
     h, w = g.shape

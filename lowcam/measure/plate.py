@@ -25,6 +25,7 @@ Contents
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
 - :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
 - :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
+- :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
 - :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
 - :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
 
@@ -438,6 +439,23 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = probe.statistic(sim)
             except (ValueError, np.linalg.LinAlgError) as e:
                 est.model = {"not measured": str(e)}
+
+
+_HEADLINE_KEYS = ("method", "frames", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+                  "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
+
+
+def headline(stat: dict) -> dict:
+    """The few numbers of a statistic (``PlateEstimate.measured`` or ``model``) worth a table, nested as found."""
+    out = {}
+    for key, value in (stat or {}).items():
+        if key in _HEADLINE_KEYS:
+            out[key] = value
+        elif isinstance(value, dict):
+            sub = headline(value)
+            if sub:
+                out[key] = sub
+    return out
 
 
 def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
