@@ -128,13 +128,24 @@ EDGE_HALF_PX = 8.0
 MIN_EDGES = 20
 
 
-def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0) -> list[np.ndarray]:
+def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=None) -> list[np.ndarray]:
     """Normalised profiles (0 left plateau, 1 right plateau) along x across strong, near-vertical, straight edges
     of ``grey``, sampled every 0.25 px over +-:data:`EDGE_HALF_PX` about the gradient peak (parabolic sub-pixel
-    position, on a copy blurred by 1 px); edges with another edge in the window (uneven plateaus) are dropped."""
+    position, on a copy blurred by 1 px); edges with another edge in the window (uneven plateaus) are dropped.
+    ``at``: sample at these ``(row, x)`` positions instead of finding edges (the model's fit samples the same
+    edges at every step, so its statistic changes smoothly); ``found``: a list that receives the positions used."""
+    g = np.asarray(grey, np.float32)
+    offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
+    cols = np.arange(g.shape[1], dtype=np.float64)
+    if at is not None:
+        out = []
+        for y, x0 in at:
+            prof = np.interp(x0 + offsets, cols, g[y])
+            left, right = prof[offsets <= -EDGE_HALF_PX + 2].mean(), prof[offsets >= EDGE_HALF_PX - 2].mean()
+            out.append((prof - left) / (right - left) if right != left else prof * 0)
+        return out
     import cv2
 
-    g = np.asarray(grey, np.float32)
     # edges are found (and located) on a lightly blurred copy, so that the noise at the sampled pixels does not
     # choose which edges are kept (that would favour noise that steepens them)
     soft = cv2.GaussianBlur(g, (0, 0), 1.0)
@@ -155,9 +166,7 @@ def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0) -> list[np.ndarr
             near |= (np.roll(np.roll(a, -dy, 0), -dx, 1) > 0.5 * a) & (np.roll(np.roll(same, -dy, 0), -dx, 1) == same)
         cont = near if dy == -2 else cont & near
     ys, xs = np.nonzero(peak & cont)
-    offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
     out = []
-    cols = np.arange(w, dtype=np.float64)
     for y, x in zip(ys, xs):
         l, c, rr = a[y, x - 1], a[y, x], a[y, x + 1]
         den = l - 2 * c + rr
@@ -168,6 +177,8 @@ def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0) -> list[np.ndarr
         if abs(step) < contrast_dn or max(left.std(), right.std()) > 0.1 * abs(step):
             continue
         out.append((prof - left.mean()) / step)
+        if found is not None:
+            found.append((int(y), float(x0)))
     return out
 
 
@@ -200,21 +211,25 @@ def _profile_numbers(profiles: list[np.ndarray]) -> dict:
             "overshoot": 0.5 * (over + under), "offsets_px": offsets.tolist(), "profile": mean.tolist()}
 
 
-def edge_profile_statistic(frames, max_frames: int = 4) -> dict:
+def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None) -> dict:
     """The mean edge profile across strong natural edges of a stack (T, H, W, 3) float32 DN (up to
-    ``max_frames`` frames, channels averaged), for edges near vertical (``"across_x"``: the profile along rows,
+    ``max_frames`` frames, the green channel), for edges near vertical (``"across_x"``: the profile along rows,
     which horizontal blur and sharpening shape) and near horizontal (``"across_y"``): each with the number of
     edges, the 10-90 % rise width (px) [ISO12233] and the overshoot (the mean of the bright side's overshoot and
-    the dark side's undershoot, as a fraction of the step)."""
+    the dark side's undershoot, as a fraction of the step). ``at`` / ``found``: the edge positions to sample
+    (``{"across_x": [...], "across_y": [...]}`` per frame index) instead of finding them, or a dict to fill with
+    those found (see :func:`_edge_profiles`)."""
     x = np.asarray(frames, np.float32)
     if x.ndim == 3:
         x = x[None]
     idx = np.linspace(0, len(x) - 1, min(len(x), max_frames)).round().astype(int)
     across_x, across_y = [], []
     for i in idx:
-        grey = x[i].mean(axis=2) if x.ndim == 4 else x[i]
-        across_x += _edge_profiles(grey)
-        across_y += _edge_profiles(grey.T)
+        grey = x[i][..., 1] if x.ndim == 4 else x[i]  # green: one linear chain (a grey mix of colour edges is not)
+        for key, image, into in (("across_x", grey, across_x), ("across_y", grey.T, across_y)):
+            where = None if at is None else at[key][int(i)]
+            kept = None if found is None else found.setdefault(key, {}).setdefault(int(i), [])
+            into += _edge_profiles(image, at=where, found=kept)
     return {"across_x": _profile_numbers(across_x), "across_y": _profile_numbers(across_y)}
 
 
@@ -237,7 +252,7 @@ def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0)
     return out
 
 
-def _model_edges(profile, values) -> dict:
+def _model_edges(profile, values, at=None, found=None) -> dict:
     from ..pipeline import render_camera, simulate
 
     cam = render_camera(profile, profile.camera.width)
@@ -246,7 +261,7 @@ def _model_edges(profile, values) -> dict:
     for key, v in values.items():
         effect, param = key.split(".")
         model = model.with_effect(effect, **{param: v})
-    return edge_profile_statistic(simulate(ideal, model).astype(np.float32)[None])
+    return edge_profile_statistic(simulate(ideal, model).astype(np.float32)[None], at=at, found=found)
 
 
 def edge_profile_from_plate(footage, base=None):
@@ -285,8 +300,10 @@ def edge_profile_from_plate(footage, base=None):
              (sharp.sharpness if sharp is not None else 40.0) * gain]
     tx = np.asarray(stat["across_x"]["profile"])
 
-    def model(aa, hs, a):
-        m = _model_edges(base, dict(zip(keys, (aa, hs, a / gain))))
+    at: dict = {}
+
+    def model(aa, hs, a):  # the edges found at the start are sampled at every step
+        m = _model_edges(base, dict(zip(keys, (aa, hs, a / gain))), at=at or None, found=None if at else at)
         return [np.asarray(m[k]["profile"]) if m[k]["edges"] else None for k in ("across_x", "across_y")]
 
     # the spatial blur is kept: on natural edges under a 2x2 demosaic it is barely identifiable (0 and 0.2 px give
