@@ -213,15 +213,15 @@ NLF_BIN_DN = 12.0
 
 
 def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, saturation_dn: float = 220.0,
-                min_count: int = 30) -> tuple[list[float], list[float]]:
+                min_count: int = 30, floor_dn: float = 4.0) -> tuple[list[float], list[float]]:
     """(levels, sigmas) of one channel: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
     each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom) divided
     by that quantile of chi-square / dof, so textured or moving members above it do not lift it [Liu2008's lower
-    envelope]."""
+    envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are left out."""
     from scipy.stats import chi2
 
     bias = chi2.ppf(quantile, dof) / dof
-    keep = (mean > 4.0) & (mean < saturation_dn) & np.isfinite(var)
+    keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var)
     mean, var = mean[keep], var[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
     levels, sigmas = [], []
@@ -233,7 +233,8 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, sa
     return levels, sigmas
 
 
-def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> dict:
+def noise_level_statistic(frames, method: str | None = None, block: int = 8, floor_dn: float = 4.0,
+                          saturation_dn: float = 220.0) -> dict:
     """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
 
     ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
@@ -241,7 +242,7 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> 
     give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median variance (temporal) or
     10th percentile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
     which :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or
-    more. Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
+    more. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
     {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated from the bins, for comparisons)."""
     x = np.asarray(frames, np.float32)
     if x.ndim == 3:
@@ -255,14 +256,15 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> 
             k = len(x) - 1
             mean = x[..., c].mean(axis=0).ravel()
             var = x[..., c].var(axis=0, ddof=1).ravel()
-            levels, sigmas = _binned_nlf(mean, var, k, 0.5)
+            levels, sigmas = _binned_nlf(mean, var, k, 0.5, saturation_dn, floor_dn=floor_dn)
         else:
             t, h, w = x.shape[:3]
             b = block
             blocks = x[:, : h // b * b, : w // b * b, c].reshape(t, h // b, b, w // b, b).transpose(0, 1, 3, 2, 4)
             blocks = blocks.reshape(-1, b * b)
             k = b * b - 1
-            levels, sigmas = _binned_nlf(blocks.mean(axis=1), blocks.var(axis=1, ddof=1), k, 0.1, min_count=10)
+            levels, sigmas = _binned_nlf(blocks.mean(axis=1), blocks.var(axis=1, ddof=1), k, 0.1, saturation_dn,
+                                         min_count=10, floor_dn=floor_dn)
         out["levels_dn"][channel] = levels
         out["sigma_dn"][channel] = sigmas
     out["sigma_at_dn"] = {str(m): [float(np.interp(m, out["levels_dn"][ch], out["sigma_dn"][ch]))

@@ -177,7 +177,7 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
         raise LowcamError(f"{path}: no such gyro log")
     text = path.read_text(errors="replace")
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
-    if first and any(c.isalpha() for c in first):  # a header: the CSV of lowcam.motion
+    if first and not _numeric_row(first):  # a header: the CSV of lowcam.motion
         return read_gyro_csv(path), None
     try:
         rows = np.loadtxt(path, delimiter="," if "," in first else None, ndmin=2)
@@ -203,6 +203,14 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
     elif framestamps:
         raise LowcamError(f"{stamps}: no such frame-stamp file")
     return samples, times
+
+
+def _numeric_row(line: str) -> bool:
+    try:
+        [float(v) for v in line.replace(",", " ").split()]
+        return True
+    except ValueError:
+        return False
 
 
 @dataclass
