@@ -289,43 +289,43 @@ def _fit_bins(levels, sigmas, law: str) -> tuple[float, float]:
     return float(a), float(max(b, 0.0))
 
 
-def noise_gain(profile, method: str, level: float = 0.5, sigma_dn: float = 8.0, frames: int = 4) -> list[float]:
+def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
+               frames: int = 4) -> list[float]:
     """How the chain after the noise scales it, per channel, as :func:`noise_level_statistic` measures it.
 
     The profile films a flat grey (``level`` of white) with a constant per-sensel sigma of ``sigma_dn`` and
     without; the statistic's sigma of the difference over ``sigma_dn`` is the gain: the horizontal blur and the
     sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
     after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
-    spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds."""
-    from ..pipeline import render_camera, simulate
-
-    cam = render_camera(profile, profile.camera.width)
-    ideal = np.ones((cam["height"], cam["width"], 4), np.float32)
-    ideal[..., :3] = level
+    spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
+    ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
+    def ideal(width, height):
+        out = np.ones((height, width, 4), np.float32)
+        out[..., :3] = level
+        return out
     law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
            "blue": [sigma_dn ** 2, 0.0]}
     noisy = profile.with_effect("noise", **law)
-    clean = simulate(ideal, profile.without("noise") if profile.effect("noise") else profile).astype(np.float32)
+    clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
     h, w = clean.shape[:2]
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
-    diffs = np.stack([simulate(ideal, noisy, seed=1, frame=k).astype(np.float32)[crop] - clean[crop] + 128.0
+    diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
                       for k in range(frames if method == "temporal" else 1)])
     stat = noise_level_statistic(diffs, method)
     return [float(stat["sigma_at_dn"]["128"][c]) / sigma_dn for c in range(3)]
 
 
-def noise_level_function_from_plate(footage, base=None):
+def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
     Where the camera holds still for 3 frames or more (:func:`lowcam.measure.plate.still_segments`) each pixel's
     temporal variance is used; otherwise the flattest blocks of single frames (Liu2008's lower envelope). The
     output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
     blur and demosaic do to per-sensel noise) and fitted with the profile's law. Confidence: temporal 0.9 with
-    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels."""
+    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels.
+    ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
     from ..measure.plate import PlateEstimate, still_segments
-    from ..profile import load_profile
-
-    base = load_profile(base or "fire-i") if not hasattr(base, "effects") else base
     law = getattr(base.effect("noise"), "law", "sigma_linear")
     runs = still_segments(footage)
     if runs:
@@ -337,7 +337,7 @@ def noise_level_function_from_plate(footage, base=None):
         frames = footage.stack(max_frames=6)
         method, n = "spatial", len(frames)
     stat = noise_level_statistic(frames, method)
-    gains = noise_gain(base, method)
+    gains = noise_gain(base, method, film)
     params, measured = {"law": law}, {"method": method, "frames": n, "gain": gains,
                                       "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
                                       "sigma_dn": stat["sigma_dn"]}

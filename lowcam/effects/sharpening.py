@@ -252,19 +252,16 @@ def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0)
     return out
 
 
-def _model_edges(profile, values, at=None, found=None) -> dict:
-    from ..pipeline import render_camera, simulate
-
-    cam = render_camera(profile, profile.camera.width)
-    ideal = _edge_scene(cam["width"], cam["height"], cell=max(12, cam["width"] // 14))
+def _model_edges(profile, values, film, at=None, found=None) -> dict:
     model = profile.without("noise") if profile.effect("noise") else profile
     for key, v in values.items():
         effect, param = key.split(".")
         model = model.with_effect(effect, **{param: v})
-    return edge_profile_statistic(simulate(ideal, model).astype(np.float32)[None], at=at, found=found)
+    frame = film(model, lambda w, h: _edge_scene(w, h, cell=max(12, w // 14)))
+    return edge_profile_statistic(frame[None], at=at, found=found)
 
 
-def edge_profile_from_plate(footage, base=None):
+def edge_profile_from_plate(footage, base, film):
     """The horizontal blur and sharpening from footage's natural edges, as a
     :class:`lowcam.measure.plate.PlateEstimate` whose params are ``horizontal_blur.sigma`` and
     ``sharpening.sharpness`` (the sharpening gain ``a`` over the profile's ``gain_per_unit``).
@@ -274,14 +271,12 @@ def edge_profile_from_plate(footage, base=None):
     least squares on the profile. The spatial blur is kept as the base has it (under a 2x2 demosaic it barely
     changes the edges); the near-horizontal edges' profile, which only it shapes, is reported for comparison. Natural edges are never sharper than the camera makes them, but may be
     softer (defocus, the scene itself): on real footage the blur is an upper bound. Fewer than
-    :data:`MIN_EDGES` edges in either orientation: too little texture, nothing is estimated."""
+    :data:`MIN_EDGES` edges in either orientation: too little texture, nothing is estimated. ``base``: the profile
+    being refined; ``film(profile, make_ideal)``: its frame of an ideal (:func:`lowcam.measure.plate.film`)."""
     import cv2
     from scipy.optimize import least_squares
 
     from ..measure.plate import PlateEstimate
-    from ..profile import load_profile
-
-    base = load_profile(base or "fire-i") if not hasattr(base, "effects") else base
     frames = footage.stack(max_frames=4)
     w, h = base.camera.width, base.camera.height
     if frames.shape[1:3] != (h, w):
@@ -303,7 +298,7 @@ def edge_profile_from_plate(footage, base=None):
     at: dict = {}
 
     def model(aa, hs, a):  # the edges found at the start are sampled at every step
-        m = _model_edges(base, dict(zip(keys, (aa, hs, a / gain))), at=at or None, found=None if at else at)
+        m = _model_edges(base, dict(zip(keys, (aa, hs, a / gain))), film, at or None, None if at else at)
         return [np.asarray(m[k]["profile"]) if m[k]["edges"] else None for k in ("across_x", "across_y")]
 
     # the spatial blur is kept: on natural edges under a 2x2 demosaic it is barely identifiable (0 and 0.2 px give

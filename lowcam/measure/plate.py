@@ -21,6 +21,7 @@ Contents
 - :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :data:`PLATE_PROBES`: every plate probe, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
+- :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
 - :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
@@ -271,10 +272,20 @@ class PlateProbe:
     about: str = ""
 
 
+def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
+    """The frame (float32 DN) of ``profile`` filming the opaque ideal ``make_ideal(width, height)`` (RGBA 0-1, at
+    the pinhole field of view the profile's render needs): how the estimators in the effect modules, which do not
+    run the pipeline themselves, ask the model what it makes of a scene."""
+    from ..pipeline import render_camera, simulate
+
+    cam = render_camera(profile, profile.camera.width)
+    return simulate(make_ideal(cam["width"], cam["height"]), profile, seed=seed, frame=frame).astype(np.float32)
+
+
 def _noise_estimate(footage, base=None):
     from ..effects.noise import noise_level_function_from_plate
 
-    return noise_level_function_from_plate(footage, base)
+    return noise_level_function_from_plate(footage, base, film)
 
 
 def _noise_statistic(frames):
@@ -286,7 +297,7 @@ def _noise_statistic(frames):
 def _edge_estimate(footage, base=None):
     from ..effects.sharpening import edge_profile_from_plate
 
-    return edge_profile_from_plate(footage, base)
+    return edge_profile_from_plate(footage, base, film)
 
 
 def _edge_statistic(frames):
