@@ -7,6 +7,7 @@ edges have no analytic model independent of the camera chain that shapes them.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -20,9 +21,8 @@ from lowcam.measure import plate
 from lowcam.profile import profile_from_dict
 
 W, H = 320, 240
-DATA = Path(__file__).resolve().parents[1].parent.parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path("/work/shared/data")
+# the real frames: ../shared/data beside the checkout (as tests/test_calibrate.py finds them), or $LOWCAM_SHARED_DATA
+DATA = Path(os.environ.get("LOWCAM_SHARED_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
 
 
 def _profile(noise=((1.0, 0.02), (0.8, 0.015), (1.5, 0.01)), law="sigma_linear", hsig=0.6, sharpness=50.0,
