@@ -253,6 +253,22 @@ def test_engine_set_edges(engine_estimates):
     assert edge.base_params == {"horizontal_blur.sigma": 0.9, "sharpening.sharpness": 80.0}
 
 
+def test_engine_set_spatial_noise_within_25_percent():
+    """A moving shot only (no still segment): the flattest blocks' lower envelope gives the law within 25 %,
+    never below it by more than 5 % (texture can only lift the envelope); it is marked less sure."""
+    truth = _profile()
+    frames = _engine_shot(truth, 6, 5.0, seed=2)
+    probe = plate.PLATE_PROBES[[p.name for p in plate.PLATE_PROBES].index("noise_level_function")]
+    est = probe.estimate(plate.Footage(frames), truth.with_effect("noise", red=[2.0, 0.0], green=[2.0, 0.0],
+                                                                   blue=[2.0, 0.0]))
+    assert est.measured["method"] == "spatial" and est.confidence < 0.9
+    got = truth.with_effect("noise", **est.params).effect("noise")
+    for mu in (50.0, 128.0, 200.0):
+        for ch in ("red", "green", "blue"):
+            ratio = got.sigma(ch, mu) / truth.effect("noise").sigma(ch, mu)
+            assert 0.95 < ratio < 1.25, (ch, mu, ratio)
+
+
 # --- the command ------------------------------------------------------------------------------------------------------
 
 def _cli(*args, cwd=None):
