@@ -586,7 +586,7 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
 
 # --- a profile from the plate itself (issue 15, part 3) --------------------------------------------------------------
 
-def _plate_figures(estimates, plot_dir: Path) -> list[Path]:
+def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
     """One plot per estimate that has something to draw: the noise level function, the edge profiles, the radial
     fall-off and the gyro's angular velocity, each beside the base profile's model where it was measured."""
     figures = []
@@ -625,10 +625,14 @@ def _plate_figures(estimates, plot_dir: Path) -> list[Path]:
                 ax = fig.add_subplot(1, 1, 1)
                 r = np.linspace(0, 1, 50)
                 ax.plot(r, np.exp(m["c2"] * r ** 2 + m["c4"] * r ** 4), label="footage")
-                base = est.base_params
-                if base.get("k2") is not None:
-                    g = np.clip(1 + base["k2"] * r ** 2 + base["k4"] * r ** 4, 0, None)
-                    ax.plot(r, g / g.max(), "--", label="base profile (radial model)")
+                vig = base.effect("vignetting")
+                if vig is not None:  # the base's gain texture (or radial model) against radius
+                    w, h = base.camera.width, base.camera.height
+                    gain = vig.gain_texture(w, h)
+                    rows, cols = gain.shape
+                    yy, xx = np.mgrid[0:rows, 0:cols]
+                    rho = np.hypot((xx + 0.5) * w / cols - w / 2, (yy + 0.5) * h / rows - h / 2) / (np.hypot(w, h) / 2)
+                    ax.plot(rho.ravel(), gain.ravel(), ".", ms=1, alpha=0.4, label="base profile")
                 ax.set_xlabel("radius / half-diagonal")
                 ax.set_ylabel("gain")
                 ax.set_title(f"vignetting, confidence {est.confidence:.2f}")
@@ -679,7 +683,7 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
         if progress:
             print("the base profile filming similar content", file=__import__("sys").stderr, flush=True)
         plate.model_statistics(shot, base, estimates)
-        figures = _plate_figures(estimates, Path(plot_dir))
+        figures = _plate_figures(estimates, Path(plot_dir), base)
     numbers = {est.statistic: {"effect": est.effect, "confidence": est.confidence, "reason": est.reason,
                                "applied": est.applied, "params": est.params, "base_params": est.base_params,
                                "footage": plate.headline(est.measured),

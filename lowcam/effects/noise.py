@@ -241,12 +241,14 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8, flo
     """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
 
     ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
-    frame at a time): the variance inside ``block`` x ``block`` blocks about their best-fitting plane, whose
-    flattest members give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median
-    variance (temporal) or :data:`SPATIAL_QUANTILE` quantile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
-    which :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or
-    more. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
-    {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated from the bins, for comparisons)."""
+    frame at a time): the variance inside ``block`` x ``block`` blocks about their best-fitting plane, whose flattest
+    members give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median variance
+    (temporal) or :data:`SPATIAL_QUANTILE` quantile (spatial), unbiased for the chi-square spread of that quantile
+    (the spatial one stays biased by the noise's own spatial correlation, which
+    :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or more. Means
+    outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel:
+    [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn": {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated
+    from the bins, for comparisons)."""
     x = np.asarray(frames, np.float32)
     if x.ndim == 3:
         x = x[None]

@@ -267,11 +267,12 @@ def edge_profile_from_plate(footage, base, film):
     ``sharpening.sharpness`` (the sharpening gain ``a`` over the profile's ``gain_per_unit``).
 
     The mean edge profile across near-vertical edges (:func:`edge_profile_statistic`, the footage scaled to the
-    profile's frame) is matched by the base profile filming ideal steps (noise off), the two parameters fitted by
-    least squares on the profile. The spatial blur is kept as the base has it (under a 2x2 demosaic it barely
-    changes the edges); the near-horizontal edges' profile, which only it shapes, is reported for comparison. Natural edges are never sharper than the camera makes them, but may be
-    softer (defocus, the scene itself): on real footage the blur is an upper bound. Fewer than
-    :data:`MIN_EDGES` edges in either orientation: too little texture, nothing is estimated. ``base``: the profile
+    profile's frame) is matched by the base profile filming ideal steps (noise off), the two parameters fitted by least
+    squares on the profile. The spatial blur is kept as the base has it (under a 2x2 demosaic it barely changes the
+    edges); the near-horizontal edges' profile, which only it shapes, is reported for comparison. Natural edges are
+    never sharper than the camera makes them, but may be softer (defocus, the scene itself): on real footage the
+    blur is an upper bound. Fewer than :data:`MIN_EDGES` edges in either orientation: too little texture, nothing is
+    estimated. ``base``: the profile
     being refined; ``film(profile, make_ideal)``: its frame of an ideal (:func:`lowcam.measure.plate.film`)."""
     import cv2
     from scipy.optimize import least_squares

@@ -421,13 +421,20 @@ def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200)
 
 
 def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
-    """The footage's per-pixel temporal median (a denoised frame), scaled to ``width`` x ``height``, as an
-    opaque premultiplied RGBA ideal render (0-1). The median of up to 15 frames removes the noise; the frame is
-    not deblurred, so the model films content that is already as soft as the footage (a fair comparison of the
-    statistics, not of absolute sharpness)."""
+    """A denoised frame of the footage, scaled to ``width`` x ``height``, as an opaque premultiplied RGBA ideal
+    render (0-1): the per-pixel temporal median of its longest still segment (up to 15 frames), or, where the
+    camera never holds still (a median would smear the moving scene), its middle frame denoised by OpenCV's
+    non-local means. The frame is not deblurred, so the model films content already as soft as the footage:
+    the statistics compare like with like, absolute sharpness is the edge estimate's job."""
     import cv2
 
-    med = np.median(footage.stack(max_frames=15), axis=0)
+    runs = still_segments(footage)
+    if runs:
+        start, stop = max(runs, key=lambda r: r[1] - r[0])
+        med = np.median(footage.stack(range(start, stop), max_frames=15), axis=0)
+    else:
+        middle = np.clip(np.round(footage.frame(len(footage) // 2)), 0, 255).astype(np.uint8)
+        med = cv2.fastNlMeansDenoisingColored(middle, None, 5, 5, 7, 21).astype(np.float32)
     small = cv2.resize(med, (int(width), int(height)), interpolation=cv2.INTER_AREA)
     out = np.ones((int(height), int(width), 4), np.float32)
     out[..., :3] = np.clip(small / 255.0, 0.0, 1.0)
