@@ -79,7 +79,8 @@ class Texture:
 class Calibration:
     """One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect, ``textures`` per effect
     (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths), ``provenance`` entries for the
-    profile's ``[provenance]`` table (``"effect.param"``: where the number came from)."""
+    profile's ``[provenance]`` table (``"effect.param"``: where the number came from), ``notes`` (lines for the
+    terminal and the report) and ``table`` (rows of a table in the report, one dict of column: text each)."""
 
     what: str
     summary: str
@@ -89,6 +90,7 @@ class Calibration:
     textures: dict[str, Texture] = field(default_factory=dict)
     provenance: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    table: list[dict] = field(default_factory=list)
 
 
 def _write_gain_png(path: Path, gain: np.ndarray, camera) -> None:
@@ -692,8 +694,22 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     applied = [e.statistic for e in estimates if e.applied]
     summary = (f"plate {shot.path}: {len(shot)} frames {shot.shape[1]}x{shot.shape[0]}; applied "
                f"{', '.join(applied) or 'nothing'}; {len(estimates) - len(applied)} reported only")
+    def flat(d, prefix=""):
+        out = []
+        for k, v in (d or {}).items():
+            if isinstance(v, dict):
+                out += flat(v, f"{prefix}{k}.")
+            else:
+                out.append(f"{prefix}{k} = {plate._fmt(v)}")
+        return "; ".join(out) if not prefix else out
+
+    table = [{"statistic": e.statistic, "effect": e.effect, "confidence": f"{e.confidence:.2f}", "why": e.reason,
+              "footage": flat(plate.headline(e.measured)) or "-",
+              "base profile on similar content": "-" if e.model is None else (flat(plate.headline(e.model)) or "-"),
+              "estimated": flat(e.params) or "-", "base profile's values": flat(e.base_params) or "-",
+              "written": "yes" if e.applied else "no"} for e in estimates]
     return Calibration("plate", summary, values, numbers, figures, provenance=provenance,
-                       notes=[e.line() for e in estimates])
+                       notes=[e.line() for e in estimates], table=table)
 
 
 # --- profiles and reports --------------------------------------------------------------------------------------------
@@ -726,6 +742,12 @@ def write_report(calibrations, folder) -> Path:
         sections.append(f"<h2>{html.escape(cal.what)}</h2><p><b>{html.escape(cal.summary)}</b></p>")
         if cal.notes:
             sections.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in cal.notes) + "</ul>")
+        if cal.table:
+            head = "".join(f"<th>{html.escape(k)}</th>" for k in cal.table[0])
+            rows = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row.values()) + "</tr>"
+                           for row in cal.table)
+            sections.append(f"<table border='1' cellpadding='4' style='border-collapse:collapse;font-size:90%'>"
+                            f"<tr>{head}</tr>{rows}</table>")
         sections.extend(image(folder, fig, cal.what) for fig in cal.figures)
         sections.append(numbers_block(cal.numbers, "numbers and fit quality"))
     return write_page(folder, "Lowcam calibration", "Lowcam calibration report", sections)
