@@ -655,13 +655,18 @@ def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
 
 def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = None,
                     min_confidence: float | None = None, plot_dir: Path | None = None,
-                    progress: bool = True) -> Calibration:
+                    progress: bool | None = None) -> Calibration:
     """A profile from the footage itself (issue 15, part 3): :func:`lowcam.measure.plate.estimate_profile` on
     ``footage`` (a video file, a folder of frames, or frame names or patterns), starting from ``base``. Confident
     estimates become the calibration's values, each with a ``[provenance]`` entry; the others are listed, not
-    written. With ``plot_dir`` the base profile films similar content (:func:`lowcam.measure.plate.model_statistics`)
-    and each statistic is plotted beside the model's."""
+    written; footage from which nothing can be estimated is refused (one line with every estimate's reason). With
+    ``plot_dir`` the base profile films similar content (:func:`lowcam.measure.plate.model_statistics`) and each
+    statistic is plotted beside the model's. ``progress`` (stderr; default: when stderr is a terminal)."""
+    import sys
+
     from ..measure import plate
+
+    progress = sys.stderr.isatty() if progress is None else progress
 
     names = [str(f) for f in ([footage] if isinstance(footage, (str, Path)) else footage)]
     if len(names) == 1 and not any(c in names[0] for c in "*?["):
@@ -673,6 +678,9 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
             shot.gyro, shot.frame_times = plate.read_phone_gyro(gyro)
     threshold = plate.MIN_CONFIDENCE if min_confidence is None else float(min_confidence)
     profile, estimates = plate.estimate_profile(shot, base, progress=progress, min_confidence=threshold)
+    if not any(e.applied for e in estimates):
+        raise LowcamError(f"{shot.path}: nothing could be estimated from the plate: "
+                          + "; ".join(f"{e.statistic}: {e.reason}" for e in estimates))
     values: dict[str, dict] = {}
     for est in estimates:
         if est.applied:
@@ -683,7 +691,7 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     figures = []
     if plot_dir:
         if progress:
-            print("the base profile filming similar content", file=__import__("sys").stderr, flush=True)
+            print("the base profile filming similar content", file=sys.stderr, flush=True)
         plate.model_statistics(shot, base, estimates)
         figures = _plate_figures(estimates, Path(plot_dir), base)
     numbers = {est.statistic: {"effect": est.effect, "confidence": est.confidence, "reason": est.reason,

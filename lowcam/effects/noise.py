@@ -346,14 +346,15 @@ def noise_level_function_from_plate(footage, base, film):
         frames = footage.stack(max_frames=6)
         method, n = "spatial", len(frames)
     stat = noise_level_statistic(frames, method)
-    gains = noise_gain(base, method, film)
-    params, measured = {"law": law}, {"method": method, "frames": n, "gain": gains,
-                                      "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
-                                      "sigma_dn": stat["sigma_dn"]}
+    measured = {"method": method, "frames": n, "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
+                "sigma_dn": stat["sigma_dn"]}
     levels = min(len(stat["levels_dn"][ch]) for ch in ("red", "green", "blue"))
     if levels < 2:
         return PlateEstimate("noise_level_function", "noise", measured, {}, 0.0,
                              f"{levels} brightness level(s) with enough pixels: no noise law can be fitted")
+    gains = noise_gain(base, method, film)
+    params = {"law": law}
+    measured["gain"] = gains
     for c, channel in enumerate(("red", "green", "blue")):
         sig = np.asarray(stat["sigma_dn"][channel]) / gains[c]
         params[channel] = list(_fit_bins(stat["levels_dn"][channel], sig, law))
