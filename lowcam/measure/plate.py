@@ -372,8 +372,9 @@ def _no_statistic(frames):
     return {}
 
 
-#: Every plate probe, in the order they run (h/platecmp adds JPEG blockiness and chroma bandwidth after
-#: vignetting).
+#: Every plate probe, in the order they run: the edges first, since the noise estimate divides by the gain of the
+#: row filters they fit (:func:`lowcam.effects.noise.noise_gain`); JPEG blockiness and chroma bandwidth go after the
+#: vignetting.
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
