@@ -238,6 +238,12 @@ def manifest_profile_not_a_string(t):
     return manifest(t, 'profile = 3\n[vignetting]\nframes = ["flat/f00.png"]\n', files=["flat/f00.png"])
 
 
+def plate_flat(t):
+    # a still, flat, noise-free shot: no noise levels, no edges, no motion, no gyro: nothing to write
+    paths = frames(t / "shot", [flat()] * 4)
+    return ["plate", *paths], "shot/f00.png"
+
+
 def manifest_later_refusal(t):
     # vignetting succeeds and would plot; the demosaic stack of identical frames refuses: no plots either
     frames(t / "stack", [flat()] * 10)
@@ -250,7 +256,7 @@ CASES = [lens_flat, lens_one_view, vignetting_black, ca_flat, ca_alias_flat, noi
          noise_all_saturated, noise_too_small, demosaic_identical, demosaic_too_small, ca_too_small, blur_flat, blur_noise_only, sharpening_flat, sharpening_identical,
          sharpening_setting_zero, sharpening_sizes, sharpening_too_small, colour_identical, colour_greys,
          colour_saturation_zero, colour_nan_saturation, colour_missing_layout,
-         colour_chart_not_found,
+         colour_chart_not_found, plate_flat,
          manifest_unknown_section, manifest_not_a_table, manifest_number_as_frames, manifest_numbers_in_frames,
          manifest_number_as_path, manifest_missing_frames, manifest_missing_later_section,
          manifest_profile_not_a_string, manifest_later_refusal]
