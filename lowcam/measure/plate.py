@@ -166,8 +166,42 @@ def _read_video(path: Path, max_frames: int):
 def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
     """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a gyro CSV with a
     header (:func:`lowcam.motion.read_gyro_csv`) or the phone format: whitespace-separated rows ``wx wy wz t``
-    (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s)."""
-    raise NotImplementedError  # filled in below the skeleton commit
+    (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s).
+    Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s") are converted to seconds. The axes
+    are kept as logged: a phone's gyro axes need not be Lowcam's camera axes (x right, y down, z forward)."""
+    from ..motion import read_gyro_csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise LowcamError(f"{path}: no such gyro log")
+    text = path.read_text(errors="replace")
+    first = next((ln for ln in text.splitlines() if ln.strip()), "")
+    if first and any(c.isalpha() for c in first):  # a header: the CSV of lowcam.motion
+        return read_gyro_csv(path), None
+    try:
+        rows = np.loadtxt(path, delimiter="," if "," in first else None, ndmin=2)
+    except ValueError as e:
+        raise LowcamError(f"{path}: not a gyro log of rows 'wx wy wz t' ({str(e).splitlines()[0]})") from None
+    if rows.shape[1] != 4 or len(rows) < 2 or not np.isfinite(rows).all():
+        raise LowcamError(f"{path}: a gyro log needs at least 2 finite rows of 4 numbers 'wx wy wz t', got "
+                          f"{rows.shape[0]} row(s) of {rows.shape[1]}")
+    t = rows[:, 3]
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise LowcamError(f"{path}: row {k + 1}: time {t[k]:g} does not follow the previous row's {t[k - 1]:g}")
+    scale = 1e-3 if np.median(np.diff(t)) > 0.5 else 1.0  # milliseconds (a gyro samples faster than 2 Hz)
+    samples = np.column_stack([t * scale, rows[:, :3]])
+    stamps = Path(framestamps) if framestamps else path.with_name("framestamp.txt")
+    times = None
+    if stamps.is_file():
+        try:
+            times = np.loadtxt(stamps, delimiter="," if "," in stamps.read_text()[:200] else None, ndmin=1)
+        except ValueError:
+            raise LowcamError(f"{stamps}: not a list of frame times (one number per line)") from None
+        times = np.asarray(times, np.float64).ravel() * scale
+    elif framestamps:
+        raise LowcamError(f"{stamps}: no such frame-stamp file")
+    return samples, times
 
 
 @dataclass
@@ -260,7 +294,50 @@ def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
     """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
     over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
     parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
-    raise NotImplementedError
+    from ..motion import average_rate
+
+    if footage.gyro is None:
+        return PlateEstimate("gyro_motion", "motion_blur", {}, {}, 0.0,
+                             "no gyro: motion left to the tracked camera")
+    samples = footage.gyro
+    exposure = float(getattr(getattr(base, "camera", None), "exposure_s", 0.0) or 1.0 / footage.fps)
+    frame_ids = _frame_numbers(footage)
+    if footage.frame_times is not None:
+        times = footage.frame_times
+        starts = [times[f] if 0 <= f < len(times) else np.nan for f in frame_ids]
+    else:
+        starts = [samples[0, 0] + i / footage.fps for i in range(len(footage))]
+    rates, missing = [], 0
+    for t0 in starts:
+        try:
+            rates.append(average_rate(samples, t0, t0 + exposure) if np.isfinite(t0) else None)
+        except ValueError:
+            rates.append(None)
+        missing += rates[-1] is None
+    found = [r for r in rates if r is not None]
+    if not found:
+        return PlateEstimate("gyro_motion", "motion_blur", {"frames_outside_log": missing}, {}, 0.0,
+                             "the gyro log does not cover the footage's frames")
+    w = np.array(found)
+    speed = np.linalg.norm(w, axis=1)
+    measured = {"angular_velocity_rad_s": [None if r is None else [float(v) for v in r] for r in rates],
+                "median_speed_rad_s": float(np.median(speed)), "max_speed_rad_s": float(speed.max()),
+                "exposure_s": exposure, "frames_outside_log": missing}
+    return PlateEstimate("gyro_motion", "motion_blur", measured, {}, len(found) / len(rates),
+                         f"gyro covers {len(found)} of {len(rates)} frames; per-frame motion, not a profile value")
+
+
+def _frame_numbers(footage: Footage) -> list[int]:
+    """Each frame's index into the frame stamps: the last number in its file name (``RE_frame-99.jpg`` -> 99),
+    else its position."""
+    import re
+
+    out = []
+    for i in range(len(footage)):
+        name = Path(footage.names[i]).stem if i < len(footage.names) else ""
+        digits = re.findall(r"\d+", name)
+        out.append(int(digits[-1]) if digits else i)
+    return out
 
 
 def _no_statistic(frames):
@@ -283,25 +360,76 @@ PLATE_PROBES: list[PlateProbe] = [
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
-    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves."""
-    raise NotImplementedError
+    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves.
+
+    Two frames of a still scene differ by noise alone, which a Gaussian blur (sigma 2 px) removes almost
+    entirely (white noise keeps about 1/(2 sqrt(pi) 2) = 14 % of its standard deviation, noise correlated over a
+    few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
+    still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
+    absolute value is below 2 DN."""
+    import cv2
+
+    n = min(len(footage), max_frames)
+    if n < 2:
+        return []
+    still = []
+    prev = footage.frame(0).mean(axis=2)
+    for i in range(1, n):
+        cur = footage.frame(i).mean(axis=2)
+        d = cur - prev
+        sd = float(d.std())
+        kept = float(cv2.GaussianBlur(d, (0, 0), 2.0).std())
+        still.append(sd > 0 and kept < 0.4 * sd and float(np.abs(cv2.GaussianBlur(d, (0, 0), 2.0)).mean()) < 2.0)
+        prev = cur
+    runs, start = [], None
+    for i, s_ in enumerate(still + [False]):
+        if s_ and start is None:
+            start = i
+        elif not s_ and start is not None:
+            if i + 1 - start >= min_length:
+                runs.append((start, i + 1))
+            start = None
+    return runs
 
 
 def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
     """The footage's per-pixel temporal median (a denoised frame), scaled to ``width`` x ``height``, as an
-    opaque premultiplied RGBA ideal render (0-1)."""
-    raise NotImplementedError
+    opaque premultiplied RGBA ideal render (0-1). The median of up to 15 frames removes the noise; the frame is
+    not deblurred, so the model films content that is already as soft as the footage (a fair comparison of the
+    statistics, not of absolute sharpness)."""
+    import cv2
+
+    med = np.median(footage.stack(max_frames=15), axis=0)
+    small = cv2.resize(med, (int(width), int(height)), interpolation=cv2.INTER_AREA)
+    out = np.ones((int(height), int(width), 4), np.float32)
+    out[..., :3] = np.clip(small / 255.0, 0.0, 1.0)
+    return out
 
 
 def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) -> np.ndarray:
     """``frames`` frames (T, H, W, 3) float32 DN of ``profile`` filming :func:`similar_content` (a still
     camera), each with its own noise."""
-    raise NotImplementedError
+    from ..pipeline import render_camera, simulate
+
+    from ..profile import load_profile
+
+    profile = load_profile(profile) if isinstance(profile, (str, Path)) else profile
+    cam = render_camera(profile, profile.camera.width)
+    ideal = similar_content(footage, cam["width"], cam["height"])
+    return np.stack([simulate(ideal, profile, None, seed=seed, frame=k).astype(np.float32) for k in range(frames)])
 
 
 def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], frames: int = 4) -> None:
     """Fill each estimate's ``model`` with its statistic measured on ``profile`` filming similar content."""
-    raise NotImplementedError
+    by_name = {p.name: p for p in PLATE_PROBES}
+    sim = simulate_similar(footage, profile, frames)
+    for est in estimates:
+        probe = by_name.get(est.statistic)
+        if probe is not None:
+            try:
+                est.model = probe.statistic(sim)
+            except (ValueError, np.linalg.LinAlgError) as e:
+                est.model = {"not measured": str(e)}
 
 
 def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
@@ -309,4 +437,24 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
     with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
     with a ``[provenance]`` entry per parameter. Progress goes to stderr."""
-    raise NotImplementedError
+    from ..profile import load_profile
+
+    base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
+    probes = PLATE_PROBES if probes is None else probes
+    out = base.copy()
+    estimates = []
+    for i, probe in enumerate(probes):
+        if progress:
+            print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
+        est = probe.estimate(footage, base)
+        if est is None:
+            continue
+        estimates.append(est)
+        if est.params and est.confidence >= min_confidence:
+            out = out.with_effect(est.effect, **est.params)
+            note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
+                    f"{est.confidence:.2f})")
+            for key in est.params:
+                out.provenance[f"{est.effect}.{key}"] = note
+            est.applied = True
+    return out, estimates
