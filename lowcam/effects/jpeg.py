@@ -17,7 +17,7 @@ Contents
 - :data:`PLATE_QUALITIES`: the qualities at which :func:`jpeg_quality_from_plate` calibrates blockiness
 - :func:`block_difference_profile`: mean absolute neighbour difference at each phase of a period (the 8x8 grid)
 - :func:`jpeg_blockiness`: blockiness per axis, the grid's phase and the tile evidence that the grid is there
-- :func:`jpeg_blockiness_statistic`: the no-reference statistic ``blockiness_h``, ``blockiness_v`` of a stack
+- :func:`jpeg_blockiness_statistic`: the no-reference statistic ``block_step_h``, ``block_step_v`` of a stack (DN)
 - :func:`jpeg_quality_from_plate`: the JPEG quality the footage's blockiness implies (a plate estimate)
 
 Blockiness from the footage alone
@@ -241,13 +241,20 @@ def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -
 
 
 def jpeg_blockiness_statistic(frames: np.ndarray) -> dict:
-    """The no-reference statistic of a (T, H, W, 3) stack (DN): ``blockiness_h`` and ``blockiness_v`` at the
-    standard grid (blocks from the frame's corner, as a camera codes its frames); ``{}`` for frames under 16 px."""
+    """The no-reference statistic of a (T, H, W, 3) stack (DN) that ``compare --plate-only`` compares:
+    ``block_step_h`` and ``block_step_v``, the luma step across the standard grid (blocks from the frame's
+    corner, as a camera codes its frames) less the median step inside blocks, ``D[7] - median(D[0..6])`` in DN.
+    The difference depends less on how soft the scene is than the ratio does (the model films a softened copy
+    of the footage). ``{}`` for frames under 16 px."""
     f = np.asarray(frames)
     if min(f.shape[-3:-1]) < 16:
         return {}
-    b = jpeg_blockiness(f, phases=(7, 7))
-    return {"blockiness_h": b["blockiness_h"], "blockiness_v": b["blockiness_v"]}
+    y = _luma(f)
+    out = {}
+    for axis, name in ((-1, "h"), (-2, "v")):
+        prof = block_difference_profile(y, axis)
+        out[f"block_step_{name}"] = float(prof[7] - np.median(prof[:7]))
+    return out
 
 
 def _quality_curve(frame: np.ndarray, phases: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

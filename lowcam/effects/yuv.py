@@ -15,7 +15,7 @@ Contents
 - :class:`ChromaSubsampling`: YUV 4:1:1: U and V box-averaged over ``group`` horizontal pixels (steps 9-10)
 - :data:`SUBSAMPLING_FACTORS`: J:a:b name -> (horizontal, vertical) chroma subsampling factors
 - :func:`chroma_spectrum_ratio`: per 1-D frequency, the chroma power relative to the luma power along an axis
-- :func:`chroma_bandwidth_statistic`: the no-reference statistic ``chroma_drop_h``, ``chroma_drop_v`` of a stack
+- :func:`chroma_bandwidth_statistic`: the no-reference statistic of a stack: replication and JPEG chroma steps
 - :func:`chroma_subsampling_evidence`: per axis, the three cues to the chroma subsampling factor (see below)
 - :func:`chroma_subsampling_from_plate`: the chroma subsampling the footage shows (a plate estimate)
 
@@ -167,13 +167,16 @@ def _drop(freq, ratio) -> float:
 
 
 def chroma_bandwidth_statistic(frames: np.ndarray) -> dict:
-    """The no-reference statistic of a (T, H, W, 3) stack (DN): ``chroma_drop_h`` and ``chroma_drop_v``, the
-    ``log10`` of the chroma/luma power ratio in 0.28-0.5 cycles/px over that in 0.02-0.12 (about 0 for chroma as
-    sharp as luma; lower when the chroma is subsampled along that axis); ``{}`` for frames under 32 px."""
+    """The no-reference statistic of a (T, H, W, 3) stack (DN), per axis ``h`` / ``v``: the structural cues of
+    :func:`chroma_subsampling_evidence` that depend little on the scene: ``replication_2`` and ``replication_4``
+    (log10 power ratios), and the chroma's JPEG steps in DN, ``step8`` at odd multiples of 8 px and ``step32`` at
+    multiples of 32 px (mean absolute step less the median over the 32 px phases; ``step8`` near 0 while
+    ``step32`` is not: halved chroma). ``{}`` for frames under 64 px."""
     f = np.asarray(frames)
-    if min(f.shape[-3:-1]) < 32:
+    if min(f.shape[-3:-1]) < 64:
         return {}
-    return {f"chroma_drop_{n}": _drop(*chroma_spectrum_ratio(f, a)) for a, n in ((-1, "h"), (-2, "v"))}
+    ev = chroma_subsampling_evidence(f, spectrum=False)
+    return {f"{k}_{a}": ev[a][k] for a in ("h", "v") for k in ("replication_2", "replication_4", "step8", "step32")}
 
 
 def _phase_power(plane: np.ndarray, axis: int, period: int) -> np.ndarray:
@@ -185,11 +188,12 @@ def _phase_power(plane: np.ndarray, axis: int, period: int) -> np.ndarray:
     return np.array([d[p::period].mean() for p in range(period)])
 
 
-def chroma_subsampling_evidence(frames: np.ndarray) -> dict:
+def chroma_subsampling_evidence(frames: np.ndarray, spectrum: bool = True) -> dict:
     """Per axis (``h``, ``v``): the three cues of the module docstring: ``replication_2`` / ``replication_4``
     (chroma less luma; luma's own is subtracted so a sharp scene's structure cancels), ``g8`` and ``g32`` (the
-    chroma's JPEG step excess at odd multiples of 8 px and at multiples of 32 px, mean over Cb and Cr, the grid
-    starting at the frame's corner) and ``chroma_drop``."""
+    chroma's JPEG step excess, as a log ratio to the median step, at odd multiples of 8 px and at multiples of
+    32 px, mean over Cb and Cr, the grid starting at the frame's corner), the same as differences in DN
+    (``step8``, ``step32``) and, with ``spectrum``, ``chroma_drop``."""
     from .jpeg import block_difference_profile
 
     y = _yuv_stack(frames)
@@ -204,14 +208,18 @@ def chroma_subsampling_evidence(frames: np.ndarray) -> dict:
                 p = np.sort(_phase_power(y[..., c], axis, k))
                 rep.append(np.log10(max(p[:-1].mean(), 1e-9) / max(p[-1], 1e-9)))
             e[f"replication_{k}"] = float(min(rep[1], rep[2]) - rep[0])
-        g8, g32 = [], []
+        g8, g32, s8, s32 = [], [], [], []
         for c in (1, 2):
             d = block_difference_profile(y[..., c], axis, 32)
             med = max(np.median(d), 1e-9)
             g8.append(np.log(max((d[7] + d[23]) / 2, 1e-9) / med))
             g32.append(np.log(max(d[31], 1e-9) / med))
+            s8.append((d[7] + d[23]) / 2 - med)
+            s32.append(d[31] - med)
         e["g8"], e["g32"] = float(np.mean(g8)), float(np.mean(g32))
-        e["chroma_drop"] = _drop(*chroma_spectrum_ratio(frames, axis))
+        e["step8"], e["step32"] = float(np.mean(s8)), float(np.mean(s32))
+        if spectrum:
+            e["chroma_drop"] = _drop(*chroma_spectrum_ratio(frames, axis))
         out[name] = e
     return out
 
