@@ -27,7 +27,8 @@ blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between ne
 (modulo 8) and the blockiness is ``D[p*] / median(D[others])`` at the grid's phase ``p*`` (7 when the grid starts
 at the frame's corner): 1.0 without a grid. The quality is found by coding the footage's own frame again, shifted
 by half a block so its old grid falls inside the new blocks, at :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`),
-and inverting that blockiness-against-quality curve. The confidence is the tile evidence: the grid's log ratio
+and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the frame
+being coded already (a second recoding extrapolates back to one coding). The confidence is the tile evidence: the grid's log ratio
 per 64 px tile, its mean over its standard error (a t statistic), on both axes.
 
 References
@@ -240,6 +241,16 @@ def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -
     return out
 
 
+def _block_step(frames: np.ndarray, phases: tuple[int, int] = (7, 7)) -> dict:
+    """``D[p*] - median(D[others])`` (DN) per axis at the grid phases (``block_step_h``, ``block_step_v``)."""
+    y = _luma(frames)
+    out = {}
+    for k, (axis, name) in enumerate(((-1, "h"), (-2, "v"))):
+        prof = block_difference_profile(y, axis)
+        out[f"block_step_{name}"] = float(prof[phases[k]] - np.median(np.delete(prof, phases[k])))
+    return out
+
+
 def jpeg_blockiness_statistic(frames: np.ndarray) -> dict:
     """The no-reference statistic of a (T, H, W, 3) stack (DN) that ``compare --plate-only`` compares:
     ``block_step_h`` and ``block_step_v``, the luma step across the standard grid (blocks from the frame's
@@ -249,32 +260,40 @@ def jpeg_blockiness_statistic(frames: np.ndarray) -> dict:
     f = np.asarray(frames)
     if min(f.shape[-3:-1]) < 16:
         return {}
-    y = _luma(f)
-    out = {}
-    for axis, name in ((-1, "h"), (-2, "v")):
-        prof = block_difference_profile(y, axis)
-        out[f"block_step_{name}"] = float(prof[7] - np.median(prof[:7]))
-    return out
+    return _block_step(f)
+
+
+def _step_level(frames, phases=(7, 7)) -> float:
+    b = _block_step(frames, phases)
+    return (b["block_step_h"] + b["block_step_v"]) / 2
 
 
 def _quality_curve(frame: np.ndarray, phases: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Blockiness of ``frame`` coded again at :data:`PLATE_QUALITIES`, its old grid moved half a block off."""
-    # the new grid starts at the crop's corner; crop so the old boundaries (after phase p) land mid-block
-    top, left = (phases[1] + 1 + 4) % 8, (phases[0] + 1 + 4) % 8
+    """The block step (DN) that coding at each of :data:`PLATE_QUALITIES` gives ``frame``'s scene, corrected for
+    the frame being coded already: ``2 s(coded once more) - s(coded twice more)``, each new grid moved off the
+    earlier ones (by 4 px, then 2 px), the linear extrapolation back to one coding."""
+    top, left = (phases[1] + 1 + 4) % 8, (phases[0] + 1 + 4) % 8  # the old grid lands mid-block
     f = np.ascontiguousarray(np.clip(np.rint(frame[top:, left:]), 0, 255).astype(np.uint8))
-    b = [jpeg_blockiness(jpeg_roundtrip(f, q), phases=(7, 7)) for q in PLATE_QUALITIES]
-    return np.array(PLATE_QUALITIES, float), np.array([(x["blockiness_h"] + x["blockiness_v"]) / 2 for x in b])
+    out = []
+    for q in PLATE_QUALITIES:
+        once = jpeg_roundtrip(f, q)
+        twice = jpeg_roundtrip(np.ascontiguousarray(once[2:, 2:]), q)
+        out.append(2 * _step_level(once) - _step_level(twice))
+    return np.array(PLATE_QUALITIES, float), np.array(out)
 
 
 def jpeg_quality_from_plate(footage, base=None):
     """The IJG quality the footage's JPEG blockiness implies, as a :class:`lowcam.measure.plate.PlateEstimate`
     for the ``jpeg`` effect (see "Blockiness from the footage alone" above).
 
-    The blockiness is measured on up to 8 frames; the calibration codes the middle frame again at
-    :data:`PLATE_QUALITIES` and interpolates the quality whose blockiness matches (the curve made monotone).
+    The grid is found on up to 8 frames by the blockiness ratio; the quality from the block step in DN
+    (``D[p*] - median(D[others])``, which depends less on the scene's softness): the calibration codes the
+    middle frame again at :data:`PLATE_QUALITIES` (bias-corrected, :func:`_quality_curve`) and interpolates the
+    quality whose step matches (the curve made monotone). Measured: within 9 of the true quality on Pillow's
+    and the engine's JPEGs at 20, 50 and 80 (three scenes).
     The confidence is ``(t - 3) / 5`` of the weaker axis's tile t statistic, clipped to 0..1: without an 8x8 grid
     (uncompressed or high-quality frames, or a grid the scaler smeared) it is near 0, and nothing is applied.
-    A blockiness below that of quality 95 gives quality 95 ("at least")."""
+    A step below that of quality 95 gives quality 95 ("at least")."""
     from ..measure.plate import PlateEstimate
 
     frames = footage.stack(max_frames=8)
@@ -289,18 +308,19 @@ def jpeg_quality_from_plate(footage, base=None):
                              "coded at a high quality")
     mid = frames[len(frames) // 2]
     qs, curve = _quality_curve(mid, (b["phase_h"], b["phase_v"]))
-    curve = np.minimum.accumulate(curve)  # blockiness falls as the quality rises
-    level = (b["blockiness_h"] + b["blockiness_v"]) / 2
+    curve = np.minimum.accumulate(curve)  # the step falls as the quality rises
+    level = _step_level(frames, (b["phase_h"], b["phase_v"]))
+    measured["block_step_dn"] = round(level, 4)
     if level <= curve[-1]:
         q = int(qs[-1])
-        note = f"; blockiness {level:.3f} at or below quality {q}'s: at least {q}"
+        note = f"; block step {level:.3f} DN at or below quality {q}'s: at least {q}"
     elif level >= curve[0]:
         q = int(qs[0])
-        note = f"; blockiness {level:.3f} above quality {q}'s"
+        note = f"; block step {level:.3f} DN above quality {q}'s"
     else:
         q = int(round(float(np.interp(-level, -curve, qs))))
         note = ""
-    measured["calibration"] = {"quality": [int(v) for v in qs], "blockiness": [round(float(v), 4) for v in curve]}
+    measured["calibration"] = {"quality": [int(v) for v in qs], "block_step_dn": [round(float(v), 4) for v in curve]}
     reason = (f"8x8 grid on both axes (tile t statistic {t:.1f})" + ("" if aligned else
               f"; the grid is offset ({(b['phase_h'] + 1) % 8}, {(b['phase_v'] + 1) % 8}) px: cropped or "
               "shifted after coding") + note)
