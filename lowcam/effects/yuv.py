@@ -244,7 +244,9 @@ def chroma_subsampling_from_plate(footage, base=None):
     """The chroma subsampling the footage shows, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
     Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
-    spectrum; module docstring), the confidence is the weaker axis's. A JPEG-style result (4:4:4, 4:2:2, 4:2:0)
+    spectrum; module docstring), the confidence is the weaker axis's. Where one axis shows repeated samples
+    and the other shows neither repetition nor a JPEG grid, the other is taken as full (the same upsampler
+    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2, 4:2:0)
     on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling``; otherwise the horizontal factor sets
     :class:`ChromaSubsampling`'s ``group`` (the engine's chroma subsampling is horizontal only; a vertical factor
     is reported)."""
@@ -254,6 +256,17 @@ def chroma_subsampling_from_plate(footage, base=None):
     frames = footage.stack(max_frames=6)
     ev = chroma_subsampling_evidence(frames)
     (fh, ch, why_h), (fv, cv, why_v) = _axis_factor(ev["h"]), _axis_factor(ev["v"])
+    # an upsampler that repeats samples along one axis would repeat them along the other too if it subsampled
+    # there: no repetition there (and no JPEG grid to read) is then evidence of full chroma along it
+    for rep, other, axis in ((why_h, why_v, "v"), (why_v, why_h, "h")):
+        if rep.startswith("repeated") and other.startswith("chroma spectrum"):
+            r = ev[axis]["replication_2"]
+            conf = float(np.clip((r - _REPLICATED_BELOW) / 0.5, 0, 1))
+            note = f"no repeated samples ({r:.2f}) where the other axis has them"
+            if axis == "v":
+                fv, cv, why_v = 1, conf, note
+            else:
+                fh, ch, why_h = 1, conf, note
     name = next((k for k, v in SUBSAMPLING_FACTORS.items() if v == (fh, fv)), f"{fh}x{fv}")
     measured = {"subsampling": name, "factors": [fh, fv],
                 **{f"{a}_{k}": round(v, 4) for a in ("h", "v") for k, v in ev[a].items()}}
