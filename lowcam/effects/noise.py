@@ -213,15 +213,15 @@ NLF_BIN_DN = 12.0
 
 
 def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, saturation_dn: float = 220.0,
-                min_count: int = 30) -> tuple[list[float], list[float]]:
+                min_count: int = 30, floor_dn: float = 4.0) -> tuple[list[float], list[float]]:
     """(levels, sigmas) of one channel: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
     each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom) divided
     by that quantile of chi-square / dof, so textured or moving members above it do not lift it [Liu2008's lower
-    envelope]."""
+    envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are left out."""
     from scipy.stats import chi2
 
     bias = chi2.ppf(quantile, dof) / dof
-    keep = (mean > 4.0) & (mean < saturation_dn) & np.isfinite(var)
+    keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var)
     mean, var = mean[keep], var[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
     levels, sigmas = [], []
@@ -233,7 +233,8 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, sa
     return levels, sigmas
 
 
-def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> dict:
+def noise_level_statistic(frames, method: str | None = None, block: int = 8, floor_dn: float = 4.0,
+                          saturation_dn: float = 220.0) -> dict:
     """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
 
     ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
@@ -241,7 +242,7 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> 
     give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median variance (temporal) or
     10th percentile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
     which :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or
-    more. Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
+    more. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
     {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated from the bins, for comparisons)."""
     x = np.asarray(frames, np.float32)
     if x.ndim == 3:
@@ -255,14 +256,15 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8) -> 
             k = len(x) - 1
             mean = x[..., c].mean(axis=0).ravel()
             var = x[..., c].var(axis=0, ddof=1).ravel()
-            levels, sigmas = _binned_nlf(mean, var, k, 0.5)
+            levels, sigmas = _binned_nlf(mean, var, k, 0.5, saturation_dn, floor_dn=floor_dn)
         else:
             t, h, w = x.shape[:3]
             b = block
             blocks = x[:, : h // b * b, : w // b * b, c].reshape(t, h // b, b, w // b, b).transpose(0, 1, 3, 2, 4)
             blocks = blocks.reshape(-1, b * b)
             k = b * b - 1
-            levels, sigmas = _binned_nlf(blocks.mean(axis=1), blocks.var(axis=1, ddof=1), k, 0.1, min_count=10)
+            levels, sigmas = _binned_nlf(blocks.mean(axis=1), blocks.var(axis=1, ddof=1), k, 0.1, saturation_dn,
+                                         min_count=10, floor_dn=floor_dn)
         out["levels_dn"][channel] = levels
         out["sigma_dn"][channel] = sigmas
     out["sigma_at_dn"] = {str(m): [float(np.interp(m, out["levels_dn"][ch], out["sigma_dn"][ch]))
@@ -287,43 +289,43 @@ def _fit_bins(levels, sigmas, law: str) -> tuple[float, float]:
     return float(a), float(max(b, 0.0))
 
 
-def noise_gain(profile, method: str, level: float = 0.5, sigma_dn: float = 8.0, frames: int = 4) -> list[float]:
+def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
+               frames: int = 4) -> list[float]:
     """How the chain after the noise scales it, per channel, as :func:`noise_level_statistic` measures it.
 
     The profile films a flat grey (``level`` of white) with a constant per-sensel sigma of ``sigma_dn`` and
     without; the statistic's sigma of the difference over ``sigma_dn`` is the gain: the horizontal blur and the
     sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
     after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
-    spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds."""
-    from ..pipeline import render_camera, simulate
-
-    cam = render_camera(profile, profile.camera.width)
-    ideal = np.ones((cam["height"], cam["width"], 4), np.float32)
-    ideal[..., :3] = level
+    spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
+    ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
+    def ideal(width, height):
+        out = np.ones((height, width, 4), np.float32)
+        out[..., :3] = level
+        return out
     law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
            "blue": [sigma_dn ** 2, 0.0]}
     noisy = profile.with_effect("noise", **law)
-    clean = simulate(ideal, profile.without("noise") if profile.effect("noise") else profile).astype(np.float32)
+    clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
     h, w = clean.shape[:2]
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
-    diffs = np.stack([simulate(ideal, noisy, seed=1, frame=k).astype(np.float32)[crop] - clean[crop] + 128.0
+    diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
                       for k in range(frames if method == "temporal" else 1)])
     stat = noise_level_statistic(diffs, method)
     return [float(stat["sigma_at_dn"]["128"][c]) / sigma_dn for c in range(3)]
 
 
-def noise_level_function_from_plate(footage, base=None):
+def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
     Where the camera holds still for 3 frames or more (:func:`lowcam.measure.plate.still_segments`) each pixel's
     temporal variance is used; otherwise the flattest blocks of single frames (Liu2008's lower envelope). The
     output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
     blur and demosaic do to per-sensel noise) and fitted with the profile's law. Confidence: temporal 0.9 with
-    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels."""
+    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels.
+    ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
     from ..measure.plate import PlateEstimate, still_segments
-    from ..profile import load_profile
-
-    base = load_profile(base or "fire-i") if not hasattr(base, "effects") else base
     law = getattr(base.effect("noise"), "law", "sigma_linear")
     runs = still_segments(footage)
     if runs:
@@ -335,7 +337,7 @@ def noise_level_function_from_plate(footage, base=None):
         frames = footage.stack(max_frames=6)
         method, n = "spatial", len(frames)
     stat = noise_level_statistic(frames, method)
-    gains = noise_gain(base, method)
+    gains = noise_gain(base, method, film)
     params, measured = {"law": law}, {"method": method, "frames": n, "gain": gains,
                                       "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
                                       "sigma_dn": stat["sigma_dn"]}

@@ -21,10 +21,12 @@ Contents
 - :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :data:`PLATE_PROBES`: every plate probe, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
+- :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
 - :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
 - :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
+- :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
 - :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
 - :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
 
@@ -176,7 +178,7 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
         raise LowcamError(f"{path}: no such gyro log")
     text = path.read_text(errors="replace")
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
-    if first and any(c.isalpha() for c in first):  # a header: the CSV of lowcam.motion
+    if first and not _numeric_row(first):  # a header: the CSV of lowcam.motion
         return read_gyro_csv(path), None
     try:
         rows = np.loadtxt(path, delimiter="," if "," in first else None, ndmin=2)
@@ -204,12 +206,22 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
     return samples, times
 
 
+def _numeric_row(line: str) -> bool:
+    try:
+        [float(v) for v in line.replace(",", " ").split()]
+        return True
+    except ValueError:
+        return False
+
+
 @dataclass
 class PlateEstimate:
     """One statistic measured on the footage and what it implies for the profile.
 
     ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
-    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports);
+    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
+    parameter of ``effect`` or ``"other_effect.param"``; ``base_params``: the base profile's values of the same
+    parameters (None where it lacks them), filled by :func:`estimate_profile`;
     ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
     simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
     :func:`estimate_profile` wrote ``params`` into the profile."""
@@ -222,12 +234,18 @@ class PlateEstimate:
     reason: str
     model: dict | None = None
     applied: bool = False
+    base_params: dict = field(default_factory=dict)
 
     def line(self) -> str:
         """One line for the terminal: what was found, how sure, whether it went into the profile."""
         what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
         state = "applied" if self.applied else "not applied"
         return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
+
+
+def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
+    """(effect, param) of one of an estimate's params: ``"effect.param"`` or a param of ``est.effect``."""
+    return tuple(key.split(".", 1)) if "." in key else (est.effect, key)
 
 
 def _fmt(v) -> str:
@@ -254,10 +272,20 @@ class PlateProbe:
     about: str = ""
 
 
+def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
+    """The frame (float32 DN) of ``profile`` filming the opaque ideal ``make_ideal(width, height)`` (RGBA 0-1, at
+    the pinhole field of view the profile's render needs): how the estimators in the effect modules, which do not
+    run the pipeline themselves, ask the model what it makes of a scene."""
+    from ..pipeline import render_camera, simulate
+
+    cam = render_camera(profile, profile.camera.width)
+    return simulate(make_ideal(cam["width"], cam["height"]), profile, seed=seed, frame=frame).astype(np.float32)
+
+
 def _noise_estimate(footage, base=None):
     from ..effects.noise import noise_level_function_from_plate
 
-    return noise_level_function_from_plate(footage, base)
+    return noise_level_function_from_plate(footage, base, film)
 
 
 def _noise_statistic(frames):
@@ -269,7 +297,7 @@ def _noise_statistic(frames):
 def _edge_estimate(footage, base=None):
     from ..effects.sharpening import edge_profile_from_plate
 
-    return edge_profile_from_plate(footage, base)
+    return edge_profile_from_plate(footage, base, film)
 
 
 def _edge_statistic(frames):
@@ -357,10 +385,10 @@ def _codec(module: str, name: str) -> Callable:
 #: Every plate probe, in the order they run (h/platecmp adds JPEG blockiness and chroma bandwidth after
 #: vignetting).
 PLATE_PROBES: list[PlateProbe] = [
-    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
-               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
     PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
                "brightness of the same scene points at different radii over a moving shot"),
     PlateProbe("jpeg_blockiness", "jpeg", _codec("jpeg", "jpeg_quality_from_plate"),
@@ -447,6 +475,23 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
+_HEADLINE_KEYS = ("method", "frames", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+                  "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
+
+
+def headline(stat: dict) -> dict:
+    """The few numbers of a statistic (``PlateEstimate.measured`` or ``model``) worth a table, nested as found."""
+    out = {}
+    for key, value in (stat or {}).items():
+        if key in _HEADLINE_KEYS:
+            out[key] = value
+        elif isinstance(value, dict):
+            sub = headline(value)
+            if sub:
+                out[key] = sub
+    return out
+
+
 def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
                      probes: list[PlateProbe] | None = None):
     """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
@@ -461,15 +506,21 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        est = probe.estimate(footage, base)
+        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters)
         if est is None:
             continue
         estimates.append(est)
+        est.base_params = {}
+        for key in est.params:
+            effect, param = _target(est, key)
+            e = base.effect(effect)
+            est.base_params[key] = getattr(e, param, None) if e is not None else None
         if est.params and est.confidence >= min_confidence:
-            out = out.with_effect(est.effect, **est.params)
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
-            for key in est.params:
-                out.provenance[f"{est.effect}.{key}"] = note
+            for key, value in est.params.items():
+                effect, param = _target(est, key)
+                out = out.with_effect(effect, **{param: value})
+                out.provenance[f"{effect}.{param}"] = note
             est.applied = True
     return out, estimates
