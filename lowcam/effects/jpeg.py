@@ -27,9 +27,9 @@ blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between ne
 (modulo 8) and the blockiness is ``D[p*] / median(D[others])`` at the grid's phase ``p*`` (7 when the grid starts
 at the frame's corner): 1.0 without a grid. The quality is found by coding the footage's own frame again, shifted
 by half a block so its old grid falls inside the new blocks, at :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`),
-and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the frame
-being coded already (a second recoding extrapolates back to one coding). The confidence is the tile evidence: the grid's log ratio
-per 64 px tile, its mean over its standard error (a t statistic), on both axes.
+and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the
+frame being coded already (a second recoding extrapolates back to one coding). The confidence is the tile
+evidence: the grid's log ratio per 64 px tile, its mean over its standard error (a t statistic), on both axes.
 
 References
 ----------

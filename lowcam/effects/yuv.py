@@ -29,7 +29,8 @@ each relative to the luma of the same frames so that the scene's own colour deta
   (modulo ``k``, leaving out JPEG's block steps) over the strongest (0: none; below -0.8: replicated);
 - *JPEG grid*: JPEG codes the chroma in 8x8 blocks of the subsampled plane, so its block steps come every
   ``8 k`` px: the log step excess at odd multiples of 8 px (``g8``, present only at full chroma) over that at
-  multiples of 32 px (``g32``); ``g8 / g32`` is about 1 at 4:4:4 and under 0.6 when halved (read where ``g32 > 0.3``, i.e. quality up to about 95);
+  multiples of 32 px (``g32``); ``g8 / g32`` is about 1 at 4:4:4 and under 0.6 when halved (read where
+  ``g32 > 0.3``, i.e. quality up to about 95);
 - *spectrum* (no grid, no replication; a weak cue, the scene's colour detail confounds it): ``chroma_drop``,
   ``log10`` of the chroma/luma power ratio in 0.28-0.5 cycles/px over that in 0.02-0.12; below -0.45: halved
   (confidence at most 0.35, so it is reported, not applied).
