@@ -20,7 +20,8 @@ Contents
   ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
 - :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of a stack of frames
-- :data:`NLF_BIN_DN`: the brightness bins (DN) of the noise level function measured on footage
+- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`: the brightness bins (DN) of the noise level function measured on
+  footage, and the quantile of flat-block variances that gives its spatial lower envelope
 - :func:`noise_gain`: how the chain after the noise scales it per channel, as the noise level function sees it
 - :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
@@ -210,6 +211,8 @@ def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> d
 
 #: Brightness bins (DN) of the noise level function measured on footage.
 NLF_BIN_DN = 12.0
+#: The quantile of block variances that the spatial noise level function takes in each bin (its lower envelope).
+SPATIAL_QUANTILE = 0.05
 
 
 def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, saturation_dn: float = 220.0,
@@ -238,9 +241,9 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8, flo
     """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
 
     ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
-    frame at a time): the variance inside ``block`` x ``block`` blocks about their mean, whose flattest members
-    give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median variance (temporal) or
-    10th percentile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
+    frame at a time): the variance inside ``block`` x ``block`` blocks about their best-fitting plane, whose
+    flattest members give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median
+    variance (temporal) or :data:`SPATIAL_QUANTILE` quantile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
     which :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or
     more. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
     {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated from the bins, for comparisons)."""
@@ -261,10 +264,14 @@ def noise_level_statistic(frames, method: str | None = None, block: int = 8, flo
             t, h, w = x.shape[:3]
             b = block
             blocks = x[:, : h // b * b, : w // b * b, c].reshape(t, h // b, b, w // b, b).transpose(0, 1, 3, 2, 4)
-            blocks = blocks.reshape(-1, b * b)
-            k = b * b - 1
-            levels, sigmas = _binned_nlf(blocks.mean(axis=1), blocks.var(axis=1, ddof=1), k, 0.1, saturation_dn,
-                                         min_count=10, floor_dn=floor_dn)
+            blocks = blocks.reshape(-1, b * b).astype(np.float64)
+            # each block less its best-fitting plane (shading, vignetting), leaving b^2 - 3 degrees of freedom
+            yy, xx = np.mgrid[0:b, 0:b]
+            design = np.column_stack([np.ones(b * b), xx.ravel() - (b - 1) / 2, yy.ravel() - (b - 1) / 2])
+            resid = blocks - blocks @ np.linalg.pinv(design).T @ design.T
+            k = b * b - 3
+            levels, sigmas = _binned_nlf(blocks.mean(axis=1), (resid ** 2).sum(axis=1) / k, k, SPATIAL_QUANTILE,
+                                         saturation_dn, min_count=10, floor_dn=floor_dn)
         out["levels_dn"][channel] = levels
         out["sigma_dn"][channel] = sigmas
     out["sigma_at_dn"] = {str(m): [float(np.interp(m, out["levels_dn"][ch], out["sigma_dn"][ch]))

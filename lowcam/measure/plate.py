@@ -514,7 +514,8 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
         for key in est.params:
             effect, param = _target(est, key)
             e = base.effect(effect)
-            est.base_params[key] = getattr(e, param, None) if e is not None else None
+            value = getattr(e, param, None) if e is not None else None
+            est.base_params[key] = str(value) if isinstance(value, Path) else value  # a texture's path
         if est.params and est.confidence >= min_confidence:
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
