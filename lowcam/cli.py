@@ -19,7 +19,7 @@ Contents
 - :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
 - :func:`cmd_chart`: ``lowcam chart``: the printable calibration chart and its layout
 - :func:`cmd_calibrate`: ``lowcam calibrate``, through :data:`lowcam.calibrate.CALIBRATIONS`
-- :func:`cmd_compare`: ``lowcam compare``: the model against measured frames
+- :func:`cmd_compare`: ``lowcam compare``: the model against measured frames, or (``--plate-only``) against footage
 - :func:`cmd_diagnose`: ``lowcam diagnose``: rank the effects the profile may lack
 - :func:`cmd_synth`: ``lowcam synth``: a measurement set from bundled scenes, with hidden effects
 - :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
@@ -299,14 +299,56 @@ def _end_progress_lines() -> None:
         _open_line = False
 
 
+def _compare_plate_only(args, profile) -> int:
+    """``lowcam compare --plate-only FOOTAGE``: the plate probes' statistics, profile against footage."""
+    from .measure.plate import PLATE_PROBES, read_footage
+    from .measure.plate_compare import compare_plate, write_plate_report
+
+    probes = PLATE_PROBES
+    if args.probes:
+        names = [n.strip() for n in args.probes.split(",") if n.strip()]
+        known = {p.name: p for p in PLATE_PROBES}
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise LowcamError(f"--probes: no plate probe {', '.join(unknown)} (there are: {', '.join(known)})")
+        probes = [known[n] for n in names]
+    footage = read_footage(args.plate_only)
+    cmp = compare_plate(footage, profile, probes)
+    worst = cmp.where["worst"]
+    print(f"{args.plate_only}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
+          ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()))
+    print(f"where: {worst['probe']} ({worst['effect']}), error {worst['error']:.2f}: {worst['worst_statistic']} "
+          f"footage {worst['footage']:.4g}, model {worst['model']:.4g}")
+    for name, why in cmp.skipped.items():
+        print(f"  {name}: skipped ({why})")
+    if args.json:
+        import json
+
+        from .io import atomic_write_bytes
+
+        doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
+               "where": cmp.where, "skipped": cmp.skipped, "statistics": [s.as_dict() for s in cmp.statistics]}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
+    if args.report:
+        page = write_plate_report(cmp, args.report, f"{profile.name} against the plate {args.plate_only}")
+        print(f"{page}: report")
+    return 0
+
+
 def cmd_compare(args) -> int:
     from .measure.compare import compare
     from .measure.report import read_history, record_history, write_compare_report
     from .measure.sets import load_set
     from .profile import load_profile
 
+    if (args.set is None) == (args.plate_only is None):
+        raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
+    if args.probes and not args.plate_only:
+        raise LowcamError("compare: --probes goes with --plate-only")
     _check_report_outputs(args)
     profile = load_profile(args.profile)
+    if args.plate_only:
+        return _compare_plate_only(args, profile)
     mset = load_set(args.set, profile)
     read_history(mset.path)  # a damaged history fails before the work
     print(f"comparing {len(mset.captures)} captures with {profile.name} ...", file=sys.stderr, flush=True)
@@ -557,7 +599,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("compare", help="the model against measured frames: error, where it fails, probes")
-    p.add_argument("set", help="measurement-set folder (with set.toml)")
+    p.add_argument("set", nargs="?", help="measurement-set folder (with set.toml)")
+    p.add_argument("--plate-only", metavar="FOOTAGE",
+                   help="no chart, no ideal: compare the plate probes' statistics of this video, folder or glob "
+                        "of frames with the profile filming similar content")
+    p.add_argument("--probes", help="with --plate-only: comma-separated plate probes to compare (default: all)")
     p.add_argument("--profile", default="fire-i")
     p.add_argument("--report", help="folder for the HTML report and its pictures")
     p.add_argument("--json", help="write the numbers as JSON")

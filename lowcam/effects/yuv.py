@@ -13,6 +13,27 @@ Contents
 - :func:`yuv_to_rgb`: its inverse
 - :class:`YuvBlend`: blends the rendered light into the video frame in YUV, each channel with its own alpha
 - :class:`ChromaSubsampling`: YUV 4:1:1: U and V box-averaged over ``group`` horizontal pixels (steps 9-10)
+- :data:`SUBSAMPLING_FACTORS`: J:a:b name -> (horizontal, vertical) chroma subsampling factors
+- :func:`chroma_spectrum_ratio`: per 1-D frequency, the chroma power relative to the luma power along an axis
+- :func:`chroma_bandwidth_statistic`: the no-reference statistic of a stack: replication and JPEG chroma steps
+- :func:`chroma_subsampling_evidence`: per axis, the three cues to the chroma subsampling factor (see below)
+- :func:`chroma_subsampling_from_plate`: the chroma subsampling the footage shows (a plate estimate)
+
+Chroma bandwidth from the footage alone
+---------------------------------------
+Chroma subsampled by ``k`` along an axis carries little power above ``0.5 / k`` cycles/px. Three cues, per axis,
+each relative to the luma of the same frames so that the scene's own colour detail cancels in part:
+
+- *replication*: an upsampler that repeats samples (libjpeg's 4:1:1, :class:`ChromaSubsampling`) leaves chroma
+  steps only every ``k`` px: ``log10`` of the mean neighbour-difference power at the ``k - 1`` weakest phases
+  (modulo ``k``, leaving out JPEG's block steps) over the strongest (0: none; below -0.8: replicated);
+- *JPEG grid*: JPEG codes the chroma in 8x8 blocks of the subsampled plane, so its block steps come every
+  ``8 k`` px: the log step excess at odd multiples of 8 px (``g8``, present only at full chroma) over that at
+  multiples of 32 px (``g32``); ``g8 / g32`` is about 1 at 4:4:4 and under 0.6 when halved (read where
+  ``g32 > 0.3``, i.e. quality up to about 95);
+- *spectrum* (no grid, no replication; a weak cue, the scene's colour detail confounds it): ``chroma_drop``,
+  ``log10`` of the chroma/luma power ratio in 0.28-0.5 cycles/px over that in 0.02-0.12; below -0.45: halved
+  (confidence at most 0.35, so it is reported, not applied).
 
 References
 ----------
@@ -20,6 +41,8 @@ References
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 - [ITU-R BT.601] ITU-R Recommendation BT.601, "Studio encoding parameters of digital television for standard 4:3 and
   wide-screen 16:9 aspect ratios" (the Y'CbCr luma and colour-difference weights).
+- [T.81] ITU-T Recommendation T.81, "Digital compression and coding of continuous-tone still images" (JPEG),
+  1992, A.1.1 (sampling factors: chroma blocks are 8x8 samples of the subsampled plane).
 """
 from __future__ import annotations
 
@@ -106,3 +129,153 @@ class ChromaSubsampling(Effect):
         h, w = footprint.shape
         n = self.group
         return frame, np.repeat(footprint.reshape(h, w // n, n).any(axis=2), n, axis=1)
+
+
+#: J:a:b name -> (horizontal, vertical) chroma subsampling factors.
+SUBSAMPLING_FACTORS = {"4:4:4": (1, 1), "4:2:2": (2, 1), "4:2:0": (2, 2), "4:1:1": (4, 1), "4:4:0": (1, 2),
+                       "4:1:0": (4, 2)}
+
+_REPLICATED_BELOW = -0.8   # replication cue: log10 weak/strong phase power below this means repeated samples
+_GRID_HALVED_BELOW = 0.6  # JPEG grid cue: g8 / g32 below this means halved chroma
+_GRID_VISIBLE = 0.3        # JPEG grid cue: g32 (log step excess) needed to read the cue at all
+_DROP_HALVED_BELOW = -0.45 # spectrum cue: chroma_drop below this suggests halved chroma
+_SPECTRUM_CONFIDENCE = 0.35  # the spectrum cue alone never gives more (the scene's colour detail confounds it)
+
+
+def _yuv_stack(frames: np.ndarray) -> np.ndarray:
+    f = np.asarray(frames, np.float32)
+    return (f.reshape(-1, 3) @ RGB_TO_YUV.T.astype(np.float32)).reshape(f.shape)
+
+
+def chroma_spectrum_ratio(frames: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies in cycles/px, chroma power / luma power) along ``axis`` (-1: horizontal, -2: vertical) of a
+    (T, H, W, 3) or (H, W, 3) RGB stack: the Hann-windowed 1-D power spectra of Cb + Cr and of Y, averaged over
+    the lines and frames."""
+    y = _yuv_stack(frames)
+    if y.ndim == 3:
+        y = y[None]
+    y = np.transpose(y, (0, 1, 3, 2) if axis == -1 else (0, 2, 3, 1))  # (T, lines, 3, n): the axis last
+    n = y.shape[-1]
+    x = (y - y.mean(axis=-1, keepdims=True)) * np.hanning(n).astype(np.float32)
+    p = (np.abs(np.fft.rfft(x, axis=-1)) ** 2).mean(axis=(0, 1))  # (3, n/2+1)
+    return np.fft.rfftfreq(n), (p[1] + p[2]) / np.maximum(p[0], 1e-12)
+
+
+def _drop(freq, ratio) -> float:
+    hi = ratio[(freq >= 0.28) & (freq <= 0.5)].mean()
+    lo = ratio[(freq >= 0.02) & (freq <= 0.12)].mean()
+    return float(np.log10(max(hi, 1e-12) / max(lo, 1e-12)))
+
+
+def chroma_bandwidth_statistic(frames: np.ndarray) -> dict:
+    """The no-reference statistic of a (T, H, W, 3) stack (DN), per axis ``h`` / ``v``: the structural cues of
+    :func:`chroma_subsampling_evidence` that depend little on the scene: ``replication_2`` and ``replication_4``
+    (log10 power ratios), and the chroma's JPEG steps in DN, ``step8`` at odd multiples of 8 px and ``step32`` at
+    multiples of 32 px (mean absolute step less the median over the 32 px phases; ``step8`` near 0 while
+    ``step32`` is not: halved chroma). ``{}`` for frames under 64 px."""
+    f = np.asarray(frames)
+    if min(f.shape[-3:-1]) < 64:
+        return {}
+    ev = chroma_subsampling_evidence(f, spectrum=False)
+    return {f"{k}_{a}": ev[a][k] for a in ("h", "v") for k in ("replication_2", "replication_4", "step8", "step32")}
+
+
+def _phase_power(plane: np.ndarray, axis: int, period: int) -> np.ndarray:
+    """Mean squared neighbour difference at each phase modulo ``period`` (2 or 4), leaving out the steps across
+    JPEG's 8 px block boundaries (index 7 modulo 8), which would otherwise mimic replication."""
+    d = np.moveaxis(np.diff(plane, axis=axis) ** 2, axis, -1)
+    n = d.shape[-1] // 8 * 8
+    d = d[..., :n].reshape(-1, n // 8, 8)[..., :7].mean(axis=(0, 1))  # phases 0..6 of the 8 px block
+    return np.array([d[p::period].mean() for p in range(period)])
+
+
+def chroma_subsampling_evidence(frames: np.ndarray, spectrum: bool = True) -> dict:
+    """Per axis (``h``, ``v``): the three cues of the module docstring: ``replication_2`` / ``replication_4``
+    (chroma less luma; luma's own is subtracted so a sharp scene's structure cancels), ``g8`` and ``g32`` (the
+    chroma's JPEG step excess, as a log ratio to the median step, at odd multiples of 8 px and at multiples of
+    32 px, mean over Cb and Cr, the grid starting at the frame's corner), the same as differences in DN
+    (``step8``, ``step32``) and, with ``spectrum``, ``chroma_drop``."""
+    from .jpeg import block_difference_profile
+
+    y = _yuv_stack(frames)
+    if y.ndim == 3:
+        y = y[None]
+    out = {}
+    for axis, name in ((-1, "h"), (-2, "v")):
+        e = {}
+        for k in (2, 4):
+            rep = []
+            for c in range(3):
+                p = np.sort(_phase_power(y[..., c], axis, k))
+                rep.append(np.log10(max(p[:-1].mean(), 1e-9) / max(p[-1], 1e-9)))
+            e[f"replication_{k}"] = float(min(rep[1], rep[2]) - rep[0])
+        g8, g32, s8, s32 = [], [], [], []
+        for c in (1, 2):
+            d = block_difference_profile(y[..., c], axis, 32)
+            med = max(np.median(d), 1e-9)
+            g8.append(np.log(max((d[7] + d[23]) / 2, 1e-9) / med))
+            g32.append(np.log(max(d[31], 1e-9) / med))
+            s8.append((d[7] + d[23]) / 2 - med)
+            s32.append(d[31] - med)
+        e["g8"], e["g32"] = float(np.mean(g8)), float(np.mean(g32))
+        e["step8"], e["step32"] = float(np.mean(s8)), float(np.mean(s32))
+        if spectrum:
+            e["chroma_drop"] = _drop(*chroma_spectrum_ratio(frames, axis))
+        out[name] = e
+    return out
+
+
+def _axis_factor(e: dict) -> tuple[int, float, str]:
+    """(factor, confidence, cue) for one axis from :func:`chroma_subsampling_evidence`'s cues."""
+    for k in (4, 2):
+        r = e[f"replication_{k}"]
+        if r < _REPLICATED_BELOW:
+            return k, float(np.clip((_REPLICATED_BELOW - r) / 0.5 + 0.5, 0, 1)), f"repeated samples ({r:.2f})"
+    if e["g32"] > _GRID_VISIBLE:
+        ratio = e["g8"] / e["g32"]
+        visible = float(np.clip(e["g32"] / (2 * _GRID_VISIBLE), 0, 1))
+        margin = float(np.clip(abs(ratio - _GRID_HALVED_BELOW) / 0.25, 0, 1))
+        return (2 if ratio < _GRID_HALVED_BELOW else 1), visible * margin, f"JPEG chroma grid (g8/g32 {ratio:.2f})"
+    d = e["chroma_drop"]
+    conf = _SPECTRUM_CONFIDENCE * float(np.clip(abs(d - _DROP_HALVED_BELOW) / 0.4, 0, 1))
+    return (2 if d < _DROP_HALVED_BELOW else 1), conf, f"chroma spectrum (drop {d:.2f})"
+
+
+def chroma_subsampling_from_plate(footage, base=None):
+    """The chroma subsampling the footage shows, as a :class:`lowcam.measure.plate.PlateEstimate`.
+
+    Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
+    spectrum; module docstring), the confidence is the weaker axis's. Where one axis shows repeated samples
+    and the other shows neither repetition nor a JPEG grid, the other is taken as full (the same upsampler
+    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2, 4:2:0)
+    on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling``; otherwise the horizontal factor sets
+    :class:`ChromaSubsampling`'s ``group`` (the engine's chroma subsampling is horizontal only; a vertical factor
+    is reported)."""
+    from ..measure.plate import PlateEstimate
+    from .jpeg import SUBSAMPLINGS, jpeg_blockiness
+
+    frames = footage.stack(max_frames=6)
+    ev = chroma_subsampling_evidence(frames)
+    (fh, ch, why_h), (fv, cv, why_v) = _axis_factor(ev["h"]), _axis_factor(ev["v"])
+    # an upsampler that repeats samples along one axis would repeat them along the other too if it subsampled
+    # there: no repetition there (and no JPEG grid to read) is then evidence of full chroma along it
+    for rep, other, axis in ((why_h, why_v, "v"), (why_v, why_h, "h")):
+        if rep.startswith("repeated") and other.startswith("chroma spectrum"):
+            r = ev[axis]["replication_2"]
+            conf = float(np.clip((r - _REPLICATED_BELOW) / 0.5, 0, 1))
+            note = f"no repeated samples ({r:.2f}) where the other axis has them"
+            if axis == "v":
+                fv, cv, why_v = 1, conf, note
+            else:
+                fh, ch, why_h = 1, conf, note
+    name = next((k for k, v in SUBSAMPLING_FACTORS.items() if v == (fh, fv)), f"{fh}x{fv}")
+    measured = {"subsampling": name, "factors": [fh, fv],
+                **{f"{a}_{k}": round(v, 4) for a in ("h", "v") for k, v in ev[a].items()}}
+    confidence = round(min(ch, cv), 3)
+    reason = f"across: {why_h}; down: {why_v}"
+    grid = jpeg_blockiness(frames)
+    if name in SUBSAMPLINGS and min(grid["t_h"], grid["t_v"]) >= 3.0:
+        return PlateEstimate("chroma_bandwidth", "jpeg", measured, {"subsampling": name}, confidence, reason)
+    if fv > 1:
+        reason += "; the vertical halving is reported only (the engine's chroma subsampling is horizontal)"
+    return PlateEstimate("chroma_bandwidth", "chroma_subsampling", measured, {"group": fh}, confidence, reason)

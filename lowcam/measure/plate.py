@@ -372,8 +372,18 @@ def _no_statistic(frames):
     return {}
 
 
+def _codec(module: str, name: str) -> Callable:
+    """``lowcam.effects.<module>.<name>``, imported when first called (the effect modules import this one)."""
+    def call(*args, **kwargs):
+        import importlib
+
+        return getattr(importlib.import_module(f"lowcam.effects.{module}"), name)(*args, **kwargs)
+    call.__name__ = name
+    return call
+
+
 #: Every plate probe, in the order they run: the edges first, since the noise estimate divides by the gain of the
-#: row filters they fit (:func:`lowcam.effects.noise.noise_gain`); JPEG blockiness and chroma bandwidth go after the
+#: row filters they fit (:func:`lowcam.effects.noise.noise_gain`); JPEG blockiness and chroma bandwidth after the
 #: vignetting.
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
@@ -382,7 +392,12 @@ PLATE_PROBES: list[PlateProbe] = [
                "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
     PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
                "brightness of the same scene points at different radii over a moving shot"),
-    # -- JPEG blockiness and chroma bandwidth probes go here (h/platecmp) --
+    PlateProbe("jpeg_blockiness", "jpeg", _codec("jpeg", "jpeg_quality_from_plate"),
+               _codec("jpeg", "jpeg_blockiness_statistic"),
+               "luma steps across the 8x8 grid over those inside blocks; the quality that codes the frame so"),
+    PlateProbe("chroma_bandwidth", "chroma_subsampling", _codec("yuv", "chroma_subsampling_from_plate"),
+               _codec("yuv", "chroma_bandwidth_statistic"),
+               "chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum"),
     PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
                "angular velocity per frame from a gyro log"),
 ]
