@@ -257,7 +257,7 @@ def cmd_calibrate(args) -> int:
         results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
     for r in results:
         print(r.summary)
-        for note in r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []:
+        for note in r.notes + (r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []):
             print(f"  {note}")
     saved = cal.apply_to_profile(base, results, out).save(out)
     figures = [f for r in results for f in r.figures]
@@ -517,7 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(q):
         q.add_argument("-o", "--output", required=True, help="profile TOML to write (textures go beside it)")
-        q.add_argument("--profile", help="profile to start from (default: the output if it exists, else fire-i)")
+        q.add_argument("--profile", "--base",
+                       help="profile to start from (default: the output if it exists, else fire-i)")
         q.add_argument("--report", help="folder for an HTML report with every plot and number")
         q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
         q.set_defaults(func=cmd_calibrate)

@@ -21,6 +21,7 @@ Contents
 - :func:`calibrate_blur`: horizontal and vertical blur from slanted edges (sec. 4.3)
 - :func:`calibrate_sharpening`: sharpening from captures at sharpness 0 and at a setting (sec. 4.4.3)
 - :func:`calibrate_colour`: crosstalk from patch colours, the saturation setting divided out (sec. 4.2, 4.4.2)
+- :func:`calibrate_plate`: a profile from the footage itself, no chart, no ideal (:mod:`lowcam.measure.plate`)
 - :func:`apply_to_profile`: a copy of a profile with every calibration's values, textures written beside it
 - :func:`write_report`: an HTML page with every calibration's summary, numbers and plots
 - :class:`Option`: one input of a calibration: a manifest key and a ``lowcam calibrate`` argument
@@ -77,7 +78,8 @@ class Texture:
 @dataclass
 class Calibration:
     """One calibration's outcome: ``summary`` (one line), fitted ``values`` per effect, ``textures`` per effect
-    (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths)."""
+    (:class:`Texture`), ``numbers`` for the report, ``figures`` (PNG paths), ``provenance`` entries for the
+    profile's ``[provenance]`` table (``"effect.param"``: where the number came from)."""
 
     what: str
     summary: str
@@ -85,6 +87,8 @@ class Calibration:
     numbers: dict = field(default_factory=dict)
     figures: list[Path] = field(default_factory=list)
     textures: dict[str, Texture] = field(default_factory=dict)
+    provenance: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def _write_gain_png(path: Path, gain: np.ndarray, camera) -> None:
@@ -580,6 +584,114 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
                         "saturation": {"saturation": saturation}}, {"total_matrix": total.tolist()}, figures)
 
 
+# --- a profile from the plate itself (issue 15, part 3) --------------------------------------------------------------
+
+def _plate_figures(estimates, plot_dir: Path) -> list[Path]:
+    """One plot per estimate that has something to draw: the noise level function, the edge profiles, the radial
+    fall-off and the gyro's angular velocity, each beside the base profile's model where it was measured."""
+    figures = []
+    channels = ("red", "green", "blue")
+    colours = ("tab:red", "tab:green", "tab:blue")
+    for est in estimates:
+        m, model = est.measured, est.model or {}
+        if est.statistic == "noise_level_function" and m.get("levels_dn"):
+            def draw(fig, m=m, model=model, est=est):
+                ax = fig.add_subplot(1, 1, 1)
+                for ch, col in zip(channels, colours):
+                    ax.plot(m["levels_dn"][ch], m["sigma_dn"][ch], "o", color=col, ms=4, label=f"footage {ch}")
+                    if model.get("levels_dn", {}).get(ch):
+                        ax.plot(model["levels_dn"][ch], model["sigma_dn"][ch], "-", color=col, alpha=0.6,
+                                label=f"base profile {ch}")
+                ax.set_xlabel("mean (DN)")
+                ax.set_ylabel("noise sigma (DN, as delivered)")
+                ax.set_title(f"noise level function ({m['method']}), confidence {est.confidence:.2f}")
+                ax.legend(fontsize=7)
+            figures.append(figure(plot_dir / "plate-noise.png", draw))
+        elif est.statistic == "edge_profile" and m.get("across_x", {}).get("profile"):
+            def draw(fig, m=m, model=model, est=est):
+                for k, (key, what) in enumerate((("across_x", "across near-vertical edges (rows)"),
+                                                 ("across_y", "across near-horizontal edges (columns)"))):
+                    ax = fig.add_subplot(1, 2, k + 1)
+                    if m[key].get("profile"):
+                        ax.plot(m[key]["offsets_px"], m[key]["profile"], label=f"footage ({m[key]['edges']} edges)")
+                    if model.get(key, {}).get("profile"):
+                        ax.plot(model[key]["offsets_px"], model[key]["profile"], "--", label="base profile")
+                    ax.set_xlabel("px from the edge")
+                    ax.set_title(what, fontsize=9)
+                    ax.legend(fontsize=7)
+            figures.append(figure(plot_dir / "plate-edges.png", draw, (10, 4)))
+        elif est.statistic == "radial_falloff" and "c2" in m:
+            def draw(fig, m=m, est=est):
+                ax = fig.add_subplot(1, 1, 1)
+                r = np.linspace(0, 1, 50)
+                ax.plot(r, np.exp(m["c2"] * r ** 2 + m["c4"] * r ** 4), label="footage")
+                base = est.base_params
+                if base.get("k2") is not None:
+                    g = np.clip(1 + base["k2"] * r ** 2 + base["k4"] * r ** 4, 0, None)
+                    ax.plot(r, g / g.max(), "--", label="base profile (radial model)")
+                ax.set_xlabel("radius / half-diagonal")
+                ax.set_ylabel("gain")
+                ax.set_title(f"vignetting, confidence {est.confidence:.2f}")
+                ax.legend()
+            figures.append(figure(plot_dir / "plate-vignetting.png", draw))
+        elif est.statistic == "gyro_motion" and m.get("angular_velocity_rad_s"):
+            def draw(fig, m=m):
+                ax = fig.add_subplot(1, 1, 1)
+                w = np.array([v if v is not None else [np.nan] * 3 for v in m["angular_velocity_rad_s"]])
+                for k, (axis, col) in enumerate(zip("xyz", colours)):
+                    ax.plot(w[:, k], color=col, label=f"w{axis}")
+                ax.set_xlabel("frame")
+                ax.set_ylabel("rad/s (gyro axes)")
+                ax.legend()
+            figures.append(figure(plot_dir / "plate-gyro.png", draw))
+    return figures
+
+
+def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = None,
+                    min_confidence: float | None = None, plot_dir: Path | None = None,
+                    progress: bool = True) -> Calibration:
+    """A profile from the footage itself (issue 15, part 3): :func:`lowcam.measure.plate.estimate_profile` on
+    ``footage`` (a video file, a folder of frames, or frame names or patterns), starting from ``base``. Confident
+    estimates become the calibration's values, each with a ``[provenance]`` entry; the others are listed, not
+    written. With ``plot_dir`` the base profile films similar content (:func:`lowcam.measure.plate.model_statistics`)
+    and each statistic is plotted beside the model's."""
+    from ..measure import plate
+
+    names = [str(f) for f in ([footage] if isinstance(footage, (str, Path)) else footage)]
+    if len(names) == 1 and not any(c in names[0] for c in "*?["):
+        shot = plate.read_footage(names[0], fps=fps, gyro=gyro)
+    else:
+        frames, names_read, source = _load(names, plate.MIN_FRAMES, "plate estimation")
+        shot = plate.Footage(np.stack(frames), fps or 30.0, source, names=names_read)
+        if gyro:
+            shot.gyro, shot.frame_times = plate.read_phone_gyro(gyro)
+    threshold = plate.MIN_CONFIDENCE if min_confidence is None else float(min_confidence)
+    profile, estimates = plate.estimate_profile(shot, base, progress=progress, min_confidence=threshold)
+    values: dict[str, dict] = {}
+    for est in estimates:
+        if est.applied:
+            for key, value in est.params.items():
+                effect, param = plate._target(est, key)
+                values.setdefault(effect, {})[param] = value
+    provenance = {k: v for k, v in profile.provenance.items() if base.provenance.get(k) != v}
+    figures = []
+    if plot_dir:
+        if progress:
+            print("the base profile filming similar content", file=__import__("sys").stderr, flush=True)
+        plate.model_statistics(shot, base, estimates)
+        figures = _plate_figures(estimates, Path(plot_dir))
+    numbers = {est.statistic: {"effect": est.effect, "confidence": est.confidence, "reason": est.reason,
+                               "applied": est.applied, "params": est.params, "base_params": est.base_params,
+                               "footage": plate.headline(est.measured),
+                               "model": None if est.model is None else plate.headline(est.model)}
+               for est in estimates}
+    applied = [e.statistic for e in estimates if e.applied]
+    summary = (f"plate {shot.path}: {len(shot)} frames {shot.shape[1]}x{shot.shape[0]}; applied "
+               f"{', '.join(applied) or 'nothing'}; {len(estimates) - len(applied)} reported only")
+    return Calibration("plate", summary, values, numbers, figures, provenance=provenance,
+                       notes=[e.line() for e in estimates])
+
+
 # --- profiles and reports --------------------------------------------------------------------------------------------
 
 def apply_to_profile(profile, calibrations, out_path: Path):
@@ -597,6 +709,7 @@ def apply_to_profile(profile, calibrations, out_path: Path):
                 values[texture.param] = str(path)
             new = new.with_effect(name, replace=(name == "lens_distortion"), source=str(out_path),
                                   base_dir=out_path.parent, **values)
+        new.provenance.update(cal.provenance)
     new = new.copy()
     new.path = out_path
     return new
@@ -607,6 +720,8 @@ def write_report(calibrations, folder) -> Path:
     sections = []
     for cal in calibrations:
         sections.append(f"<h2>{html.escape(cal.what)}</h2><p><b>{html.escape(cal.summary)}</b></p>")
+        if cal.notes:
+            sections.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in cal.notes) + "</ul>")
         sections.extend(image(folder, fig, cal.what) for fig in cal.figures)
         sections.append(numbers_block(cal.numbers, "numbers and fit quality"))
     return write_page(folder, "Lowcam calibration", "Lowcam calibration report", sections)
@@ -644,6 +759,9 @@ class Option:
         kw = {"help": self.help, "choices": self.choices}
         if self.kind not in ("path", str):
             kw["type"] = self.kind
+        if self.positional:
+            parser.add_argument(self.key, **kw)
+            return
         if self.required:
             kw["required"] = True
         elif self.default is not None:
@@ -800,6 +918,15 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
                        help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b"),
                 Option("saturation", float, 65.0, help="the camera's saturation setting")),
                _run_colour),
+    Calibrator("plate", calibrate_plate, "a profile from the footage itself (no chart, no ideal): noise, edges, "
+               "vignetting, gyro motion",
+               (Option("footage", "frames", required=True, positional=True,
+                       help="a video file, a folder of frames, or frame names or patterns"),
+                Option("gyro", "path", help="gyro log: rows 'wx wy wz t' (framestamp.txt beside it) or a gyro CSV"),
+                Option("fps", float, help="frames/s (default: the video's, else 30)"),
+                Option("min_confidence", float, 0.5, help="estimates below this are reported, not applied")),
+               lambda o, base, plots: calibrate_plate(o["footage"], base, o["gyro"], o["fps"], o["min_confidence"],
+                                                      plots)),
 )}
 
 

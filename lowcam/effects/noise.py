@@ -19,6 +19,11 @@ Contents
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
   ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
+- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of a stack of frames
+- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`: the brightness bins (DN) of the noise level function measured on
+  footage, and the quantile of flat-block variances that gives its spatial lower envelope
+- :func:`noise_gain`: how the chain after the noise scales it per channel, as the noise level function sees it
+- :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
 References
 ----------
@@ -28,6 +33,10 @@ References
   Digital-Video Cameras", Measurement Science and Technology 19(4), 2008.
 - [EMVA1288] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras", release 4.0, 2021
   (photon transfer).
+- [Liu2008] C. Liu, R. Szeliski, S. B. Kang, C. L. Zitnick and W. T. Freeman, "Automatic Estimation and Removal of
+  Noise from a Single Image", IEEE TPAMI 30(2), 299-314, 2008 (the noise level function, its lower envelope).
+- [Foi2008] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, "Practical Poissonian-Gaussian Noise Modeling and
+  Fitting for Single-Image Raw-Data", IEEE TIP 17(10), 1737-1754, 2008.
 """
 from __future__ import annotations
 
@@ -198,3 +207,156 @@ def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> d
                 a, b = a * k, b * k
             out[law][channel] = [a, b]
     return out
+
+
+#: Brightness bins (DN) of the noise level function measured on footage.
+NLF_BIN_DN = 12.0
+#: The quantile of block variances that the spatial noise level function takes in each bin (its lower envelope).
+SPATIAL_QUANTILE = 0.05
+
+
+def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, saturation_dn: float = 220.0,
+                min_count: int = 30, floor_dn: float = 4.0) -> tuple[list[float], list[float]]:
+    """(levels, sigmas) of one channel: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
+    each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom) divided
+    by that quantile of chi-square / dof, so textured or moving members above it do not lift it [Liu2008's lower
+    envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are left out."""
+    from scipy.stats import chi2
+
+    bias = chi2.ppf(quantile, dof) / dof
+    keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var)
+    mean, var = mean[keep], var[keep]
+    idx = (mean // NLF_BIN_DN).astype(np.int64)
+    levels, sigmas = [], []
+    for b in np.unique(idx):
+        sel = idx == b
+        if sel.sum() >= min_count:
+            levels.append(float(mean[sel].mean()))
+            sigmas.append(float(np.sqrt(max(np.quantile(var[sel], quantile) / bias, 0.0))))
+    return levels, sigmas
+
+
+def noise_level_statistic(frames, method: str | None = None, block: int = 8, floor_dn: float = 4.0,
+                          saturation_dn: float = 220.0) -> dict:
+    """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
+
+    ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
+    frame at a time): the variance inside ``block`` x ``block`` blocks about their best-fitting plane, whose
+    flattest members give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median
+    variance (temporal) or :data:`SPATIAL_QUANTILE` quantile (spatial), unbiased for the chi-square spread of that quantile (the spatial one stays biased by the noise's own spatial correlation,
+    which :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or
+    more. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel: [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn":
+    {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated from the bins, for comparisons)."""
+    x = np.asarray(frames, np.float32)
+    if x.ndim == 3:
+        x = x[None]
+    method = method or ("temporal" if len(x) >= 3 else "spatial")
+    out = {"method": method, "levels_dn": {}, "sigma_dn": {}}
+    for c, channel in enumerate(("red", "green", "blue")):
+        if method == "temporal":
+            if len(x) < 2:
+                raise ValueError("a temporal noise level function needs at least 2 frames")
+            k = len(x) - 1
+            mean = x[..., c].mean(axis=0).ravel()
+            var = x[..., c].var(axis=0, ddof=1).ravel()
+            levels, sigmas = _binned_nlf(mean, var, k, 0.5, saturation_dn, floor_dn=floor_dn)
+        else:
+            t, h, w = x.shape[:3]
+            b = block
+            blocks = x[:, : h // b * b, : w // b * b, c].reshape(t, h // b, b, w // b, b).transpose(0, 1, 3, 2, 4)
+            blocks = blocks.reshape(-1, b * b).astype(np.float64)
+            # each block less its best-fitting plane (shading, vignetting), leaving b^2 - 3 degrees of freedom
+            yy, xx = np.mgrid[0:b, 0:b]
+            design = np.column_stack([np.ones(b * b), xx.ravel() - (b - 1) / 2, yy.ravel() - (b - 1) / 2])
+            resid = blocks - blocks @ np.linalg.pinv(design).T @ design.T
+            k = b * b - 3
+            levels, sigmas = _binned_nlf(blocks.mean(axis=1), (resid ** 2).sum(axis=1) / k, k, SPATIAL_QUANTILE,
+                                         saturation_dn, min_count=10, floor_dn=floor_dn)
+        out["levels_dn"][channel] = levels
+        out["sigma_dn"][channel] = sigmas
+    out["sigma_at_dn"] = {str(m): [float(np.interp(m, out["levels_dn"][ch], out["sigma_dn"][ch]))
+                                   if out["levels_dn"][ch] else float("nan") for ch in ("red", "green", "blue")]
+                          for m in (64, 128, 192)}
+    return out
+
+
+def _fit_bins(levels, sigmas, law: str) -> tuple[float, float]:
+    """``[a, b]`` of ``law`` fitted to binned (mean, sigma) by least squares (variance or sigma, as the law),
+    twice dropping the bins more than 25 % off the line (a bin whose flattest blocks still hold texture)."""
+    m = np.asarray(levels, np.float64)
+    y = np.asarray(sigmas, np.float64) ** (2 if law == "variance_linear" else 1)
+    keep = np.ones(len(m), bool)
+    for _ in range(3):
+        a, b = np.linalg.lstsq(np.column_stack([np.ones(keep.sum()), m[keep]]), y[keep], rcond=None)[0]
+        fit = np.maximum(a + b * m, 1e-6)
+        new = np.abs(y - fit) <= 0.25 * fit * (2 if law == "variance_linear" else 1)
+        if new.sum() < 2 or (new == keep).all():
+            break
+        keep = new
+    return float(a), float(max(b, 0.0))
+
+
+def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
+               frames: int = 4) -> list[float]:
+    """How the chain after the noise scales it, per channel, as :func:`noise_level_statistic` measures it.
+
+    The profile films a flat grey (``level`` of white) with a constant per-sensel sigma of ``sigma_dn`` and
+    without; the statistic's sigma of the difference over ``sigma_dn`` is the gain: the horizontal blur and the
+    sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
+    after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
+    spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
+    ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
+    def ideal(width, height):
+        out = np.ones((height, width, 4), np.float32)
+        out[..., :3] = level
+        return out
+    law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
+           "blue": [sigma_dn ** 2, 0.0]}
+    noisy = profile.with_effect("noise", **law)
+    clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
+    h, w = clean.shape[:2]
+    crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
+    diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
+                      for k in range(frames if method == "temporal" else 1)])
+    stat = noise_level_statistic(diffs, method)
+    return [float(stat["sigma_at_dn"]["128"][c]) / sigma_dn for c in range(3)]
+
+
+def noise_level_function_from_plate(footage, base, film):
+    """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
+
+    Where the camera holds still for 3 frames or more (:func:`lowcam.measure.plate.still_segments`) each pixel's
+    temporal variance is used; otherwise the flattest blocks of single frames (Liu2008's lower envelope). The
+    output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
+    blur and demosaic do to per-sensel noise) and fitted with the profile's law. Confidence: temporal 0.9 with
+    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels.
+    ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
+    from ..measure.plate import PlateEstimate, still_segments
+    law = getattr(base.effect("noise"), "law", "sigma_linear")
+    runs = still_segments(footage)
+    if runs:
+        start, stop = max(runs, key=lambda r: r[1] - r[0])
+        stop = min(stop, start + 30)
+        frames = footage.stack(range(start, stop))
+        method, n = "temporal", stop - start
+    else:
+        frames = footage.stack(max_frames=6)
+        method, n = "spatial", len(frames)
+    stat = noise_level_statistic(frames, method)
+    gains = noise_gain(base, method, film)
+    params, measured = {"law": law}, {"method": method, "frames": n, "gain": gains,
+                                      "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
+                                      "sigma_dn": stat["sigma_dn"]}
+    levels = min(len(stat["levels_dn"][ch]) for ch in ("red", "green", "blue"))
+    if levels < 2:
+        return PlateEstimate("noise_level_function", "noise", measured, {}, 0.0,
+                             f"{levels} brightness level(s) with enough pixels: no noise law can be fitted")
+    for c, channel in enumerate(("red", "green", "blue")):
+        sig = np.asarray(stat["sigma_dn"][channel]) / gains[c]
+        params[channel] = list(_fit_bins(stat["levels_dn"][channel], sig, law))
+    confidence = (min(0.9, 0.5 + 0.05 * n) if method == "temporal" else 0.6) * min(1.0, levels / 4)
+    where = (f"{n} still frames, temporal variance" if method == "temporal" else
+             f"no still segment: flattest {8}x{8} blocks of {n} frames")
+    return PlateEstimate("noise_level_function", "noise", measured, params, round(confidence, 3),
+                         f"{where}, {levels} brightness levels")

@@ -10,11 +10,15 @@ Contents
 - :func:`radial_vignetting`: gain map ``1 + k2 rho^2 + k4 rho^4`` over a (rows, cols) texture, maximum 1
 - :class:`Vignetting`: multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
 - :func:`fit_vignetting`: the gain texture from flat-field frames (sec. 4.1)
+- :func:`vignetting_statistic`: the radial fall-off of a moving shot (the same scene points at different radii)
+- :func:`vignetting_from_plate`: k2, k4 of the radial model from a moving shot (a PlateEstimate)
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Goldman2010] D. B. Goldman, "Vignette and Exposure Calibration and Compensation", IEEE TPAMI 32(12),
+  2276-2288, 2010 (the same scene points seen at different image positions).
 """
 from __future__ import annotations
 
@@ -98,3 +102,99 @@ def fit_vignetting(frames, shape=(60, 80), blur_fraction: float = 1 / 40) -> np.
     blurred = cv2.GaussianBlur(mean, (0, 0), blur_fraction * mean.shape[1])
     small = cv2.resize(blurred, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     return (small / small.max()).astype(np.float32)
+
+
+def _rho2(x, y, width: int, height: int):
+    """Squared radius over the squared half-diagonal, as :func:`radial_vignetting` measures it."""
+    return ((x - (width - 1) / 2) ** 2 + (y - (height - 1) / 2) ** 2) / (np.hypot(width, height) / 2) ** 2
+
+
+def vignetting_statistic(frames, max_pairs: int = 30, min_shift_px: float = 1.5) -> dict:
+    """The radial fall-off of a moving shot (T, H, W, 3) float32 DN, from the same scene points seen at
+    different radii [Goldman2010].
+
+    Each pair of consecutive frames is registered by a global translation (OpenCV's phase correlation); pairs
+    moving at least ``min_shift_px`` give, at smooth, unclipped points on a 4-px grid, ``log I_b(x + d) - log
+    I_a(x) = log V(x + d) - log V(x) + e`` (``e``: the pair's exposure change). With ``log V = c2 rho^2 + c4
+    rho^4`` (rho = radius / half-diagonal) this is linear in ``c2``, ``c4`` and the ``e``s: solved by least
+    squares, twice dropping points beyond 3 robust deviations (parallax, moving objects). Returns ``{}`` when no
+    pair moves; else the pairs used, the total shift (px), ``c2``, ``c4``, ``k2``, ``k4`` of the radial model
+    ``1 + k2 rho^2 + k4 rho^4`` closest to ``exp(c2 rho^2 + c4 rho^4)``, the gain at rho = 0.5, 0.8 and 1 and the
+    corner gain's standard error."""
+    import cv2
+
+    x = np.asarray(frames, np.float32)
+    grey = [cv2.GaussianBlur(f.mean(axis=2) if f.ndim == 3 else f, (0, 0), 1.5) for f in x]
+    h, w = grey[0].shape
+    window = cv2.createHanningWindow((w, h), cv2.CV_32F)
+    rows, cols, values, total, pairs = [], [], [], 0.0, 0
+    step = 4
+    for i in range(min(len(grey) - 1, max_pairs)):
+        a, b = grey[i], grey[i + 1]
+        (dx, dy), response = cv2.phaseCorrelate(a.copy(), b.copy(), window)  # it may window its inputs in place
+        if np.hypot(dx, dy) < min_shift_px or response < 0.05:
+            continue
+        m = int(np.ceil(max(abs(dx), abs(dy)))) + 4
+        yy, xx = np.mgrid[m:h - m:step, m:w - m:step].astype(np.float32)
+        va = a[yy.astype(int), xx.astype(int)]
+        vb = cv2.remap(b, xx + np.float32(dx), yy + np.float32(dy), cv2.INTER_LINEAR)
+        gy, gx = np.gradient(a)
+        grad = np.hypot(gx, gy)[yy.astype(int), xx.astype(int)]
+        ok = (va > 15) & (va < 235) & (vb > 15) & (vb < 235) & (grad < 0.01 * va + 0.5)
+        if ok.sum() < 50:
+            continue
+        r0 = _rho2(xx[ok], yy[ok], w, h)
+        r1 = _rho2(xx[ok] + dx, yy[ok] + dy, w, h)
+        rows.append(np.column_stack([r1 - r0, r1 ** 2 - r0 ** 2]))
+        cols.append(np.full(ok.sum(), pairs))
+        values.append(np.log(vb[ok]) - np.log(va[ok]))
+        total += float(np.hypot(dx, dy))
+        pairs += 1
+    if pairs == 0:
+        return {}
+    radial = np.concatenate(rows)
+    pair = np.concatenate(cols)
+    y = np.concatenate(values)
+    design = np.column_stack([radial, np.eye(pairs)[pair]])
+    keep = np.ones(len(y), bool)
+    for _ in range(3):
+        sol, *_ = np.linalg.lstsq(design[keep], y[keep], rcond=None)
+        res = y - design @ sol
+        mad = 1.4826 * np.median(np.abs(res[keep] - np.median(res[keep])))
+        keep = np.abs(res) <= 3 * max(mad, 1e-4)
+    c2, c4 = float(sol[0]), float(sol[1])
+    # standard error of log V(1) = c2 + c4 from the least-squares covariance
+    dk = design[keep]
+    s2 = float(np.sum((y[keep] - dk @ sol) ** 2) / max(keep.sum() - dk.shape[1], 1))
+    try:
+        cov = s2 * np.linalg.inv(dk.T @ dk)[:2, :2]
+        se = float(np.sqrt(max(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1], 0.0)))
+    except np.linalg.LinAlgError:
+        se = float("inf")
+    r2 = np.linspace(0.0, 1.0, 50)
+    k2, k4 = np.linalg.lstsq(np.column_stack([r2, r2 ** 2]), np.exp(c2 * r2 + c4 * r2 ** 2) - 1, rcond=None)[0]
+    gain = {str(r): float(np.exp(c2 * r ** 2 + c4 * r ** 4)) for r in (0.5, 0.8, 1.0)}
+    return {"pairs": pairs, "shift_px_total": total, "points": int(keep.sum()), "c2": c2, "c4": c4,
+            "k2": float(k2), "k4": float(k4), "gain_at_rho": gain, "corner_gain_se": float(np.exp(c2 + c4) * se)}
+
+
+def vignetting_from_plate(footage, base=None):
+    """k2, k4 of the radial vignetting model from a moving shot, as a :class:`lowcam.measure.plate.PlateEstimate`
+    (:func:`vignetting_statistic`; a measured ``texture`` in the base is replaced by the radial model).
+
+    Confidence: 0.9, scaled by how far the camera moved (a tenth of the frame diagonal in all: full) and halved
+    when the corner gain's standard error exceeds 0.02; a shot in which the camera hardly moves gives none."""
+    from ..measure.plate import PlateEstimate
+
+    frames = footage.stack(max_frames=31)
+    stat = vignetting_statistic(frames)
+    if not stat:
+        return PlateEstimate("radial_falloff", "vignetting", {}, {}, 0.0,
+                             "the camera hardly moves: vignetting needs a moving shot")
+    h, w = footage.shape
+    coverage = min(1.0, stat["shift_px_total"] / (0.1 * np.hypot(w, h)))
+    confidence = 0.9 * coverage * (1.0 if stat["corner_gain_se"] < 0.02 else 0.5)
+    params = {"k2": stat["k2"], "k4": stat["k4"], "texture": ""}
+    return PlateEstimate("radial_falloff", "vignetting", stat, params, round(confidence, 3),
+                         f"{stat['pairs']} moving frame pairs, {stat['shift_px_total']:.0f} px of motion, corner "
+                         f"gain {stat['gain_at_rho']['1.0']:.3f} +- {stat['corner_gain_se']:.3f}")

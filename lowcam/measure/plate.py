@@ -1,0 +1,511 @@
+"""A profile from the plate itself: no chart, no ideal (issue 15, part 3).
+
+The footage a user films is itself a measurement of the camera. Each :class:`PlateProbe` measures one no-reference
+statistic on the footage (the noise level function, the edge spread and overshoot, the radial fall-off, the gyro's
+angular velocity, ...), and its estimator (a plain function in the effect's own module, beside the effect it sets)
+turns the statistic into that effect's parameters with a confidence in 0..1. :func:`estimate_profile` applies the
+confident estimates to a copy of a base profile and records where each number came from in the profile's
+``[provenance]`` table; estimates below :data:`MIN_CONFIDENCE` are reported, not applied. :func:`model_statistics`
+measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
+frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
+
+The probes are walked in the order of :data:`PLATE_PROBES`; further probes (JPEG blockiness, chroma bandwidth) are
+added there with their estimators in their own effect modules.
+
+Contents
+--------
+- :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
+- :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
+- :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
+- :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
+- :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
+- :data:`PLATE_PROBES`: every plate probe, in the order they run
+- :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
+- :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
+- :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
+- :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
+- :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
+- :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
+- :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
+- :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
+- :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
+
+References
+----------
+- [Liu2008] C. Liu, R. Szeliski, S. B. Kang, C. L. Zitnick and W. T. Freeman, "Automatic Estimation and Removal of
+  Noise from a Single Image", IEEE TPAMI 30(2), 299-314, 2008 (the noise level function).
+- [Foi2008] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, "Practical Poissonian-Gaussian Noise Modeling and
+  Fitting for Single-Image Raw-Data", IEEE TIP 17(10), 1737-1754, 2008.
+- [Goldman2010] D. B. Goldman, "Vignette and Exposure Calibration and Compensation", IEEE TPAMI 32(12),
+  2276-2288, 2010 (vignetting from the same scene points seen at different image positions).
+- [ISO12233] ISO 12233:2017 (edge spread, 10-90 % rise).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import LowcamError
+
+#: Estimates below this confidence are reported, not applied to the profile.
+MIN_CONFIDENCE = 0.5
+
+#: A shot needs at least this many frames.
+MIN_FRAMES = 2
+
+_VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp"}
+_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr"}
+
+
+@dataclass
+class Footage:
+    """The frames of one shot as the camera delivered them: ``frames`` (T, H, W, 3) uint8 or float32, DN 0-255,
+    RGB (a sequence of (H, W, 3) arrays also works); ``fps`` (frames/s); ``path`` (for messages); ``gyro``:
+    optional samples (N, 4) ``t, wx, wy, wz`` (s, rad/s, Lowcam's camera axes) with ``frame_times`` (s, the start
+    of each frame on the gyro's clock; None: frame i starts at ``i / fps`` after the first sample)."""
+
+    frames: Sequence[np.ndarray]
+    fps: float = 30.0
+    path: str = "footage"
+    gyro: np.ndarray | None = None
+    frame_times: np.ndarray | None = None
+    names: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) in px."""
+        return tuple(np.shape(self.frames[0])[:2])
+
+    def frame(self, i: int) -> np.ndarray:
+        """Frame ``i`` as float32 RGB, DN 0-255."""
+        return np.asarray(self.frames[i], np.float32)
+
+    def stack(self, indices=None, max_frames: int | None = None) -> np.ndarray:
+        """Frames (T, H, W, 3) float32 DN: ``indices`` (default all), evenly thinned to ``max_frames``."""
+        idx = list(range(len(self))) if indices is None else list(indices)
+        if max_frames is not None and len(idx) > max_frames:
+            idx = [idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, max_frames)]
+        return np.stack([self.frame(i) for i in idx])
+
+
+def _frame_paths(path: Path) -> list[Path]:
+    from ..captures import expand_paths
+
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES and p.is_file())
+        return sorted(files, key=_natural_key)
+    return sorted((p for p in expand_paths([path]) if p.is_file()), key=_natural_key)
+
+
+def _natural_key(p: Path):
+    import re
+
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
+
+
+def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 2000) -> Footage:
+    """Read a shot: a video file (OpenCV's VideoCapture), a folder of frames (PNG/JPEG/TIFF, in natural name
+    order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro` or a gyro CSV,
+    :func:`lowcam.motion.read_gyro_csv`). Every problem is one line naming the file: missing, unreadable, too few
+    frames, mismatched sizes."""
+    from ..captures import load_frames
+
+    p = Path(path)
+    name = str(path)
+    if p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
+        frames, rate = _read_video(p, max_frames)
+        footage = Footage(frames, fps or rate or 30.0, name)
+    else:
+        paths = _frame_paths(p)
+        if not paths:
+            raise LowcamError(f"{name}: no such video file, folder or frames")
+        if len(paths) < MIN_FRAMES:
+            raise LowcamError(f"{name}: {len(paths)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+        paths = paths[:max_frames]
+        frames, names = load_frames(paths, MIN_FRAMES, name)
+        footage = Footage(np.stack(frames), fps or 30.0, name, names=names)
+    if len(footage) < MIN_FRAMES:
+        raise LowcamError(f"{name}: {len(footage)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+    if gyro is not None:
+        footage.gyro, footage.frame_times = read_phone_gyro(gyro)
+    return footage
+
+
+def _read_video(path: Path, max_frames: int):
+    import cv2
+
+    from ..io import quiet_stderr
+
+    with quiet_stderr():
+        cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise LowcamError(f"{path}: cannot be read as a video")
+    rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+    frames = []
+    try:
+        while len(frames) < max_frames:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            if frames and bgr.shape != frames[0].shape:
+                raise LowcamError(f"{path}: frame {len(frames)} is {bgr.shape[1]}x{bgr.shape[0]}, the first is "
+                                  f"{frames[0].shape[1]}x{frames[0].shape[0]}: mismatched sizes")
+            frames.append(bgr[..., ::-1].copy())
+    finally:
+        cap.release()
+    if not frames:
+        raise LowcamError(f"{path}: no frame could be decoded")
+    return np.stack(frames), (rate if 0 < rate < 1000 else None)
+
+
+def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a gyro CSV with a
+    header (:func:`lowcam.motion.read_gyro_csv`) or the phone format: whitespace-separated rows ``wx wy wz t``
+    (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s).
+    Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s") are converted to seconds. The axes
+    are kept as logged: a phone's gyro axes need not be Lowcam's camera axes (x right, y down, z forward)."""
+    from ..motion import read_gyro_csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise LowcamError(f"{path}: no such gyro log")
+    text = path.read_text(errors="replace")
+    first = next((ln for ln in text.splitlines() if ln.strip()), "")
+    if first and not _numeric_row(first):  # a header: the CSV of lowcam.motion
+        return read_gyro_csv(path), None
+    try:
+        rows = np.loadtxt(path, delimiter="," if "," in first else None, ndmin=2)
+    except ValueError as e:
+        raise LowcamError(f"{path}: not a gyro log of rows 'wx wy wz t' ({str(e).splitlines()[0]})") from None
+    if rows.shape[1] != 4 or len(rows) < 2 or not np.isfinite(rows).all():
+        raise LowcamError(f"{path}: a gyro log needs at least 2 finite rows of 4 numbers 'wx wy wz t', got "
+                          f"{rows.shape[0]} row(s) of {rows.shape[1]}")
+    t = rows[:, 3]
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise LowcamError(f"{path}: row {k + 1}: time {t[k]:g} does not follow the previous row's {t[k - 1]:g}")
+    scale = 1e-3 if np.median(np.diff(t)) > 0.5 else 1.0  # milliseconds (a gyro samples faster than 2 Hz)
+    samples = np.column_stack([t * scale, rows[:, :3]])
+    stamps = Path(framestamps) if framestamps else path.with_name("framestamp.txt")
+    times = None
+    if stamps.is_file():
+        try:
+            times = np.loadtxt(stamps, delimiter="," if "," in stamps.read_text()[:200] else None, ndmin=1)
+        except ValueError:
+            raise LowcamError(f"{stamps}: not a list of frame times (one number per line)") from None
+        times = np.asarray(times, np.float64).ravel() * scale
+    elif framestamps:
+        raise LowcamError(f"{stamps}: no such frame-stamp file")
+    return samples, times
+
+
+def _numeric_row(line: str) -> bool:
+    try:
+        [float(v) for v in line.replace(",", " ").split()]
+        return True
+    except ValueError:
+        return False
+
+
+@dataclass
+class PlateEstimate:
+    """One statistic measured on the footage and what it implies for the profile.
+
+    ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
+    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
+    parameter of ``effect`` or ``"other_effect.param"``; ``base_params``: the base profile's values of the same
+    parameters (None where it lacks them), filled by :func:`estimate_profile`;
+    ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
+    simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
+    :func:`estimate_profile` wrote ``params`` into the profile."""
+
+    statistic: str
+    effect: str
+    measured: dict
+    params: dict
+    confidence: float
+    reason: str
+    model: dict | None = None
+    applied: bool = False
+    base_params: dict = field(default_factory=dict)
+
+    def line(self) -> str:
+        """One line for the terminal: what was found, how sure, whether it went into the profile."""
+        what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
+        state = "applied" if self.applied else "not applied"
+        return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
+
+
+def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
+    """(effect, param) of one of an estimate's params: ``"effect.param"`` or a param of ``est.effect``."""
+    return tuple(key.split(".", 1)) if "." in key else (est.effect, key)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+@dataclass(frozen=True)
+class PlateProbe:
+    """One no-reference statistic of footage.
+
+    ``estimate(footage, base)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it at
+    all); ``base`` is the profile being refined (or None), for the parameters an estimate depends on.
+    ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
+    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured)."""
+
+    name: str
+    effect: str
+    estimate: Callable
+    statistic: Callable[[np.ndarray], dict]
+    about: str = ""
+
+
+def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
+    """The frame (float32 DN) of ``profile`` filming the opaque ideal ``make_ideal(width, height)`` (RGBA 0-1, at
+    the pinhole field of view the profile's render needs): how the estimators in the effect modules, which do not
+    run the pipeline themselves, ask the model what it makes of a scene."""
+    from ..pipeline import render_camera, simulate
+
+    cam = render_camera(profile, profile.camera.width)
+    return simulate(make_ideal(cam["width"], cam["height"]), profile, seed=seed, frame=frame).astype(np.float32)
+
+
+def _noise_estimate(footage, base=None):
+    from ..effects.noise import noise_level_function_from_plate
+
+    return noise_level_function_from_plate(footage, base, film)
+
+
+def _noise_statistic(frames):
+    from ..effects.noise import noise_level_statistic
+
+    return noise_level_statistic(frames)
+
+
+def _edge_estimate(footage, base=None):
+    from ..effects.sharpening import edge_profile_from_plate
+
+    return edge_profile_from_plate(footage, base, film)
+
+
+def _edge_statistic(frames):
+    from ..effects.sharpening import edge_profile_statistic
+
+    return edge_profile_statistic(frames)
+
+
+def _vignetting_estimate(footage, base=None):
+    from ..effects.vignetting import vignetting_from_plate
+
+    return vignetting_from_plate(footage, base)
+
+
+def _vignetting_statistic(frames):
+    from ..effects.vignetting import vignetting_statistic
+
+    return vignetting_statistic(frames)
+
+
+def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
+    """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
+    over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
+    parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
+    from ..motion import average_rate
+
+    if footage.gyro is None:
+        return PlateEstimate("gyro_motion", "motion_blur", {}, {}, 0.0,
+                             "no gyro: motion left to the tracked camera")
+    samples = footage.gyro
+    exposure = float(getattr(getattr(base, "camera", None), "exposure_s", 0.0) or 1.0 / footage.fps)
+    frame_ids = _frame_numbers(footage)
+    if footage.frame_times is not None:
+        times = footage.frame_times
+        starts = [times[f] if 0 <= f < len(times) else np.nan for f in frame_ids]
+    else:
+        starts = [samples[0, 0] + i / footage.fps for i in range(len(footage))]
+    rates, missing = [], 0
+    for t0 in starts:
+        try:
+            rates.append(average_rate(samples, t0, t0 + exposure) if np.isfinite(t0) else None)
+        except ValueError:
+            rates.append(None)
+        missing += rates[-1] is None
+    found = [r for r in rates if r is not None]
+    if not found:
+        return PlateEstimate("gyro_motion", "motion_blur", {"frames_outside_log": missing}, {}, 0.0,
+                             "the gyro log does not cover the footage's frames")
+    w = np.array(found)
+    speed = np.linalg.norm(w, axis=1)
+    measured = {"angular_velocity_rad_s": [None if r is None else [float(v) for v in r] for r in rates],
+                "median_speed_rad_s": float(np.median(speed)), "max_speed_rad_s": float(speed.max()),
+                "exposure_s": exposure, "frames_outside_log": missing}
+    return PlateEstimate("gyro_motion", "motion_blur", measured, {}, len(found) / len(rates),
+                         f"gyro covers {len(found)} of {len(rates)} frames; per-frame motion, not a profile value")
+
+
+def _frame_numbers(footage: Footage) -> list[int]:
+    """Each frame's index into the frame stamps: the last number in its file name (``RE_frame-99.jpg`` -> 99),
+    else its position."""
+    import re
+
+    out = []
+    for i in range(len(footage)):
+        name = Path(footage.names[i]).stem if i < len(footage.names) else ""
+        digits = re.findall(r"\d+", name)
+        out.append(int(digits[-1]) if digits else i)
+    return out
+
+
+def _no_statistic(frames):
+    return {}
+
+
+#: Every plate probe, in the order they run (h/platecmp adds JPEG blockiness and chroma bandwidth after
+#: vignetting).
+PLATE_PROBES: list[PlateProbe] = [
+    PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
+               "10-90 % edge width and overshoot across strong natural edges"),
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
+    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
+               "brightness of the same scene points at different radii over a moving shot"),
+    # -- JPEG blockiness and chroma bandwidth probes go here (h/platecmp) --
+    PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
+               "angular velocity per frame from a gyro log"),
+]
+
+
+def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
+    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves.
+
+    Two frames of a still scene differ by noise alone, which a Gaussian blur (sigma 2 px) removes almost
+    entirely (white noise keeps about 1/(2 sqrt(pi) 2) = 14 % of its standard deviation, noise correlated over a
+    few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
+    still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
+    absolute value is below 2 DN."""
+    import cv2
+
+    n = min(len(footage), max_frames)
+    if n < 2:
+        return []
+    still = []
+    prev = footage.frame(0).mean(axis=2)
+    for i in range(1, n):
+        cur = footage.frame(i).mean(axis=2)
+        d = cur - prev
+        sd = float(d.std())
+        kept = float(cv2.GaussianBlur(d, (0, 0), 2.0).std())
+        still.append(sd > 0 and kept < 0.4 * sd and float(np.abs(cv2.GaussianBlur(d, (0, 0), 2.0)).mean()) < 2.0)
+        prev = cur
+    runs, start = [], None
+    for i, s_ in enumerate(still + [False]):
+        if s_ and start is None:
+            start = i
+        elif not s_ and start is not None:
+            if i + 1 - start >= min_length:
+                runs.append((start, i + 1))
+            start = None
+    return runs
+
+
+def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
+    """The footage's per-pixel temporal median (a denoised frame), scaled to ``width`` x ``height``, as an
+    opaque premultiplied RGBA ideal render (0-1). The median of up to 15 frames removes the noise; the frame is
+    not deblurred, so the model films content that is already as soft as the footage (a fair comparison of the
+    statistics, not of absolute sharpness)."""
+    import cv2
+
+    med = np.median(footage.stack(max_frames=15), axis=0)
+    small = cv2.resize(med, (int(width), int(height)), interpolation=cv2.INTER_AREA)
+    out = np.ones((int(height), int(width), 4), np.float32)
+    out[..., :3] = np.clip(small / 255.0, 0.0, 1.0)
+    return out
+
+
+def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) -> np.ndarray:
+    """``frames`` frames (T, H, W, 3) float32 DN of ``profile`` filming :func:`similar_content` (a still
+    camera), each with its own noise."""
+    from ..pipeline import render_camera, simulate
+
+    from ..profile import load_profile
+
+    profile = load_profile(profile) if isinstance(profile, (str, Path)) else profile
+    cam = render_camera(profile, profile.camera.width)
+    ideal = similar_content(footage, cam["width"], cam["height"])
+    return np.stack([simulate(ideal, profile, None, seed=seed, frame=k).astype(np.float32) for k in range(frames)])
+
+
+def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], frames: int = 4) -> None:
+    """Fill each estimate's ``model`` with its statistic measured on ``profile`` filming similar content."""
+    by_name = {p.name: p for p in PLATE_PROBES}
+    sim = simulate_similar(footage, profile, frames)
+    for est in estimates:
+        probe = by_name.get(est.statistic)
+        if probe is not None:
+            try:
+                est.model = probe.statistic(sim)
+            except (ValueError, np.linalg.LinAlgError) as e:
+                est.model = {"not measured": str(e)}
+
+
+_HEADLINE_KEYS = ("method", "frames", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+                  "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
+
+
+def headline(stat: dict) -> dict:
+    """The few numbers of a statistic (``PlateEstimate.measured`` or ``model``) worth a table, nested as found."""
+    out = {}
+    for key, value in (stat or {}).items():
+        if key in _HEADLINE_KEYS:
+            out[key] = value
+        elif isinstance(value, dict):
+            sub = headline(value)
+            if sub:
+                out[key] = sub
+    return out
+
+
+def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
+                     probes: list[PlateProbe] | None = None):
+    """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
+    with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
+    with a ``[provenance]`` entry per parameter. Progress goes to stderr."""
+    from ..profile import load_profile
+
+    base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
+    probes = PLATE_PROBES if probes is None else probes
+    out = base.copy()
+    estimates = []
+    for i, probe in enumerate(probes):
+        if progress:
+            print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
+        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters)
+        if est is None:
+            continue
+        estimates.append(est)
+        est.base_params = {}
+        for key in est.params:
+            effect, param = _target(est, key)
+            e = base.effect(effect)
+            est.base_params[key] = getattr(e, param, None) if e is not None else None
+        if est.params and est.confidence >= min_confidence:
+            note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
+                    f"{est.confidence:.2f})")
+            for key, value in est.params.items():
+                effect, param = _target(est, key)
+                out = out.with_effect(effect, **{param: value})
+                out.provenance[f"{effect}.{param}"] = note
+            est.applied = True
+    return out, estimates
