@@ -3,13 +3,16 @@
 The engine reads the clip (:mod:`lowcam.footage`); this module renders the inserted objects with Cycles from a
 camera that turns with the integrated gyro (so they stay fixed in the world), then composites every frame twice:
 plain (alpha over the plate) and through the camera profile with the frame's gyro rate, logged exposure and
-rolling shutter. It writes ``side_by_side.png`` (the middle frame) and ``side_by_side.gif`` (the clip).
+rolling shutter. The profile is the base profile set to the clip's camera, then estimated from the plate
+(``lowcam calibrate plate``); it is saved as ``plate_profile.toml``. It writes ``side_by_side.png`` (the middle
+frame) and ``side_by_side.gif`` (the clip).
 
 Contents
 --------
 - :data:`WORLD_FROM_LOWCAM`: Lowcam's world axes (the first frame's camera: x right, y down, z forward) to Blender's
 - :func:`build_footage_scene`: a Cycles scene with the inserted objects and a camera set to the profile's render field
 - :func:`render_footage`: one premultiplied RGBA render (EXR) per frame from the gyro-turned camera
+- :data:`PLATE_FRAMES`: how many of the clip's frames ``lowcam calibrate plate``'s estimate looks at
 - :func:`run_footage_demo`: the whole demo: clip, profile, renders, composites, PNG and GIF, with progress
 """
 from __future__ import annotations
@@ -23,6 +26,8 @@ import numpy as np
 
 #: Lowcam's world axes (the first frame's camera: x right, y down, z forward) to Blender's (x right, y forward, z up).
 WORLD_FROM_LOWCAM = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+#: Frames of the clip the plate estimate looks at (evenly spread; the estimate costs about 5 s a frame on 2 cores).
+PLATE_FRAMES = 8
 #: Blender's camera axes (x right, y up, looking down -z) to Lowcam's camera axes.
 _BLENDER_CAM_TO_LOWCAM = np.diag([1.0, -1.0, -1.0])
 
@@ -132,6 +137,7 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
     say(1)
     profile, note = _plate_profile(clip, base_profile)
     print(f"      {note}", flush=True)
+    profile.save(out / "plate_profile.toml")
     say(2)
     height = int(round(render_width * clip.height / clip.width))
     cam = render_camera(profile, render_width, height)
@@ -154,7 +160,7 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
     say(4)
     mid = len(pairs) // 2
     w = rates[mid]
-    title = f"lowcam ({profile.name}), gyro w = ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) rad/s"
+    title = f"lowcam (plate estimate on {base_profile}), gyro w = ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) rad/s"
     write_png(out / "plain.png", pairs[mid][0])
     write_png(out / "lowcam.png", pairs[mid][1])
     png = write_png(out / "side_by_side.png", side_by_side(*pairs[mid], "plain composite", title))
@@ -171,14 +177,17 @@ def _plate_profile(clip, base_profile):
     from lowcam.profile import load_profile
 
     profile = footage_profile(load_profile(base_profile), clip)
-    # PLATE ESTIMATE CALL SITE (issue 15 part 3): lowcam.measure.plate.estimate_profile(footage, base_profile).
+    # PLATE ESTIMATE CALL SITE (issue 15 part 3, `lowcam calibrate plate`): estimate_profile(footage, base).
     try:
-        from lowcam.measure.plate import estimate_profile, read_footage
+        from lowcam.measure.plate import Footage, estimate_profile
     except ImportError:
         return profile, (f"no plate estimator in this build: the {base_profile} profile set to the clip's camera "
                          f"(K, {clip.readout_s * 1e3:.1f} ms read-out, gyro)")
-    footage = read_footage(str(clip.frames[0].parent), fps=30.0)
-    estimated, estimates = estimate_profile(footage, profile, progress=True)
+    import cv2
+
+    pick = np.unique(np.linspace(0, len(clip.frames) - 1, min(len(clip.frames), PLATE_FRAMES)).round().astype(int))
+    frames = np.stack([cv2.cvtColor(cv2.imread(str(clip.frames[i])), cv2.COLOR_BGR2RGB) for i in pick])
+    estimated, estimates = estimate_profile(Footage(frames, 30.0, str(clip.folder)), profile, progress=True)
     used = [e for e in estimates if getattr(e, "applied", False)]
-    return estimated, (f"profile estimated from the plate ({len(used)} of {len(estimates)} estimates applied) on "
-                       f"the {base_profile} profile set to the clip's camera")
+    return estimated, (f"profile estimated from {len(pick)} frames of the plate ({len(used)} of {len(estimates)} "
+                       f"estimates applied) on the {base_profile} profile set to the clip's camera")
