@@ -88,6 +88,7 @@ FOOTAGE_DEFAULT = Path("shared") / "data" / "phone-gyro-video"
 def _footage_demo(args) -> int:
     """``lowcam demo --footage [DIR]``: :func:`addon.footage.run_footage_demo` on the phone clip."""
     from lowcam.errors import LowcamError
+    from lowcam.footage import find_footage
     from lowcam.io import check_output_folder, make_output_folder
 
     folder = args.footage
@@ -98,6 +99,7 @@ def _footage_demo(args) -> int:
             raise LowcamError(f"{root.parent / FOOTAGE_DEFAULT}: no such folder: give the phone-gyro-video data set "
                               f"as --footage DIR")
         folder = found[0]
+    find_footage(folder)   # before the output folder is made: a missing data set writes nothing
     out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
     result = _side("addon.footage").run_footage_demo(folder, out, args.profile, frames=args.footage_frames,
                                                      seed=args.seed)
