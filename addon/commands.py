@@ -8,6 +8,8 @@ each command loads the extension (the repository root as the package ``lowcam_bl
 Contents
 --------
 - :func:`cmd_demo`: ``lowcam demo``: the sample scene rendered with Cycles, plain and degraded side by side
+  (``--footage``: real phone footage with its gyro log, :mod:`addon.footage`)
+- :data:`FOOTAGE_DEFAULT`: where ``--footage`` looks without a folder, beside the repository
 - :func:`cmd_render`: ``lowcam render``: render frames of a .blend and write their degraded composites
 - :func:`cmd_motion`: ``lowcam motion``: each frame's camera motion from a .blend as motion.json
 - :func:`cmd_node_asset`: ``lowcam node-asset``: the node group as an asset .blend
@@ -36,6 +38,8 @@ def cmd_demo(args) -> int:
     from lowcam.profile import load_profile
     from lowcam.sample import side_by_side
 
+    if args.footage is not None:
+        return _footage_demo(args)
     profile = load_profile(args.profile)
     out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
     steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
@@ -73,6 +77,33 @@ def cmd_demo(args) -> int:
     write_png(out / "plain.png", plain)
     write_png(out / "side_by_side.png", side_by_side(plain, frame, "plain composite", title))
     print(f"{out / 'side_by_side.png'}: plain composite (left) next to the {profile.name} camera (right)")
+    return 0
+
+
+#: ``lowcam demo --footage`` without a folder: ``shared/data/phone-gyro-video`` beside the repository (or beside
+#: the folder of worktrees the repository sits in).
+FOOTAGE_DEFAULT = Path("shared") / "data" / "phone-gyro-video"
+
+
+def _footage_demo(args) -> int:
+    """``lowcam demo --footage [DIR]``: :func:`addon.footage.run_footage_demo` on the phone clip."""
+    from lowcam.errors import LowcamError
+    from lowcam.footage import find_footage
+    from lowcam.io import check_output_folder, make_output_folder
+
+    folder = args.footage
+    if not folder:
+        root = Path(__file__).resolve().parent.parent
+        found = [p / FOOTAGE_DEFAULT for p in (root.parent, root.parent.parent) if (p / FOOTAGE_DEFAULT).is_dir()]
+        if not found:
+            raise LowcamError(f"{root.parent / FOOTAGE_DEFAULT}: no such folder: give the phone-gyro-video data set "
+                              f"as --footage DIR")
+        folder = found[0]
+    find_footage(folder)   # before the output folder is made: a missing data set writes nothing
+    out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
+    result = _side("addon.footage").run_footage_demo(folder, out, args.profile, frames=args.footage_frames,
+                                                     seed=args.seed)
+    print(f"{result['png']}: plain composite (left) next to the camera (right); the clip: {result['gif']}")
     return 0
 
 
@@ -127,6 +158,10 @@ def add_commands(sub) -> None:
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--render-width", type=bounded_int(64, 8192), default=800, help="width of the sample render (px)")
     p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
+    p.add_argument("--footage", nargs="?", const="", metavar="DIR",
+                   help="real phone footage as the plate, its gyro driving the camera (default: "
+                        "../shared/data/phone-gyro-video beside the repository)")
+    p.add_argument("--footage-frames", type=bounded_int(2, 103), default=24, help="with --footage: frames (from 99)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
