@@ -184,7 +184,7 @@ def test_apply_blurs_moving_objects_from_the_exrs_vector_pass(fire_i, tmp_path):
 def test_apply_defocuses_from_the_exrs_depth_pass(fire_i, tmp_path, depth_key):
     import cv2
 
-    depth = np.full((ROWS, COLS), 0.5, np.float32)                  # near: 3.9 render px of blur at f/…(20 mm)
+    depth = np.full((ROWS, COLS), 0.5, np.float32)                  # near: 3.9 render px of blur (20 mm aperture)
     exr = _write_multilayer(tmp_path / "render.exr", _square(), depth=depth, depth_key=depth_key)
     r = _cli("apply", "--render", exr, "--defocus", "2,20", "-o", tmp_path / "near.png")
     assert r.returncode == 0, r.stderr
@@ -232,3 +232,95 @@ def test_batch_reads_each_frames_passes(fire_i, tmp_path):
         expected = lowcam.simulate(_square(), profile, seed=5, frame=frame,
                                    passes=RenderPasses(_moving_square(speed)[0]))
         assert np.array_equal(got, expected)
+
+
+# --- passes rendered by Blender itself (bpy) ------------------------------------------------------------------
+
+def _render_moving_plane(folder, engine: str, width=128, height=96):
+    """A 2 m plane 10 m in front of a still camera (60 degree horizontal field of view), moving 0.5 m per frame
+    right and 0.25 m up at 25 fps, rendered at frame 2 by ``engine`` with 1 sample to a multilayer EXR with the
+    Vector and Z passes; the plane glows white. Returns (path, expected velocity (px/s, x right, y down))."""
+    import math
+
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    names = ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT") if engine == "EEVEE" else (engine,)
+    for name in names:                                  # EEVEE is BLENDER_EEVEE_NEXT in Blender 4.2-4.5
+        try:
+            scene.render.engine = name
+            break
+        except TypeError:
+            continue
+    if engine == "EEVEE":
+        scene.eevee.taa_render_samples = 1
+    else:
+        scene.cycles.samples, scene.cycles.device, scene.cycles.use_denoising = 1, "CPU", False
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = width, height, 100
+    scene.render.fps, scene.render.film_transparent, scene.render.use_motion_blur = 25, True, False
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    scene.camera, camera.location = camera, (0.0, 0.0, 10.0)          # looking down -z: image x = world x
+    camera.data.sensor_fit, camera.data.angle = "HORIZONTAL", math.radians(60)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.object
+    white = bpy.data.materials.new("White")                             # self-lit: the scene has no light
+    white.use_nodes = True
+    bsdf = white.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 0.8
+    plane.data.materials.append(white)
+    for frame, x in ((1, 0.0), (3, 1.0)):
+        plane.location = (x, 0.5 * x, 0.0)
+        plane.keyframe_insert("location", frame=frame)
+    action = plane.animation_data.action
+    fcurves = action.fcurves if hasattr(action, "fcurves") else \
+        action.layers[0].strips[0].channelbag(plane.animation_data.action_slot).fcurves
+    for fc in fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    scene.view_layers[0].use_pass_vector = scene.view_layers[0].use_pass_z = True
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):                                # Blender 5.0+
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format, settings.color_depth = "OPEN_EXR_MULTILAYER", "32"
+    scene.frame_set(2)
+    path = folder / f"plane-{engine.lower()}.exr"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    focal = (width / 2) / math.tan(math.radians(30))
+    return path, np.array([0.5, -0.25]) * 25.0 * focal / 10.0          # m/frame at 10 m -> px/s, y down
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_eevee_writes_a_vector_pass_lowcam_reads_as_the_objects_motion(tmp_path):
+    """EEVEE (llvmpipe here, so slow) gives the same Vector pass convention as Cycles: the plane's velocity in
+    px/s, found in the EXR by the reader that ``lowcam apply`` uses."""
+    from lowcam.io import read_render
+    from lowcam.passes import read_blender_passes
+
+    path, expected = _render_moving_plane(tmp_path, "EEVEE")
+    passes = read_blender_passes(path, None, FPS, needs=("Vector", "Depth"))
+    inside = read_render(path)[..., 3] > 0.999
+    inside[[0, -1]] = inside[:, [0, -1]] = False
+    assert inside.sum() > 200
+    velocity = passes.velocity_px_s[inside]
+    assert np.allclose(np.median(velocity, axis=0), expected, rtol=0.03)   # magnitude and direction
+    assert np.percentile(np.abs(velocity - expected), 90) < 0.05 * np.hypot(*expected)
+    assert np.allclose(passes.depth_m[inside], 10.0, rtol=1e-3)
+
+
+@pytest.mark.blender
+def test_apply_smears_an_object_along_the_vector_pass_blender_rendered(tmp_path):
+    import cv2
+
+    path, expected = _render_moving_plane(tmp_path, "CYCLES")
+    runs = {}
+    for name, extra in (("moving", ["--object-motion", "--fps", FPS]), ("still", [])):
+        r = _cli("apply", "--render", path, *extra, "-o", tmp_path / f"{name}.png")
+        assert r.returncode == 0, r.stderr
+        runs[name] = cv2.imread(str(tmp_path / f"{name}.png"))
+    grow_x = _extent(runs["moving"], 0) - _extent(runs["still"], 0)
+    grow_y = _extent(runs["moving"], 1) - _extent(runs["still"], 1)
+    assert grow_x >= 10 and grow_x > 1.5 * grow_y                     # twice as fast along x as along y
