@@ -52,7 +52,7 @@ def cmd_demo(args) -> int:
 
         render = sample_render(profile, args.render_width)
         write_exr(out / "sample_render.exr", render)
-        plate = sample_plate(profile)
+        plate = sample_plate(profile, args.angular_velocity, None, args.seed, 0)   # filmed by the same camera
         say(1)
         frame = run(render, profile, plate, args.angular_velocity, None, args.seed, 0).frame
         title = f"lowcam ({profile.name}), w = {args.angular_velocity} rad/s"
@@ -67,7 +67,7 @@ def cmd_demo(args) -> int:
         print(f"      rendered and simulated in {time.perf_counter() - t0:.1f} s", flush=True)
         frame = read_image(composite)
         render, overlay = read_layers(out / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
-        plate = read_plate(out / "plate.png", profile.camera.width, profile.camera.height)
+        plate = read_plate(out / "plate" / "0001.png", profile.camera.width, profile.camera.height)
         title = f"lowcam ({profile.name}), camera panning, sphere moving"
     say(2)
     plain = plain_composite(render, profile, plate)

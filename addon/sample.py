@@ -1,10 +1,14 @@
-"""The sample scene: a real photograph as the plate, inserted objects, and a panning camera, so motion blur shows.
+"""The sample scene: a real photograph filmed by the camera as the plate, inserted objects, and a panning camera.
+
+The plate is what the camera filmed: the photograph run through the scene's profile with the camera's own motion
+for each frame (:func:`lowcam.sample.film`), its noise from a seed independent of the graphics'
+(:func:`lowcam.sample.plate_seed`), written as ``plate/####.png``.
 
 ``sample_scenes/build_sample_scene.py`` runs this; ``lowcam demo`` renders it.
 
 Contents
 --------
-- :func:`build_sample_scene`: write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns its path
+- :func:`build_sample_scene`: write ``folder/sample_scene.blend`` (and its plates ``plate/####.png``); returns its path
 """
 from __future__ import annotations
 
@@ -27,21 +31,21 @@ def _material(name, colour, emission=0.0):
 
 def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800, frames: int = 2,
                        pan_rad_s: float = 0.6, samples: int = 16, sphere_m_s: float = 3.0) -> Path:
-    """Write ``folder/sample_scene.blend`` (and its plate ``plate.png``); returns the .blend path.
+    """Write ``folder/sample_scene.blend`` (and its plates ``plate/####.png``); returns the .blend path.
 
-    The plate is the bundled photograph (``lowcam.sample.sample_plate``); a cube and a sphere stand in front of
+    The plate is the bundled photograph filmed through the camera with each frame's camera motion (the scene's
+    motion source, as the render handler sees it) and the scene's exposure; a cube and a sphere stand in front of
     it, the sphere moving sideways at ``sphere_m_s`` (object motion); a green crosshair in the "Overlays"
     collection is excluded from the camera simulation; the camera pans at ``pan_rad_s`` about its vertical axis.
     Cycles on the CPU with ``samples`` samples.
     """
     from lowcam.io import write_png
-    from lowcam.sample import sample_plate
+    from lowcam.sample import film, plate_seed, sample_photograph
 
-    from .frames import setup_scene
+    from .frames import motion, scene_profile, setup_scene
 
     folder = Path(folder).resolve()
     folder.mkdir(parents=True, exist_ok=True)
-    plate_path = write_png(folder / "plate.png", sample_plate(profile))
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -100,13 +104,20 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     s = scene.lowcam
     s.profile = profile
     s.enabled = True
-    s.plate_source = "SEQUENCE"
-    s.plate_pattern = bpy.path.relpath(str(plate_path), start=str(folder))
     s.motion_source = "CAMERA"
     s.exclude_collection = overlays
     s.output = "//lowcam/####.png"
     scene.render.filepath = "//render/####.exr"
     setup_scene(scene, render_width)
+    # the plate: the photograph filmed by this camera, frame by frame, as the render handler will see the motion
+    filmed_profile, photo = scene_profile(scene), sample_photograph(profile)
+    for f in range(scene.frame_start, scene.frame_end + 1):
+        w = motion(scene, f, s.exposure_s).angular_velocity
+        write_png(folder / "plate" / f"{f:04d}.png",
+                  film(photo, filmed_profile, w, s.exposure_s, plate_seed(s.seed), f, render_width))
+    scene.frame_set(scene.frame_start)
+    s.plate_source = "SEQUENCE"
+    s.plate_pattern = "//plate/####.png"
     path = folder / "sample_scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), relative_remap=True)
     return path

@@ -2,7 +2,8 @@
 
 A shot is described by file patterns in which a run of ``#`` stands for the zero-padded frame number
 (``renders/####.exr`` -> ``renders/0007.exr``; ``%04d`` works too). Plates may instead be one video file, read
-with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``.
+with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``; the video is opened once per shot (also by
+the add-on's Movie Clip plates), not once per frame.
 
 Every output is written atomically, so a frame file that exists is complete; a rerun skips those frames unless
 ``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish. Noise is
@@ -17,7 +18,9 @@ Contents
 - :func:`check_shot_outputs`: check every output of a shot before any frame is made
 - :class:`Shot`: everything one frame's job needs; picklable, so Dask can ship it to workers
 - :class:`FrameResult`: one frame's outcome in a shot
-- :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB
+- :data:`OPEN_VIDEOS_MAX`: how many video files :func:`read_video_frame` keeps open at once
+- :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB, the file opened once per shot
+- :func:`close_videos`: release the video files :func:`read_video_frame` keeps open
 - :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
 - :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
 - :func:`local_cluster`: a Dask LocalCluster of single-threaded processes on loopback
@@ -96,6 +99,13 @@ class Shot:
     video_first_frame: int = 1
     layer: str | None = None
     motion_source: str = "the motion file"
+    effects: tuple = ()            # (name, ((key, value), ...)) effects added to the profile, e.g. object motion
+    fps: float = 24.0              # the frame rate the renders' Vector pass was made at
+    metres_per_unit: float = 1.0   # the renders' Depth pass unit
+
+    def load_profile(self):
+        """The shot's profile with its added ``effects`` (cached per process)."""
+        return _profile(self.profile, self.effects)
 
     def output_path(self, frame: int) -> Path:
         return Path(expand_pattern(self.output, frame))
@@ -112,16 +122,68 @@ class FrameResult:
 _PROFILES: dict = {}
 
 
-def _profile(name: str):
+def _profile(name: str, effects: tuple = ()):
     from .profile import load_profile
 
-    if name not in _PROFILES:
-        _PROFILES[name] = load_profile(name)
-    return _PROFILES[name]
+    if (name, effects) not in _PROFILES:
+        profile = load_profile(name)
+        for effect, values in effects:
+            profile = profile.with_effect(effect, **dict(values))
+        _PROFILES[name, effects] = profile
+    return _PROFILES[name, effects]
+
+
+class _OpenVideo:
+    """An open video file and the index of the frame its next read returns."""
+
+    def __init__(self, path: str):
+        import cv2
+
+        self.capture = cv2.VideoCapture(path)
+        self.next_index = 0
+        self.count = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT)) if self.capture.isOpened() else 0
+
+    def read(self, index: int):
+        import cv2
+
+        if index != self.next_index:      # sequential frames (a shot rendered in order) need no seek
+            self.capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, img = self.capture.read()
+        self.next_index = index + 1 if ok else -1
+        return img if ok else None
+
+
+#: Open videos, (real path, mtime ns, size) -> :class:`_OpenVideo`: a shot's video is opened once, not once per
+#: frame; a file changed on disk is opened afresh. At most :data:`OPEN_VIDEOS_MAX` stay open.
+_OPEN_VIDEOS: dict = {}
+OPEN_VIDEOS_MAX = 2
+
+
+def _open_video(path: str) -> _OpenVideo:
+    st = os.stat(path)
+    key = (os.path.realpath(path), st.st_mtime_ns, st.st_size)
+    video = _OPEN_VIDEOS.pop(key, None)
+    if video is None:
+        video = _OpenVideo(path)
+        if not video.capture.isOpened():
+            video.capture.release()
+            raise LowcamError(f"{path}: not a readable video")
+        while len(_OPEN_VIDEOS) >= OPEN_VIDEOS_MAX:                 # the least recently used goes
+            _OPEN_VIDEOS.pop(next(iter(_OPEN_VIDEOS))).capture.release()
+    _OPEN_VIDEOS[key] = video                                       # most recently used last
+    return video
+
+
+def close_videos() -> None:
+    """Release every video :func:`read_video_frame` keeps open."""
+    while _OPEN_VIDEOS:
+        _OPEN_VIDEOS.popitem()[1].capture.release()
 
 
 def read_video_frame(path: str, index: int):
-    """Frame ``index`` (0-based) of a video file as uint8 RGB."""
+    """Frame ``index`` (0-based) of a video file as uint8 RGB. The file is opened once per process and kept open
+    (keyed by path, modification time and size), so a shot's frames are read in sequence without reopening or
+    seeking."""
     import cv2
 
     from .io import quiet_stderr
@@ -129,18 +191,11 @@ def read_video_frame(path: str, index: int):
     if not Path(path).is_file():
         raise LowcamError(f"{path}: no such file")
     with quiet_stderr():  # FFmpeg's messages stay off the terminal
-        cap = cv2.VideoCapture(path)
-        try:
-            if not cap.isOpened():
-                raise LowcamError(f"{path}: not a readable video")
-            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-            if index < 0 or (count > 0 and index >= count):
-                raise LowcamError(f"{path}: the video has {count} frames, frame {index} (0-based) does not exist")
-            cap.set(cv2.CAP_PROP_POS_FRAMES, index)
-            ok, img = cap.read()
-        finally:
-            cap.release()
-    if not ok:
+        video = _open_video(path)
+        if index < 0 or (video.count > 0 and index >= video.count):
+            raise LowcamError(f"{path}: the video has {video.count} frames, frame {index} (0-based) does not exist")
+        img = video.read(index)
+    if img is None:
         raise LowcamError(f"{path}: frame {index} (0-based) cannot be decoded")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
@@ -161,7 +216,8 @@ def _read_plate(shot: Shot, frame: int, profile):
 
 def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead."""
-    from .io import read_render, write_image
+    from .io import write_image
+    from .passes import needed_passes, read_render_and_passes
     from .pipeline import simulate
 
     t = time.perf_counter()
@@ -169,14 +225,16 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     if out.exists() and not force:
         return FrameResult(frame, "skipped")
     try:
-        profile = _profile(shot.profile)
+        profile = shot.load_profile()
         motion = shot.motion.get(frame)
         if motion is None and shot.require_motion:
             raise LowcamError(f"{shot.motion_source}: no entry for this frame")
         motion = motion or FrameMotion((0.0, 0.0, 0.0))
-        render = read_render(expand_pattern(shot.renders, frame), shot.layer)
+        render, passes = read_render_and_passes(expand_pattern(shot.renders, frame), shot.layer,
+                                                needed_passes(profile), shot.fps, shot.metres_per_unit)
         plate = _read_plate(shot, frame, profile) if shot.plates else None
-        image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame)
+        image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame,
+                         passes)
         write_image(out, image)
     except LowcamError as e:
         return FrameResult(frame, "failed", str(e), time.perf_counter() - t)
@@ -214,7 +272,7 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
     or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
     from .io import remove_stale_temporaries
 
-    _profile(shot.profile)  # a bad profile fails here, once, before any frame
+    shot.load_profile()  # a bad profile fails here, once, before any frame
     if _is_video(shot.plates):
         read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):

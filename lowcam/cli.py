@@ -111,16 +111,56 @@ def _load_inputs(args, profile):
     return render, plate
 
 
+def _pass_effects(args) -> tuple:
+    """The effects ``--object-motion`` and ``--defocus`` add to the profile, as ``(name, ((key, value), ...))``."""
+    effects = []
+    if args.object_motion:
+        effects.append(("object_motion", ()))
+    if args.defocus:
+        effects.append(("depth_of_field", (("focus_distance_m", args.defocus[0]), ("aperture_mm", args.defocus[1]))))
+    return tuple(effects)
+
+
+def _defocus(text: str) -> tuple[float, float]:
+    try:
+        focus, aperture = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FOCUS_M,APERTURE_MM, got {text!r}") from None
+    if not (np.isfinite(focus) and np.isfinite(aperture) and focus > 0 and aperture >= 0):
+        raise argparse.ArgumentTypeError(f"expected a focus distance > 0 m and an aperture >= 0 mm, got {text!r}")
+    return focus, aperture
+
+
+def _pass_options(p, fps: bool) -> None:
+    """``--object-motion``, ``--defocus`` and the units of the render passes they read (apply and batch)."""
+    p.add_argument("--object-motion", action="store_true",
+                   help="blur moving objects along the render's Vector pass (a Blender multilayer EXR)")
+    p.add_argument("--defocus", type=_defocus, metavar="FOCUS_M,APERTURE_MM",
+                   help="defocus from the render's Depth (Z) pass: focus distance (m), aperture diameter (mm)")
+    if fps:
+        p.add_argument("--fps", type=float, default=24.0,
+                       help="frame rate of the render's Vector pass (pixels per frame; default 24)")
+    p.add_argument("--metres-per-unit", type=float, default=1.0,
+                   help="the Depth pass's unit in metres (Blender's Unit Scale; default 1)")
+
+
 def cmd_apply(args) -> int:
-    from .io import check_image_output, write_image
+    from .io import check_image_output, read_plate, write_image
+    from .passes import needed_passes, read_render_and_passes
     from .pipeline import run
     from .profile import load_profile
 
     check_image_output(args.output, input_files(args, "output"))
     profile = load_profile(args.profile)
-    render, plate = _load_inputs(args, profile)
+    for name, values in _pass_effects(args):
+        profile = profile.with_effect(name, **dict(values))
+    render, passes = read_render_and_passes(args.render, args.layer, needed_passes(profile), args.fps,
+                                            args.metres_per_unit)
+    c = profile.camera
+    plate = read_plate(args.plate, c.width, c.height, channels=None if profile.is_raw else 3) if args.plate else None
     t0 = time.perf_counter()
-    result = run(render, profile, plate, args.angular_velocity, args.exposure_s, args.seed, args.frame)
+    result = run(render, profile, plate, args.angular_velocity, args.exposure_s, args.seed, args.frame,
+                 passes=passes)
     write_image(args.output, result.frame)
     print(f"{args.output}: {profile.name}, {result.frame.shape[1]}x{result.frame.shape[0]}, "
           f"{100 * result.footprint.mean():.1f} % of pixels from the render, {1e3 * (time.perf_counter() - t0):.0f} ms")
@@ -203,7 +243,9 @@ def cmd_batch(args) -> int:
                                 args.gyro_first_frame, source=args.gyro)
         require = True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
-                args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file")
+                args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
+                _pass_effects(args), args.fps or 24.0, args.metres_per_unit)
+    shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
     done = sum(r.status == "written" for r in results)
@@ -536,6 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("apply", help="simulate the camera on one render")
     frame_options(p)
+    _pass_options(p, fps=True)
     p.add_argument("-o", "--output", required=True, help="output frame: .png, .jpg or .exr (code values / 255)")
     p.set_defaults(func=cmd_apply)
 
@@ -554,7 +597,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shot frame shown by the video's first frame")
     p.add_argument("--motion", help="motion.json: per-frame angular velocity and exposure")
     p.add_argument("--gyro", help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
-    p.add_argument("--fps", type=float, help="frame rate, for --gyro")
+    p.add_argument("--fps", type=float, help="frame rate, for --gyro and the renders' Vector pass (default 24)")
     p.add_argument("--exposure-s", type=float, help="exposure time, for --gyro")
     p.add_argument("--gyro-t0", type=float, default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
     p.add_argument("--gyro-first-frame", type=frame_number, default=1)
@@ -566,6 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run on a Dask LocalCluster of N processes")
     p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _pass_options(p, fps=False)
     p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("chart", help="write the printable calibration chart and its layout")

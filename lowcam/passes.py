@@ -10,7 +10,10 @@ Both are render-sized arrays in the render's pixel grid (top row first), like th
     (H, W) float32: distance of the seen surface from the camera along its viewing axis (m); ``inf`` or very
     large where nothing was rendered.
 
-Blender writes them as the Vector and Depth passes (:func:`from_blender`).
+Blender writes them as the Vector and Depth passes (:func:`from_blender`) into its multilayer OpenEXR files, where
+:func:`read_blender_passes` finds them (``ViewLayer.Vector.X``..``W`` or a grouped ``ViewLayer.Vector``;
+``ViewLayer.Depth.Z``, ``ViewLayer.Depth`` or the older ``ViewLayer.Z``), so ``lowcam apply`` and ``lowcam batch``
+on a farm blur moving objects and defocus as the add-on does (:func:`read_render_and_passes`).
 
 Contents
 --------
@@ -19,6 +22,12 @@ Contents
 - :class:`RenderPasses`: a render's image velocity (px/s) and depth (m), validated
 - :func:`check_passes`: validate passes against a render of ``render_shape``; returns them as float32
 - :func:`from_blender`: passes from Blender's Vector and Depth passes, at ``fps`` and ``metres_per_unit``
+- :data:`PASS_HELP`: each Blender pass -> where to turn it on
+- :func:`needed_passes`: the Blender passes a profile's enabled effects need ("Vector", "Depth")
+- :func:`render_layer`: the view layer a multilayer EXR's render comes from ("" for a single-layer file)
+- :func:`find_blender_passes`: a view layer's Vector (H, W, 4) and Depth (H, W) arrays among an EXR's channels
+- :func:`read_blender_passes`: a view layer's passes from a Blender OpenEXR file as :class:`RenderPasses`
+- :func:`read_render_and_passes`: a render and the passes its profile needs, reading the file once
 """
 from __future__ import annotations
 
@@ -86,3 +95,93 @@ def from_blender(vector: np.ndarray | None, depth: np.ndarray | None, fps: float
     if depth is not None:
         depth = np.asarray(depth, np.float32) * np.float32(metres_per_unit)
     return RenderPasses(velocity, depth)
+
+
+#: Each Blender pass -> where to turn it on (for the one-line error when a needed pass is missing).
+PASS_HELP = {
+    "Vector": "enable the Vector pass in View Layer Properties > Passes > Data (Cycles or EEVEE, with the "
+              "render's own motion blur off) or run Lowcam's Set Up Scene",
+    "Depth": "enable the Z pass in View Layer Properties > Passes > Data or run Lowcam's Set Up Scene",
+}
+
+
+def needed_passes(profile) -> tuple[str, ...]:
+    """The Blender passes (``"Vector"``, ``"Depth"``) that ``profile``'s enabled effects need, in chain order."""
+    names = [BLENDER_PASS[e.needs_pass] for e in profile.effects if e.enabled and e.needs_pass]
+    return tuple(dict.fromkeys(names))
+
+
+def render_layer(channels: dict, layer: str | None = None) -> str:
+    """The view layer a Blender multilayer EXR's render comes from: ``layer`` when given, else the one layer with
+    a ``Combined`` pass (Lowcam's overlay layer aside); ``""`` for a single-layer file (no layer prefix)."""
+    from .io import OVERLAY_LAYER
+
+    if layer:
+        return layer
+    layers = sorted({k[:-len(".Combined")] for k in channels if k.endswith(".Combined")} - {OVERLAY_LAYER})
+    return layers[0] if len(layers) == 1 else ""
+
+
+def _stacked(channels: dict, base: str, axes: str) -> np.ndarray | None:
+    """``base`` as an (H, W, len(axes)) array: one grouped array, or one channel per axis; None when absent."""
+    if base in channels and channels[base].ndim == 3 and channels[base].shape[2] == len(axes):
+        return channels[base]
+    keys = [f"{base}.{a}" for a in axes]
+    if all(k in channels for k in keys):
+        return np.stack([channels[k] for k in keys], -1)
+    return None
+
+
+def find_blender_passes(channels: dict, layer: str) -> dict[str, np.ndarray]:
+    """View layer ``layer``'s Vector pass (H, W, 4) and Depth pass (H, W) among an OpenEXR file's ``channels``
+    (:func:`lowcam.io.read_exr`), those present. Blender 4.x/5.x names them ``LAYER.Vector.X``..``W`` and
+    ``LAYER.Depth.Z``; grouped arrays (``LAYER.Vector``, ``LAYER.Depth``) and the older ``LAYER.Z`` are taken too.
+    ``layer`` ``""`` looks for the unprefixed names of a single-layer file."""
+    prefix = f"{layer}." if layer else ""
+    found = {}
+    vector = _stacked(channels, prefix + "Vector", "XYZW")
+    if vector is not None:
+        found["Vector"] = vector
+    for key in (prefix + "Depth.Z", prefix + "Depth", prefix + "Z", prefix + "Z.Z"):
+        depth = channels.get(key)
+        if depth is not None and depth.ndim == 3 and depth.shape[2] == 1:
+            depth = depth[..., 0]
+        if depth is not None and depth.ndim == 2:
+            found["Depth"] = depth
+            break
+    return found
+
+
+def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: float = 1.0,
+                        needs: tuple[str, ...] = (), channels: dict | None = None) -> RenderPasses:
+    """View layer ``layer``'s Vector and Depth passes (those present; ``layer`` None: the render's layer,
+    :func:`render_layer`) from a Blender OpenEXR file as :class:`RenderPasses` for a scene at ``fps`` whose
+    length unit is ``metres_per_unit``. A pass named in ``needs`` that is missing is a one-line error naming the
+    file, the layer, the pass and where to turn it on (:data:`PASS_HELP`)."""
+    from .io import read_exr
+
+    channels = read_exr(path) if channels is None else channels
+    layer = render_layer(channels, layer)
+    found = find_blender_passes(channels, layer)
+    for name in needs:
+        if name not in found:
+            where = f"view layer '{layer}'" if layer else "the file"
+            raise LowcamError(f"{path}: {where} has no {name} pass; {PASS_HELP[name]}")
+    return from_blender(found.get("Vector"), found.get("Depth"), fps, metres_per_unit)
+
+
+def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps: float,
+                           metres_per_unit: float = 1.0):
+    """``(render, passes)``: the render (:func:`lowcam.io.read_render`) and, when ``needs`` names passes, its view
+    layer's passes (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A
+    render that is not an OpenEXR file has no passes: asking for them is a one-line error."""
+    from .io import _exists, _format, _rgba_from_exr, check_render, read_exr, read_render
+
+    if not needs:
+        return read_render(path, layer), None
+    if _format(_exists(path)) != "exr":
+        raise LowcamError(f"{path}: a {needs[0]} pass is needed and only an OpenEXR render holds one; render a "
+                          f"multilayer OpenEXR ({PASS_HELP[needs[0]]})")
+    channels = read_exr(path)
+    render = check_render(_rgba_from_exr(path, channels, layer), path)
+    return render, read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)

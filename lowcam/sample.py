@@ -3,10 +3,21 @@
 Used by ``lowcam demo``, the tests and the benchmarks. The objects are placed in camera-plane coordinates, so the
 same scene comes out at any render size. Edges are anti-aliased analytically (exact area coverage).
 
+A plate is what the camera filmed, so the sample plate is the photograph *filmed through the camera*: the
+photograph is taken as the opaque ideal image of the scene behind the graphics (:func:`photograph_render`) and
+run through the profile's whole chain with the shot's camera motion (:func:`film`), with noise from a seed
+independent of the graphics' (:func:`plate_seed`). Plate and graphics then share the camera's blur, motion blur
+and noise level, so a plain composite shows sharp graphics floating on the footage and Lowcam's shows them in it.
+
 Contents
 --------
 - :func:`sample_render`: premultiplied linear RGBA of a shaded sphere, a checkerboard card and white text
-- :func:`sample_plate`: a real photograph (scikit-image's ``coffee``) cropped and scaled to the frame, uint8 RGB
+- :func:`sample_photograph`: a real photograph (scikit-image's ``coffee``) cropped and scaled to the frame, uint8 RGB
+- :data:`PLATE_SEED_OFFSET`: added to the graphics' seed (mod 2^64) for the plate's noise
+- :func:`plate_seed`: the noise seed of a plate filmed for graphics simulated with ``seed``
+- :func:`photograph_render`: a photograph as the opaque ideal render of the scene (premultiplied linear RGBA)
+- :func:`film`: a photograph filmed through the camera: the profile's chain on it, with the shot's motion
+- :func:`sample_plate`: the sample photograph filmed through the camera (the plate of the sample scene), uint8 RGB
 - :func:`side_by_side`: two frames next to each other with a caption bar above each
 """
 from __future__ import annotations
@@ -14,6 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .errors import LowcamError
 from .pipeline import render_field_of_view
 from .profile import load_profile
 
@@ -80,22 +92,80 @@ def sample_render(profile="fire-i", width: int = 1600, height: int | None = None
     return out
 
 
-def sample_plate(profile="fire-i") -> np.ndarray:
-    """A real photograph (scikit-image's ``coffee``) cropped and scaled to the camera's frame, uint8 RGB."""
+def _crop_to_aspect(img: np.ndarray, w: int, h: int) -> np.ndarray:
+    """The centre of ``img`` with the aspect ratio ``w`` : ``h``."""
+    ih, iw = img.shape[:2]
+    if iw / ih > w / h:
+        cw = int(round(ih * w / h))
+        return img[:, (iw - cw) // 2:(iw - cw) // 2 + cw]
+    ch = int(round(iw * h / w))
+    return img[(ih - ch) // 2:(ih - ch) // 2 + ch]
+
+
+def sample_photograph(profile="fire-i") -> np.ndarray:
+    """A real photograph (scikit-image's ``coffee``) cropped and scaled to the camera's frame, uint8 RGB: the
+    sharp scene, before any camera filmed it (the sample plate was this until the plate was filmed)."""
     from skimage import data
 
     profile = load_profile(profile)
     w, h = profile.camera.width, profile.camera.height
-    img = data.coffee()
-    ih, iw = img.shape[:2]
-    if iw / ih > w / h:
-        cw = int(round(ih * w / h))
-        img = img[:, (iw - cw) // 2:(iw - cw) // 2 + cw]
-    else:
-        ch = int(round(iw * h / w))
-        img = img[(ih - ch) // 2:(ih - ch) // 2 + ch]
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    return cv2.resize(_crop_to_aspect(data.coffee(), w, h), (w, h), interpolation=cv2.INTER_AREA)
 
+
+#: Added to the graphics' seed (mod 2^64) for the noise of the plate filmed for them: the plate's noise and the
+#: graphics' are then independent, as two exposures' are (the golden-ratio constant of SplitMix64, any odd
+#: 64-bit number far from small offsets would do).
+PLATE_SEED_OFFSET = 0x9E3779B97F4A7C15
+
+
+def plate_seed(seed: int) -> int:
+    """The noise seed of a plate filmed for graphics simulated with ``seed``: ``(seed + PLATE_SEED_OFFSET) mod
+    2^64``, never equal to ``seed``."""
+    return (int(seed) + PLATE_SEED_OFFSET) % 2**64
+
+
+def photograph_render(photo: np.ndarray, profile="fire-i", width: int = 1200) -> np.ndarray:
+    """A uint8 RGB photograph as the opaque ideal render of the scene: premultiplied linear RGBA (alpha 1) of
+    ``width`` columns at the render's aspect (:func:`lowcam.pipeline.render_camera`), the photograph's centre
+    scaled to cover it. Code value / 255 is used linearly, as renders are (the paper models no gamma)."""
+    profile = load_profile(profile)
+    photo = np.asarray(photo)
+    if photo.dtype != np.uint8 or photo.ndim != 3 or photo.shape[2] != 3:
+        raise LowcamError(f"photograph: a (H, W, 3) uint8 image is needed, got {photo.dtype} {photo.shape}")
+    height = int(round(width * profile.camera.height / profile.camera.width))
+    img = cv2.resize(_crop_to_aspect(photo, width, height), (width, height), interpolation=cv2.INTER_CUBIC
+                     if photo.shape[1] < width else cv2.INTER_AREA)
+    out = np.ones((height, width, 4), np.float32)
+    out[..., :3] = np.clip(img.astype(np.float32) / 255.0, 0.0, 1.0)
+    return out
+
+
+def film(photo: np.ndarray, profile="fire-i", angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None,
+         seed: int = 0, frame: int = 0, render_width: int = 1200) -> np.ndarray:
+    """``photo`` (uint8 RGB) filmed through the camera: the profile's whole chain run on it as the opaque ideal
+    image of the scene (:func:`photograph_render`), turning at ``angular_velocity`` (rad/s, camera frame) over
+    ``exposure_s`` (None: the profile's), with the noise of ``(seed, frame)``. Returns the (h, w, 3) uint8 frame.
+
+    Effects that need render passes (object motion, defocus from depth) are left out: a photograph has none.
+    """
+    from .pipeline import simulate
+
+    profile = load_profile(profile)
+    passless = [e.name for e in profile.effects if e.enabled and e.needs_pass]
+    if passless:
+        profile = profile.without(*passless)
+    render = photograph_render(photo, profile, render_width)
+    return simulate(render, profile, None, angular_velocity, exposure_s, seed, frame)
+
+
+def sample_plate(profile="fire-i", angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None,
+                 seed: int = 0, frame: int = 0) -> np.ndarray:
+    """The sample scene's plate: :func:`sample_photograph` filmed through ``profile``'s camera (:func:`film`)
+    turning at ``angular_velocity`` over ``exposure_s``, for graphics simulated with noise ``seed`` (the plate's
+    noise uses :func:`plate_seed` of it, so the two are independent) at ``frame``. uint8 RGB at the camera's size.
+    """
+    profile = load_profile(profile)
+    return film(sample_photograph(profile), profile, angular_velocity, exposure_s, plate_seed(seed), frame)
 
 def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
     """Two frames next to each other with a caption bar above each."""

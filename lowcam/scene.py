@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import LowcamError
 from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr, write_image
-from .passes import BLENDER_PASS, RenderPasses, from_blender
+from .passes import RenderPasses, needed_passes, read_blender_passes
 from .pipeline import run
 from .profile import load_profile
 
@@ -49,16 +49,7 @@ def read_passes(path, layer: str, fps: float, metres_per_unit: float = 1.0, need
     """View layer ``layer``'s Vector and Depth passes (those present) as :class:`RenderPasses`, for a scene at
     ``fps`` whose length unit is ``metres_per_unit``; ``needs`` names the passes that must be there
     (``"Vector"``, ``"Depth"``)."""
-    channels = read_exr(path) if channels is None else channels
-    found = {}
-    for name, axes in (("Vector", "XYZW"), ("Depth", "Z")):
-        keys = [f"{layer}.{name}.{a}" for a in axes]
-        if all(k in channels for k in keys):
-            found[name] = np.stack([channels[k] for k in keys], -1) if len(keys) > 1 else channels[keys[0]]
-        elif name in needs:
-            raise LowcamError(f"{path}: view layer '{layer}' has no {name} pass (turn it on, or run Lowcam's "
-                              "Set Up Scene)")
-    return from_blender(found.get("Vector"), found.get("Depth"), fps, metres_per_unit)
+    return read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)
 
 
 def overlay_in_frame(overlay: np.ndarray, profile) -> np.ndarray:
@@ -89,7 +80,7 @@ def degrade_frame(render_path, output_path, profile, plate=None, angular_velocit
     profile = load_profile(profile)
     channels = read_exr(render_path)
     render, overlay = read_layers(render_path, layer, overlay_layer, channels)
-    needs = tuple(BLENDER_PASS[e.needs_pass] for e in profile.effects if e.enabled and e.needs_pass)
+    needs = needed_passes(profile)
     passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)
     result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes)
     image = result.frame if overlay is None else over_frame(result.frame, overlay_in_frame(overlay, profile))

@@ -46,7 +46,7 @@ def _objects(render):
 def _frame_data(folder, frame):
     out = read_image(folder / "lowcam" / f"{frame:04d}.png")
     render, overlay = read_layers(folder / "render" / f"{frame:04d}.exr", "ViewLayer", OVERLAY_LAYER)
-    plate = read_plate(folder / "plate.png", 640, 480)
+    plate = read_plate(folder / "plate" / f"{frame:04d}.png", 640, 480)
     return out, render, overlay, plate
 
 
@@ -107,7 +107,7 @@ def test_object_shows_6_bit_levels(tmp_path):
     import cv2
 
     render, overlay = read_layers(tmp_path / "render" / "0001.exr", "ViewLayer", OVERLAY_LAYER)
-    plate = read_plate(tmp_path / "plate.png", 640, 480)
+    plate = read_plate(tmp_path / "plate" / "0001.png", 640, 480)
     opaque = plain_composite(np.repeat(render[..., 3:], 4, axis=-1), "fire-i", None)   # white where covered
     core = cv2.erode((opaque.min(axis=2) == 255).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     ov = overlay_in_frame(overlay, "fire-i")[..., 3] > 0

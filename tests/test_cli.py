@@ -88,7 +88,7 @@ def test_demo_writes_the_composite_next_to_the_plain_composite(tmp_path):
     assert side.shape == (480 + 28, 2 * 640 + 8, 3)
     ours = cv2.imread(str(tmp_path / "demo" / "lowcam.png")).astype(int)
     plain = cv2.imread(str(tmp_path / "demo" / "plain.png")).astype(int)
-    plate = cv2.imread(str(tmp_path / "demo" / "plate.png")).astype(int)
+    plate = cv2.imread(str(tmp_path / "demo" / "plate" / "0001.png")).astype(int)
     objects = (plain != plate).any(axis=2)
     assert 0.02 < objects.mean() < 0.5                            # the sample scene's objects were rendered
     assert np.abs(ours - plain)[objects].mean() > 2.0             # and degraded

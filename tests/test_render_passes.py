@@ -116,3 +116,211 @@ def test_a_frame_without_the_pass_an_effect_needs_names_the_file(fire_i, tmp_pat
     assert not (tmp_path / "out.png").exists()
     degrade_frame(path, tmp_path / "out.png", fire_i)                 # without the effect the frame is made
     assert (tmp_path / "out.png").stat().st_size > 0
+
+
+# --- the passes of Blender's multilayer OpenEXR files, read by `lowcam apply` and `lowcam batch` (farms) ---------
+
+FPS = 25.0
+
+
+def _cli(*args):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "lowcam.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=300)
+
+
+def _write_multilayer(path, render, vector=None, depth=None, depth_key="ViewLayer.Depth.Z"):
+    """A Blender-style multilayer EXR written with OpenEXR itself: ``ViewLayer.Combined.R``..``A``,
+    ``ViewLayer.Vector.X``..``W`` and the depth under ``depth_key``."""
+    import OpenEXR
+
+    channels = {f"ViewLayer.Combined.{c}": render[..., i].copy() for i, c in enumerate("RGBA")}
+    if vector is not None:
+        channels.update({f"ViewLayer.Vector.{a}": vector[..., i].copy() for i, a in enumerate("XYZW")})
+    if depth is not None:
+        channels[depth_key] = depth.astype(np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, channels).write(str(path))
+    return path
+
+
+def _moving_square(speed_px_s: float):
+    """The square moving right at ``speed_px_s``: its analytic velocity (px/s, y down) and the Vector pass Blender
+    writes for it: (previous - current, current - next) positions in pixels per frame, y up."""
+    velocity = np.zeros((ROWS, COLS, 2), np.float32)
+    velocity[250:350, 350:450, 0] = speed_px_s
+    vector = np.zeros((ROWS, COLS, 4), np.float32)
+    vector[250:350, 350:450, 0] = vector[250:350, 350:450, 2] = -speed_px_s / FPS
+    return velocity, vector
+
+
+def _extent(frame: np.ndarray, axis: int) -> int:
+    """How many columns (axis 0) or rows (axis 1) of a frame over a black plate the graphics reach."""
+    touched = np.nonzero((frame > 8).any(axis=2).any(axis=axis))[0]
+    return int(touched.max() - touched.min() + 1)
+
+
+def test_apply_blurs_moving_objects_from_the_exrs_vector_pass(fire_i, tmp_path):
+    import cv2
+
+    velocity, vector = _moving_square(1500.0)                       # 49.5 render px over the 33 ms exposure
+    exr = _write_multilayer(tmp_path / "render.exr", _square(), vector, np.full((ROWS, COLS), 4.0))
+    r = _cli("apply", "--render", exr, "--object-motion", "--fps", FPS, "--seed", 3, "--frame", 7,
+             "-o", tmp_path / "moving.png")
+    assert r.returncode == 0, r.stderr
+    moving = cv2.cvtColor(cv2.imread(str(tmp_path / "moving.png")), cv2.COLOR_BGR2RGB)
+    expected = lowcam.simulate(_square(), fire_i.with_effect("object_motion"), seed=3, frame=7,
+                               passes=RenderPasses(velocity))
+    assert np.array_equal(moving, expected)                         # the pass was found and read as px/s, y down
+    assert _cli("apply", "--render", exr, "--seed", 3, "--frame", 7, "-o", tmp_path / "still.png").returncode == 0
+    still = cv2.imread(str(tmp_path / "still.png"))
+    assert _extent(moving, 0) >= _extent(still, 0) + 15             # smeared along the motion ...
+    assert abs(_extent(moving, 1) - _extent(still, 1)) <= 1         # ... and not across it
+
+
+@pytest.mark.parametrize("depth_key", ["ViewLayer.Depth.Z", "ViewLayer.Z"])
+def test_apply_defocuses_from_the_exrs_depth_pass(fire_i, tmp_path, depth_key):
+    import cv2
+
+    depth = np.full((ROWS, COLS), 0.5, np.float32)                  # near: 3.9 render px of blur (20 mm aperture)
+    exr = _write_multilayer(tmp_path / "render.exr", _square(), depth=depth, depth_key=depth_key)
+    r = _cli("apply", "--render", exr, "--defocus", "2,20", "-o", tmp_path / "near.png")
+    assert r.returncode == 0, r.stderr
+    near = cv2.cvtColor(cv2.imread(str(tmp_path / "near.png")), cv2.COLOR_BGR2RGB)
+    profile = fire_i.with_effect("depth_of_field", focus_distance_m=2.0, aperture_mm=20.0)
+    assert np.array_equal(near, lowcam.simulate(_square(), profile, passes=RenderPasses(None, depth)))
+    assert _cli("apply", "--render", exr, "-o", tmp_path / "sharp.png").returncode == 0
+    sharp = cv2.imread(str(tmp_path / "sharp.png"))
+    assert _extent(near, 0) > _extent(sharp, 0) and _extent(near, 1) > _extent(sharp, 1)   # blurred both ways
+
+
+def test_a_missing_pass_is_one_line_naming_the_file_the_pass_and_the_fix(tmp_path):
+    exr = _write_multilayer(tmp_path / "render.exr", _square())
+    for option, name in ((["--object-motion"], "Vector"), (["--defocus", "2,20"], "Z")):
+        r = _cli("apply", "--render", exr, *option, "-o", tmp_path / "out.png")
+        assert r.returncode == 2
+        line = r.stderr.strip()
+        assert "\n" not in line and "render.exr" in line and f"{'Vector' if name == 'Vector' else 'Depth'} pass" in line
+        assert f"enable the {name} pass in View Layer Properties" in line
+        assert not (tmp_path / "out.png").exists()
+    png = tmp_path / "render.png"
+    cv2 = pytest.importorskip("cv2")
+    cv2.imwrite(str(png), (255 * _square()).astype(np.uint8))
+    r = _cli("apply", "--render", png, "--object-motion", "-o", tmp_path / "out.png")
+    assert r.returncode == 2 and "render.png" in r.stderr and "OpenEXR" in r.stderr and "\n" not in r.stderr.strip()
+    for frame in (1, 2):
+        _write_multilayer(tmp_path / f"{frame:04d}.exr", _square())
+    r = _cli("batch", "--renders", tmp_path / "####.exr", "--frames", "1-2", "--object-motion", "--quiet",
+             "-o", tmp_path / "out" / "####.png")
+    assert r.returncode != 0 and "0001.exr: view layer 'ViewLayer' has no Vector pass" in r.stdout + r.stderr
+
+
+def test_batch_reads_each_frames_passes(fire_i, tmp_path):
+    import cv2
+
+    speeds = {1: 900.0, 2: -1800.0}
+    for frame, speed in speeds.items():
+        _write_multilayer(tmp_path / f"{frame:04d}.exr", _square(), _moving_square(speed)[1])
+    r = _cli("batch", "--renders", tmp_path / "####.exr", "--frames", "1-2", "--object-motion", "--fps", FPS,
+             "--seed", 5, "--quiet", "-o", tmp_path / "out" / "####.png")
+    assert r.returncode == 0, r.stderr
+    profile = fire_i.with_effect("object_motion")
+    for frame, speed in speeds.items():
+        got = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / f"{frame:04d}.png")), cv2.COLOR_BGR2RGB)
+        expected = lowcam.simulate(_square(), profile, seed=5, frame=frame,
+                                   passes=RenderPasses(_moving_square(speed)[0]))
+        assert np.array_equal(got, expected)
+
+
+# --- passes rendered by Blender itself (bpy) ------------------------------------------------------------------
+
+def _render_moving_plane(folder, engine: str, width=128, height=96):
+    """A 2 m plane 10 m in front of a still camera (60 degree horizontal field of view), moving 0.5 m per frame
+    right and 0.25 m up at 25 fps, rendered at frame 2 by ``engine`` with 1 sample to a multilayer EXR with the
+    Vector and Z passes; the plane glows white. Returns (path, expected velocity (px/s, x right, y down))."""
+    import math
+
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    names = ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT") if engine == "EEVEE" else (engine,)
+    for name in names:                                  # EEVEE is BLENDER_EEVEE_NEXT in Blender 4.2-4.5
+        try:
+            scene.render.engine = name
+            break
+        except TypeError:
+            continue
+    if engine == "EEVEE":
+        scene.eevee.taa_render_samples = 1
+    else:
+        scene.cycles.samples, scene.cycles.device, scene.cycles.use_denoising = 1, "CPU", False
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = width, height, 100
+    scene.render.fps, scene.render.film_transparent, scene.render.use_motion_blur = 25, True, False
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    scene.camera, camera.location = camera, (0.0, 0.0, 10.0)          # looking down -z: image x = world x
+    camera.data.sensor_fit, camera.data.angle = "HORIZONTAL", math.radians(60)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.object
+    white = bpy.data.materials.new("White")                             # self-lit: the scene has no light
+    white.use_nodes = True
+    bsdf = white.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 0.8
+    plane.data.materials.append(white)
+    for frame, x in ((1, 0.0), (3, 1.0)):
+        plane.location = (x, 0.5 * x, 0.0)
+        plane.keyframe_insert("location", frame=frame)
+    action = plane.animation_data.action
+    fcurves = action.fcurves if hasattr(action, "fcurves") else \
+        action.layers[0].strips[0].channelbag(plane.animation_data.action_slot).fcurves
+    for fc in fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    scene.view_layers[0].use_pass_vector = scene.view_layers[0].use_pass_z = True
+    settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):                                # Blender 5.0+
+        settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format, settings.color_depth = "OPEN_EXR_MULTILAYER", "32"
+    scene.frame_set(2)
+    path = folder / f"plane-{engine.lower()}.exr"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    focal = (width / 2) / math.tan(math.radians(30))
+    return path, np.array([0.5, -0.25]) * 25.0 * focal / 10.0          # m/frame at 10 m -> px/s, y down
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_eevee_writes_a_vector_pass_lowcam_reads_as_the_objects_motion(tmp_path):
+    """EEVEE (llvmpipe here, so slow) gives the same Vector pass convention as Cycles: the plane's velocity in
+    px/s, found in the EXR by the reader that ``lowcam apply`` uses."""
+    from lowcam.io import read_render
+    from lowcam.passes import read_blender_passes
+
+    path, expected = _render_moving_plane(tmp_path, "EEVEE")
+    passes = read_blender_passes(path, None, FPS, needs=("Vector", "Depth"))
+    inside = read_render(path)[..., 3] > 0.999
+    inside[[0, -1]] = inside[:, [0, -1]] = False
+    assert inside.sum() > 200
+    velocity = passes.velocity_px_s[inside]
+    assert np.allclose(np.median(velocity, axis=0), expected, rtol=0.03)   # magnitude and direction
+    assert np.percentile(np.abs(velocity - expected), 90) < 0.05 * np.hypot(*expected)
+    assert np.allclose(passes.depth_m[inside], 10.0, rtol=1e-3)
+
+
+@pytest.mark.blender
+def test_apply_smears_an_object_along_the_vector_pass_blender_rendered(tmp_path):
+    import cv2
+
+    path, expected = _render_moving_plane(tmp_path, "CYCLES")
+    runs = {}
+    for name, extra in (("moving", ["--object-motion", "--fps", FPS]), ("still", [])):
+        r = _cli("apply", "--render", path, *extra, "-o", tmp_path / f"{name}.png")
+        assert r.returncode == 0, r.stderr
+        runs[name] = cv2.imread(str(tmp_path / f"{name}.png"))
+    grow_x = _extent(runs["moving"], 0) - _extent(runs["still"], 0)
+    grow_y = _extent(runs["moving"], 1) - _extent(runs["still"], 1)
+    assert grow_x >= 10 and grow_x > 1.5 * grow_y                     # twice as fast along x as along y
