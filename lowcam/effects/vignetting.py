@@ -237,7 +237,9 @@ def vignetting_from_plate(footage, base=None):
     (:func:`vignetting_statistic`; a measured ``texture`` in the base is replaced by the radial model).
 
     Confidence: 0.9, scaled by how far the camera moved (a tenth of the frame diagonal in all: full) and halved
-    when the corner gain's standard error exceeds 0.02; a shot in which the camera hardly moves gives none."""
+    when the corner gain's standard error exceeds 0.02; a shot in which the camera hardly moves gives none, and
+    neither do corners found brighter than the centre (beyond 2 %: a lens does not brighten its corners; exposure
+    changes or moving scene content do)."""
     from ..measure.plate import PlateEstimate
 
     frames = footage.stack(max_frames=31)
@@ -249,6 +251,10 @@ def vignetting_from_plate(footage, base=None):
     coverage = min(1.0, stat["shift_px_total"] / (0.1 * np.hypot(w, h)))
     confidence = 0.9 * coverage * (1.0 if stat["corner_gain_se"] < 0.02 else 0.5)
     params = {"k2": stat["k2"], "k4": stat["k4"], "texture": ""}
+    if stat["gain_at_rho"]["1.0"] > 1.02:
+        return PlateEstimate("radial_falloff", "vignetting", stat, {}, 0.0,
+                             f"corners {stat['gain_at_rho']['1.0']:.3f} x as bright as the centre: not a lens "
+                             f"fall-off (exposure changes or moving scene content)")
     return PlateEstimate("radial_falloff", "vignetting", stat, params, round(confidence, 3),
                          f"{stat['pairs']} moving frame pairs, {stat['shift_px_total']:.0f} px of motion, corner "
                          f"gain {stat['gain_at_rho']['1.0']:.3f} +- {stat['corner_gain_se']:.3f}")
