@@ -16,6 +16,7 @@ platform and Python.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import subprocess
@@ -175,4 +176,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)            # the bpy 4.2 module can crash while the interpreter exits, after the work is done

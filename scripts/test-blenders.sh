@@ -49,12 +49,15 @@ venv_for() {
 declare -A RESULT
 run_part() {
   local part=$1 start=$SECONDS rc venv
+  shift
   echo "=== test-blenders: $part ==="
   case $part in
     bpy42|bpy45|bpy50)
       if venv=$(venv_for "$part"); then
         "$venv/bin/python" -c 'import bpy; print("bpy", bpy.app.version_string)'
-        nice "$venv/bin/python" -m pytest -m blender "${TESTS[@]}" -p no:cacheprovider -q "$@"
+        # os._exit after pytest: bpy 4.2 can crash (status 139) and 4.5 hang while the interpreter exits
+        nice "$venv/bin/python" -c 'import os, sys, pytest; rc = int(pytest.main(sys.argv[1:]));
+sys.stdout.flush(); sys.stderr.flush(); os._exit(rc)' -m blender "${TESTS[@]}" -p no:cacheprovider -q -rs "$@"
         rc=$?
       else
         rc=1
