@@ -42,6 +42,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     from lowcam.io import write_png
     from lowcam.sample import film, plate_seed, sample_photograph
 
+    from .compat import action_fcurves
     from .frames import motion, scene_profile, setup_scene
 
     folder = Path(folder).resolve()
@@ -97,7 +98,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
         sphere.location.x = x0 + sphere_m_s * t
         sphere.keyframe_insert("location", index=0, frame=f)
     for ob in (camera, sphere):
-        for fc in ob.animation_data.action.layers[0].strips[0].channelbag(ob.animation_data.action_slot).fcurves:
+        for fc in action_fcurves(ob):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
 
