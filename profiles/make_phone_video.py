@@ -2,9 +2,10 @@
 gyro log), measured from its own footage without a chart (issue 15, part 3).
 
 The Fire-i chain is set to the clip's camera (its published K, 33.3 ms rolling-shutter read-out, logged exposure:
-``lowcam.footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from 24 frames of the footage
-(noise, edges and sharpening, vignetting, JPEG quality and chroma subsampling) are applied where confident. Every
-number's source is in the profile's ``[provenance]``.
+``lowcam.footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from all 103 frames of the footage
+(noise, edges and sharpening, vignetting, chroma subsampling) are applied where confident; the JPEG quality, too high
+for the plate's blockiness to show, is read from the files' own quantisation tables. Every number's source is in
+the profile's ``[provenance]``.
 
     .venv/bin/python profiles/make_phone_video.py [DATA_DIR] [-o profiles/phone-video.toml]
 """
@@ -19,6 +20,19 @@ from lowcam.measure.plate import Footage, estimate_profile
 from lowcam.profile import load_profile
 
 HERE = Path(__file__).resolve().parent
+#: The IJG (libjpeg) standard luminance quantisation table at quality 50 (ITU-T T.81 Annex K, Table K.1).
+IJG_LUMINANCE = np.array([16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57,
+                          69, 56, 14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81,
+                          104, 113, 92, 49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99])
+
+
+def ijg_quality(jpeg_path) -> int:
+    """The IJG quality whose scaled standard table the file's luminance table is (order-free: sums compared)."""
+    from PIL import Image
+
+    table = np.asarray(Image.open(jpeg_path).quantization[0], float)
+    scale = 100.0 * table.sum() / IJG_LUMINANCE.sum()  # libjpeg: scale = 5000 / q below 50, 200 - 2 q above
+    return int(round((200.0 - scale) / 2.0 if scale <= 100.0 else 5000.0 / scale))
 
 
 def main():
@@ -28,7 +42,7 @@ def main():
     parser.add_argument("-o", "--output", default=str(HERE / "phone-video.toml"))
     args = parser.parse_args()
     data = args.data or HERE.parent.parent / "shared" / "data" / "phone-gyro-video"
-    clip = read_footage_clip(find_footage(data), first=99, count=24)
+    clip = read_footage_clip(find_footage(data), first=99, count=103)
     profile = footage_profile(load_profile("fire-i"), clip)
     profile.camera.name = "Phone video, 800x600 JPEG (gyro-video-stabilization data set)"
     profile.camera.description = "a smartphone's video, measured from its own footage and gyro log, no chart"
@@ -36,10 +50,21 @@ def main():
     profile, estimates = estimate_profile(Footage(frames, 30.0, "phone-gyro-video/20200109_145447/reshape"), profile)
     for e in estimates:
         print(e.line())
-    # what the plate cannot say keeps the Fire-i's values: say so
+    source = "phone-gyro-video/20200109_145447"
+    profile.provenance = {k: v.replace(str(clip.folder), source) for k, v in profile.provenance.items()}
+    # the phone's chroma is its JPEG's 4:2:0 (the chroma-bandwidth probe), not the Fire-i's 4:1:1 stage
+    profile = profile.without("chroma_subsampling")
+    profile.provenance["chroma_subsampling"] = "off: the footage's chroma is its JPEG's (chroma bandwidth probe)"
+    quality = ijg_quality(clip.frames[0])  # the plate's blockiness is too weak to read a quality this high
+    profile = profile.with_effect("jpeg", quality=quality)
+    profile.provenance["jpeg.quality"] = f"the footage's own JPEG quantisation tables (IJG quality {quality})"
+    # what the footage did not measure keeps the Fire-i's values: say so
+    base = load_profile("fire-i").provenance
     for e in profile.effects:
-        if not profile.provenance_of(e.name) and not any(k.startswith(f"{e.name}.") for k in profile.provenance):
-            profile.provenance[e.name] = "not measurable from this footage: the Fire-i's (Klein & Murray 2010)"
+        if e.name in base and profile.provenance.get(e.name) == base[e.name]:
+            profile.provenance[e.name] = f"not measured from this footage; the Fire-i's: {base[e.name]}"
+        elif e.name not in profile.provenance:
+            profile.provenance[e.name] = "see its parameters"
     print(profile.save(args.output))
 
 
