@@ -1,25 +1,96 @@
-"""The repository root is a Blender extension: Blender's own validator (shipped in the bpy wheel) accepts it."""
+"""The repository root is a Blender extension: Blender's own validator (shipped in the bpy wheel) accepts it, and
+scripts/build_extension.py makes one zip per platform whose wheels install there under Python 3.11 and 3.13."""
+import os
+import re
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import bpy
 import pytest
+from packaging.tags import compatible_tags, cpython_tags, mac_platforms
+from packaging.utils import canonicalize_name, parse_wheel_filename
 
 pytestmark = pytest.mark.blender  # real bpy: the Blender tier
 
 ROOT = Path(__file__).resolve().parent.parent
+#: What a zip must run on: Blender's platforms, as the wheel platform tags pip installs there (Blender's minimums:
+#: glibc 2.28, and any macOS up to 14), and the Pythons Blender embeds (3.11 in 4.2-5.0, 3.13 from 5.1).
+WHEEL_PLATFORMS = {
+    "windows-x64": ["win_amd64"],
+    "macos-arm64": list(mac_platforms((14, 0), "arm64")),
+    "macos-x64": list(mac_platforms((14, 0), "x86_64")),
+    "linux-x64": [f"manylinux_2_{minor}_x86_64" for minor in range(17, 29)] + ["manylinux2014_x86_64"],
+}
+PYTHONS = ((3, 11), (3, 13))
+RUNTIME = ("lowcam", "opencv-contrib-python-headless", "OpenEXR", "tomli-w")
 
 
 def blender_ext_cli() -> Path:
-    site = Path(bpy.__file__).resolve().parents[4]  # .../bpy/5.0/scripts/modules/bpy/__init__.py -> .../bpy
-    return site / "5.0" / "scripts" / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
+    version_dir = next(p for p in Path(bpy.__file__).resolve().parents if re.fullmatch(r"\d+\.\d+", p.name))
+    return version_dir / "scripts" / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
+
+
+def validate(path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(blender_ext_cli()), "validate", str(path)], capture_output=True,
+                          text=True, timeout=120)
 
 
 def test_manifest_passes_blenders_validator():
-    r = subprocess.run([sys.executable, str(blender_ext_cli()), "validate", str(ROOT)], capture_output=True,
-                       text=True, timeout=120)
+    r = validate(ROOT)
     assert r.returncode == 0 and "Success" in r.stdout, r.stdout + r.stderr
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """The four zips and the asset .blend, built once by the script as a user runs it."""
+    out = tmp_path_factory.mktemp("dist")
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), str(out)],
+                       capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    return out
+
+
+def test_each_platform_zip_carries_wheels_for_it_and_both_pythons(built):
+    """Per zip: every wheel installs on the zip's platform under 3.11 and 3.13 (abi3 / py3-none-any, or one wheel
+    per Python), every runtime dependency has one for each Python, numpy is left to Blender, and the manifest
+    inside passes Blender's validator."""
+    zips = {re.search(r"lowcam-[^-]+-(.+)\.zip$", z.name).group(1).replace("_", "-"): z for z in built.glob("*.zip")}
+    assert sorted(zips) == sorted(WHEEL_PLATFORMS)
+    for platform, zip_path in zips.items():
+        wheels = [Path(n).name for n in zipfile.ZipFile(zip_path).namelist() if n.endswith(".whl")]
+        supported = {py: set(cpython_tags(py, platforms=WHEEL_PLATFORMS[platform])) |
+                     set(compatible_tags(py, platforms=WHEEL_PLATFORMS[platform])) for py in PYTHONS}
+        covered = {py: set() for py in PYTHONS}
+        for wheel in wheels:
+            name, _, _, tags = parse_wheel_filename(wheel)
+            assert name != "numpy", f"{zip_path.name}: numpy comes with Blender"
+            pythons = [py for py in PYTHONS if tags & supported[py]]
+            assert pythons, f"{zip_path.name}: {wheel} installs on neither Python on {platform}"
+            for py in pythons:
+                covered[py].add(name)
+        for py in PYTHONS:
+            assert covered[py] == {canonicalize_name(n) for n in RUNTIME}, (zip_path.name, py, covered[py])
+        r = validate(zip_path)
+        assert r.returncode == 0 and "Success" in r.stdout, r.stdout + r.stderr
+        manifest = zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode()
+        assert f'platforms = ["{platform}"]' in manifest
+        assert "example.invalid" not in manifest and "example.com" not in manifest
+
+
+def test_build_refuses_bad_input_in_one_line(tmp_path):
+    """An unknown platform, and a Python no dependency has a wheel for, each give one line and status 2."""
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), str(tmp_path),
+                        "--platform", "linux-arm64"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "unknown platform 'linux-arm64'" in r.stderr, r.stderr
+    script = ("import sys; sys.argv[0] = 'build_extension'; import build_extension as b; "
+              "b.PYTHONS = ((3, 11), (3, 5)); b.CACHE = b.Path(sys.argv[2]); "
+              "sys.exit(b.main([sys.argv[1], '--platform', 'windows-x64', '--no-asset']))")
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path / "out"), str(tmp_path / "cache")],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT / "scripts")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "no wheel of" in r.stderr and "windows-x64 and Python 3.5" in r.stderr, r.stderr
 
 
 INSTALL_SCRIPT = r'''
@@ -58,18 +129,11 @@ print("EXTENSION-OK")
 '''
 
 
-def test_extension_builds_installs_and_registers_twice(tmp_path):
-    """The zip Blender's builder makes (with wheels) installs as a user installs it, enables, and registers and
-    unregisters twice without leftovers; the engine comes from the bundled wheel."""
-    import os
-
-    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "build_extension.py"), str(tmp_path / "dist")],
-                         capture_output=True, text=True, timeout=900)
-    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
-    zip_path = next((tmp_path / "dist").glob("lowcam-*.zip"))
-    assert (tmp_path / "dist" / "lowcam-camera-fire-i.blend").stat().st_size > 1e6     # the node-group asset
-    import zipfile
-
+def test_extension_builds_installs_and_registers_twice(built, tmp_path):
+    """The Linux zip Blender's builder makes (with wheels) installs as a user installs it, enables, and registers
+    and unregisters twice without leftovers; the engine comes from the bundled wheel."""
+    zip_path = next(built.glob("lowcam-*-linux_x64.zip"))
+    assert (built / "lowcam-camera-fire-i.blend").stat().st_size > 1e6     # the node-group asset
     names = zipfile.ZipFile(zip_path).namelist()
     assert any(n.startswith("wheels/lowcam-") for n in names) and any("opencv" in n for n in names)
     assert "addon/__init__.py" in names and "profiles/fire-i.toml" in names and not any(
