@@ -14,11 +14,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 REPO=$(pwd)
 ROOT=${LOWCAM_TRIXIE_ROOT:-$REPO/.cache/trixie-root}
-PACKAGES=blender,python3-numpy,python3-venv,xvfb,xauth
+# libegl1 + Mesa: bpy 5.2's compositor opens an EGL context even on the CPU (it aborts without libEGL.so.1)
+PACKAGES=blender,python3-numpy,python3-venv,xvfb,xauth,libegl1,libegl-mesa0,libgl1-mesa-dri
 BPY_SPEC='bpy==5.2.*'
 # Lowcam's runtime imports for Python 3.13 (pyproject.toml pins Python 3.11 for the bpy 5.0 tier, so the project
 # itself is put on PYTHONPATH rather than pip-installed here).
-RUNTIME_DEPS=(opencv-contrib-python-headless OpenEXR scipy scikit-image matplotlib tomli-w tqdm pytest)
+# OpenCV as the extension bundles it (pyproject.toml: <4.12); numpy is whatever bpy 5.2 takes (2.x).
+RUNTIME_DEPS=("opencv-contrib-python-headless>=4.8,<4.12" "OpenEXR>=3.3" scipy scikit-image matplotlib tomli-w tqdm pytest)
 
 skip() { echo "trixie-blender: skipped: $*" >&2; exit 77; }
 
@@ -61,7 +63,18 @@ remove_tree() {
 }
 
 build_root() {
-  if [ -x "$ROOT/usr/bin/blender" ] && [ -f "$ROOT/.lowcam-root-ok" ]; then return; fi
+  if [ -x "$ROOT/usr/bin/blender" ] && [ -f "$ROOT/.lowcam-root-ok" ]; then
+    [ "$(cat "$ROOT/.lowcam-root-ok")" = "$PACKAGES" ] && return
+    # a root from an older package list: add what is missing
+    echo "trixie-blender: installing $PACKAGES in the existing root" >&2
+    cp -L /etc/resolv.conf "$ROOT/etc/resolv.conf" 2>/dev/null || true
+    mount_root
+    chroot "$ROOT" /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin DEBIAN_FRONTEND=noninteractive \
+      sh -c "apt-get update -q >/dev/null && apt-get install -y -q ${PACKAGES//,/ } >/dev/null" \
+      || skip "apt-get in the trixie root failed"
+    echo "$PACKAGES" > "$ROOT/.lowcam-root-ok"
+    return
+  fi
   ensure_mmdebstrap
   remove_tree "$ROOT.part"
   mkdir -p "$(dirname "$ROOT")"
@@ -70,12 +83,15 @@ build_root() {
   mmdebstrap --quiet --variant=apt --include="$PACKAGES" trixie "$ROOT.part" \
     || skip "mmdebstrap could not build the trixie root (is deb.debian.org reachable?)"
   remove_tree "$ROOT" && mv "$ROOT.part" "$ROOT"
-  touch "$ROOT/.lowcam-root-ok"
+  echo "$PACKAGES" > "$ROOT/.lowcam-root-ok"
   echo "trixie-blender: root built in $((SECONDS - t0)) s" >&2
 }
 
 build_venv() {
-  if [ -f "$ROOT/opt/bpy52/.lowcam-venv-ok" ]; then return; fi
+  local want="$BPY_SPEC ${RUNTIME_DEPS[*]}"
+  if [ -f "$ROOT/opt/bpy52/.lowcam-venv-ok" ] && [ "$(cat "$ROOT/opt/bpy52/.lowcam-venv-ok")" = "$want" ]; then
+    return
+  fi
   local t0=$SECONDS
   echo "trixie-blender: making /opt/bpy52 in the root (python3.13 venv with $BPY_SPEC, about 400 MB)" >&2
   cp -L /etc/resolv.conf "$ROOT/etc/resolv.conf" 2>/dev/null || true
@@ -88,7 +104,7 @@ build_venv() {
   chroot "$ROOT" /usr/bin/env -i HOME=/root PATH=/usr/bin:/bin "${cert[@]}" \
     /opt/bpy52/bin/pip install -q --disable-pip-version-check "$BPY_SPEC" "${RUNTIME_DEPS[@]}" \
     || skip "pip could not install $BPY_SPEC into the root's python3.13 venv (is pypi.org reachable?)"
-  touch "$ROOT/opt/bpy52/.lowcam-venv-ok"
+  echo "$want" > "$ROOT/opt/bpy52/.lowcam-venv-ok"
   echo "trixie-blender: bpy 5.2 venv made in $((SECONDS - t0)) s" >&2
 }
 
