@@ -32,6 +32,8 @@ from lowcam.errors import LowcamError
 from lowcam.motion import FrameMotion
 from lowcam.scene import OVERLAY_LAYER
 
+from .compat import set_multilayer_exr
+
 #: Blender tracking-camera models -> lowcam's BlenderLens models and their coefficient names.
 CLIP_LENS_KEYS = {
     "POLYNOMIAL": ("polynomial", ("k1", "k2", "k3")),
@@ -105,8 +107,7 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
     r.use_compositing = False
     r.use_motion_blur = False           # lowcam blurs; Cycles writes no Vector pass with its own motion blur on
     settings_ = r.image_settings
-    settings_.media_type = "MULTI_LAYER_IMAGE"
-    settings_.file_format = "OPEN_EXR_MULTILAYER"
+    set_multilayer_exr(settings_)
     settings_.color_depth = "32"
     settings_.exr_codec = "ZIP"
     _setup_overlay_layer(scene, s.exclude_collection)

@@ -17,7 +17,7 @@ import bpy
 
 from lowcam.errors import LowcamError
 
-from . import frames
+from . import compat, frames
 
 
 class LOWCAM_OT_setup_scene(bpy.types.Operator):
@@ -91,14 +91,10 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         scene.render.use_compositing = True
-        tree = scene.compositing_node_group
-        if tree is None:
-            tree = bpy.data.node_groups.new(f"{scene.name} Compositor", "CompositorNodeTree")
-            tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-            scene.compositing_node_group = tree
+        tree = compat.compositor_tree(scene)
         layers = next((n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers"), None) or \
             tree.nodes.new("CompositorNodeRLayers")
-        out = next((n for n in tree.nodes if n.bl_idname == "NodeGroupOutput"), None) or tree.nodes.new("NodeGroupOutput")
+        out = compat.compositor_output(tree)
         node = tree.nodes.new("LowcamCameraNode")
         node.profile = scene.lowcam.profile
         tree.links.new(layers.outputs["Image"], node.inputs["Image"])
@@ -108,7 +104,7 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             clip.clip = s.plate_clip
             tree.links.new(clip.outputs["Image"], node.inputs["Plate"])
         node.inputs["Seed"].default_value = s.seed
-        tree.links.new(node.outputs["Image"], out.inputs[0])
+        tree.links.new(node.outputs["Image"], out)
         return {"FINISHED"}
 
 

@@ -11,6 +11,8 @@ Contents
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from .compat import path_options
+
 
 def _profile_items(self, context):
     from lowcam.profile import list_profiles
@@ -56,12 +58,12 @@ class LowcamSettings(bpy.types.PropertyGroup):
         default="NONE")
     plate_clip: PointerProperty(name="Clip", type=bpy.types.MovieClip)
     plate_pattern: StringProperty(name="Pattern", subtype="FILE_PATH", default="//plates/####.png",
-                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+                                 options=path_options())
     motion_source: EnumProperty(name="Motion", items=[
         ("CAMERA", "Scene Camera", "Angular velocity of the scene camera (e.g. the solved camera) over the shutter"),
         ("FILE", "File", "A motion.json or gyro CSV file"),
         ("NONE", "None", "No camera motion blur")], default="CAMERA")
-    motion_file: StringProperty(name="Motion File", subtype="FILE_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    motion_file: StringProperty(name="Motion File", subtype="FILE_PATH", options=path_options())
     use_object_motion: BoolProperty(
         name="Object Motion", default=True,
         description="Blur what moves relative to the camera's rotation (objects, camera translation) over the "
@@ -76,7 +78,7 @@ class LowcamSettings(bpy.types.PropertyGroup):
     use_clip_lens: BoolProperty(name="Clip Lens", default=False,
                                 description="Use the Movie Clip's tracking camera lens model instead of the profile's")
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
-                           options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                           options=path_options(),
                            description="Degraded composites; #### is the frame number")
 
 

@@ -37,6 +37,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     from lowcam.io import write_png
     from lowcam.sample import sample_plate
 
+    from .compat import action_fcurves
     from .frames import setup_scene
 
     folder = Path(folder).resolve()
@@ -94,7 +95,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
         sphere.location.x = x0 + sphere_m_s * t
         sphere.keyframe_insert("location", index=0, frame=f)
     for ob in (camera, sphere):
-        for fc in ob.animation_data.action.layers[0].strips[0].channelbag(ob.animation_data.action_slot).fcurves:
+        for fc in action_fcurves(ob):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
 

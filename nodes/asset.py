@@ -19,6 +19,7 @@ from lowcam.node_maps import bake
 from lowcam.pipeline import render_camera
 from lowcam.profile import load_profile
 
+from ..addon.compat import mark_asset
 from .build import build_camera_group
 
 
@@ -30,13 +31,11 @@ def write_asset(path, profile="fire-i", render_width: int = 1600, angular_veloci
     cam = render_camera(profile, render_width)
     camera = bake(profile, (cam["height"], cam["width"]), angular_velocity, exposure_s)
     group = build_camera_group(camera, f"Lowcam Camera ({profile.name})")
-    group.asset_mark()
-    group.asset_data.description = (
+    mark_asset(group, (
         f"{profile.camera.name}: Klein & Murray's low-cost camera model for a {cam['width']}x{cam['height']} "
         f"render with a {cam['hfov_deg']:.2f} deg horizontal field of view, camera rotation "
-        f"{tuple(angular_velocity)} rad/s. Inputs: the render (premultiplied), the plate, seed, noise strength.")
-    for tag in ("lowcam", "camera", profile.name):
-        group.asset_data.tags.new(tag)
+        f"{tuple(angular_velocity)} rad/s. Inputs: the render (premultiplied), the plate, seed, noise strength."),
+        ("lowcam", "camera", profile.name))
     path = Path(path).resolve()
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial.blend")

@@ -45,6 +45,8 @@ import numpy as np
 from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
 from lowcam.node_maps import CameraBake, node_stages
 
+from ..addon.compat import has_node, node_type
+
 PREFIX = "Lowcam"
 #: The stage after the effects: the YUV difference added to the plate.
 PLATE_BLEND = "plate_blend"
@@ -100,7 +102,7 @@ class Tree:
             socket.default_value = value
 
     def math(self, op, a, b=0.0, c=0.0):
-        n = self.nodes.new("ShaderNodeMath")
+        n = self.nodes.new(node_type("math"))
         n.operation = op
         for socket, value in zip(n.inputs, (a, b, c)):
             self.set(socket, value)
@@ -134,11 +136,35 @@ class Tree:
         return self.node("CompositorNodeMapUV", Image=image, UV=self.image(uv_image)).outputs[0]
 
     def convolve(self, image, kernel_image):
+        """``image`` filtered by the kernel in ``kernel_image`` (centred; per channel). Blender 5.0+: a Convolve
+        node; before 5.0: one Translate node per non-zero tap, weighted and summed channel by channel."""
+        if not has_node("convolve"):
+            return self.convolve_taps(image, kernel_image)
         n = self.node("CompositorNodeConvolve", Image=image)
         n.inputs["Kernel Data Type"].default_value = "Color"
         n.inputs["Normalize Kernel"].default_value = False
         self.links.new(self.image(kernel_image), n.inputs[3])
         return n.outputs[0]
+
+    def convolve_taps(self, image, kernel_image):
+        """Convolve's sum as Translate taps: ``out(x, y) = sum k[i, j] in(x + j - cx, y - (i - cy))`` (rows of
+        ``k`` top first), outside the image zero."""
+        w, h = kernel_image.size
+        k = np.empty(w * h * 4, np.float32)
+        kernel_image.pixels.foreach_get(k)
+        k = k.reshape(h, w, 4)[::-1]
+        acc = [0.0] * 4
+        for i in range(h):
+            for j in range(w):
+                if not k[i, j].any():
+                    continue
+                dx, dy = j - w // 2, i - h // 2
+                shifted = image
+                if dx or dy:
+                    shifted = self.node("CompositorNodeTranslate", Image=image, X=float(-dx), Y=float(dy)).outputs[0]
+                parts = self.separate(shifted)
+                acc = [self.math("MULTIPLY_ADD", parts[c], float(k[i, j, c]), acc[c]) for c in range(4)]
+        return self.combine(*acc)
 
     def matrix(self, m, vector):
         """3x3 ``m`` (row-major list) times the three sockets ``vector``."""
@@ -197,10 +223,26 @@ def _spatial_blur(t, s, b, img):
     return {"Image": out}
 
 
-def _bayer_masks(t, mosaic, cfa):
+def _baked_masks(t, b, img):
+    """Blender 4.2-4.4 (no Image Coordinates node): the red, green and blue sensel masks baked as one image of the
+    mosaic's size (that of the Bayer sampling maps), rows top first."""
+    rows, cols = b.images["bayer_uv_0"].shape[:2]
+    r, c = np.mgrid[:rows, :cols] % 2
+    planes = np.zeros((rows, cols, 4), np.float32)
+    for name, (dy, dx) in b.values["cfa"].items():
+        planes[..., "RGB".index(name[0])] += (r == dy) & (c == dx)
+    planes[..., 3] = 1.0
+    image = img.baked("bayer_masks", planes)
+    return dict(zip("RGB", t.separate(t.image(image))[:3]))
+
+
+def _bayer_masks(t, mosaic, b, img):
     """Per-pixel masks of the red, green and blue sensels of the mosaic (Image Coordinates, floored modulo 2)."""
-    coords = t.node("CompositorNodeImageCoordinates", Image=mosaic).outputs["Pixel"]
-    xyz = t.node("ShaderNodeSeparateXYZ", Vector=coords).outputs
+    cfa = b.values["cfa"]
+    if not has_node("image_coordinates"):
+        return _baked_masks(t, b, img)
+    coords = t.node(node_type("image_coordinates"), Image=mosaic).outputs["Pixel"]
+    xyz = t.node(node_type("separate_xyz"), Vector=coords).outputs
     col = t.math("FLOORED_MODULO", t.math("FLOOR", xyz[0]), 2.0)
     row_from_bottom = t.math("FLOORED_MODULO", t.math("FLOOR", xyz[1]), 2.0)
     row = t.math("SUBTRACT", 1.0, row_from_bottom)     # the mosaic has an even number of rows
@@ -217,7 +259,7 @@ def _bayer_sampling(t, s, b, img):
     sums = [t.separate(x) for x in taps]
     channels = [t.add(*(c[k] for c in sums)) for k in range(4)]
     scale = 1.0 / (len(taps) * b.values["render_white"])
-    m = _bayer_masks(t, taps[0], b.values["cfa"])
+    m = _bayer_masks(t, taps[0], b, img)
     value = t.add(*(t.math("MULTIPLY", channels[k], m[key]) for k, key in enumerate("RGB")))
     return {"Image": t.combine(t.math("MULTIPLY", value, scale), t.math("MULTIPLY", channels[3], 1.0 / len(taps)),
                                0.0, 1.0)}
@@ -230,21 +272,36 @@ def _gain(t, s, b, img, stage):
     return {"Image": t.combine(t.math("MULTIPLY", v, gain), a, 0.0, 1.0)}
 
 
-def _noise(t, s, b, img):
-    """Gaussian noise per sensel by Box-Muller from two White Noise values of (pixel, frame + 1000 seed)."""
-    v, a, _, _ = t.separate(s["Image"])
-    coords = t.node("CompositorNodeImageCoordinates", Image=s["Image"]).outputs["Pixel"]
+def _uniform_pair(t, s, b, img):
+    """Two uniform values per sensel, new each frame and seed: White Noise of (pixel, frame + 1000 seed); before
+    Blender 4.5 (no White Noise or Image Coordinates in the compositor) a baked uniform image of the mosaic's size
+    (fixed seed 0), shifted with wrap-around by a whole number of pixels that depends on frame and seed."""
     frame = t.nodes.new("CompositorNodeSceneTime").outputs["Frame"]
     w = t.math("MULTIPLY_ADD", s["Seed"], 1000.0, frame)
-    white = t.nodes.new("ShaderNodeTexWhiteNoise")
-    white.noise_dimensions = "4D"
-    t.set(white.inputs["Vector"], coords)
-    t.set(white.inputs["W"], w)
-    u1 = t.math("MAXIMUM", white.outputs["Value"], 1e-7)
-    u2 = t.separate(white.outputs["Color"])[0]
+    if has_node("white_noise") and has_node("image_coordinates"):
+        coords = t.node(node_type("image_coordinates"), Image=s["Image"]).outputs["Pixel"]
+        white = t.nodes.new(node_type("white_noise"))
+        white.noise_dimensions = "4D"
+        t.set(white.inputs["Vector"], coords)
+        t.set(white.inputs["W"], w)
+        return white.outputs["Value"], t.separate(white.outputs["Color"])[0]
+    rows, cols = b.images["bayer_uv_0"].shape[:2]
+    uniform = np.random.default_rng(0).random((rows, cols, 4), dtype=np.float32)
+    shift = t.node("CompositorNodeTranslate", Image=t.image(img.baked("uniform", uniform)),
+                   X=t.math("FLOOR", t.math("MODULO", t.math("MULTIPLY", w, 61.0), float(cols))),
+                   Y=t.math("FLOOR", t.math("MODULO", t.math("MULTIPLY", w, 127.0), float(rows))))
+    shift.wrap_axis = "BOTH"
+    return t.separate(shift.outputs[0])[:2]
+
+
+def _noise(t, s, b, img):
+    """Gaussian noise per sensel by Box-Muller from two uniform values per sensel and frame (:func:`_uniform_pair`)."""
+    v, a, _, _ = t.separate(s["Image"])
+    u1, u2 = _uniform_pair(t, s, b, img)
+    u1 = t.math("MAXIMUM", u1, 1e-7)
     z = t.math("MULTIPLY", t.math("SQRT", t.math("MULTIPLY", t.math("LOGARITHM", u1, np.e), -2.0)),
                t.math("COSINE", t.math("MULTIPLY", u2, 2 * np.pi)))
-    m = _bayer_masks(t, s["Image"], b.values["cfa"])
+    m = _bayer_masks(t, s["Image"], b, img)
     coeff = b.values["noise"]
     pick = lambda i: t.add(*(t.math("MULTIPLY", m[k], coeff[c][i])  # noqa: E731
                              for k, c in zip("RGB", ("red", "green", "blue"))))
@@ -376,6 +433,13 @@ def build_stage_group(stage: str, camera: CameraBake, name: str | None = None):
         if key not in images:
             images[key] = image_from_array(f"{name}: {key}", camera.images[key])
         return images[key]
+
+    def baked(key, array):              # a map the engine does not bake (4.x stand-ins for missing nodes)
+        if key not in images:
+            images[key] = image_from_array(f"{name}: {key}", array)
+        return images[key]
+
+    img.baked = baked
 
     s = {name: t.inp.outputs[name] for name, _ in inputs}
     result = stage_builder(stage)(t, s, camera, img)

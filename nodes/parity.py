@@ -25,6 +25,7 @@ from lowcam.node_maps import bake, planes_to_mosaic
 from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
+from ..addon.compat import compositor_output, compositor_tree
 from .build import build_camera_group, group_stages, image_from_array
 
 
@@ -58,8 +59,8 @@ def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
     """Composite ``group`` fed by the images in ``inputs`` (socket name -> bpy image or value) at ``shape``
     (rows, cols); EXR paths give the float output, PNG paths the 8-bit codes after the Standard view."""
     scene = _compositor_scene(shape[1], shape[0])
-    tree = bpy.data.node_groups.new("Lowcam parity tree", "CompositorNodeTree")
-    tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    tree = compositor_tree(scene)
+    tree.nodes.clear()
     node = tree.nodes.new("CompositorNodeGroup")
     node.node_tree = group
     for name, value in inputs.items():
@@ -69,9 +70,7 @@ def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
             tree.links.new(src.outputs[0], node.inputs[name])
         else:
             node.inputs[name].default_value = value
-    out = tree.nodes.new("NodeGroupOutput")
-    tree.links.new(node.outputs["Image"], out.inputs[0])
-    scene.compositing_node_group = tree
+    tree.links.new(node.outputs["Image"], compositor_output(tree))
     settings = scene.render.image_settings
     if path.suffix == ".exr":
         settings.file_format, settings.color_depth, settings.color_mode = "OPEN_EXR", "32", "RGBA"
@@ -80,7 +79,7 @@ def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
     scene.render.filepath = str(path)
     with bpy.context.temp_override(scene=scene):
         bpy.ops.render.render(write_still=True, scene=scene.name)
-    bpy.data.node_groups.remove(tree)
+    tree.nodes.clear()
     if path.suffix == ".exr":
         return next(iter(read_exr(path).values()))
     return read_image(path)

@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# The Blender test matrix: the Blender tier (tests/test_blender.py, test_extension.py, test_render_passes.py,
+# marker "blender") under each supported Blender, then a real Blender binary. Each part prints its time.
+#   bash scripts/test-blenders.sh              every part
+#   bash scripts/test-blenders.sh bpy42 bpy45  some parts: bpy42 (bpy 4.2 LTS), bpy45 (4.5 LTS), bpy50 (5.0), trixie
+# Further pytest arguments go after "--" (e.g. -- -x -k extension).
+# The bpy parts run under Python 3.11, each in its own venv made here on first use (.venv-bpy42, .venv-bpy45;
+# bpy 5.0 is the project's own .venv from scripts/setup.sh), reinstalled when pyproject.toml changes.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+
+parts=()
+while [ $# -gt 0 ] && [ "$1" != "--" ]; do parts+=("$1"); shift; done
+[ "${1:-}" = "--" ] && shift
+[ ${#parts[@]} -eq 0 ] && parts=(bpy42 bpy45 bpy50 trixie)
+TESTS=(tests/test_blender.py tests/test_extension.py tests/test_render_passes.py)
+declare -A BPY=([bpy42]="4.2.*" [bpy45]="4.5.*")
+
+python311() {
+  for cand in python3.11 python3; do
+    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+      echo "$cand"; return 0
+    fi
+  done
+  echo "test-blenders: Python 3.11 is needed (the bpy 4.2-5.0 wheels exist only for it); install it" >&2
+  return 1
+}
+
+# venv_for PART: the venv of a bpy part, made or refreshed when pyproject.toml or the bpy pin changed.
+venv_for() {
+  local part=$1
+  if [ "$part" = bpy50 ]; then bash scripts/setup.sh >&2 || return 1; echo .venv; return 0; fi
+  local dir=.venv-$part spec="bpy==${BPY[$part]}" py
+  local want; want="$(sha256sum pyproject.toml | cut -d' ' -f1) $spec"
+  if [ ! -f "$dir/.lowcam-installed" ] || [ "$(cat "$dir/.lowcam-installed")" != "$want" ]; then
+    py=$(python311) || return 1
+    [ -x "$dir/bin/python" ] || "$py" -m venv "$dir" || return 1
+    echo "test-blenders: installing $spec and Lowcam into $dir (bpy is large: minutes the first time)" >&2
+    if ! "$dir/bin/python" -m pip install --disable-pip-version-check -q "$spec" -e . pytest pytest-timeout \
+        pillow packaging >"$dir/pip-install.log" 2>&1; then
+      echo "test-blenders: pip install failed; the log is in $dir/pip-install.log" >&2
+      return 1
+    fi
+    echo "$want" > "$dir/.lowcam-installed"
+  fi
+  echo "$dir"
+}
+
+declare -A RESULT
+run_part() {
+  local part=$1 start=$SECONDS rc venv
+  echo "=== test-blenders: $part ==="
+  case $part in
+    bpy42|bpy45|bpy50)
+      if venv=$(venv_for "$part"); then
+        "$venv/bin/python" -c 'import bpy; print("bpy", bpy.app.version_string)'
+        nice "$venv/bin/python" -m pytest -m blender "${TESTS[@]}" -p no:cacheprovider -q "$@"
+        rc=$?
+      else
+        rc=1
+      fi ;;
+    trixie)
+      # --- Real Blender 4.3 binary (Python 3.13) + bpy 5.2 under a Debian trixie root ----------------------
+      # scripts/trixie-blender.sh is written on branch h/trixie; this part runs only where that file exists.
+      if [ -f scripts/trixie-blender.sh ]; then
+        bash scripts/trixie-blender.sh "$@"
+        rc=$?
+      else
+        echo "test-blenders: trixie skipped: scripts/trixie-blender.sh is not in this checkout"
+        rc=0
+      fi ;;
+    *) echo "test-blenders: unknown part '$part' (parts: bpy42 bpy45 bpy50 trixie)" >&2; rc=2 ;;
+  esac
+  RESULT[$part]="$([ "$rc" = 0 ] && echo passed || echo "FAILED (status $rc)") in $((SECONDS - start)) s"
+  echo "=== test-blenders: $part ${RESULT[$part]} ==="
+  return "$rc"
+}
+
+status=0
+for part in "${parts[@]}"; do
+  run_part "$part" "$@" || status=1
+done
+echo "=== test-blenders summary ==="
+for part in "${parts[@]}"; do echo "  $part: ${RESULT[$part]}"; done
+exit "$status"
