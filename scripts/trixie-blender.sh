@@ -15,7 +15,9 @@ cd "$(dirname "$0")/.."
 REPO=$(pwd)
 ROOT=${LOWCAM_TRIXIE_ROOT:-$REPO/.cache/trixie-root}
 # libegl1 + Mesa: bpy 5.2's compositor opens an EGL context even on the CPU (it aborts without libEGL.so.1)
-PACKAGES=blender,python3-numpy,python3-venv,xvfb,xauth,libegl1,libegl-mesa0,libgl1-mesa-dri
+# imagemagick: `import -window root` grabs the Xvfb screen for the UI screenshots (Blender's own screenshot operator
+# reads a black front buffer under Xvfb)
+PACKAGES=blender,python3-numpy,python3-venv,xvfb,xauth,libegl1,libegl-mesa0,libgl1-mesa-dri,imagemagick
 BPY_SPEC='bpy==5.2.*'
 # Lowcam's runtime imports for Python 3.13 (pyproject.toml pins Python 3.11 for the bpy 5.0 tier, so the project
 # itself is put on PYTHONPATH rather than pip-installed here).
