@@ -22,7 +22,8 @@ BPY_SPEC='bpy==5.2.*'
 # Lowcam's runtime imports for Python 3.13 (pyproject.toml pins Python 3.11 for the bpy 5.0 tier, so the project
 # itself is put on PYTHONPATH rather than pip-installed here).
 # OpenCV as the extension bundles it (pyproject.toml: <4.12); numpy is whatever bpy 5.2 takes (2.x).
-RUNTIME_DEPS=("opencv-contrib-python-headless>=4.8,<4.12" "OpenEXR>=3.3" scipy scikit-image matplotlib tomli-w tqdm pytest)
+RUNTIME_DEPS=("opencv-contrib-python-headless>=4.8,<4.12" "OpenEXR>=3.3" scipy scikit-image matplotlib tomli-w tqdm
+  pytest)
 
 skip() { echo "trixie-blender: skipped: $*" >&2; exit 77; }
 
@@ -41,7 +42,9 @@ ensure_mmdebstrap() {
 MOUNTED=()
 unmount_all() {
   local i
-  for ((i = ${#MOUNTED[@]} - 1; i >= 0; i--)); do umount "${MOUNTED[i]}" 2>/dev/null || umount -l "${MOUNTED[i]}" || true; done
+  for ((i = ${#MOUNTED[@]} - 1; i >= 0; i--)); do
+    umount "${MOUNTED[i]}" 2>/dev/null || umount -l "${MOUNTED[i]}" || true
+  done
   MOUNTED=()
 }
 trap unmount_all EXIT INT TERM
@@ -50,7 +53,9 @@ mount_root() {
   # proc (and a tmpfs /dev/shm) for the chroot; unmounted on exit by the trap, left alone when already mounted.
   if ! mountpoint -q "$ROOT/proc"; then mount -t proc proc "$ROOT/proc"; MOUNTED+=("$ROOT/proc"); fi
   mkdir -p "$ROOT/dev/shm"
-  if ! mountpoint -q "$ROOT/dev/shm"; then mount -t tmpfs -o size=512m shm "$ROOT/dev/shm"; MOUNTED+=("$ROOT/dev/shm"); fi
+  if ! mountpoint -q "$ROOT/dev/shm"; then
+    mount -t tmpfs -o size=512m shm "$ROOT/dev/shm" && MOUNTED+=("$ROOT/dev/shm")
+  fi
 }
 
 remove_tree() {
