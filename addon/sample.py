@@ -48,7 +48,8 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     folder = Path(folder).resolve()
     folder.mkdir(parents=True, exist_ok=True)
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    # not read_factory_settings: that also resets the preferences, which disables an installed add-on (this one)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.name = "Lowcam sample"
     scene.render.engine = "CYCLES"

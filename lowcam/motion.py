@@ -60,6 +60,9 @@ import numpy as np
 from . import schema
 from .errors import LowcamError
 
+# numpy 2.0 renamed trapz to trapezoid and 2.4 removed trapz (Blender 5.1+ and Debian's 4.3 run numpy 2.x)
+_trapezoid = getattr(np, "trapezoid", None) or np.trapz
+
 #: The keys of a motion.json, and of each of its frames.
 MOTION_KEYS = {"format", "version", "fps", "frames"}
 FRAME_KEYS = {"frame", "angular_velocity", "exposure_s"}
@@ -138,7 +141,7 @@ def average_rate(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
     inside = (t > t0) & (t < t1)
     ts = np.concatenate([[t0], t[inside], [t1]])
     ws = np.stack([np.interp(ts, t, samples[:, k]) for k in (1, 2, 3)], -1)
-    return np.trapz(ws, ts, axis=0) / (t1 - t0)
+    return _trapezoid(ws, ts, axis=0) / (t1 - t0)
 
 
 def gyro_to_motion(samples: np.ndarray, frames, fps: float, exposure_s: float, t0: float = 0.0,
