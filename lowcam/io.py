@@ -358,6 +358,21 @@ def read_render(path, layer: str | None = None) -> np.ndarray:
 RENDER_MAX = 65504.0
 
 
+def _float32_within(lo: float, hi: float) -> tuple[float, float]:
+    """The least and greatest float32 values inside [lo, hi] (open at a bound of RENDER_MAX, as cv2.checkRange)."""
+    a, b = np.float32(lo), np.float32(hi)
+    if float(a) < lo or float(a) == -RENDER_MAX:
+        a = np.nextafter(a, np.float32(np.inf))
+    if float(b) > hi or float(b) == RENDER_MAX:
+        b = np.nextafter(b, np.float32(-np.inf))
+    return float(a), float(b)
+
+
+_COLOUR_BOUNDS, _ALPHA_BOUNDS = _float32_within(-RENDER_MAX, RENDER_MAX), _float32_within(-1e-4, 1 + 1e-4)
+#: cv2.inRange's lower and upper bounds for (R, G, B, A): every float32 inside passes all of check_render's tests.
+_RENDER_BOUNDS = tuple((c, c, c, a) for c, a in zip(_COLOUR_BOUNDS, _ALPHA_BOUNDS))
+
+
 def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     """Validate an in-memory render: (H, W, 4), finite, within +-:data:`RENDER_MAX`, alpha in [0, 1]. Returns it
     as float32."""
@@ -370,6 +385,10 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
         raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         rgba = np.ascontiguousarray(rgba, np.float32)
+    # One pass over the render: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
+    # limits below) make it at least as strict; only a render it refuses is checked again for the exact error.
+    if cv2.countNonZero(cv2.inRange(rgba, *_RENDER_BOUNDS)) == rgba.shape[0] * rgba.shape[1]:
+        return rgba
     if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once
         _check_finite(name, rgba)
         lo, hi = float(rgba.min()), float(rgba.max())

@@ -63,11 +63,11 @@ class BayerSampling(Effect):
         g = state.geometry
         pos = g.sensel_positions.astype(np.float32)
         su, sv = pos[..., 0].copy(), pos[..., 1].copy()
-        if state.ca_grid is not None:
-            ca = sample_texture(state.ca_grid, g.frame_extent, pos[..., 0], pos[..., 1])
-            for k, c in ((0, 0), (3, 2)):  # R and B; green is the reference
-                su[k] += ca[k, ..., c]
-                sv[k] += ca[k, ..., c + 1]
+        if state.ca_grid is not None:  # R and B only (green is the reference): the lookup is per point
+            ca = sample_texture(state.ca_grid, g.frame_extent, pos[0::3, ..., 0], pos[0::3, ..., 1])
+            for i, (k, c) in enumerate(((0, 0), (3, 2))):
+                su[k] += ca[i, ..., c]
+                sv[k] += ca[i, ..., c + 1]
         if state.sampling_offset is not None:  # e.g. rolling shutter
             off = sample_texture(state.sampling_offset, g.working_extent, pos[..., 0], pos[..., 1])
             su, sv = su + off[..., 0], sv + off[..., 1]
@@ -77,30 +77,46 @@ class BayerSampling(Effect):
             return x, y
         centre = pos.mean(axis=0)
         taps = sample_texture(state.motion_taps, g.working_extent, centre[..., 0], centre[..., 1])
-        taps = taps.reshape(centre.shape[:2] + (-1, 2)).transpose(3, 2, 0, 1)  # (2, taps, rows, cols)
+        # (rows * cols, taps * 2) -> (taps * 2, rows * cols): cv2.transpose is far faster than a strided copy
+        taps = cv2.transpose(taps.reshape(-1, taps.shape[-1])).reshape((-1,) + centre.shape[:2])
         sx, sy = g.working_scale
-        tx = np.multiply(taps[0], np.float32(sx), order="C")
-        ty = np.multiply(taps[1], np.float32(sy), order="C")
+        tx = np.multiply(taps[0::2], np.float32(sx))
+        ty = np.multiply(taps[1::2], np.float32(sy))
         return x + tx[None], y + ty[None]
+
+    def remap_maps(self, state) -> tuple[int, list]:
+        """The number of taps and, per colour (R, G, B), :meth:`sample_positions` as cv2.remap's fixed-point maps
+        (cv2.remap converts float maps to the same ones itself). Kept for the next frame while the geometry and
+        the aberration, offset and motion-tap grids are the same (a steady camera motion)."""
+        inputs = (state.ca_grid, state.sampling_offset, state.motion_taps)
+        cached = getattr(self, "_remap_cache", None)
+        if cached is not None and cached[0] == state.geometry and all(
+                a is None and b is None or a is not None and b is not None and a.shape == b.shape
+                and np.array_equal(a, b) for a, b in zip(cached[1], inputs)):
+            return cached[2]
+        hb, wb = state.geometry.bayer_shape
+        x, y = self.sample_positions(state)
+        n = x.shape[1]
+        maps = [cv2.convertMaps(x[ks].reshape(-1, wb), y[ks].reshape(-1, wb), cv2.CV_16SC2)
+                for ks in (slice(0, 1), slice(1, 3), slice(3, 4))]
+        self._remap_cache = (state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, maps))
+        return n, maps
 
     def apply(self, state):
         g = state.geometry
         hb, wb = g.bayer_shape
-        x, y = self.sample_positions(state)
-        n = x.shape[1]
+        n, maps = self.remap_maps(state)
         # Each colour is sampled from a 2-channel (colour, alpha) image: half the memory traffic of RGBA.
         h, w = state.working.shape[:2]
         pairs = [np.empty((h, w, 2), np.float32) for _ in range(3)]
         cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
-        for src, ks in zip(pairs, (slice(0, 1), slice(1, 3), slice(3, 4))):
+        for src, ks, (m1, m2) in zip(pairs, (slice(0, 1), slice(1, 3), slice(3, 4)), maps):
             count = ks.stop - ks.start
-            rows = count * n * hb
-            sampled = cv2.remap(src, x[ks].reshape(rows, wb), y[ks].reshape(rows, wb), cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            sampled = sampled.reshape(count, n, hb, wb, 2).mean(axis=1) if n > 1 else sampled.reshape(
-                count, hb, wb, 2)
+            sampled = cv2.remap(src, m1, m2, cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(count, n, hb, wb, 2)
+            sampled = sampled.mean(axis=1) if n > 1 else sampled[:, 0]
             state.bayer[ks] = sampled[..., 0]
             state.bayer_alpha[ks] = sampled[..., 1]
         state.bayer *= np.float32(255.0 / self.render_white)
