@@ -55,6 +55,13 @@ class BayerSampling(Effect):
     always_runs = True
     params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
 
+    def __deepcopy__(self, memo):
+        """Copies share the kept remap maps: one immutable tuple holding everything they depend on, replaced whole
+        (so copying a profile does not copy some 30 MB of maps)."""
+        import copy
+
+        return copy.copy(self)
+
     def sample_positions(self, state) -> tuple[np.ndarray, np.ndarray]:
         """x and y, each (4, taps, rows, cols) float32: working-grid coordinates each sensel averages over.
 
