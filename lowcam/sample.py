@@ -22,6 +22,8 @@ Contents
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
@@ -103,13 +105,12 @@ def _crop_to_aspect(img: np.ndarray, w: int, h: int) -> np.ndarray:
 
 
 def sample_photograph(profile="fire-i") -> np.ndarray:
-    """A real photograph (scikit-image's ``coffee``) cropped and scaled to the camera's frame, uint8 RGB: the
-    sharp scene, before any camera filmed it (the sample plate was this until the plate was filmed)."""
-    from skimage import data
-
+    """A real photograph (scikit-image's ``coffee``, CC0, bundled as ``lowcam/data/coffee.png``) cropped and
+    scaled to the camera's frame, uint8 RGB: the sharp scene, before any camera filmed it."""
     profile = load_profile(profile)
     w, h = profile.camera.width, profile.camera.height
-    return cv2.resize(_crop_to_aspect(data.coffee(), w, h), (w, h), interpolation=cv2.INTER_AREA)
+    photo = cv2.cvtColor(cv2.imread(str(Path(__file__).resolve().parent / "data" / "coffee.png")), cv2.COLOR_BGR2RGB)
+    return cv2.resize(_crop_to_aspect(photo, w, h), (w, h), interpolation=cv2.INTER_AREA)
 
 
 #: Added to the graphics' seed (mod 2^64) for the noise of the plate filmed for them: the plate's noise and the
