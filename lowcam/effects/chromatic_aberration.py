@@ -44,7 +44,7 @@ from .. import schema
 from ..errors import LowcamError
 from ..geometry import grid_points
 from .base import Effect, NodeStage, Param, Search
-from .lens import lensfun_frame
+from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
 
 CSV_COLUMNS = ["u", "v", "red_du", "red_dv", "blue_du", "blue_dv"]
 
@@ -145,8 +145,7 @@ def lensfun_tca_grid(width, height, red, blue, crop_factor=1.0, calibration_crop
                                calibration_aspect_ratio, center)
 
 
-_LENSFUN_KEYS = ("lensfun_red", "lensfun_blue", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
-                 "lensfun_center")
+_LENSFUN_KEYS = ("lensfun_red", "lensfun_blue", *LENSFUN_FRAME_PARAMS)
 _RADIAL_KEYS = ("red_corner_px", "blue_corner_px", "cubic")
 
 
@@ -183,13 +182,7 @@ class ChromaticAberration(Effect):
                              doc="lensfun TCA of red: [v, c, b] of Rd = Ru (b Ru^2 + c Ru + v)"),
         "lensfun_blue": Param([1.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
                               doc="lensfun TCA of blue: [v, c, b]"),
-        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun model: the camera's crop factor"),
-        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
-                                         doc="lensfun model: crop factor of the camera the lens was calibrated on"),
-        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
-                                          doc="lensfun model: long / short side of the calibration sensor"),
-        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
-                                doc="lensfun model: centre from the frame centre, in half the shorter side, y down"),
+        **LENSFUN_FRAME_PARAMS,
     }
 
     def values(self):

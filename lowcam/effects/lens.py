@@ -38,6 +38,7 @@ Contents
 - :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
 - :func:`lensfun_frame`: lensfun's normalised unit (px) and distortion centre on a frame (shared by TCA and
   vignetting)
+- :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
@@ -397,6 +398,19 @@ _LENSFUN_KEYS = ("focal_length", "crop_factor", "calibration_crop_factor", "cali
 _BLENDER_KEYS = ("focal_length", "sensor_width", "principal_point", "pixel_aspect")
 
 
+#: Where lensfun's normalised coordinates sit on the frame (:func:`lensfun_frame`): the parameters every effect in
+#: lensfun's terms (distortion, TCA, vignetting) shares.
+LENSFUN_FRAME_PARAMS = {
+    "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun models: the camera's crop factor"),
+    "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
+                                     doc="lensfun models: crop factor of the camera the lens was calibrated on"),
+    "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
+                                      doc="lensfun models: long / short side of the calibration sensor"),
+    "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
+                            doc="lensfun models: centre from the frame centre, in half the shorter side, y down"),
+}
+
+
 class LensDistortion(Effect):
     """Warps the ideal pinhole render through the lens into the supersampled working grid (sec. 5.2 step 1).
 
@@ -447,14 +461,7 @@ class LensDistortion(Effect):
         "brown_k4": Param(0.0, low=-100.0, high=100.0),
         "brown_p1": Param(0.0, low=-10.0, high=10.0),
         "brown_p2": Param(0.0, low=-10.0, high=10.0),
-        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun models: the camera's crop factor"),
-        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
-                                         doc="lensfun models: crop factor of the camera the lens was calibrated on"),
-        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
-                                          doc="lensfun models: long / short side of the calibration sensor"),
-        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
-                                doc="lensfun models: distortion centre from the frame centre, in half the shorter "
-                                    "side, y down"),
+        **LENSFUN_FRAME_PARAMS,
         "lensfun_k1": Param(0.0, low=-10.0, high=10.0, doc="lensfun poly3 / poly5 k1"),
         "lensfun_k2": Param(0.0, low=-10.0, high=10.0, doc="lensfun poly5 k2"),
         "lensfun_a": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens a"),

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..geometry import sample_texture
 from .base import Effect, NodeStage, Param, Search
-from .lens import lensfun_frame
+from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
 
 
 def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 80)) -> np.ndarray:
@@ -61,8 +61,7 @@ def lensfun_vignetting(u, v, width, height, terms, crop_factor=1.0, calibration_
     return np.clip(1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)), 0.0, None)
 
 
-_LENSFUN_KEYS = ("lensfun_terms", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
-                 "lensfun_center")
+_LENSFUN_KEYS = ("lensfun_terms", *LENSFUN_FRAME_PARAMS)
 
 
 class Vignetting(Effect):
@@ -91,13 +90,7 @@ class Vignetting(Effect):
         "model": Param("radial", str, choices=("radial", "lensfun_pa"), doc="without a texture: the model"),
         "lensfun_terms": Param([0.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
                                doc="lensfun pa model: [k1, k2, k3] of 1 + k1 r^2 + k2 r^4 + k3 r^6"),
-        "crop_factor": Param(1.0, low=0.1, high=100.0, doc="lensfun model: the camera's crop factor"),
-        "calibration_crop_factor": Param(1.0, low=0.1, high=100.0,
-                                         doc="lensfun model: crop factor of the camera the lens was calibrated on"),
-        "calibration_aspect_ratio": Param(1.5, low=1.0, high=10.0,
-                                          doc="lensfun model: long / short side of the calibration sensor"),
-        "lensfun_center": Param([0.0, 0.0], "vector", length=2, low=-1.0, high=1.0,
-                                doc="lensfun model: centre from the frame centre, in half the shorter side, y down"),
+        **LENSFUN_FRAME_PARAMS,
     }
 
     def values(self):
