@@ -102,7 +102,7 @@ def frame_motion(clip: FootageClip, i: int) -> tuple[tuple[float, float, float],
     e = float(clip.exposures[i])
     try:
         w = average_rate(clip.gyro, t - e / 2, t + e / 2)
-    except ValueError as err:
+    except LowcamError as err:
         raise LowcamError(f"{clip.folder}: frame {clip.numbers[i]}: {err}") from None
     return tuple(float(v) for v in w), e
 

@@ -133,14 +133,19 @@ def read_gyro_csv(path) -> np.ndarray:
     return data
 
 
-def average_rate(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
-    """Time average of the angular velocity over [t0, t1] from gyro samples (t, wx, wy, wz)."""
+def _rates_within(samples: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times (t0, the samples inside, t1) and the angular velocities linearly interpolated at them; an interval
+    outside the log is a :class:`LowcamError`."""
     t = samples[:, 0]
     if t0 < t[0] or t1 > t[-1]:
-        raise ValueError(f"the exposure {t0:.4f}-{t1:.4f} s lies outside the gyro log ({t[0]:.4f}-{t[-1]:.4f} s)")
-    inside = (t > t0) & (t < t1)
-    ts = np.concatenate([[t0], t[inside], [t1]])
-    ws = np.stack([np.interp(ts, t, samples[:, k]) for k in (1, 2, 3)], -1)
+        raise LowcamError(f"the interval {t0:.4f}-{t1:.4f} s lies outside the gyro log ({t[0]:.4f}-{t[-1]:.4f} s)")
+    ts = np.concatenate([[t0], t[(t > t0) & (t < t1)], [t1]])
+    return ts, np.stack([np.interp(ts, t, samples[:, k]) for k in (1, 2, 3)], -1)
+
+
+def average_rate(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    """Time average of the angular velocity over [t0, t1] from gyro samples (t, wx, wy, wz)."""
+    ts, ws = _rates_within(samples, t0, t1)
     return _trapezoid(ws, ts, axis=0) / (t1 - t0)
 
 
@@ -157,7 +162,7 @@ def gyro_to_motion(samples: np.ndarray, frames, fps: float, exposure_s: float, t
         start = t0 + (f - first) / fps
         try:
             w = average_rate(samples, start, start + exposure_s)
-        except ValueError as e:
+        except LowcamError as e:
             raise LowcamError(f"{source}: frame {f}: {e}") from None
         out[f] = FrameMotion(tuple(float(v) for v in w), exposure_s)
     return out
@@ -255,12 +260,7 @@ def integrate_rotation(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
     moves in the image by the homography ``K R^T K^-1`` (Hartley & Zisserman 2004, sec. 8.4.2)."""
     import cv2
 
-    t = samples[:, 0]
-    if t0 < t[0] or t1 > t[-1]:
-        raise LowcamError(f"the interval {t0:.4f}-{t1:.4f} s lies outside the gyro log ({t[0]:.4f}-{t[-1]:.4f} s)")
-    inside = (t > t0) & (t < t1)
-    ts = np.concatenate([[t0], t[inside], [t1]])
-    ws = np.stack([np.interp(ts, t, samples[:, k]) for k in (1, 2, 3)], -1)
+    ts, ws = _rates_within(samples, t0, t1)
     rot = np.eye(3)
     for k in range(len(ts) - 1):
         rot = rot @ cv2.Rodrigues(0.5 * (ws[k] + ws[k + 1]) * (ts[k + 1] - ts[k]))[0]

@@ -339,7 +339,7 @@ def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
     for t0 in starts:
         try:
             rates.append(average_rate(samples, t0, t0 + exposure) if np.isfinite(t0) else None)
-        except ValueError:
+        except LowcamError:
             rates.append(None)
         missing += rates[-1] is None
     found = [r for r in rates if r is not None]
