@@ -92,12 +92,18 @@ def frame_all(area):
         bpy.ops.node.view_all()
 
 
-def compositor_steps():
+def full_compositor():
+    """Steps (waits in s) that make the compositor fill the window with every node in view; returns its area."""
     area = compositor_area()
     yield 0.3
     area = full_screen(area)
     yield 0.5
     frame_all(area)
+    return area
+
+
+def compositor_steps():
+    area = yield from full_compositor()
     yield 0.8
     shoot("compositor")
     space = area.spaces.active
@@ -115,11 +121,7 @@ def compositor_steps():
 
 
 def menu_steps():
-    area = compositor_area()
-    yield 0.3
-    area = full_screen(area)
-    yield 0.5
-    frame_all(area)
+    area = yield from full_compositor()
     yield 0.5
     win = window()
     win.cursor_warp(area.x + area.width // 3, area.y + area.height * 3 // 4)    # menus open at the cursor
