@@ -2,7 +2,8 @@
 
 Makes the standard set (Fire-i, every bundled scene, 5 frames, a tone curve of gamma 2.0 hidden), then diagnoses
 it with every candidate ``--repeats`` times. Prints the median total, the median per candidate (screening,
-fitting and error together) and the number of noise-free and noisy capture simulations.
+fitting and error together) and the number of noise-free and noisy capture simulations; then, as the baseline
+in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``).
 
     .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
 """
@@ -22,6 +23,7 @@ def main() -> None:
     args = parser.parse_args()
 
     import lowcam
+    import lowcam.measure.diagnose as diagnosis
     import lowcam.pipeline as pipeline
     from lowcam.measure.diagnose import diagnose
     from lowcam.measure.sets import load_set
@@ -51,8 +53,18 @@ def main() -> None:
                 per[c.effect].append(c.seconds)
             print(f"run {k + 1}: {totals[-1]:.1f} s, {d.summary()}; simulations: "
                   + ", ".join(f"{n} {v}" for n, v in counts.items()), flush=True)
+        workers, diagnosis.WORKERS = diagnosis.WORKERS, 1
+        serial = []
+        for _ in range(args.repeats):
+            started = time.perf_counter()
+            diagnose(mset, profile)
+            serial.append(time.perf_counter() - started)
+        diagnosis.WORKERS = workers
     print(f"\ndiagnosis of the standard synth set ({len(per)} candidates): median {statistics.median(totals):.1f} s "
-          f"(min {min(totals):.1f}, max {max(totals):.1f}) over {len(totals)} runs")
+          f"(min {min(totals):.1f}, max {max(totals):.1f}) over {len(totals)} runs, {workers} candidates at a time")
+    ratio = statistics.median(totals) / statistics.median(serial)
+    print(f"one candidate at a time, same run: median {statistics.median(serial):.1f} s "
+          f"(min {min(serial):.1f}, max {max(serial):.1f}); ratio {ratio:.2f}")
     for name, times in sorted(per.items(), key=lambda kv: -statistics.median(kv[1])):
         print(f"  {name:32s} {statistics.median(times):6.2f} s")
 

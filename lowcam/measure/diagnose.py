@@ -566,7 +566,9 @@ def _screened_error(ctx, f) -> float:
 
 def _candidate(ctx, name, fitted, seconds, subset) -> Candidate:
     """A fitted candidate with its estimated error on ``subset`` (the captures it was fitted on, so no more
-    simulations are needed); a candidate that changes the noise gets the full error on :attr:`Context.quick`."""
+    simulations are needed); a candidate that changes the noise gets the full error on :attr:`Context.quick`.
+    ``seconds`` (the fit's) grows by this error's."""
+    started = time.perf_counter()
     profile, params, evidence = fitted
     if _changes_noise(name):
         cmp = ctx.compare(profile, ctx.quick, 4)
@@ -575,7 +577,7 @@ def _candidate(ctx, name, fitted, seconds, subset) -> Candidate:
         error, families = ctx.estimate(profile, subset)
     clean = {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in params.items()}
     return Candidate(name, error, clean, evidence, profile, per_pixel(name), len(ctx.mset.captures), dict(families),
-                     False, seconds)
+                     False, seconds + time.perf_counter() - started)
 
 
 def _full(ctx, c: Candidate) -> None:
