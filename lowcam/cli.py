@@ -22,6 +22,8 @@ Contents
 - :func:`cmd_compare`: ``lowcam compare``: the model against measured frames, or (``--plate-only``) against footage
 - :func:`cmd_diagnose`: ``lowcam diagnose``: rank the effects the profile may lack
 - :func:`cmd_synth`: ``lowcam synth``: a measurement set from bundled scenes, with hidden effects
+- :func:`cmd_profile_from_lensfun`: ``lowcam profile from-lensfun``: a base profile with a lensfun database lens
+- :func:`cmd_profile_search`: ``lowcam profile search TEXT``: lenses of the lensfun database that match
 - :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
 - :func:`add_plugin_commands`: commands other packages add through the ``lowcam.commands`` entry points
 - :func:`build_parser`: the argument parser of every sub-command
@@ -522,6 +524,51 @@ def cmd_synth(args) -> int:
 
 
 # --- profile from-dng (issue 15, part 2) ------------------------------------------------------------------------
+def cmd_profile_from_lensfun(args) -> int:
+    """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
+    from .io import check_output
+    from .lensdb import profile_from_lensfun, require_lensfunpy
+    from .profile import find_profile, load_profile
+
+    out = Path(check_output(args.output, [str(find_profile(args.base))]))
+    if out.suffix.lower() != ".toml":
+        raise LowcamError(f"{out}: a profile is written as .toml")
+    if (args.camera_maker is None) != (args.camera_model is None):
+        raise LowcamError("--camera-maker and --camera-model go together")
+    require_lensfunpy()
+    base = load_profile(args.base)
+    camera = (args.camera_maker, args.camera_model) if args.camera_maker is not None else None
+    profile, setting = profile_from_lensfun(base, args.maker, args.model, args.focal_mm, args.aperture,
+                                            args.distance_m, camera, args.crop_factor)
+    if args.name:
+        profile.camera.name = args.name
+        profile.camera.description = f"{base.camera.name} with the lens {setting.entry.name} (lensfun)"
+        profile.provenance["camera"] = (f"{base.provenance.get('camera', 'not stated')} (from base {base.name}); "
+                                        "name and description given to profile from-lensfun")
+    profile.save(out)
+    have = [name for name in ("distortion", "tca", "vignetting") if getattr(setting, name) is not None]
+    print(f"{out}: {setting.entry.name} at {setting.focal_mm:g} mm, f/{setting.aperture:g}, "
+          f"{setting.distance_m:g} m, crop factor {setting.crop_factor:.4g}, on {base.name}: "
+          f"{', '.join(have) or 'no calibration'} from lensfun")
+    return 0
+
+
+def cmd_profile_search(args) -> int:
+    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
+    crop factor | calibrations); none is a one-line error with the nearest names."""
+    from .lensdb import lens_entries, nearest_names, search_lenses
+
+    text = " ".join(args.text)
+    found = search_lenses(text)
+    if not found:
+        names = sorted({e.name for e in lens_entries()})
+        raise LowcamError(f"no lens of the lensfun database matches '{text}'; nearest: {nearest_names(text, names)}")
+    for e in found:
+        print(e.row())
+    print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
+    return 0
+
+
 def cmd_profile_from_dng(args) -> int:
     from .dng import profile_from_dng
     from .profile import load_profile
@@ -689,12 +736,6 @@ def build_parser() -> argparse.ArgumentParser:
     psub = p.add_subparsers(dest="what", required=True, parser_class=Parser)
 
     # profile from-lensfun / profile search (lowcam.lensdb)
-    def _lensdb(name):
-        def run(args):
-            from . import lensdb
-            return getattr(lensdb, name)(args)
-        return run
-
     q = psub.add_parser("from-lensfun", help="a lens of the lensfun database (distortion, TCA, vignetting) on a "
                         "base profile (needs pip install lowcam[lensfun])")
     q.add_argument("--maker", required=True, help="lens maker, as 'lowcam profile search' lists it")
@@ -709,10 +750,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--base", required=True, help="profile for everything else (name or file)")
     q.add_argument("--name", default=None, help="the new camera's name (default: the base's)")
     q.add_argument("-o", "--output", required=True, help="the new profile (.toml)")
-    q.set_defaults(func=_lensdb("cmd_from_lensfun"))
+    q.set_defaults(func=cmd_profile_from_lensfun)
     q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
     q.add_argument("text", nargs="+")
-    q.set_defaults(func=_lensdb("cmd_search"))
+    q.set_defaults(func=cmd_profile_search)
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
     q.add_argument("dng", help="a DNG file (a phone's or camera's raw)")
     q.add_argument("--base", default="fire-i", help="profile whose frame, optics and processing are kept")

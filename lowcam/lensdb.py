@@ -21,14 +21,13 @@ Contents
 - :class:`LensEntry`: one database lens: maker, model, mount, focal range and which calibrations it has
 - :func:`lens_entries`: every lens of the database as :class:`LensEntry`
 - :func:`search_lenses`: the lenses whose maker and model contain every word of a text
+- :func:`nearest_names`: the names closest to a text (difflib), quoted, for an error
 - :func:`find_lens`: one lens by maker and model (a one-line error with the nearest names otherwise)
 - :func:`camera_crop_factor`: a camera's crop factor from the database
 - :func:`calibration_aspect_ratio`: the lens entry's ``aspect-ratio`` from lensfun's XML (lensfunpy lacks it)
 - :class:`LensSetting`: the lensfun terms of one lens at one setting, and the effects' values they give
 - :func:`lens_setting`: the lens's calibrations interpolated by lensfun at focal length, aperture and distance
 - :func:`profile_from_lensfun`: a profile: the base with the lens's distortion, TCA and vignetting
-- :func:`cmd_from_lensfun`: ``lowcam profile from-lensfun``: write that profile
-- :func:`cmd_search`: ``lowcam profile search TEXT``: list matching lenses
 
 References
 ----------
@@ -122,7 +121,8 @@ def search_lenses(text: str) -> list[LensEntry]:
     return sorted(found, key=lambda e: (e.maker.lower(), e.model.lower()))
 
 
-def _suggest(text: str, names, n: int = 3) -> str:
+def nearest_names(text: str, names, n: int = 3) -> str:
+    """The ``n`` names closest to ``text`` (difflib; case-blind as a fallback), quoted and joined for an error."""
     close = difflib.get_close_matches(text, names, n=n, cutoff=0.3)
     if not close:
         lowered = {name.lower(): name for name in names}
@@ -148,10 +148,10 @@ def find_lens(maker: str, model: str, crop_factor: float | None = None) -> LensE
         same_maker = [e for e in entries if e.maker.lower() == mk]
         if same_maker:  # the maker is right: the nearest models of that maker
             names = sorted({e.model for e in same_maker})
-            near = _suggest(model, names)
+            near = nearest_names(model, names)
         else:
             makers = sorted({e.maker for e in entries})
-            near = "makers " + _suggest(maker, makers)
+            near = "makers " + nearest_names(maker, makers)
         raise LowcamError(f"lens '{maker}' '{model}' is not in the lensfun database; nearest: {near} "
                           "(lowcam profile search TEXT lists lenses)")
     if crop_factor is not None:
@@ -171,7 +171,7 @@ def camera_crop_factor(maker: str, model: str) -> tuple[float, str]:
     if not cameras:
         names = sorted({f"{c.maker} {c.model}" for c in _database().cameras})
         raise LowcamError(f"camera '{maker} {model}' is not in the lensfun database; nearest: "
-                          f"{_suggest(f'{maker} {model}', names)}")
+                          f"{nearest_names(f'{maker} {model}', names)}")
     return _f32(cameras[0].crop_factor), f"{cameras[0].maker} {cameras[0].model}"
 
 
@@ -332,47 +332,3 @@ def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture
     provenance.update(setting.provenance())
     profile.provenance = provenance
     return profile, setting
-
-
-def cmd_from_lensfun(args) -> int:
-    """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
-    from pathlib import Path
-
-    from .io import check_output
-    from .profile import find_profile, load_profile
-
-    out = Path(check_output(args.output, [str(find_profile(args.base))]))
-    if out.suffix.lower() != ".toml":
-        raise LowcamError(f"{out}: a profile is written as .toml")
-    if (args.camera_maker is None) != (args.camera_model is None):
-        raise LowcamError("--camera-maker and --camera-model go together")
-    require_lensfunpy()
-    base = load_profile(args.base)
-    camera = (args.camera_maker, args.camera_model) if args.camera_maker is not None else None
-    profile, setting = profile_from_lensfun(base, args.maker, args.model, args.focal_mm, args.aperture,
-                                            args.distance_m, camera, args.crop_factor)
-    if args.name:
-        profile.camera.name = args.name
-        profile.camera.description = f"{base.camera.name} with the lens {setting.entry.name} (lensfun)"
-        profile.provenance["camera"] = (f"{base.provenance.get('camera', 'not stated')} (from base {base.name}); "
-                                        "name and description given to profile from-lensfun")
-    profile.save(out)
-    have = [name for name in ("distortion", "tca", "vignetting") if getattr(setting, name) is not None]
-    print(f"{out}: {setting.entry.name} at {setting.focal_mm:g} mm, f/{setting.aperture:g}, "
-          f"{setting.distance_m:g} m, crop factor {setting.crop_factor:.4g}, on {base.name}: "
-          f"{', '.join(have) or 'no calibration'} from lensfun")
-    return 0
-
-
-def cmd_search(args) -> int:
-    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
-    crop factor | calibrations); none is a one-line error with the nearest names."""
-    text = " ".join(args.text)
-    found = search_lenses(text)
-    if not found:
-        names = sorted({e.name for e in lens_entries()})
-        raise LowcamError(f"no lens of the lensfun database matches '{text}'; nearest: {_suggest(text, names)}")
-    for e in found:
-        print(e.row())
-    print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
-    return 0
