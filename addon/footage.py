@@ -172,22 +172,12 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
 
 def _plate_profile(clip, base_profile):
     """The profile for the clip: the base profile set to the clip's camera (K, read-out, gyro), then
-    ``lowcam calibrate plate``'s estimates from the clip's frames where that is available."""
-    from lowcam.footage import footage_profile
+    ``lowcam calibrate plate``'s estimates from :data:`PLATE_FRAMES` of the clip's frames."""
+    from lowcam.footage import plate_profile
     from lowcam.profile import load_profile
 
-    profile = footage_profile(load_profile(base_profile), clip)
-    # PLATE ESTIMATE CALL SITE (issue 15 part 3, `lowcam calibrate plate`): estimate_profile(footage, base).
-    try:
-        from lowcam.measure.plate import Footage, estimate_profile
-    except ImportError:
-        return profile, (f"no plate estimator in this build: the {base_profile} profile set to the clip's camera "
-                         f"(K, {clip.readout_s * 1e3:.1f} ms read-out, gyro)")
-    import cv2
-
-    pick = np.unique(np.linspace(0, len(clip.frames) - 1, min(len(clip.frames), PLATE_FRAMES)).round().astype(int))
-    frames = np.stack([cv2.cvtColor(cv2.imread(str(clip.frames[i])), cv2.COLOR_BGR2RGB) for i in pick])
-    estimated, estimates = estimate_profile(Footage(frames, 30.0, str(clip.folder)), profile, progress=True)
-    used = [e for e in estimates if getattr(e, "applied", False)]
-    return estimated, (f"profile estimated from {len(pick)} frames of the plate ({len(used)} of {len(estimates)} "
-                       f"estimates applied) on the {base_profile} profile set to the clip's camera")
+    estimated, estimates = plate_profile(load_profile(base_profile), clip, PLATE_FRAMES)
+    used = [e for e in estimates if e.applied]
+    return estimated, (f"profile estimated from {min(len(clip.frames), PLATE_FRAMES)} frames of the plate "
+                       f"({len(used)} of {len(estimates)} estimates applied) on the {base_profile} profile set to the "
+                       f"clip's camera")

@@ -15,6 +15,7 @@ Contents
 - :func:`frame_motion`: a frame's mean angular velocity (rad/s) over its middle row's exposure, and the exposure (s)
 - :func:`camera_rotations`: each frame's camera-to-world rotation (the first frame's camera = world)
 - :func:`footage_profile`: a base profile set to the clip: frame size, pinhole lens from K, rolling-shutter read-out
+- :func:`plate_profile`: :func:`footage_profile`, then ``lowcam calibrate plate``'s estimates from the clip's frames
 - :func:`write_gif`: frames as an animated GIF (Pillow), atomically
 
 References
@@ -28,6 +29,7 @@ import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .errors import LowcamError
@@ -133,6 +135,17 @@ def footage_profile(base, clip: FootageClip):
         p.provenance[key] = note
     p.__dict__.pop("geometry", None)
     return p
+
+
+def plate_profile(base, clip: FootageClip, frames: int | None = None):
+    """(profile, estimates): :func:`footage_profile` of ``base``, then the confident estimates of
+    :func:`lowcam.measure.plate.estimate_profile` from ``frames`` of the clip's frames, evenly spread (all: None)."""
+    from .measure.plate import Footage, estimate_profile
+
+    n = len(clip.frames) if frames is None else min(len(clip.frames), frames)
+    pick = np.unique(np.linspace(0, len(clip.frames) - 1, n).round().astype(int))
+    stack = np.stack([cv2.cvtColor(cv2.imread(str(clip.frames[i])), cv2.COLOR_BGR2RGB) for i in pick])
+    return estimate_profile(Footage(stack, 30.0, str(clip.folder)), footage_profile(base, clip))
 
 
 def write_gif(path, frames, fps: float = 10.0) -> Path:

@@ -12,11 +12,9 @@ the profile's ``[provenance]``.
 import argparse
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from lowcam.footage import find_footage, footage_profile, read_footage_clip
-from lowcam.measure.plate import Footage, estimate_profile
+from lowcam.footage import find_footage, plate_profile, read_footage_clip
 from lowcam.profile import load_profile
 
 HERE = Path(__file__).resolve().parent
@@ -43,11 +41,9 @@ def main():
     args = parser.parse_args()
     data = args.data or HERE.parent.parent / "shared" / "data" / "phone-gyro-video"
     clip = read_footage_clip(find_footage(data), first=99, count=103)
-    profile = footage_profile(load_profile("fire-i"), clip)
+    profile, estimates = plate_profile(load_profile("fire-i"), clip)
     profile.camera.name = "Phone video, 800x600 JPEG (gyro-video-stabilization data set)"
     profile.camera.description = "a smartphone's video, measured from its own footage and gyro log, no chart"
-    frames = np.stack([cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB) for f in clip.frames])
-    profile, estimates = estimate_profile(Footage(frames, 30.0, "phone-gyro-video/20200109_145447/reshape"), profile)
     for e in estimates:
         print(e.line())
     source = "phone-gyro-video/20200109_145447"
