@@ -135,7 +135,11 @@ def _process_alive(pid: int) -> bool:
         return False
     except OSError:  # alive, but another user's
         return True
-    return True
+    try:  # a killed process that nobody reaped (a container whose init does not) is a zombie: gone
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rpartition(b")")[2].split()[0] not in (b"Z", b"X")
+    except (OSError, IndexError):
+        return True
 
 
 def check_output(path, inputs=(), option: str = "-o") -> Path:

@@ -92,24 +92,31 @@ def test_only_temporaries_of_dead_processes_are_removed(tmp_path):
     """A farm task's start-up removes what killed runs left, never a live task's temporary or a user's file."""
     import subprocess
     import sys
+    import time
 
     from lowcam.io import _HOST, remove_stale_temporaries
 
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
+    zombie = subprocess.Popen([sys.executable, "-c", "pass"])  # exited, never reaped: as under an init that does not
+    while open(f"/proc/{zombie.pid}/stat").read().rpartition(")")[2].split()[0] != "Z":
+        time.sleep(0.01)
     try:
         names = {"live": f".lowcam-{_HOST}-{live.pid}-abc123.0001.png.part",
                  "dead": f".lowcam-{_HOST}-{dead.pid}-abc123.0002.png.part",
+                 "zombie": f".lowcam-{_HOST}-{zombie.pid}-abc123.0006.png.part",
                  "other_host": f".lowcam-elsewhere-{dead.pid}-abc123.0003.png.part",
                  "user": ".0004.png.part", "frame": "0005.png"}
         for name in names.values():
             (tmp_path / name).write_bytes(b"x")
-        assert remove_stale_temporaries(tmp_path) == 1
-        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items() if k != "dead")
+        assert remove_stale_temporaries(tmp_path) == 2
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items()
+                                                                     if k not in ("dead", "zombie"))
     finally:
         live.kill()
         live.wait()
+        zombie.wait()
 
 
 def test_a_jpeg_damaged_in_the_middle_is_refused_and_one_with_a_trailer_is_read(tmp_path):
