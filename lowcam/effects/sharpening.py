@@ -12,7 +12,8 @@ Contents
 - :func:`fit_row_filter`: the free FIR filter mapping soft rows onto sharp rows (the paper's 101-tap estimate)
 - :func:`frequency_response`: |H(f)| of a centred FIR kernel from 0 to Nyquist (cycles/sample)
 - :func:`fit_sharpening_to_images`: (a, sigma) of ``F = I + a (I - L_sigma)`` fitted to the images themselves
-- :data:`EDGE_HALF_PX`, :data:`MIN_EDGES`: the edge profiles' half-length (px) and the edges an estimate needs
+- :data:`EDGE_HALF_PX`, :data:`MIN_EDGES`, :data:`EDGE_FRAMES`: the edge profiles' half-length (px), the edges an
+  estimate needs and the frames it measures
 - :func:`edge_profile_statistic`: the mean edge profile across strong natural edges: 10-90 % width, overshoot
 - :func:`edge_profile_from_plate`: horizontal blur and sharpening from footage's natural edges (a PlateEstimate)
 
@@ -126,34 +127,22 @@ def fit_sharpening_to_images(soft: np.ndarray, sharp: np.ndarray, taps: int = 7)
 EDGE_HALF_PX = 8.0
 #: An orientation needs this many strong straight edges for an estimate (fewer: too little texture).
 MIN_EDGES = 20
+#: Frames of the footage whose edges :func:`edge_profile_from_plate` measures (spread over the clip).
+EDGE_FRAMES = 16
 
 
-def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=None) -> list[np.ndarray]:
-    """Normalised profiles (0 left plateau, 1 right plateau) along x across strong, near-vertical, straight edges
-    of ``grey``, sampled every 0.25 px over +-:data:`EDGE_HALF_PX` about the gradient peak (parabolic sub-pixel
-    position, on a copy blurred by 1 px); edges with another edge in the window (uneven plateaus) are dropped.
-    ``at``: sample at these ``(row, x)`` positions instead of finding edges (the model's fit samples the same
-    edges at every step, so its statistic changes smoothly); ``found``: a list that receives the positions used."""
-    g = np.asarray(grey, np.float32)
-    offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
-    cols = np.arange(g.shape[1], dtype=np.float64)
-    if at is not None:
-        out = []
-        for y, x0 in at:
-            prof = np.interp(x0 + offsets, cols, g[y])
-            left, right = prof[offsets <= -EDGE_HALF_PX + 2].mean(), prof[offsets >= EDGE_HALF_PX - 2].mean()
-            out.append((prof - left) / (right - left) if right != left else prof * 0)
-        return out
+def _find_edges(g: np.ndarray, contrast_dn: float) -> list[tuple[int, float]]:
+    """``(row, x)`` of strong, near-vertical, straight edges of ``g``: gradient peaks along x (parabolic sub-pixel
+    position) found on a copy blurred by 1 px, so that the noise at the sampled pixels does not choose which edges
+    are kept (that would favour noise that steepens them)."""
     import cv2
 
-    # edges are found (and located) on a lightly blurred copy, so that the noise at the sampled pixels does not
-    # choose which edges are kept (that would favour noise that steepens them)
     soft = cv2.GaussianBlur(g, (0, 0), 1.0)
     gx = cv2.Sobel(soft, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(soft, cv2.CV_32F, 0, 1, ksize=3)
     a = np.abs(gx)
     r = int(np.ceil(EDGE_HALF_PX)) + 1
-    h, w = g.shape
+    w = g.shape[1]
     peak = np.zeros_like(a, bool)
     peak[2:-2, r:-r] = ((a[2:-2, r:-r] >= a[2:-2, r - 1:-r - 1]) & (a[2:-2, r:-r] > a[2:-2, r + 1:w - r + 1])
                         & (a[2:-2, r:-r] > 4 * contrast_dn) & (np.abs(gy[2:-2, r:-r]) < 0.25 * a[2:-2, r:-r]))
@@ -165,29 +154,84 @@ def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=N
         for dx in (-1, 0, 1):
             near |= (np.roll(np.roll(a, -dy, 0), -dx, 1) > 0.5 * a) & (np.roll(np.roll(same, -dy, 0), -dx, 1) == same)
         cont = near if dy == -2 else cont & near
-    ys, xs = np.nonzero(peak & cont)
-    out = []
-    for y, x in zip(ys, xs):
+    found = []
+    for y, x in zip(*np.nonzero(peak & cont)):
         l, c, rr = a[y, x - 1], a[y, x], a[y, x + 1]
         den = l - 2 * c + rr
-        x0 = x + (0.5 * (l - rr) / den if den < 0 else 0.0)
-        prof = np.interp(x0 + offsets, cols, g[y])
-        left, right = prof[offsets <= -EDGE_HALF_PX + 2], prof[offsets >= EDGE_HALF_PX - 2]
-        step = right.mean() - left.mean()
-        if abs(step) < contrast_dn or max(left.std(), right.std()) > 0.1 * abs(step):
-            continue
-        out.append((prof - left.mean()) / step)
-        if found is not None:
-            found.append((int(y), float(x0)))
-    return out
+        found.append((int(y), float(x + (0.5 * (l - rr) / den if den < 0 else 0.0))))
+    return found
 
 
-def _profile_numbers(profiles: list[np.ndarray]) -> dict:
-    """Mean profile, 10-90 % width (px) and overshoot (fraction of the step) of normalised edge profiles."""
+def _gain_slope_field(rows: np.ndarray, at: np.ndarray, shape, offsets: np.ndarray) -> np.ndarray:
+    """The local gain slope ``e`` (per px, along x) at each edge: a smooth cubic field of position fitted to every
+    edge's plateaus.
+
+    Vignetting or shading multiplies an edge by a gain that changes across the window (up to 10 % over 16 px near a
+    frame's corner); it tilts each plateau in proportion to its level, ``c (1 + e x)``, and biases the edge's shape.
+    One edge's plateaus are too short and noisy to give ``e``; the field, fitted by least squares over all edges
+    (each weighted by its plateau levels), is not."""
+    sides = (offsets <= -EDGE_HALF_PX + 2, offsets >= EDGE_HALF_PX - 2)
+    slope = np.zeros(len(rows))
+    weight = np.zeros(len(rows))
+    for side in sides:  # per side: rows[side] ~ alpha + beta x with beta = e alpha
+        x = offsets[side] - offsets[side].mean()
+        alpha = rows[:, side].mean(1)
+        beta = rows[:, side] @ x / (x @ x)
+        slope += beta * alpha
+        weight += alpha ** 2
+    e = slope / np.maximum(weight, 1e-12)  # each edge's own (noisy) estimate, weight its precision
+    h, w = shape
+    u, v = 2 * at[:, 1] / w - 1, 2 * at[:, 0] / h - 1
+    degree = 3 if len(rows) >= 60 else 1
+    terms = np.stack([u ** i * v ** j for i in range(degree + 1) for j in range(degree + 1 - i)], 1)
+    sw = np.sqrt(weight / max(weight.max(), 1e-12))
+    coef = np.linalg.lstsq(terms * sw[:, None], e * sw, rcond=None)[0]
+    return terms @ coef
+
+
+def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=None) -> list[np.ndarray]:
+    """Normalised profiles (0 left plateau, 1 right plateau) along x across strong, near-vertical, straight edges
+    of ``grey`` (:func:`_find_edges`), sampled every 0.25 px over +-:data:`EDGE_HALF_PX` about the edge, with the
+    local gain slope divided out (:func:`_gain_slope_field`); edges with another edge in the window (uneven
+    plateaus) are dropped. ``at``: sample at these ``(row, x)`` positions instead of finding edges, dropping none
+    (the model's fit samples the same edges at every step, so its statistic changes smoothly); ``found``: a list
+    that receives the positions used."""
+    g = np.asarray(grey, np.float32)
+    offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
+    cols = np.arange(g.shape[1], dtype=np.float64)
+    where = _find_edges(g, contrast_dn) if at is None else list(at)
+    if not where:
+        return [], []
+    rows = np.stack([np.interp(x0 + offsets, cols, g[y]) for y, x0 in where])
+    lmask, rmask = offsets <= -EDGE_HALF_PX + 2, offsets >= EDGE_HALF_PX - 2
+    if at is None:
+        step = rows[:, rmask].mean(1) - rows[:, lmask].mean(1)
+        keep = ((np.abs(step) >= contrast_dn)
+                & (np.maximum(rows[:, lmask].std(1), rows[:, rmask].std(1)) <= 0.1 * np.abs(step)))
+        rows, where = rows[keep], [p for p, k in zip(where, keep) if k]
+        if not where:
+            return [], []
+    pos = np.asarray(where, np.float64)
+    rows = rows / np.maximum(1 + _gain_slope_field(rows, pos, g.shape, offsets)[:, None] * offsets, 0.5)
+    left, step = rows[:, lmask].mean(1), rows[:, rmask].mean(1) - rows[:, lmask].mean(1)
+    out = [(r - lo) / st if st != 0 else r * 0 for r, lo, st in zip(rows, left, step)]
+    if found is not None:
+        found += where
+    return out, pos
+
+
+def _profile_numbers(profiles: list[np.ndarray], positions: list[np.ndarray]) -> dict:
+    """Mean profile, 10-90 % width (px) and overshoot (fraction of the step) of normalised edge profiles found at
+    ``positions`` (arrays of ``(row, x)``)."""
     offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
     if not profiles:
         return {"edges": 0}
-    mean = np.median(np.stack(profiles), axis=0)
+    # the median within each phase on the 2x2 sensel pattern (x in quarter pixels, row parity), then the mean over
+    # phases: a scene whose edges fall at uneven phases is compared fairly with the model's even ones
+    stack = np.stack(profiles)
+    pos = np.concatenate([p for p in positions if len(p)])
+    phase = np.floor(np.mod(pos[:, 1], 2.0) * 4).astype(int) * 2 + np.mod(pos[:, 0], 2).astype(int)
+    mean = np.mean([np.median(stack[phase == k], axis=0) for k in np.unique(phase)], axis=0)
     centre = len(offsets) // 2
 
     def crossing(level):
@@ -223,14 +267,16 @@ def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None) -> 
     if x.ndim == 3:
         x = x[None]
     idx = np.linspace(0, len(x) - 1, min(len(x), max_frames)).round().astype(int)
-    across_x, across_y = [], []
+    across_x, across_y = ([], []), ([], [])
     for i in idx:
         grey = x[i][..., 1] if x.ndim == 4 else x[i]  # green: one linear chain (a grey mix of colour edges is not)
         for key, image, into in (("across_x", grey, across_x), ("across_y", grey.T, across_y)):
             where = None if at is None else at[key][int(i)]
             kept = None if found is None else found.setdefault(key, {}).setdefault(int(i), [])
-            into += _edge_profiles(image, at=where, found=kept)
-    return {"across_x": _profile_numbers(across_x), "across_y": _profile_numbers(across_y)}
+            profs, pos = _edge_profiles(image, at=where, found=kept)
+            into[0].extend(profs)
+            into[1].append(pos)
+    return {"across_x": _profile_numbers(*across_x), "across_y": _profile_numbers(*across_y)}
 
 
 def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0) -> np.ndarray:
@@ -278,11 +324,11 @@ def edge_profile_from_plate(footage, base, film):
     from scipy.optimize import least_squares
 
     from ..measure.plate import PlateEstimate
-    frames = footage.stack(max_frames=4)
+    frames = footage.stack(max_frames=EDGE_FRAMES)
     w, h = base.camera.width, base.camera.height
     if frames.shape[1:3] != (h, w):
         frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
-    stat = edge_profile_statistic(frames)
+    stat = edge_profile_statistic(frames, max_frames=len(frames))
     nx, ny = stat["across_x"]["edges"], stat["across_y"]["edges"]
     if min(nx, ny) < MIN_EDGES:
         return PlateEstimate("edge_profile", "sharpening", stat, {}, 0.0,
