@@ -279,12 +279,52 @@ def _format(path: Path) -> str:
     return next((kind for magic, kind in _MAGIC.items() if head.startswith(magic)), "other")
 
 
+#: A libOpenEXRCore older than 3.2 (soname 30) already in the process: its unversioned ``exr_*`` functions would
+#: serve the OpenEXR wheel's module, which then crashes reading a file (Debian's Blender 4.3 links the system's 3.1).
+_EXR_CORE_SONAME = re.compile(rb"libOpenEXRCore[-0-9_]*\.so\.(\d+)")
+
+
+def _exr_core_too_old() -> bool:
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return any(int(n) < 31 for n in _EXR_CORE_SONAME.findall(f.read()))
+    except OSError:
+        return False
+
+
+_CHILD_READ = ("import sys, numpy as np\nfrom lowcam.errors import LowcamError\nfrom lowcam.io import read_exr\n"
+               "try:\n    np.savez(sys.argv[2], **read_exr(sys.argv[1]))\n"
+               "except LowcamError as e:\n    sys.exit(str(e))\n")
+
+
+def _read_exr_in_child(path: Path) -> dict[str, np.ndarray]:
+    """:func:`read_exr` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is too old
+    for the OpenEXR wheel); the channels come back through a temporary ``.npz``."""
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    with tempfile.TemporaryDirectory(prefix="lowcam-exr-") as folder:
+        out = Path(folder) / "channels.npz"
+        r = subprocess.run([sys.executable, "-c", _CHILD_READ, str(path), str(out)], env=env, capture_output=True,
+                           text=True)
+        if r.returncode != 0:
+            lines = r.stderr.strip().splitlines()
+            last = lines[-1] if lines else f"exit status {r.returncode}"
+            raise LowcamError(last if last.startswith(str(path)) else
+                              f"{path}: reading it in a child Python failed ({last})")
+        with np.load(out) as z:
+            return {k: z[k] for k in z.files}
+
+
 def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
-    ``'ViewLayer.Combined'`` come as (H, W, C) arrays)."""
+    ``'ViewLayer.Combined'`` come as (H, W, C) arrays). In a process that holds an older libOpenEXRCore (Debian's
+    Blender) the file is read in a child Python."""
+    path = _exists(path)
+    if _exr_core_too_old():
+        return _read_exr_in_child(path)
     import OpenEXR
 
-    path = _exists(path)
     try:
         with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
             parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})

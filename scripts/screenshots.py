@@ -97,10 +97,7 @@ print("INSTALLED", bpy.app.version_string, sys.version.split()[0], lowcam.__file
 """
 
 SCENE = """
-import sys, bpy, cv2
-import lowcam.sample
-# the extension bundles no scikit-image, whose photograph the sample plate is: the plate comes from outside
-lowcam.sample.sample_plate = lambda profile="fire-i": cv2.imread(sys.argv[-3])[..., ::-1].copy()
+import sys
 from bl_ext.user_default.lowcam.addon.sample import build_sample_scene
 print("SCENE", build_sample_scene(sys.argv[-2], render_width=int(sys.argv[-1]), samples=8, frames=3))
 """
@@ -127,16 +124,10 @@ def install(trixie: Trixie, work: Path, zip_path: Path) -> str:
 
 def build_scene(trixie: Trixie, work: Path, user: str, render_width: int = 400) -> Path:
     """The sample scene built by the installed add-on in the real binary; returns the .blend (path here)."""
-    sys.path.insert(0, str(REPO))
-    from lowcam.sample import sample_plate
-
-    import cv2
-
-    cv2.imwrite(str(work / "sample_plate.png"), sample_plate("fire-i")[..., ::-1])
     (work / "scene.py").write_text(SCENE)
     t0 = time.monotonic()
-    r = blender(trixie, user, "-b", "--python", trixie.inside(work / "scene.py"), "--",
-                trixie.inside(work / "sample_plate.png"), trixie.inside(work / "scene"), str(render_width))
+    r = blender(trixie, user, "-b", "--python", trixie.inside(work / "scene.py"), "--", trixie.inside(work / "scene"),
+                str(render_width))
     TIMES["scene_s"] = time.monotonic() - t0
     blend = work / "scene" / "sample_scene.blend"
     if not blend.is_file():

@@ -31,11 +31,6 @@ _spec = importlib.util.spec_from_file_location("lowcam_screenshots", REPO / "scr
 shots = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(shots)
 
-#: Debian's Blender links the system libOpenEXRCore 3.1; the OpenEXR 3.5 wheel the extension bundles exports the
-#: same unversioned exr_* C functions, binds to Blender's copies and crashes reading the render (issue 14).
-OPENEXR_CLASH = "OpenEXR.cpython"
-
-
 @pytest.fixture(scope="module")
 def trixie():
     if os.geteuid() != 0:
@@ -81,9 +76,6 @@ def _render(trixie, user, blend, *args, expr=None):
     r = trixie.run("sh", "-c", 'cd "$0" && exec blender -b sample_scene.blend "$@"', folder, *pre, *args,
                    env={"BLENDER_USER_RESOURCES": user}, timeout=900)
     crash = "".join(p.read_text(errors="replace") for p in (trixie.root / "tmp").glob("sample_scene.crash.txt"))
-    if r.returncode != 0 and (OPENEXR_CLASH in crash or "in read_exr" in r.stderr + r.stdout):
-        pytest.xfail("Debian's Blender 4.3 segfaults in the bundled OpenEXR wheel (its exr_* C symbols bind to "
-                     "Blender's libOpenEXRCore 3.1) when the render_write handler reads the frame")
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:] + crash[:3000]
     return time.monotonic() - t0
 
@@ -106,16 +98,19 @@ def test_installed_addon_renders_every_frame_with_the_camera(trixie, scene):
         "import bpy; s = bpy.context.scene.lowcam; s.seed = 7; s.output = '//seed7/####.png'"))
     print(f"\nBlender 4.3 renders: -a (3 frames) {t_anim:.0f} s, -f 1 {t_one:.0f} s, another seed {t_seed:.0f} s")
 
-    plate = _read(folder / "plate.png")
+    plate = _read(folder / "plate" / "0001.png")  # the photograph filmed by the camera (the honest demo plate)
     out = _read(first / "0001.png")
     assert np.array_equal(_read(folder / "lowcam" / "0001.png"), out)           # -f 1 is -a's frame 1
     reach = (out != plate).any(axis=2)
     assert 0.005 < reach.mean() < 0.5, reach.mean()        # the cube, the sphere and the crosshair, not the plate
     other = _read(folder / "seed7" / "0001.png")
     changed = (other != out).any(axis=2)
-    assert changed.sum() > 500 and not (changed & ~reach).any()                  # noise only on the graphics
     import cv2
 
+    # noise only on the graphics: the other seed leaves the plate as it is 3 px or more away from where the first
+    # seed's graphics reach (at their faint fringe one seed's noise may round to the plate's value, the other's not)
+    near = cv2.dilate(reach.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert changed.sum() > 500 and not ((other != plate).any(axis=2) & ~near).any()
     core = cv2.erode(reach.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
     d = other[core].astype(float) - out[core]
     assert 1.0 < d.std() < 20.0 and abs(d.mean()) < 1.5, (d.std(), d.mean())      # zero-mean, a few DN

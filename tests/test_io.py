@@ -133,3 +133,23 @@ def test_a_jpeg_damaged_in_the_middle_is_refused_and_one_with_a_trailer_is_read(
     with pytest.raises(LowcamError, match=r"damaged\.jpg: the image is truncated or corrupt \(Corrupt JPEG data"):
         read_image(damaged)
     assert read_image(trailer).shape == (480, 640, 3)
+
+
+def test_an_exr_read_in_a_child_python_gives_the_same_channels_and_the_same_errors(tmp_path, monkeypatch):
+    """Where the process holds an OpenEXR core older than the wheel's (Debian's Blender links 3.1, soname 30) the
+    file is read in a child Python: the same channels, and a corrupt file is the same one-line error."""
+    from lowcam import io
+
+    maps = {b"7f00 r-xp /usr/lib/x86_64-linux-gnu/libOpenEXRCore-3_1.so.30.3.2.12\n": True,
+            b"7f00 r-xp /site-packages/bpy/lib/libOpenEXRCore.so.32\n": False, b"7f00 r-xp /usr/lib/libc.so.6\n": False}
+    for text, old in maps.items():
+        assert any(int(n) < 31 for n in io._EXR_CORE_SONAME.findall(text)) is old
+    rgba = np.random.default_rng(0).uniform(0, 1, (6, 7, 4)).astype(np.float32)
+    write_exr(tmp_path / "a.exr", rgba)
+    monkeypatch.setattr(io, "_exr_core_too_old", lambda: True)
+    channels = io.read_exr(tmp_path / "a.exr")
+    assert list(channels) == ["RGBA"] and np.array_equal(channels["RGBA"], rgba)
+    (tmp_path / "bad.exr").write_bytes((tmp_path / "a.exr").read_bytes()[:200])
+    with pytest.raises(LowcamError, match=r"bad\.exr: not a readable OpenEXR file") as e:
+        io.read_exr(tmp_path / "bad.exr")
+    assert "\n" not in str(e.value)
