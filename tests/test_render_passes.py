@@ -67,6 +67,27 @@ def test_velocity_the_camera_rotation_explains_is_left_to_motion_blur(fire_i):
     assert not np.array_equal(moved, render)
 
 
+def test_a_velocity_pass_filtered_at_edges_leaves_a_still_objects_edges_sharp(fire_i):
+    """A still object under a turning camera, its velocity pass filtered at the anti-aliased edge as Blender 5.2
+    writes it (each edge pixel mixes the object's velocity with a background velocity that is not the camera's):
+    the edge takes the object's velocity, so object motion changes nothing. Unfixed, the edge smears."""
+    import cv2
+
+    w = (0.0, 0.6, 0.0)
+    camera = rotation_velocity(w, render_focal_px(fire_i, COLS, ROWS), (ROWS, COLS))
+    big = np.zeros((ROWS * 4, COLS * 4), np.float32)
+    cv2.circle(big, (COLS * 2, ROWS * 2), 240, 1.0, -1)
+    alpha = cv2.resize(big, (COLS, ROWS), interpolation=cv2.INTER_AREA)               # exact coverage at the edge
+    render = np.dstack([alpha * 0.6, alpha * 0.3, alpha * 0.2, alpha]).astype(np.float32)
+    background = np.broadcast_to(np.float32([-300.0, 80.0]), camera.shape)
+    velocity = (alpha[..., None] * camera + (1 - alpha[..., None]) * background).astype(np.float32)
+    edge = (alpha > 0) & (alpha < 1)
+    assert edge.sum() > 100
+    profile = fire_i.with_effect("object_motion")
+    out = _render_stage(profile, render, RenderPasses(velocity), "object_motion", angular_velocity=w)
+    assert np.array_equal(out, render)
+
+
 def test_defocus_grows_with_distance_from_the_focus_plane(fire_i):
     render = _square(top=200, left=200, size=60) + _square(top=300, left=500, size=60)
     depth = np.full((ROWS, COLS), np.inf, np.float32)

@@ -12,6 +12,7 @@ Contents
 --------
 - :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s) of a static scene under a turning pinhole camera
 - :func:`splat_along`: spread each pixel of a premultiplied RGBA image evenly along its path over the exposure
+- :func:`edge_velocity_from_cover`: partly covered pixels take the velocity of their most covered neighbour
 - :class:`ObjectMotion`: blur along each pixel's velocity minus the camera rotation's (needs a velocity pass)
 
 References
@@ -85,6 +86,28 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
     return out
 
 
+def edge_velocity_from_cover(velocity: np.ndarray, alpha: np.ndarray, radius: int = 2) -> np.ndarray:
+    """``velocity`` (H, W, 2) with each partly covered pixel (0 < ``alpha`` < 1) given the velocity of the most
+    covered pixel within ``radius`` px (itself on ties).
+
+    A renderer may filter its velocity pass at an object's anti-aliased edge, mixing in the background's (Blender
+    5.2 writes a non-zero background velocity there; 5.0 writes the object's): the mixture belongs to neither and
+    would smear the edge. The graphics at such a pixel are the object's, so the object's velocity is used."""
+    ys, xs = np.nonzero((alpha > 0) & (alpha < 1))
+    if not len(ys):
+        return velocity
+    rows, cols = alpha.shape
+    best_alpha, best_y, best_x = alpha[ys, xs].copy(), ys.copy(), xs.copy()
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            y, x = np.clip(ys + dy, 0, rows - 1), np.clip(xs + dx, 0, cols - 1)
+            better = alpha[y, x] > best_alpha
+            best_alpha[better], best_y[better], best_x[better] = alpha[y, x][better], y[better], x[better]
+    out = velocity.copy()
+    out[ys, xs] = velocity[best_y, best_x]
+    return out
+
+
 class ObjectMotion(Effect):
     """Blur along each pixel's image velocity minus the camera rotation's, over the shutter (needs a velocity
     pass: Blender's Vector pass through the add-on or ``lowcam render``)."""
@@ -105,4 +128,5 @@ class ObjectMotion(Effect):
         if exposure <= 0:
             return
         camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), state.render.shape[:2])
+        velocity = edge_velocity_from_cover(velocity, state.render[..., 3])
         state.render = splat_along(state.render, (velocity - camera) * exposure, self.min_shift_px)
