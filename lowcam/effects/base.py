@@ -125,8 +125,8 @@ class Search:
     """How diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this).
 
     ``candidate`` is the name diagnosis lists; ``bounds`` the continuous parameters it searches (key ->
-    (low, high)), from ``start``; ``grid`` discrete values tried in turn (key -> values; scored on the full
-    error when ``full_error``), then ``refine`` steps around the best; ``fixed`` values set without a search
+    (low, high)), from ``start``; ``grid`` ordered discrete values walked from the profile's value towards lower
+    error (key -> values; scored on the full error when ``full_error``); ``fixed`` values set without a search
     (e.g. ``method = "bilinear"``). ``when``: values the profile's effect must already have (the lens model).
     ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise), or is
     the effect's own fit, a function ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
@@ -146,7 +146,6 @@ class Search:
     bounds: dict = field(default_factory=dict)
     start: dict = field(default_factory=dict)
     grid: dict = field(default_factory=dict)
-    refine: dict = field(default_factory=dict)
     fixed: dict = field(default_factory=dict)
     when: dict = field(default_factory=dict)
     fit: Any = ""

@@ -4,10 +4,10 @@ Every candidate is an effect the profile lacks, one whose parameters may be wron
 (``without_EFFECT``, and ``monochrome``). Each is fitted to the measured temporal means on a noise-free simulation
 (:meth:`Context.clean`), in two passes so that a diagnosis takes seconds:
 
-1. **Screening.** Every candidate is fitted coarsely: its grid values, its closed-form fit, or one Gauss-Newton
-   step of its continuous parameters from finite differences (:func:`gauss_newton`).
-2. **Fitting.** The :data:`FITTED` best screened candidates are fitted to convergence (more Gauss-Newton steps
-   and the grid's refinement).
+1. **Screening.** Every candidate is fitted coarsely: its grid values (walked from the profile's value towards
+   lower error), its closed-form fit, or one Gauss-Newton step of its continuous parameters from finite
+   differences (:func:`gauss_newton`).
+2. **Fitting.** The :data:`FITTED` best screened candidates are fitted to convergence (more Gauss-Newton steps).
 
 Each candidate's error is then estimated from its noise-free residual and the noise the first comparison measured
 (:meth:`Context.estimate`), and the :data:`FULL_ERRORS` best estimates, and every candidate that changes the
@@ -344,12 +344,28 @@ class _Fit:
         return self.ctx.profile.with_effect(self.cls.name, replace=self.search.replace,
                                             after=self.search.after or None, **values)
 
-    def _grid(self, key, options):  # on the full error (a few captures) when the noise shows it
-        if self.search.full_error:
-            score = [self.ctx.compare(self.build(extra={key: v}), self.ctx.quick[:2], 4).error for v in options]
-        else:
-            score = [self.ctx.sse(self.build(extra={key: v}), self.subset) for v in options]
-        self.values[key] = options[int(np.argmin(score))]
+    def _grid(self, key, options):
+        """The option of least error (the full error of a few captures when the noise shows it), walked from the
+        profile's current value (else the middle option) towards lower error: over ordered options the error is
+        taken to have one minimum, so the walk stops where both neighbours are worse."""
+        scores: dict = {}
+
+        def score(i):
+            if i not in scores:
+                profile = self.build(extra={key: options[i]})
+                scores[i] = (self.ctx.compare(profile, self.ctx.quick[:2], 4).error if self.search.full_error
+                             else self.ctx.sse(profile, self.subset))
+            return scores[i]
+
+        have = self.ctx.profile.effect(self.cls.name)
+        start = getattr(have, key, None) if have is not None else None
+        i = options.index(start) if start in options else len(options) // 2
+        while True:
+            better = [j for j in (i - 1, i + 1) if 0 <= j < len(options) and score(j) < score(i)]
+            if not better:
+                break
+            i = min(better, key=score)
+        self.values[key] = options[i]
 
     def _fit(self):
         return CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
@@ -369,8 +385,7 @@ class _Fit:
                 self._grid(key, list(options))
             if self.keys:
                 self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=1)
-            else:
-                self.done = not self.search.refine
+            self.done = not self.keys
         self.seconds += time.perf_counter() - started
 
     def finish(self):
@@ -379,10 +394,6 @@ class _Fit:
             self.result, self.done = self._fit()(self.ctx, self.cls.name), True
             self.seconds += time.perf_counter() - started
             return
-        for key in self.search.refine:
-            low, high = self.cls.params[key].low, self.cls.params[key].high
-            best = self.values[key]
-            self._grid(key, sorted({min(high, max(low, best + d)) for d in self.search.refine[key]}))
         if self.keys:
             self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset,
                                      steps=max(1, self.search.evals // 10))
