@@ -24,6 +24,7 @@ Contents
 - :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
 - :data:`SIM_SEED`: the first noise seed of the simulated frames
 - :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
+- :data:`WORKERS`: captures simulated at a time by a comparison made from the main thread
 - :class:`CaptureStats`: one capture's measured and simulated frames and its error sums
 - :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
 - :func:`capture_inputs`: (ideal render, plate) for a capture, rendering the target's ideal view when needed
@@ -46,6 +47,9 @@ from ..errors import LowcamError
 EXPLAINED_BELOW = 1.1
 SIM_SEED = 1000
 INTENSITY_BINS = np.linspace(0, 256, 17)
+#: Captures simulated at a time by a comparison made from the main thread (NumPy and OpenCV release the GIL); a
+#: comparison made inside diagnosis's candidate threads runs its captures in turn.
+WORKERS = 2
 
 
 @dataclass
@@ -236,16 +240,28 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
     keeps the deterministic front of the chain between calls that share it; ``assumed_noise`` (per capture, from
     :attr:`CaptureStats.sums` ``["variance_map"]`` of an earlier comparison) fixes the noise of one-frame
     captures; ``subset`` compares only those captures (by index)."""
-    stats = []
-    for i, cap in enumerate(mset.captures):
-        if subset is not None and i not in subset:
-            continue
+    import threading
+
+    chosen = [i for i in range(len(mset.captures)) if subset is None or i in subset]
+    for i in chosen:
+        cap = mset.captures[i]
         if cap.frames.shape[1:3] != (profile.camera.height, profile.camera.width):
             raise LowcamError(f"capture {cap.name}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
                               f"profile delivers {profile.camera.width}x{profile.camera.height}")
-        k = sim_frames or max(len(cap.frames), 4)
-        sim = simulate_capture(profile, cap, k, inputs=inputs[i] if inputs else None, cache=cache,
+
+    def one(i):
+        cap = mset.captures[i]
+        sim = simulate_capture(profile, cap, sim_frames or max(len(cap.frames), 4),
+                               inputs=inputs[i] if inputs else None, cache=cache,
                                until="bayer_sampling")  # the front diagnosis's noise-free frames share
-        stats.append(capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None))
+        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None)
+
+    if WORKERS > 1 and len(chosen) > 1 and threading.current_thread() is threading.main_thread():
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(WORKERS) as pool:
+            stats = list(pool.map(one, chosen))
+    else:
+        stats = [one(i) for i in chosen]
     error, families = combine(stats)
     return Comparison(error, families, stats)
