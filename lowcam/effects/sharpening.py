@@ -189,11 +189,11 @@ def _gain_slope_field(rows: np.ndarray, at: np.ndarray, shape, offsets: np.ndarr
     return terms @ coef
 
 
-def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=None) -> list[np.ndarray]:
-    """Normalised profiles (0 left plateau, 1 right plateau) along x across strong, near-vertical, straight edges
-    of ``grey`` (:func:`_find_edges`), sampled every 0.25 px over +-:data:`EDGE_HALF_PX` about the edge, with the
-    local gain slope divided out (:func:`_gain_slope_field`); edges with another edge in the window (uneven
-    plateaus) are dropped. ``at``: sample at these ``(row, x)`` positions instead of finding edges, dropping none
+def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=None):
+    """(profiles, positions): normalised profiles (0 left plateau, 1 right plateau) along x across strong,
+    near-vertical, straight edges of ``grey`` (:func:`_find_edges`), sampled every 0.25 px over
+    +-:data:`EDGE_HALF_PX` about the edge, with the local gain slope divided out (:func:`_gain_slope_field`);
+    edges with another edge in the window (uneven plateaus) are dropped. ``at``: sample at these ``(row, x)`` positions instead of finding edges, dropping none
     (the model's fit samples the same edges at every step, so its statistic changes smoothly); ``found``: a list
     that receives the positions used."""
     g = np.asarray(grey, np.float32)
