@@ -56,8 +56,9 @@ class Sharpening(Effect):
     calibration = "sharpening"
     node = NodeStage("Sharpening", "mosaic", "kernel")
     searches = (Search("asymmetric_sharpening",
-                       "sharpening halos are lopsided: its low-pass sits {shift:+.2f} sensels off centre",
-                       bounds={"shift": (-2.0, 2.0)}, captures="textured", requires="sharpening"),)
+                       "sharpening halos are lopsided: its low-pass (sigma {sigma:.2f}) sits {shift:+.2f} sensels off centre",
+                       bounds={"shift": (-2.0, 2.0), "sigma": (0.3, 1.5)}, captures="textured",
+                       requires="sharpening"),)
     params = {
         "sharpness": Param(80.0, low=0.0, high=255.0, doc="the camera's sharpness setting"),
         "gain_per_unit": Param(0.025, low=0.0, high=1.0),
