@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects import EFFECTS, canonical_order, known_effects
+from lowcam.effects import EFFECTS, canonical_order
 
 ENGINE = Path(lowcam.__file__).resolve().parent
 
@@ -57,7 +57,7 @@ def test_the_effects_import_neither_the_pipeline_nor_the_profile():
 
 def test_every_bundled_effect_declares_its_place_and_the_order_is_derived():
     assert all(cls.order is not None for cls in EFFECTS.values())
-    orders = [cls.order for cls in known_effects() if cls.order is not None]
+    orders = [cls.order for cls in EFFECTS.values()]  # bundled ones: a test's plug-in may sit at any place
     assert len(set(orders)) == len(orders), "two effects share a place in the chain"
     order = canonical_order()
     # the paper's chain (sec. 5.2) in its order

@@ -248,7 +248,7 @@ def test_systemexit_in_a_real_process(argv, rc, names, tmp_path):
 
 # --- Ctrl-C during a batch -----------------------------------------------------------------------------------------
 
-def _interrupt_batch(tmp_path: Path, workers: int, frames: int = 20):
+def _interrupt_batch(tmp_path: Path, workers: int, frames: int = 60):
     renders = corpus.write_renders(tmp_path, range(1, frames + 1))
     out = tmp_path / "out"
     argv = ["batch", "--renders", renders, "--frames", f"1-{frames}", "-o", str(out / "####.png"), "--quiet"]
@@ -263,8 +263,9 @@ def _interrupt_batch(tmp_path: Path, workers: int, frames: int = 20):
         while time.monotonic() - t0 < 60 and proc.poll() is None and not (out.exists() and any(out.glob("*.png"))):
             time.sleep(0.05)
         time.sleep(0.3)
-        if proc.poll() is not None:
-            pytest.skip(f"the batch ended (exit {proc.returncode}) before it could be interrupted")
+        # on a starved machine the batch may be finishing: a Ctrl-C then meets no work (exit 0 is right)
+        if proc.poll() is not None or len(list(out.glob("*.png"))) > frames - 5:
+            pytest.skip(f"the batch (nearly) ended before it could be interrupted (exit {proc.poll()})")
         os.killpg(proc.pid, signal.SIGINT)
         try:
             _, err = proc.communicate(timeout=60)
