@@ -255,8 +255,11 @@ def _interrupt_batch(tmp_path: Path, workers: int, frames: int = 60):
     if workers:
         argv += ["--workers", str(workers)]
     before = snapshot(tmp_path)
+    # a user at a terminal: Ctrl-C is not ignored, even when this suite runs in a script's background
+    # (started with SIGINT ignored, a disposition children inherit)
     proc = subprocess.Popen([sys.executable, "-m", "lowcam.cli", *argv], cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         t0 = time.monotonic()
         # wait for the first frame (the batch is really running), then Ctrl-C the whole process group
