@@ -20,6 +20,7 @@ Contents
 - :func:`read_render`: read a render as premultiplied linear RGBA float32 (H, W, 4)
 - :data:`RENDER_MAX`: the largest render value accepted
 - :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
+- :func:`check_render_window`: :func:`check_render`, and the window around the render's non-zero pixels
 - :func:`read_image`: read a PNG/JPEG/TIFF as RGB (H, W, 3) or greyscale (H, W), keeping its dtype
 - :func:`read_plate`: read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
 - :func:`check_plate`: validate an in-memory plate: uint8, the camera's size, RGB (or one channel for raw Bayer)
@@ -46,6 +47,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .window import nonzero_window
 
 
 _umask = os.umask(0)
@@ -420,6 +422,12 @@ _RENDER_BOUNDS = tuple((c, c, c, a) for c, a in zip(_COLOUR_BOUNDS, _ALPHA_BOUND
 def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     """Validate an in-memory render: (H, W, 4), finite, within +-:data:`RENDER_MAX`, alpha in [0, 1]. Returns it
     as float32."""
+    return check_render_window(rgba, name)[0]
+
+
+def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tuple[slice, slice] | None]:
+    """:func:`check_render`, and the :func:`~lowcam.window.nonzero_window` around the render's non-zero pixels
+    (None: all zero). The zero margins are valid by construction, so only the window is checked in full."""
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4:
         raise LowcamError(f"{name}: a render must be RGBA of shape (H, W, 4), got {rgba.shape}")
@@ -429,10 +437,14 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
         raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         rgba = np.ascontiguousarray(rgba, np.float32)
-    # One pass over the render: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
+    window = nonzero_window(rgba)  # NaN counts as non-zero
+    if window is None:
+        return rgba, None
+    # One pass over the window: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
     # limits below) make it at least as strict; only a render it refuses is checked again for the exact error.
-    if cv2.countNonZero(cv2.inRange(rgba, *_RENDER_BOUNDS)) == rgba.shape[0] * rgba.shape[1]:
-        return rgba
+    inside = rgba[window]
+    if cv2.countNonZero(cv2.inRange(inside, *_RENDER_BOUNDS)) == inside.shape[0] * inside.shape[1]:
+        return rgba, window
     if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once
         _check_finite(name, rgba)
         lo, hi = float(rgba.min()), float(rgba.max())
@@ -441,7 +453,7 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     lo, hi, _, _ = cv2.minMaxLoc(cv2.extractChannel(rgba, 3))
     if lo < -1e-4 or hi > 1 + 1e-4:
         raise LowcamError(f"{name}: alpha must lie in [0, 1], found {lo:.3g}..{hi:.3g}")
-    return rgba
+    return rgba, window
 
 
 #: What libjpeg and libpng say of a damaged file that they still decode (partly grey).

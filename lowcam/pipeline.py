@@ -43,9 +43,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import LowcamError
-from .io import check_plate, check_render
+from .io import check_plate, check_render_window
 from .passes import RenderPasses, check_passes
 from .profile import Profile, load_profile
+from .window import nonzero_window
 
 
 @dataclass
@@ -75,9 +76,19 @@ class SimState:
     colour_matrix: np.ndarray | None = None
     sampling_offset: np.ndarray | None = None
     lens: object = None
+    _render_window: tuple = field(default=(None, None), repr=False)  # (the render, its nonzero_window)
 
     def __post_init__(self):
         self.lens = self.profile.lens
+
+    def render_window(self) -> tuple[slice, slice] | None:
+        """The :func:`~lowcam.window.nonzero_window` of the current render, found once per render array (an
+        effect that changes the render assigns a new one)."""
+        render, window = self._render_window
+        if render is not self.render:
+            window = nonzero_window(self.render)
+            self._render_window = (self.render, window)
+        return window
 
     @property
     def camera(self):
@@ -221,7 +232,7 @@ def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, pa
     """A validated :class:`SimState` at the start of the chain, and the plate's bytes."""
     profile = load_profile(profile)
     check_memory(profile, np.shape(render)[:2] if np.ndim(render) >= 2 else (0, 0))
-    render = check_render(render)
+    render, window = check_render_window(render)
     passes = check_passes(passes, render.shape)
     plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
     w = tuple(float(x) for x in angular_velocity)
@@ -229,7 +240,9 @@ def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, pa
         raise LowcamError(f"angular_velocity must be three finite numbers (rad/s), got {angular_velocity!r}")
     if exposure_s is not None and not (0 <= exposure_s <= 10):
         raise LowcamError(f"exposure_s = {exposure_s} is out of range [0, 10] s")
-    return SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes), plate_u8
+    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes,
+                     _render_window=(render, window))
+    return state, plate_u8
 
 
 def _walk(state: SimState, start: int = 0, stop: int | None = None, stages=None, plate_u8=None,
@@ -377,13 +390,13 @@ def plain_composite(render: np.ndarray, profile="fire-i", plate: np.ndarray | No
     import cv2
 
     profile = load_profile(profile)
-    render = check_render(render)
+    render, window = check_render_window(render)
     plate_u8, plate_f, _ = _prepare_plate(profile, plate)
     if profile.is_raw:
         from .effects.bayer import demosaic_bilinear, unmosaic
 
         plate_f = demosaic_bilinear(unmosaic(plate_u8, profile.geometry), profile.geometry)
-    state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0)
+    state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0, _render_window=(render, window))
     profile.effect("lens_distortion").apply(state)
     profile.effect("half_sampling").apply(state)
     g = profile.geometry

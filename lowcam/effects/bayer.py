@@ -36,7 +36,11 @@ import cv2
 import numpy as np
 
 from ..geometry import BAYER_BORDER, CFA_CHANNELS, COLOUR_INDEX, sample_texture
+from ..window import WindowedRemap, nonzero_window
 from .base import Effect, NodeStage, Param, Search
+
+#: The sensel planes (R, Gr, Gb, B) each colour reads: R, then both greens, then B.
+_COLOUR_PLANES = (slice(0, 1), slice(1, 3), slice(3, 4))
 
 
 class BayerSampling(Effect):
@@ -56,7 +60,7 @@ class BayerSampling(Effect):
     params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
 
     def __deepcopy__(self, memo):
-        """Copies share the kept remap maps: one immutable tuple holding everything they depend on, replaced whole
+        """Copies share the kept warps: one immutable tuple holding everything they depend on, replaced whole
         (so copying a profile does not copy some 30 MB of maps)."""
         import copy
 
@@ -91,10 +95,10 @@ class BayerSampling(Effect):
         ty = np.multiply(taps[1::2], np.float32(sy))
         return x + tx[None], y + ty[None]
 
-    def remap_maps(self, state) -> tuple[int, list]:
-        """The number of taps and, per colour (R, G, B), :meth:`sample_positions` as cv2.remap's fixed-point maps
-        (cv2.remap converts float maps to the same ones itself). Kept for the next frame while the geometry and
-        the aberration, offset and motion-tap grids are the same (a steady camera motion)."""
+    def warps(self, state) -> tuple[int, list[WindowedRemap]]:
+        """The number of taps and, per colour (R, G, B), the warp of :meth:`sample_positions` (one block per
+        sensel plane and tap). Kept for the next frame while the geometry and the aberration, offset and
+        motion-tap grids are the same (a steady camera motion)."""
         inputs = (state.ca_grid, state.sampling_offset, state.motion_taps)
         cached = getattr(self, "_remap_cache", None)
         if cached is not None and cached[0] == state.geometry and all(
@@ -104,25 +108,24 @@ class BayerSampling(Effect):
         hb, wb = state.geometry.bayer_shape
         x, y = self.sample_positions(state)
         n = x.shape[1]
-        maps = [cv2.convertMaps(x[ks].reshape(-1, wb), y[ks].reshape(-1, wb), cv2.CV_16SC2)
-                for ks in (slice(0, 1), slice(1, 3), slice(3, 4))]
-        self._remap_cache = (state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, maps))
-        return n, maps
+        warps = [WindowedRemap(x[ks].reshape(-1, hb, wb), y[ks].reshape(-1, hb, wb), tile=8) for ks in _COLOUR_PLANES]
+        self._remap_cache = (state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, warps))
+        return n, warps
 
     def apply(self, state):
         g = state.geometry
         hb, wb = g.bayer_shape
-        n, maps = self.remap_maps(state)
+        n, warps = self.warps(state)
+        window = nonzero_window(state.working)
         # Each colour is sampled from a 2-channel (colour, alpha) image: half the memory traffic of RGBA.
         h, w = state.working.shape[:2]
         pairs = [np.empty((h, w, 2), np.float32) for _ in range(3)]
         cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
-        for src, ks, (m1, m2) in zip(pairs, (slice(0, 1), slice(1, 3), slice(3, 4)), maps):
+        for src, ks, warp in zip(pairs, _COLOUR_PLANES, warps):
             count = ks.stop - ks.start
-            sampled = cv2.remap(src, m1, m2, cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(count, n, hb, wb, 2)
+            sampled = warp(src, window).reshape(count, n, hb, wb, 2)
             sampled = sampled.mean(axis=1) if n > 1 else sampled[:, 0]
             state.bayer[ks] = sampled[..., 0]
             state.bayer_alpha[ks] = sampled[..., 1]

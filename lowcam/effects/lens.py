@@ -66,6 +66,7 @@ import cv2
 import numpy as np
 
 from ..errors import LowcamError
+from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -587,19 +588,19 @@ class LensDistortion(Effect):
         u, v = state.geometry.working_pixel_centres(factor=2)
         return self.render_pixel_coordinates(state.geometry, u, v, render_shape)
 
-    def render_maps(self, state, render_shape):
-        """cv2.remap maps from the supersampled working grid into a render of ``render_shape`` (rows, cols)."""
+    def render_warp(self, state, render_shape) -> WindowedRemap:
+        """The warp from a render of ``render_shape`` (rows, cols) to the supersampled working grid, kept."""
         key = (render_shape, state.geometry, self.enabled, repr(self.values()))
         if key not in self._maps:
             if len(self._maps) > 8:
                 self._maps.clear()
-            self._maps[key] = cv2.convertMaps(*self.render_coordinates(state, render_shape), cv2.CV_16SC2)
+            x, y = self.render_coordinates(state, render_shape)
+            self._maps[key] = WindowedRemap(x[None], y[None])
         return self._maps[key]
 
     def apply(self, state):
-        m1, m2 = self.render_maps(state, state.render.shape[:2])
-        state.working = cv2.remap(state.render, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                  borderValue=0)
+        warp = self.render_warp(state, state.render.shape[:2])
+        state.working = warp(state.render, state.render_window())
 
 
 # --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------

@@ -1,0 +1,113 @@
+"""Windows around non-zero pixels and the warps that compute only inside them (issue 12, speed): the same
+result as the plain ``cv2.remap`` of the whole image, bit for bit, and no invalid pixel left unchecked."""
+import cv2
+import numpy as np
+import pytest
+
+import lowcam
+from lowcam.errors import LowcamError
+from lowcam.io import check_render, check_render_window
+from lowcam.sample import sample_render
+from lowcam.window import WindowedRemap, nonzero_window
+
+
+def _reference_window(image):
+    nonzero = image != 0
+    if nonzero.ndim == 3:
+        nonzero = nonzero.any(axis=2)
+    rows, cols = np.flatnonzero(nonzero.any(axis=1)), np.flatnonzero(nonzero.any(axis=0))
+    if rows.size == 0:
+        return None
+    return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+
+
+@pytest.mark.parametrize("shape", [(97, 131, 4), (64, 64, 2), (50, 333)])
+@pytest.mark.parametrize("block", [1, 7, 32])
+def test_nonzero_window_is_the_smallest_window_holding_every_nonzero_element(rng, shape, block):
+    for trial in range(40):
+        image = np.zeros(shape, np.float32)
+        for _ in range(rng.integers(1, 6)):  # a few specks, anywhere, edges included
+            index = tuple(int(rng.integers(0, n)) for n in shape)
+            image[index] = rng.choice([1.0, -3.0, 1e-30, np.nan, np.inf])
+        assert nonzero_window(image, block) == _reference_window(image), (trial, np.argwhere(image != 0))
+
+
+def test_nonzero_window_of_zeros_full_frames_and_negative_zero():
+    assert nonzero_window(np.zeros((40, 40, 4), np.float32)) is None
+    assert nonzero_window(np.full((40, 40, 4), -0.0, np.float32)) is None  # -0.0 == 0
+    assert nonzero_window(np.ones((40, 30, 4), np.float32)) == (slice(0, 40), slice(0, 30))
+
+
+def _coordinates(rng, blocks, rows, cols, src_shape):
+    """Smooth, stretched, partly out-of-range source coordinates with a few NaN entries (no source)."""
+    y, x = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    xs, ys = [], []
+    for b in range(blocks):
+        a, c = rng.uniform(0.5, 2.0, 2)
+        xs.append(a * x + 3 * np.sin(y / 7) + rng.uniform(-10, 10) - 0.3 * b)
+        ys.append(c * y + 2 * np.cos(x / 9) + rng.uniform(-10, 10) + 0.7 * b)
+    x, y = np.stack(xs).astype(np.float32), np.stack(ys).astype(np.float32)
+    x[0, :3, :5] = np.nan
+    return x, y
+
+
+@pytest.mark.parametrize("blocks, tile", [(1, 32), (3, 8), (5, 5)])
+def test_windowed_remap_equals_a_remap_of_the_whole_image(rng, blocks, tile):
+    src_shape = (120, 150, 2)
+    x, y = _coordinates(rng, blocks, 70, 90, src_shape)
+    warp = WindowedRemap(x, y, tile=tile)
+    plain = [cv2.remap(np.zeros(src_shape, np.float32), x.reshape(-1, 90), y.reshape(-1, 90), cv2.INTER_LINEAR)]
+    assert not plain[0].any()
+    for trial in range(30):
+        src = np.zeros(src_shape, np.float32)
+        r0, c0 = rng.integers(0, 110), rng.integers(0, 140)
+        r1, c1 = r0 + rng.integers(1, 40), c0 + rng.integers(1, 40)
+        src[r0:r1, c0:c1] = rng.uniform(-1, 2, (min(r1, 120) - r0, min(c1, 150) - c0, 2))
+        window = nonzero_window(src)
+        expected = cv2.remap(src, x.reshape(-1, 90), y.reshape(-1, 90), cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        got = warp(src, window)
+        assert got.shape == expected.shape
+        assert np.array_equal(got, expected), (trial, window, np.abs(got - expected).max())
+    assert not warp(np.zeros(src_shape, np.float32), None).any()
+
+
+def test_lens_and_bayer_sampling_of_sparse_graphics_equal_plain_remaps_of_the_whole_image(fire_i):
+    """The windowed warps of the chain against plain cv2.remap calls over everything, with float maps."""
+    render = sample_render(fire_i, 1600)
+    assert nonzero_window(render) != (slice(0, render.shape[0]), slice(0, render.shape[1]))  # sparse graphics
+    state = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="lens_distortion").state
+    x, y = fire_i.effect("lens_distortion").render_coordinates(state, render.shape[:2])
+    assert np.array_equal(state.working, cv2.remap(render, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+
+    state = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="bayer_sampling").state
+    before = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="spatial_blur").state.working
+    x, y = fire_i.effect("bayer_sampling").sample_positions(state)  # (4, taps, rows, cols)
+    for plane in range(4):
+        colour = (0, 1, 1, 2)[plane]
+        pair = np.ascontiguousarray(before[..., [colour, 3]])
+        taps = [cv2.remap(pair, x[plane, t], y[plane, t], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+                for t in range(x.shape[1])]
+        mean = np.mean(np.stack(taps), axis=0)
+        assert np.array_equal(state.bayer_alpha[plane], mean[..., 1])
+        assert np.array_equal(state.bayer[plane], mean[..., 0] * np.float32(255.0))
+
+
+@pytest.mark.parametrize("value, message", [(np.nan, "NaN or Inf"), (np.inf, "NaN or Inf"),
+                                            (1e30, "beyond a render's range"), (-1e30, "beyond a render's range")])
+def test_a_bad_value_far_from_the_graphics_is_still_refused(value, message):
+    """Only the window around non-zero pixels is checked in full: a bad value anywhere must widen it."""
+    rgba = np.zeros((300, 400, 4), np.float32)
+    rgba[100:120, 150:170] = 0.5
+    assert check_render_window(rgba)[1] == (slice(100, 120), slice(150, 170))
+    rgba[297, 3, 2] = value
+    with pytest.raises(LowcamError, match=f"^render: .*{message}"):
+        check_render(rgba)
+
+
+def test_alpha_out_of_range_far_from_the_colour_is_refused():
+    rgba = np.zeros((300, 400, 4), np.float32)
+    rgba[100:120, 150:170] = 0.5
+    rgba[2, 390, 3] = 1.5  # a stray alpha with no colour
+    with pytest.raises(LowcamError, match=r"^render: alpha must lie in \[0, 1\]"):
+        check_render(rgba)
