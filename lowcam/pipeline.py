@@ -76,18 +76,17 @@ class SimState:
     colour_matrix: np.ndarray | None = None
     sampling_offset: np.ndarray | None = None
     lens: object = None
-    _render_window: tuple = field(default=(None, None), repr=False)  # (the render, its nonzero_window)
+    _render_window: tuple = field(default=(None, None), repr=False)  # (the render, its window) when validated
 
     def __post_init__(self):
         self.lens = self.profile.lens
 
     def render_window(self) -> tuple[slice, slice] | None:
-        """The :func:`~lowcam.window.nonzero_window` of the current render, found once per render array (an
-        effect that changes the render assigns a new one)."""
+        """The :func:`~lowcam.window.nonzero_window` of the current render: the one found when it was validated
+        while no effect has run yet, else found again (an effect may have changed the render, even in place)."""
         render, window = self._render_window
-        if render is not self.render:
+        if render is not self.render or self.applied:
             window = nonzero_window(self.render)
-            self._render_window = (self.render, window)
         return window
 
     @property

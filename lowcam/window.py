@@ -9,6 +9,7 @@ entry alone.
 Contents
 --------
 - :func:`nonzero_window`: the smallest (rows, cols) window holding every non-zero element of an image
+- :func:`grow_window`: a window grown by a margin, within an image
 - :class:`WindowedRemap`: ``cv2.remap`` with fixed maps that computes only what can be non-zero
 """
 from __future__ import annotations
@@ -55,6 +56,18 @@ def nonzero_window(image: np.ndarray, block: int = 32) -> tuple[slice, slice] | 
         if right < w and cv2.countNonZero(rows[:, right * c:]):
             right = w - first(w - right, lambda s, e: cv2.countNonZero(rows[:, (w - e) * c:(w - s) * c]) > 0)
     return slice(top, bottom), slice(left, right)
+
+
+def grow_window(window: tuple[slice, slice], margin: int, shape) -> tuple[slice, slice]:
+    """``window`` (rows, cols) grown by ``margin`` pixels on every side, within an image of ``shape`` (rows,
+    cols, ...): where a filter of that radius can make the window's pixels reach.
+
+    >>> grow_window((slice(2, 5), slice(8, 9)), 3, (6, 10))
+    (slice(0, 6, None), slice(5, 10, None))
+    """
+    rows, cols = window
+    return (slice(max(0, rows.start - margin), min(shape[0], rows.stop + margin)),
+            slice(max(0, cols.start - margin), min(shape[1], cols.stop + margin)))
 
 
 class WindowedRemap:

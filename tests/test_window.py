@@ -111,3 +111,30 @@ def test_alpha_out_of_range_far_from_the_colour_is_refused():
     rgba[2, 390, 3] = 1.5  # a stray alpha with no colour
     with pytest.raises(LowcamError, match=r"^render: alpha must lie in \[0, 1\]"):
         check_render(rgba)
+
+
+@pytest.mark.parametrize("corner", [False, True])
+def test_varying_blur_in_a_window_equals_the_blur_of_the_whole_image(rng, corner):
+    from lowcam.effects.blur import varying_gaussian
+
+    image = np.zeros((180, 240, 4), np.float32)
+    rows, cols = (slice(0, 30), slice(200, 240)) if corner else (slice(70, 95), slice(100, 160))
+    image[rows, cols] = rng.uniform(0, 1, image[rows, cols].shape)
+    sigma = np.linspace(0.2, 3.5, 24 * 18, dtype=np.float32).reshape(18, 24)  # several blur levels
+    window = nonzero_window(image)
+    assert np.array_equal(varying_gaussian(image, sigma, window), varying_gaussian(image, sigma))
+    assert np.array_equal(varying_gaussian(image, sigma, (slice(0, 180), slice(0, 240))),
+                          varying_gaussian(image, sigma))
+
+
+def test_a_render_changed_in_place_by_an_effect_gets_its_window_found_again(fire_i):
+    """The window found while validating serves only until an effect runs: one may change the render in place."""
+    from lowcam.pipeline import _start
+
+    render = np.zeros((450, 600, 4), np.float32)
+    render[200:220, 300:330] = 0.5
+    state, _ = _start(render, fire_i, None, (0, 0, 0), None, 0, 0, None)
+    assert state.render_window() == (slice(200, 220), slice(300, 330))
+    state.render[10, 20, 0] = 1.0  # an effect brightening one pixel, in place
+    state.applied.append(fire_i.effect("lens_distortion"))
+    assert state.render_window() == (slice(10, 220), slice(20, 330))

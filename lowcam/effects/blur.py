@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from ..geometry import grid_points, sample_texture
+from ..window import grow_window, nonzero_window
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -77,15 +78,29 @@ def blur_level_maps(sigma_grid: np.ndarray, shape) -> list[tuple[float, np.ndarr
             for s, wg in zip(levels, level_weights(sigma_grid, levels)) if wg.any()]
 
 
-def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray) -> np.ndarray:
+def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray, window=None) -> np.ndarray:
     """Blur ``image`` with a Gaussian whose sigma (px) varies smoothly as given by ``sigma_grid``.
 
     ``sigma_grid`` holds sigma at the cell centres of a coarse grid over the image (the paper's 24x18 cells, with
     bilinear interpolation between). The result blends a stack of uniform blurs with weights interpolated from
-    the grid (:func:`blur_level_maps`), so the cost is a few separable blurs whatever the grid.
+    the grid (:func:`blur_level_maps`), so the cost is a few separable blurs whatever the grid. A ``window``
+    (rows, cols) holding every non-zero pixel (:func:`~lowcam.window.nonzero_window`) limits the work to it and
+    the widest kernel's reach, with the same result: outside, the blur of zeros is zero.
     """
+    levels = blur_level_maps(sigma_grid, image.shape[:2])
+    if window is None:
+        return _blend_levels(image, levels)
+    # cv2.GaussianBlur's float32 kernel has radius round(8 sigma + 1) // 2 <= 4 sigma + 1
+    rows, cols = grow_window(window, int(np.ceil(4 * max(s for s, _ in levels))) + 2, image.shape)
+    out = np.zeros_like(image)
+    out[rows, cols] = _blend_levels(image[rows, cols], [(s, None if m is None else m[rows, cols]) for s, m in levels])
+    return out
+
+
+def _blend_levels(image: np.ndarray, levels) -> np.ndarray:
+    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`)."""
     out = out_weight = None
-    for s, wmap in blur_level_maps(sigma_grid, image.shape[:2]):
+    for s, wmap in levels:
         level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image
         if out is None:
             out, out_weight = level, wmap
@@ -132,8 +147,10 @@ class SpatialBlur(Effect):
         return np.sqrt(var).astype(np.float32)
 
     def apply(self, state):
-        g = state.geometry
-        state.working = varying_gaussian(state.working, self.sigma_grid(state) * min(g.working_scale))
+        window = nonzero_window(state.working)
+        if window is not None:  # the blur of zeros is zeros
+            sigma = self.sigma_grid(state) * min(state.geometry.working_scale)
+            state.working = varying_gaussian(state.working, sigma, window)
 
 
 class HorizontalBlur(Effect):
