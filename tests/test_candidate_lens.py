@@ -21,8 +21,9 @@ DECOYS = ("chromatic_aberration", "vignetting", "defocus")
 HFOV_DEG = 90.0  # the renders' fixed horizontal field of view
 
 # (lens, the diagnosed profile's lens: model and values other than the focal length)
-KNOWN_FAILING = pytest.mark.xfail(strict=True, reason="open: FOV form leaves 2.32 on poly3 (TG-4); the fit "
-                                   "returns nothing for the ptlens and pinhole-FOV starts (not yet debugged)")
+KNOWN_FAILING = pytest.mark.xfail(strict=True, reason="open: the FOV form leaves 2.32 on poly3 (TG-4) and 1.80 "
+                                   "on ptlens (S120); the GoPro's distortion is too large for the optical flow "
+                                   "from a distortion-free start (18.1)")
 CASES = [
     pytest.param("Canon PowerShot G12 & compatibles (Standard)", dict(model="opencv"), id="G12-poly5-opencv"),
     pytest.param("Olympus Tough TG-4 & compatibles", dict(model="fov", w=0.3), id="TG4-poly3-fov",

@@ -412,6 +412,17 @@ LENSFUN_FRAME_PARAMS = {
 }
 
 
+def field_needed(lens: LensModel, extent) -> tuple[float, float]:
+    """Pinhole half-extents (X, Y) that the border of ``extent`` (u0, v0, u1, v1; output pixels) sees through
+    ``lens``."""
+    u0, v0, u1, v1 = extent
+    t = np.linspace(0.0, 1.0, 257)
+    border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
+    border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
+    x, y = lens.undistort(border_u, border_v)
+    return float(np.abs(x).max()), float(np.abs(y).max())
+
+
 class LensDistortion(Effect):
     """Warps the ideal pinhole render through the lens into the supersampled working grid (sec. 5.2 step 1).
 
@@ -542,25 +553,22 @@ class LensDistortion(Effect):
         """Pinhole half-extents (X, Y) = (tan of half the horizontal, vertical field) that the render must cover.
 
         With ``render_hfov_deg`` = 0 the horizontal extent is chosen to just cover the working grid (frame plus
-        margin) for a render of the frame's aspect ratio, plus 2 %. Returns the extent the engine maps the
-        render's width onto (X) and the least vertical extent it needs (Y).
+        margin) for a render of the frame's aspect ratio, plus 2 %. A given ``render_hfov_deg`` (a render made
+        already, e.g. a capture's ideal) must cover the frame; where it does not reach into the margin around
+        the frame, the margin reads as transparent. Returns the extent the engine maps the render's width onto
+        (X) and the least vertical extent it needs (Y).
         """
         key = ("fov", geometry, self.enabled, repr(self.values()))
         if key not in self._maps:
-            u0, v0, u1, v1 = geometry.working_extent
-            t = np.linspace(0.0, 1.0, 257)
-            border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t,
-                                       np.full_like(t, u0)])
-            border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1),
-                                       v1 - (v1 - v0) * t])
-            x, y = self.lens_model(geometry).undistort(border_u, border_v)
-            need_x, need_y = float(np.abs(x).max()), float(np.abs(y).max())
+            lens = self.lens_model(geometry)
             if self.render_hfov_deg > 0:
+                need_x, need_y = field_needed(lens, geometry.frame_extent)
                 half_x = float(np.tan(np.radians(self.render_hfov_deg) / 2))
                 if half_x < need_x:
                     raise LowcamError(f"{self.source}: render_hfov_deg = {self.render_hfov_deg} is narrower than "
-                                      f"the {np.degrees(2 * np.arctan(need_x)):.1f} deg the lens sees")
+                                      f"the {np.degrees(2 * np.arctan(need_x)):.1f} deg the frame sees")
             else:
+                need_x, need_y = field_needed(lens, geometry.working_extent)
                 half_x = 1.02 * max(need_x, need_y * geometry.width / geometry.height)
             self._maps[key] = (half_x, need_y)
         return self._maps[key]
@@ -692,6 +700,7 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     geometry = p.geometry
     half_x, _ = lens.render_field_of_view(geometry)
     hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
+    half_render = np.tan(np.radians(hfov) / 2)
     values = dict(lens.values(), render_hfov_deg=hfov)
     model = lens.model
     keys = FIT_KEYS[model]
@@ -722,12 +731,20 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
 
         def residual(t):
             try:
-                x, y = lens_at(t).undistort(pu, pv)
+                model_t = lens_at(t)
+                x, y = model_t.undistort(pu, pv)
+                need_x, need_y = field_needed(model_t, geometry.frame_extent)
             except LowcamError:
-                return np.full(2 * len(pu), 1e3)
-            return np.concatenate([x - tx, y - ty]) * focal
+                return np.full(2 * len(pu) + 1, 1e3)
+            # a lens that sees beyond the given render cannot be simulated: a steep wall just inside its edge
+            edge = 0.998 * half_render
+            beyond = max(0.0, need_x - edge, need_y - edge * geometry.height / geometry.width)
+            return np.concatenate([x - tx, y - ty, [1e4 * beyond]]) * focal
 
-        r = least_squares(residual, theta, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
+        start_at = theta.copy()
+        if model == "fov" and abs(theta[3]) < 0.05:  # the FOV form is even in w: no gradient at a pinhole
+            start_at[3] = 0.5
+        r = least_squares(residual, start_at, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
         trial = simulate(r.x)
         if trial is None or sse(trial) >= best:
             break
