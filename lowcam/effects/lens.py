@@ -479,7 +479,8 @@ class LensDistortion(Effect):
         "lensfun_a": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens a"),
         "lensfun_b": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens b"),
         "lensfun_c": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens c"),
-        "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg", doc="0: automatic"),
+        "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg",
+                                 doc="0: automatic; a given field must cover the frame"),
     }
 
     @staticmethod
