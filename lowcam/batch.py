@@ -23,6 +23,7 @@ Contents
 - :func:`close_videos`: release the video files :func:`read_video_frame` keeps open
 - :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
 - :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
+- :data:`QUIET_LOGGERS`: the loggers of Dask and the libraries under it, kept to critical messages
 - :func:`local_cluster`: a Dask LocalCluster of single-threaded processes on loopback
 - :func:`summary`: one line on a finished shot
 """
@@ -302,6 +303,10 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
     return sorted(results, key=lambda r: r.frame)
 
 
+#: Dask's loggers, and those of the libraries under it, kept to critical messages in Lowcam's processes.
+QUIET_LOGGERS = ("distributed", "tornado", "tornado.application", "asyncio")
+
+
 @contextlib.contextmanager
 def _dask_client(workers: int, scheduler: str | None):
     """A Dask client: on the cluster at ``scheduler``, or on a local cluster of ``workers`` processes that ignore
@@ -310,8 +315,8 @@ def _dask_client(workers: int, scheduler: str | None):
 
     from dask.distributed import Client
 
-    for name in ["distributed", "tornado", "asyncio", *logging.root.manager.loggerDict]:  # Dask set some itself
-        if name.split(".")[0] in ("distributed", "tornado", "asyncio"):
+    for name in [*QUIET_LOGGERS, *logging.root.manager.loggerDict]:  # Dask set some itself
+        if name.split(".")[0] in QUIET_LOGGERS:
             logging.getLogger(name).setLevel(logging.CRITICAL)
     cluster = None
     try:
@@ -350,7 +355,9 @@ def local_cluster(workers: int):
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     environ["PYTHONWARNINGS"] = "ignore"  # library warnings and Dask's chatter stay off the terminal
-    environ["DASK_LOGGING__DISTRIBUTED"] = "error"
+    # frame failures reach the parent with the result; a worker's own log of a connection its parent closed
+    # (Ctrl-C under load) would print a traceback
+    environ["DASK_LOGGING"] = repr({name: "critical" for name in QUIET_LOGGERS})
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None)

@@ -280,7 +280,7 @@ def _interrupt_batch(tmp_path: Path, workers: int, frames: int = 60):
         _kill_group(proc)
     lines = _lines(err)
     traceback_shown = "Traceback" in err
-    assert not traceback_shown, "a traceback after Ctrl-C: " + traceback_summary(err)
+    assert not traceback_shown, f"a traceback after Ctrl-C: {traceback_summary(err)}\n{_tail(err, 40)}"
     assert len(lines) <= 2, f"{len(lines)} lines on stderr after Ctrl-C:\n" + "\n".join(lines[:10])
     assert proc.returncode == 130, f"exit {proc.returncode} after Ctrl-C, expected 130: {_tail(err)}"
     assert not _part_files(tmp_path), "temporaries left behind: " + ", ".join(map(str, _part_files(tmp_path)))
