@@ -40,6 +40,7 @@ Contents
   vignetting)
 - :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
+- :func:`field_needed`: the pinhole half-extents the border of a region of the frame sees through a lens
 - :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
 - :func:`fit_radial_distortion`: the candidate: distortion, focal length and centre from the optical flow, the
