@@ -1,9 +1,9 @@
 """Benchmark: a full diagnosis of the standard ``lowcam synth`` set (issue 12's speed target: 10 s median).
 
 Makes the standard set (Fire-i, every bundled scene, 5 frames, a tone curve of gamma 2.0 hidden), then diagnoses
-it with every candidate ``--repeats`` times. Prints the median total, the median per candidate (screening,
-fitting and error together) and the number of noise-free and noisy capture simulations; then, as the baseline
-in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``).
+it with every candidate ``--repeats`` times. Prints the median total, the median and range per candidate
+(screening, fitting and error together) and the number of noise-free and noisy capture simulations; then, as the
+baseline in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``).
 
     .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
 """
@@ -65,8 +65,9 @@ def main() -> None:
     ratio = statistics.median(totals) / statistics.median(serial)
     print(f"one candidate at a time, same run: median {statistics.median(serial):.1f} s "
           f"(min {min(serial):.1f}, max {max(serial):.1f}); ratio {ratio:.2f}")
+    print("per candidate (screening, fitting and error together): median (min-max) over the runs")
     for name, times in sorted(per.items(), key=lambda kv: -statistics.median(kv[1])):
-        print(f"  {name:32s} {statistics.median(times):6.2f} s")
+        print(f"  {name:32s} {statistics.median(times):6.2f} s  ({min(times):.2f}-{max(times):.2f})")
 
 
 if __name__ == "__main__":
