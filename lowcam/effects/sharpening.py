@@ -32,11 +32,17 @@ from .base import Effect, NodeStage, Param, Search
 from .blur import filter_rows, gaussian_taps
 
 
-def sharpening_kernel(a: float, sigma: float, taps: int = 7, shift: float = 0.0, dtype=np.float32) -> np.ndarray:
+def sharpening_kernel(a: float, sigma: float, taps: int = 7, shift: float = 0.0, tail: float = 0.0,
+                      dtype=np.float32) -> np.ndarray:
     """The row filter of ``F = I + a (I - L)``, ``L`` a ``taps``-tap Gaussian of ``sigma`` sensels centred
-    ``shift`` sensels off the middle tap (sec. 4.4.3)."""
+    ``shift`` sensels off the middle tap (sec. 4.4.3), convolved with a one-sided exponential tail whose taps fall
+    by the factor ``|tail|`` per sensel (an analog RC low-pass sampled at the sensel pitch: ``exp(-1 / tau)``),
+    towards higher taps when ``tail`` > 0, lower when < 0; truncated to the ``taps`` window."""
     x = np.arange(taps) - (taps - 1) / 2 - shift
     low = np.exp(-0.5 * (x / sigma) ** 2)
+    if tail:
+        decay = abs(tail) ** np.arange(taps)
+        low = np.convolve(low, decay)[:taps] if tail > 0 else np.convolve(low[::-1], decay)[:taps][::-1]
     return ((1 + a) * gaussian_taps(0.0, taps, np.float64) - a * low / low.sum()).astype(dtype)
 
 
@@ -56,9 +62,10 @@ class Sharpening(Effect):
     calibration = "sharpening"
     node = NodeStage("Sharpening", "mosaic", "kernel")
     searches = (Search("asymmetric_sharpening",
-                       "sharpening halos are lopsided: its low-pass (sigma {sigma:.2f}) sits {shift:+.2f} sensels off centre",
-                       bounds={"shift": (-2.0, 2.0), "sigma": (0.3, 1.5)}, captures="textured",
-                       requires="sharpening"),)
+                       "sharpening halos are lopsided: its low-pass (sigma {sigma:.2f}) sits {shift:+.2f} sensels off "
+                       "centre with a tail falling {tail:+.2f} per sensel",
+                       bounds={"shift": (-2.0, 2.0), "sigma": (0.3, 1.5), "tail": (-0.8, 0.8)}, fixed={"taps": 9},
+                       captures="textured", requires="sharpening"),)
     params = {
         "sharpness": Param(80.0, low=0.0, high=255.0, doc="the camera's sharpness setting"),
         "gain_per_unit": Param(0.025, low=0.0, high=1.0),
@@ -66,6 +73,8 @@ class Sharpening(Effect):
         "taps": Param(7, int, low=3, high=31),
         "shift": Param(0.0, low=-3.0, high=3.0, unit="sensels",
                        doc="centre of L: non-zero makes the filter asymmetric, as the Fire-i's really is (Fig. 8)"),
+        "tail": Param(0.0, low=-0.95, high=0.95,
+                      doc="L's one-sided exponential tail: the fall per sensel (its sign is its side; 0: none)"),
     }
 
     def check(self):
@@ -73,7 +82,7 @@ class Sharpening(Effect):
             raise self.error("'taps' must be odd")
 
     def kernel(self) -> np.ndarray:
-        return sharpening_kernel(self.gain_per_unit * self.sharpness, self.sigma, self.taps, self.shift)
+        return sharpening_kernel(self.gain_per_unit * self.sharpness, self.sigma, self.taps, self.shift, self.tail)
 
     def apply(self, state):
         filter_rows(state, self.kernel())
@@ -194,9 +203,9 @@ def _edge_profiles(grey: np.ndarray, contrast_dn: float = 20.0, at=None, found=N
     """(profiles, positions): normalised profiles (0 left plateau, 1 right plateau) along x across strong,
     near-vertical, straight edges of ``grey`` (:func:`_find_edges`), sampled every 0.25 px over
     +-:data:`EDGE_HALF_PX` about the edge, with the local gain slope divided out (:func:`_gain_slope_field`);
-    edges with another edge in the window (uneven plateaus) are dropped. ``at``: sample at these ``(row, x)`` positions instead of finding edges, dropping none
-    (the model's fit samples the same edges at every step, so its statistic changes smoothly); ``found``: a list
-    that receives the positions used."""
+    edges with another edge in the window (uneven plateaus) are dropped. ``at``: sample at these ``(row, x)``
+    positions instead of finding edges, dropping none (the model's fit samples the same edges at every step, so
+    its statistic changes smoothly); ``found``: a list that receives the positions used."""
     g = np.asarray(grey, np.float32)
     offsets = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, 0.25)
     cols = np.arange(g.shape[1], dtype=np.float64)
