@@ -708,6 +708,7 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     keys = FIT_KEYS[model]
     theta = np.array([values[k] if i is None else values[k][i] for k, i in keys], np.float64)
     scale = np.maximum(1e-2 * np.abs(theta), 1e-2)  # typical parameter steps, for the solver
+    w_index = [key for key, _ in keys].index("w") if model == "fov" else None
 
     def lens_at(t):
         return LensDistortion(**_lens_values(values, model, t)).lens_model(geometry)
@@ -744,8 +745,8 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
             return np.concatenate([x - tx, y - ty, [1e4 * beyond]]) * focal
 
         start_at = theta.copy()
-        if model == "fov" and abs(theta[3]) < 0.05:  # the FOV form is even in w: no gradient at a pinhole
-            start_at[3] = 0.5
+        if model == "fov" and abs(theta[w_index]) < 0.05:  # the FOV form is even in w: no gradient at a pinhole
+            start_at[w_index] = 0.5
         r = least_squares(residual, start_at, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
         trial = simulate(r.x)
         if trial is None or sse(trial) >= best:
