@@ -166,3 +166,30 @@ def test_lensfun_model_is_validated():
         LensDistortion(model="poly3", lensfun_a=0.1)
     LensDistortion(model="ptlens", focal_length=5.2, crop_factor=4.62, calibration_crop_factor=4.62,
                    calibration_aspect_ratio=4 / 3, lensfun_a=0.03458, lensfun_b=-0.14652, lensfun_c=-0.00567)
+
+
+def test_a_given_render_field_must_cover_the_frame_and_the_margin_beyond_it_reads_transparent(fire_i):
+    """A capture's render is made already: its field must cover the frame (else one line), while the working
+    grid's margin around the frame may reach beyond it and then reads as transparent (a real lens fitted to a
+    capture's render was refused for its margin alone)."""
+    import lowcam
+    from lowcam.effects.lens import field_needed
+    from lowcam.errors import LowcamError
+
+    lens = fire_i.effect("lens_distortion")
+    model, geo = lens.lens_model(fire_i.geometry), fire_i.geometry
+    frame_x, _ = field_needed(model, geo.frame_extent)
+    margin_x, _ = field_needed(model, geo.working_extent)
+    between = float(np.degrees(np.arctan(frame_x) + np.arctan(margin_x)))  # 2 atan of neither: a field between
+    assert 2 * np.degrees(np.arctan(frame_x)) < between < 2 * np.degrees(np.arctan(margin_x))
+    profile = fire_i.with_effect("lens_distortion", render_hfov_deg=between)
+    render = np.ones((900, 1200, 4), np.float32)  # opaque everywhere the render reaches
+    working = lowcam.run(render, profile, None, stop_after="lens_distortion").state.working
+    s = 2 * geo.working_scale[0]  # supersampled working px per output px
+    m = int(geo.margin_px * s)
+    frame_alpha = working[m + 4:-m - 4, m + 4:-m - 4, 3]
+    assert frame_alpha.min() > 0.999  # the frame sees the render everywhere
+    assert working[0, 0, 3] == 0 and working[-1, -1, 3] == 0  # the margin's corners lie beyond it
+    narrow = fire_i.with_effect("lens_distortion", render_hfov_deg=2 * np.degrees(np.arctan(frame_x)) - 1)
+    with pytest.raises(LowcamError, match="is narrower than the .* deg the frame sees"):
+        lowcam.run(render, narrow, None, stop_after="lens_distortion")
