@@ -76,18 +76,26 @@ class SimState:
     colour_matrix: np.ndarray | None = None
     sampling_offset: np.ndarray | None = None
     lens: object = None
-    _render_window: tuple = field(default=(None, None), repr=False)  # (the render, its window) when validated
+    _windows: dict = field(default_factory=dict, repr=False)  # image name -> (array, window, producer, applied)
 
     def __post_init__(self):
         self.lens = self.profile.lens
 
-    def render_window(self) -> tuple[slice, slice] | None:
-        """The :func:`~lowcam.window.nonzero_window` of the current render: the one found when it was validated
-        while no effect has run yet, else found again (an effect may have changed the render, even in place)."""
-        render, window = self._render_window
-        if render is not self.render or self.applied:
-            window = nonzero_window(self.render)
-        return window
+    def keep_window(self, name: str, window: tuple[slice, slice] | None, producer=None) -> None:
+        """Note that every non-zero pixel of the image ``name`` ("render" or "working") lies in ``window`` (None:
+        it is all zero), as its ``producer`` (the effect that just wrote it; None: the validation) knows."""
+        self._windows[name] = (getattr(self, name), window, producer, len(self.applied))
+
+    def window(self, name: str) -> tuple[slice, slice] | None:
+        """The :func:`~lowcam.window.nonzero_window` of the image ``name`` ("render" or "working"): the one kept
+        by :meth:`keep_window` while it is the same array and no other effect that writes it (its ``writes``) has
+        run since, else found again."""
+        image = getattr(self, name)
+        kept = self._windows.get(name)
+        if kept is not None and kept[0] is image and all(
+                e is kept[2] or e.writes != name for e in self.applied[kept[3]:]):
+            return kept[1]
+        return nonzero_window(image)
 
     @property
     def camera(self):
@@ -239,8 +247,8 @@ def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, pa
         raise LowcamError(f"angular_velocity must be three finite numbers (rad/s), got {angular_velocity!r}")
     if exposure_s is not None and not (0 <= exposure_s <= 10):
         raise LowcamError(f"exposure_s = {exposure_s} is out of range [0, 10] s")
-    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes,
-                     _render_window=(render, window))
+    state = SimState(profile, render, plate_f, plate_raw, w, exposure_s, int(seed), int(frame), passes)
+    state.keep_window("render", window)
     return state, plate_u8
 
 
@@ -395,7 +403,8 @@ def plain_composite(render: np.ndarray, profile="fire-i", plate: np.ndarray | No
         from .effects.bayer import demosaic_bilinear, unmosaic
 
         plate_f = demosaic_bilinear(unmosaic(plate_u8, profile.geometry), profile.geometry)
-    state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0, _render_window=(render, window))
+    state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0)
+    state.keep_window("render", window)
     profile.effect("lens_distortion").apply(state)
     profile.effect("half_sampling").apply(state)
     g = profile.geometry

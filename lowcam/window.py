@@ -109,6 +109,57 @@ class WindowedRemap:
         return (tile_rows[0] * t, min(self.rows, (tile_rows[-1] + 1) * t),
                 tile_cols[0] * t, min(self.cols, (tile_cols[-1] + 1) * t))
 
+    def output_window(self, window: tuple[slice, slice] | None) -> tuple[slice, slice] | None:
+        """The (rows, cols) window of one output block holding every pixel that can be non-zero for a source
+        ``window`` (:meth:`output_rect`); None when nothing can."""
+        rect = None if window is None else self.output_rect(window)
+        return None if rect is None else (slice(rect[0], rect[1]), slice(rect[2], rect[3]))
+
+    def halved(self, src: np.ndarray, window: tuple[slice, slice] | None, strip: int = 256) -> np.ndarray:
+        """The warp of ``src`` (one block of even rows and cols) halved by its 2x2 box means: ``cv2.resize(self(src,
+        window), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)``, bit for bit, computed ``strip`` rows at a
+        time so the full-size warp is never held."""
+        m1, m2 = self.maps
+        out = np.zeros((self.rows // 2, self.cols // 2) + src.shape[2:], np.float32)
+        rect = None if window is None else self.output_rect(window)
+        if rect is None:
+            return out
+        r0, c0 = 2 * (rect[0] // 2), 2 * (rect[2] // 2)
+        r1, c1 = min(self.rows, 2 * -(-rect[1] // 2)), min(self.cols, 2 * -(-rect[3] // 2))
+        buffer = np.empty((strip, c1 - c0) + src.shape[2:], np.float32)
+        for top in range(r0, r1, strip):
+            bottom = min(r1, top + strip)
+            warped = buffer[:bottom - top]
+            cv2.remap(src, m1[top:bottom, c0:c1], m2[top:bottom, c0:c1], cv2.INTER_LINEAR, dst=warped,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            half = out[top // 2:bottom // 2, c0 // 2:c1 // 2]
+            cv2.resize(warped, half.shape[1::-1], dst=half, interpolation=cv2.INTER_AREA)
+        return out
+
+    def mean(self, src: np.ndarray, window: tuple[slice, slice] | None, taps: int) -> np.ndarray:
+        """The mean of every run of ``taps`` consecutive blocks of the warp of ``src``, as (blocks / taps, rows,
+        cols[, channels]): equal to ``self(src, window).reshape(-1, taps, ...).mean(axis=1)`` (the taps added in
+        order in float32), without holding every tap at once."""
+        m1, m2 = self.maps
+        out = np.zeros((self.blocks // taps, self.rows, self.cols) + src.shape[2:], np.float32)
+        rect = None if window is None else self.output_rect(window)
+        if rect is None:
+            return out
+        r0, r1, c0, c1 = rect
+        tap = np.empty((r1 - r0, c1 - c0) + src.shape[2:], np.float32)
+        for group in range(out.shape[0]):
+            total = out[group, r0:r1, c0:c1]
+            for k in range(taps):
+                first_row = (group * taps + k) * self.rows
+                part = slice(first_row + r0, first_row + r1), slice(c0, c1)
+                cv2.remap(src, m1[part], m2[part], cv2.INTER_LINEAR, dst=total if k == 0 else tap,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                if k:
+                    np.add(total, tap, out=total)
+            if taps > 1:
+                np.true_divide(total, np.float32(taps), out=total)
+        return out
+
     def __call__(self, src: np.ndarray, window: tuple[slice, slice] | None) -> np.ndarray:
         """The warp of ``src`` (rows, cols[, channels]) as (blocks * rows, cols[, channels]); ``window`` holds
         every non-zero source pixel (None: ``src`` is all zero)."""

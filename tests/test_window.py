@@ -77,8 +77,9 @@ def test_lens_and_bayer_sampling_of_sparse_graphics_equal_plain_remaps_of_the_wh
     render = sample_render(fire_i, 1600)
     assert nonzero_window(render) != (slice(0, render.shape[0]), slice(0, render.shape[1]))  # sparse graphics
     state = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="lens_distortion").state
-    x, y = fire_i.effect("lens_distortion").render_coordinates(state, render.shape[:2])
-    assert np.array_equal(state.working, cv2.remap(render, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+    x, y = fire_i.effect("lens_distortion").render_coordinates(state, render.shape[:2])  # the supersampled grid
+    supersampled = cv2.remap(render, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    assert np.array_equal(state.working, cv2.resize(supersampled, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
 
     state = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="bayer_sampling").state
     before = lowcam.run(render, fire_i, None, (0.05, 0.8, 0.1), stop_after="spatial_blur").state.working
@@ -128,13 +129,60 @@ def test_varying_blur_in_a_window_equals_the_blur_of_the_whole_image(rng, corner
 
 
 def test_a_render_changed_in_place_by_an_effect_gets_its_window_found_again(fire_i):
-    """The window found while validating serves only until an effect runs: one may change the render in place."""
+    """The window found while validating serves only until an effect that writes the render runs: one may change
+    it in place. Effects that write other images leave it standing."""
     from lowcam.pipeline import _start
 
     render = np.zeros((450, 600, 4), np.float32)
     render[200:220, 300:330] = 0.5
     state, _ = _start(render, fire_i, None, (0, 0, 0), None, 0, 0, None)
-    assert state.render_window() == (slice(200, 220), slice(300, 330))
+    assert state.window("render") == (slice(200, 220), slice(300, 330))
     state.render[10, 20, 0] = 1.0  # an effect brightening one pixel, in place
-    state.applied.append(fire_i.effect("lens_distortion"))
-    assert state.render_window() == (slice(10, 220), slice(20, 330))
+    state.applied.append(fire_i.effect("lens_distortion"))  # writes the working image
+    assert state.window("render") == (slice(200, 220), slice(300, 330))
+    state.applied.append(fire_i.with_effect("object_motion").effect("object_motion"))  # writes the render
+    assert state.window("render") == (slice(10, 220), slice(20, 330))
+
+
+@pytest.mark.parametrize("shape, strip", [((70, 90), 4), ((64, 96), 256)])
+def test_halved_warp_equals_the_area_halving_of_the_whole_warp(rng, shape, strip):
+    src_shape = (120, 150, 4)
+    x, y = _coordinates(rng, 1, *shape, src_shape)
+    warp = WindowedRemap(x, y, tile=8)
+    for trial in range(20):
+        src = np.zeros(src_shape, np.float32)
+        r0, c0 = rng.integers(0, 110), rng.integers(0, 140)
+        r1, c1 = r0 + rng.integers(1, 40), c0 + rng.integers(1, 40)
+        src[r0:r1, c0:c1] = rng.uniform(-1, 2, (min(r1, 120) - r0, min(c1, 150) - c0, 4))
+        whole = cv2.remap(src, x[0], y[0], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        expected = cv2.resize(whole, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        got = warp.halved(src, nonzero_window(src), strip)
+        assert np.array_equal(got, expected), (trial, np.abs(got - expected).max())
+    assert not warp.halved(np.zeros(src_shape, np.float32), None).any()
+
+
+def test_tap_mean_equals_the_mean_of_every_tap(rng):
+    src_shape = (120, 150, 2)
+    x, y = _coordinates(rng, 12, 40, 50, src_shape)  # 3 groups of 4 taps
+    warp = WindowedRemap(x, y, tile=8)
+    src = np.zeros(src_shape, np.float32)
+    src[30:70, 40:90] = rng.uniform(0, 1, (40, 50, 2))
+    expected = warp(src, None if not src.any() else (slice(0, 120), slice(0, 150))).reshape(3, 4, 40, 50, 2)
+    assert np.array_equal(warp.mean(src, nonzero_window(src), 4), expected.mean(axis=1))
+
+
+@pytest.mark.parametrize("effect", [None, "veiling_glare", "defocus"])
+def test_windows_kept_between_effects_give_the_frames_of_windows_found_every_time(fire_i, monkeypatch, effect):
+    """The lens, half-sampling, crosstalk and blur hand their output's window on; an effect that writes the working
+    image in place (veiling glare spreads light everywhere) must end that, or its light is lost."""
+    from lowcam.pipeline import SimState
+
+    profile = fire_i if effect is None else fire_i.with_effect(
+        effect, **({"strength": 0.2} if effect == "veiling_glare" else {"radius_px": 2.0}))
+    render = sample_render(fire_i, 1200)
+    kept = lowcam.run(render, profile, None, (0.05, 0.8, 0.1), seed=4)
+    monkeypatch.setattr(SimState, "window", lambda state, name: nonzero_window(getattr(state, name)))
+    found = lowcam.run(render, profile, None, (0.05, 0.8, 0.1), seed=4)
+    assert np.array_equal(kept.frame, found.frame)
+    if effect == "veiling_glare":  # the haze lights about twice the sensels the graphics cover (0.22 of them)
+        assert (kept.state.bayer > 0).mean() > 1.5 * (kept.state.bayer_alpha > 0).mean()

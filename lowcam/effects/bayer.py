@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from ..geometry import BAYER_BORDER, CFA_CHANNELS, COLOUR_INDEX, sample_texture
-from ..window import WindowedRemap, nonzero_window
+from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 
 #: The sensel planes (R, Gr, Gb, B) each colour reads: R, then both greens, then B.
@@ -116,7 +116,7 @@ class BayerSampling(Effect):
         g = state.geometry
         hb, wb = g.bayer_shape
         n, warps = self.warps(state)
-        window = nonzero_window(state.working)
+        window = state.window("working")
         # Each colour is sampled from a 2-channel (colour, alpha) image: half the memory traffic of RGBA.
         h, w = state.working.shape[:2]
         pairs = [np.empty((h, w, 2), np.float32) for _ in range(3)]
@@ -124,9 +124,7 @@ class BayerSampling(Effect):
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
         for src, ks, warp in zip(pairs, _COLOUR_PLANES, warps):
-            count = ks.stop - ks.start
-            sampled = warp(src, window).reshape(count, n, hb, wb, 2)
-            sampled = sampled.mean(axis=1) if n > 1 else sampled[:, 0]
+            sampled = warp.mean(src, window, n)
             state.bayer[ks] = sampled[..., 0]
             state.bayer_alpha[ks] = sampled[..., 1]
         state.bayer *= np.float32(255.0 / self.render_white)

@@ -12,6 +12,7 @@ Contents
 - :func:`level_weights`: piecewise-linear (hat) weights of each blur level for each sigma; they sum to 1
 - :func:`blur_level_maps`: the uniform blurs a sigma grid blends, each with its weight map over the image
 - :func:`varying_gaussian`: blur an image with a Gaussian whose sigma varies smoothly over a coarse grid
+- :func:`gaussian_reach`: how far (px) that blur can spread a pixel
 - :class:`SpatialBlur`: spatially varying Gaussian blur on a 24x18-cell grid (sec. 5.2 step 3)
 - :class:`HorizontalBlur`: horizontal Gaussian blur of every sensel plane, 7 taps, sigma 0.7 (sec. 4.3, step 6)
 - :func:`filter_rows`: convolve every sensel plane's colour and alpha along rows with a kernel
@@ -34,7 +35,7 @@ import cv2
 import numpy as np
 
 from ..geometry import grid_points, sample_texture
-from ..window import grow_window, nonzero_window
+from ..window import grow_window
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -90,11 +91,18 @@ def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray, window=None) -> 
     levels = blur_level_maps(sigma_grid, image.shape[:2])
     if window is None:
         return _blend_levels(image, levels)
-    # cv2.GaussianBlur's float32 kernel has radius round(8 sigma + 1) // 2 <= 4 sigma + 1
-    rows, cols = grow_window(window, int(np.ceil(4 * max(s for s, _ in levels))) + 2, image.shape)
+    rows, cols = grow_window(window, gaussian_reach(sigma_grid), image.shape)
     out = np.zeros_like(image)
     out[rows, cols] = _blend_levels(image[rows, cols], [(s, None if m is None else m[rows, cols]) for s, m in levels])
     return out
+
+
+def gaussian_reach(sigma_grid: np.ndarray) -> int:
+    """How far (px) :func:`varying_gaussian` can spread a pixel: cv2.GaussianBlur's float32 kernel has radius
+    round(8 sigma + 1) // 2 <= 4 sigma + 1, for the widest blur level it may blend."""
+    lo, hi = float(sigma_grid.min()), float(sigma_grid.max())
+    widest = hi if hi - lo < 1e-3 else blur_levels(lo, hi)[-1]
+    return int(np.ceil(4 * widest)) + 2
 
 
 def _blend_levels(image: np.ndarray, levels) -> np.ndarray:
@@ -147,10 +155,11 @@ class SpatialBlur(Effect):
         return np.sqrt(var).astype(np.float32)
 
     def apply(self, state):
-        window = nonzero_window(state.working)
+        window = state.window("working")
         if window is not None:  # the blur of zeros is zeros
             sigma = self.sigma_grid(state) * min(state.geometry.working_scale)
             state.working = varying_gaussian(state.working, sigma, window)
+            state.keep_window("working", grow_window(window, gaussian_reach(sigma), state.working.shape), self)
 
 
 class HorizontalBlur(Effect):

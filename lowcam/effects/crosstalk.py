@@ -118,7 +118,9 @@ class Crosstalk(Effect):
     def apply(self, state):
         t = np.eye(4, dtype=np.float64)
         t[:3, :3] = self.total_matrix()
+        window = state.window("working")  # a matrix keeps zeros zero
         state.working = cv2.transform(state.working, t.astype(np.float32))
+        state.keep_window("working", window, self)
 
 
 def fit_colour_matrix(ideal: np.ndarray, measured: np.ndarray) -> np.ndarray:

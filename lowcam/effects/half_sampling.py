@@ -1,11 +1,13 @@
 """Half-sampling of the distorted image (Klein & Murray 2010, sec. 5.2 step 2).
 
 The paper takes four bilinear taps just outside the 2x2 box (a slightly enlarged box, against aliasing); here the
-exact 2x2 box is followed by the 3-tap kernel ``[e, 1 - 2e, e]`` on the half-resolution image.
+exact 2x2 box (taken by the lens warp) is followed by the 3-tap kernel ``[e, 1 - 2e, e]`` on the half-resolution
+image.
 
 Contents
 --------
-- :class:`HalfSampling`: 2x2 box down-sampling of the supersampled working image, slightly enlarged
+- :class:`HalfSampling`: 2x2 box down-sampling of the supersampled working image, slightly enlarged (the box is
+  taken by the lens warp)
 
 References
 ----------
@@ -17,6 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..window import grow_window
 from .base import Effect, NodeStage, Param
 
 
@@ -24,7 +27,9 @@ class HalfSampling(Effect):
     """2x2 box down-sampling of the supersampled working image, slightly enlarged to avoid aliasing.
 
     The paper takes four bilinear taps just outside the 2x2 box (16 source pixels). We use the exact 2x2 box
-    followed by the 3-tap kernel ``[e, 1 - 2e, e]`` on the half-resolution image, ``e = box_enlargement``.
+    followed by the 3-tap kernel ``[e, 1 - 2e, e]`` on the half-resolution image, ``e = box_enlargement``. The
+    box itself is taken as the lens warp samples the supersampled grid (:class:`~lowcam.effects.lens.
+    LensDistortion`), so this stage applies the kernel.
     """
 
     name = "half_sampling"
@@ -36,9 +41,12 @@ class HalfSampling(Effect):
     params = {"box_enlargement": Param(0.05, low=0.0, high=0.33, doc="weight of each neighbouring tap")}
 
     def apply(self, state):
-        h, w = state.geometry.working_shape
-        state.working = cv2.resize(state.working, (w, h), interpolation=cv2.INTER_AREA)
         e = self.box_enlargement if self.enabled else 0.0
-        if e > 0:
-            k = np.array([e, 1 - 2 * e, e], np.float32)
-            state.working = cv2.sepFilter2D(state.working, -1, k, k, borderType=cv2.BORDER_CONSTANT)
+        window = state.window("working")
+        if e <= 0 or window is None:
+            return
+        k = np.array([e, 1 - 2 * e, e], np.float32)
+        rows, cols = grow_window(window, 1, state.working.shape)  # the kernel of zeros is zero
+        state.working[rows, cols] = cv2.sepFilter2D(state.working[rows, cols], -1, k, k,
+                                                    borderType=cv2.BORDER_CONSTANT)
+        state.keep_window("working", (rows, cols), self)

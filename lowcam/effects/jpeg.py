@@ -85,6 +85,215 @@ def jpeg_roundtrip(frame: np.ndarray, quality: int, subsampling: str = "4:2:0", 
     return cv2.cvtColor(chroma, cv2.COLOR_YCrCb2RGB)
 
 
+#: (rows, cols) halving of the chroma planes per subsampling.
+_CHROMA_STEP = {"4:4:4": (1, 1), "4:2:2": (1, 2), "4:2:0": (2, 2)}
+
+
+def _dct_matrix() -> np.ndarray:
+    """The orthonormal 8-point DCT-II matrix C: a block's JPEG DCT is ``C b C^T`` [T.81, A.3.3]."""
+    k = np.arange(8)
+    c = np.sqrt(2 / 8) * np.cos((2 * k[None, :] + 1) * k[:, None] * np.pi / 16)
+    c[0] /= np.sqrt(2)
+    return c
+
+
+_DCT = _dct_matrix()
+
+
+def _blocks(plane: np.ndarray) -> np.ndarray:
+    """(rows/8, cols/8, 8, 8) view of a plane whose sides are multiples of 8."""
+    h, w = plane.shape
+    return plane.reshape(h // 8, 8, w // 8, 8).swapaxes(1, 2)
+
+
+def _pad(plane: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """The plane with its last row and column repeated to multiples of ``rows`` and ``cols`` (as libjpeg fills
+    partial blocks)."""
+    h, w = plane.shape
+    return np.pad(plane, ((0, -h % rows), (0, -w % cols)), mode="edge")
+
+
+def _code_plane(plane: np.ndarray, table) -> np.ndarray:
+    """One plane (sides multiples of 8, values 0-255) through the DCT, quantisation by ``table`` (natural order;
+    rounding half away from zero, as libjpeg) and back, rounded and limited to 0-255 as a decoder stores it."""
+    q = np.asarray(table, np.float64).reshape(8, 8)
+    coefficients = _DCT @ _blocks(plane - 128.0) @ _DCT.T
+    levels = np.sign(coefficients) * np.floor(np.abs(coefficients) / q + 0.5)
+    out = (_DCT.T @ (levels * q) @ _DCT).swapaxes(1, 2).reshape(plane.shape)
+    return np.clip(np.floor(out + 128.5), 0, 255)
+
+
+def _downsample(plane: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Box means of ``rows`` x ``cols`` pixels with libjpeg's alternating rounding bias (jcsample.c: 1, 2 for
+    2x2 boxes; 0, 1 for pairs)."""
+    if rows * cols == 1:
+        return plane
+    h, w = plane.shape
+    total = plane.reshape(h // rows, rows, w // cols, cols).sum(axis=(1, 3))
+    n = rows * cols
+    bias = np.where(np.arange(w // cols) % 2 == 0, n // 4, n // 2)
+    return np.floor((total + bias) / n)
+
+
+def _fancy_upsample(plane: np.ndarray, rows: int) -> np.ndarray:
+    """libjpeg's "fancy" (triangle) chroma upsampling, doubling the columns (and the rows when ``rows`` is 2):
+    each new pixel weighs its own sample 3/4 and the nearer neighbour 1/4 per axis, integer-rounded as
+    jdsample.c does."""
+    def shifted(a, axis, step):
+        edge = np.take(a, [0 if step < 0 else -1], axis=axis)
+        body = np.take(a, range(0, a.shape[axis] - 1) if step < 0 else range(1, a.shape[axis]), axis=axis)
+        return np.concatenate([edge, body] if step < 0 else [body, edge], axis=axis)
+
+    if rows == 1:
+        out = np.empty((plane.shape[0], 2 * plane.shape[1]))
+        out[:, 0::2] = np.floor((3 * plane + shifted(plane, 1, -1) + 1) / 4)
+        out[:, 1::2] = np.floor((3 * plane + shifted(plane, 1, 1) + 2) / 4)
+        out[:, 0], out[:, -1] = plane[:, 0], plane[:, -1]
+        return out
+    out = np.empty((2 * plane.shape[0], 2 * plane.shape[1]))
+    for first, step in ((0, -1), (1, 1)):
+        column = 3 * plane + shifted(plane, 0, step)  # 4x the vertical triangle's value
+        half = out[first::2]
+        half[:, 0::2] = np.floor((3 * column + shifted(column, 1, -1) + 8) / 16)
+        half[:, 1::2] = np.floor((3 * column + shifted(column, 1, 1) + 7) / 16)
+        half[:, 0] = np.floor((4 * column[:, 0] + 8) / 16)
+        half[:, -1] = np.floor((4 * column[:, -1] + 7) / 16)
+    return out
+
+
+def _rgb_to_ycc(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Full-range BT.601 Y, Cb, Cr (JFIF) of an RGB frame, float64, unrounded."""
+    r, g, b = (frame[..., k].astype(np.float64) for k in range(3))
+    return (0.299 * r + 0.587 * g + 0.114 * b, -0.168735892 * r - 0.331264108 * g + 0.5 * b + 128.0,
+            0.5 * r - 0.418687589 * g - 0.081312411 * b + 128.0)
+
+
+def jpeg_roundtrip_tables(frame: np.ndarray, luma_table, chroma_table, subsampling: str = "4:2:0") -> np.ndarray:
+    """One 8-bit RGB frame (H, W, 3) coded as baseline JPEG with the quantisation tables ``luma_table`` and
+    ``chroma_table`` (64 entries each, natural row-major order) and decoded again, in numpy, with libjpeg's
+    arithmetic where it shows: JFIF colour conversion rounded to 8 bits, box chroma downsampling with its
+    alternating bias, 8x8 DCT [T.81, A.3.3], quantisation rounded half away from zero, decoded samples rounded
+    and limited to 0-255, fancy (triangle) chroma upsampling. For an encoder's own tables, which OpenCV cannot
+    write; libjpeg's integer DCT rounds a few coefficients on the other side (about 95 % of pixels equal Pillow's
+    decoded frame, 0.6-0.8 DN RMS apart)."""
+    rows, cols = _CHROMA_STEP[subsampling]
+    y, cb, cr = _rgb_to_ycc(frame)
+    h, w = y.shape
+    luma = _code_plane(_pad(np.floor(y + 0.5), 8 * rows, 8 * cols), luma_table)[:h, :w]
+    chroma = []
+    for c in (cb, cr):
+        small = _downsample(_pad(np.floor(c + 0.5 - 2.0 ** -16), 8 * rows, 8 * cols), rows, cols)
+        coded = _code_plane(small, chroma_table)[:-(-h // rows), :-(-w // cols)]
+        if cols == 2:
+            coded = _fancy_upsample(coded, rows)
+        chroma.append(coded[:h, :w] - 128.0)
+    cb, cr = chroma
+    rgb = np.stack([luma + np.floor(1.402 * cr + 0.5), luma + np.floor(-0.344136286 * cb - 0.714136286 * cr + 0.5),
+                    luma + np.floor(1.772 * cb + 0.5)], axis=-1)
+    return np.clip(rgb, 0, 255).astype(np.uint8)
+
+
+def _unfancy(plane: np.ndarray, axis: int) -> np.ndarray:
+    """The samples fancy upsampling doubled along ``axis``, recovered from the means of its output pairs:
+    ``(3/4) c[i] + (1/8) (c[i-1] + c[i+1])`` (edges repeated), solved as a tridiagonal system."""
+    from scipy.linalg import solve_banded
+
+    a = np.moveaxis(plane, axis, 0)
+    pairs = 0.5 * (a[0::2] + a[1::2])
+    n = pairs.shape[0]
+    band = np.zeros((3, n))
+    band[0, 1:], band[1], band[2, :-1] = 0.125, 0.75, 0.125
+    band[1, 0] += 0.125
+    band[1, -1] += 0.125
+    return np.moveaxis(solve_banded((1, 1), band, pairs.reshape(n, -1)).reshape(pairs.shape), 0, axis)
+
+
+def _dct_of_frames(frames: np.ndarray, subsampling: str) -> tuple[np.ndarray, np.ndarray]:
+    """The 8x8 DCT coefficients, (N, 64) natural order, of the luma and chroma blocks a JPEG decoder held for
+    the decoded (T, H, W, 3) ``frames``: their colour converted back, the chroma's upsampling undone."""
+    rows, cols = _CHROMA_STEP[subsampling]
+    luma, chroma = [], []
+    for frame in frames:
+        y, cb, cr = _rgb_to_ycc(frame)
+        h8, w8 = y.shape[0] // 8 * 8, y.shape[1] // 8 * 8
+        luma.append((_DCT @ _blocks(y[:h8, :w8] - 128.0) @ _DCT.T).reshape(-1, 64))
+        for c in (cb, cr):
+            c = c[:c.shape[0] // (8 * rows) * 8 * rows, :c.shape[1] // (8 * cols) * 8 * cols]
+            if cols == 2:
+                c = _unfancy(c, 1)
+            if rows == 2:
+                c = _unfancy(c, 0)
+            chroma.append((_DCT @ _blocks(c - 128.0) @ _DCT.T).reshape(-1, 64))
+    return np.concatenate(luma), np.concatenate(chroma)
+
+
+#: Coefficients of one frequency that :func:`quantisation_step` needs away from 0 to name its step.
+_MIN_SUPPORT = 30
+
+
+def quantisation_step(coefficients: np.ndarray, noise: float) -> int | None:
+    """The quantisation step (1-255) of one frequency from the DCT coefficients of decoded blocks, which lie on
+    its multiples plus the decoder's rounding (``noise``: how far from 0 a coefficient of a zero level reaches).
+
+    Each step ``q`` is scored by ``mean(cos(2 pi c / q))`` over the coefficients beyond ``q / 2`` (those it
+    codes as non-zero; at least :data:`_MIN_SUPPORT` of them), for ``q`` up to the largest coefficient (beyond,
+    every score tends to 1); the best wins, near-ties going to the larger step (a divisor fits as well but for
+    its noise). None when fewer than :data:`_MIN_SUPPORT` coefficients lie beyond ``noise`` or no step scores
+    0.5 (the step is not shown, or too fine for the noise)."""
+    away = np.abs(coefficients[np.abs(coefficients) > noise])
+    if away.size < _MIN_SUPPORT:
+        return None
+    steps = np.arange(2, int(min(255, away.max() + 2)) + 1)
+    phases = np.cos(2 * np.pi * away[None, :] / steps[:, None])
+    coded = away[None, :] > steps[:, None] / 2
+    support = coded.sum(axis=1)
+    scores = np.where(support >= _MIN_SUPPORT, (phases * coded).sum(axis=1) / np.maximum(support, 1), -1.0)
+    best = scores.max()
+    if best < 0.5:
+        return None
+    return int(steps[np.flatnonzero(scores >= best - 0.01 * (1 - best) - 1e-3)[-1]])
+
+
+def estimate_tables(frames: np.ndarray, subsampling: str, fallback: tuple) -> tuple[list, list, float]:
+    """The luma and chroma quantisation tables (natural order) of decoded JPEG ``frames`` (T, H, W, 3), from the
+    lattice of their blocks' DCT coefficients (:func:`quantisation_step`), and the share of the 128 entries
+    found so; an entry the frames do not show keeps ``fallback``'s (luma, chroma) value (the IJG-scaled tables
+    of the fitted quality)."""
+    luma, chroma = _dct_of_frames(np.asarray(frames), subsampling)
+    # undoing the upsampling amplifies the decoder's rounding by up to 2 per halved axis, most at high frequencies
+    rows, cols = _CHROMA_STEP[subsampling]
+    gain = 1 / (0.75 + 0.25 * np.cos(np.pi * np.arange(8) / 8))
+    chroma_noise = 4.0 * np.outer(gain if rows == 2 else np.ones(8), gain if cols == 2 else np.ones(8)).ravel()
+    tables, found = [], 0
+    for coefficients, noise, standby in ((luma, np.full(64, 3.0), fallback[0]), (chroma, chroma_noise, fallback[1])):
+        table = []
+        for k in range(64):
+            q = quantisation_step(coefficients[:, k], noise[k])
+            found += q is not None
+            table.append(int(q) if q is not None else int(standby[k]))
+        tables.append(table)
+    return tables[0], tables[1], found / 128
+
+
+def standard_tables(quality: int, chroma_quality: int = 0) -> tuple[list, list]:
+    """The IJG-scaled [T.81] Annex K tables (natural order) at ``quality`` (chroma at ``chroma_quality``, 0:
+    ``quality``): the tables OpenCV's encoder writes."""
+    def scaled(base, q):
+        q = int(min(100, max(1, q)))
+        percent = 5000 // q if q < 50 else 200 - 2 * q
+        return [int(min(255, max(1, (b * percent + 50) // 100))) for b in base]
+
+    return scaled(_ANNEX_K_LUMA, quality), scaled(_ANNEX_K_CHROMA, chroma_quality or quality)
+
+
+#: [T.81] Annex K, tables K.1 and K.2 (natural order): quality 50's luma and chroma tables.
+_ANNEX_K_LUMA = (16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69, 56,
+                 14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81, 104, 113, 92,
+                 49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99)
+_ANNEX_K_CHROMA = (17, 18, 24, 47, 99, 99, 99, 99, 18, 21, 26, 66, 99, 99, 99, 99, 24, 26, 56, 99, 99, 99, 99, 99,
+                   47, 66, 99, 99, 99, 99, 99, 99) + (99,) * 32
+
+
 def fit_jpeg(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): the subsampling, quality and chroma quality whose coded
     frames' temporal means best match the measured means (squared residual summed over the context's few
@@ -145,7 +354,22 @@ def fit_jpeg(ctx, effect):
     for steps in ((-2, 0, 2), (-1, 0, 1)):
         q = refine(q, steps, lambda v: sse(v, s, qc))
     values = {"quality": q, "subsampling": s, "chroma_quality": 0 if qc == q else qc}
-    return p.with_effect(effect, **values), values, dict(values, chroma_quality=qc)
+    shown = dict(values, chroma_quality=qc, tables="IJG-scaled")
+    # an encoder's own tables, read off the measured frames' DCT lattice, where they fit better than any scaling
+    luma, chroma, share = estimate_tables(np.concatenate([caps[i].frames for i in idx]), s, standard_tables(q, qc))
+    if (luma, chroma) != standard_tables(q, qc):
+        own = {"subsampling": s, "luma_table": luma, "chroma_table": chroma}
+        if shortcut:
+            score = float(sum(((m - np.mean([jpeg_roundtrip_tables(f, luma, chroma, s) for f in g], axis=0)) ** 2
+                               ).sum() for m, g in zip(means, uncoded)))
+        else:
+            frames = [simulate_capture(p.with_effect(effect, **own), caps[i], max(len(caps[i].frames), 4),
+                                       inputs=ctx.inputs[i], cache=ctx.cache) for i in idx]
+            score = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
+        if score < sse(q, s, qc):
+            values = dict(values, **own)
+            shown = dict(shown, tables=f"the encoder's own ({share:.0%} of the steps read off the frames)")
+    return p.with_effect(effect, **values), values, shown
 
 
 fit_jpeg.refines = True  # diagnosis calls it again, in full, for a promising candidate
@@ -162,11 +386,22 @@ class Jpeg(Effect):
     writes = "output"
     order = 280
     searches = (Search("jpeg", "8x8 block artefacts as from JPEG quality {quality} (chroma {chroma_quality}), "
-                       "chroma {subsampling}",
+                       "chroma {subsampling}, tables {tables}",
                        fit=fit_jpeg),)
     params = {"quality": Param(90, int, low=1, high=100, doc="IJG quality: the standard tables' scaling"),
               "subsampling": Param("4:2:0", str, choices=SUBSAMPLINGS, doc="chroma subsampling (J:a:b)"),
-              "chroma_quality": Param(0, int, low=0, high=100, doc="IJG quality of the chroma table; 0: quality")}
+              "chroma_quality": Param(0, int, low=0, high=100, doc="IJG quality of the chroma table; 0: quality"),
+              "luma_table": Param([], "vector", low=1, high=255, whole=True,
+                                  doc="an encoder's own luma table, 64 steps in natural order; [] the IJG-scaled"),
+              "chroma_table": Param([], "vector", low=1, high=255, whole=True,
+                                    doc="an encoder's own chroma table, 64 steps in natural order; [] with luma_table: "
+                                        "as luma_table")}
+
+    def check(self):
+        if len(self.luma_table) not in (0, 64) or len(self.chroma_table) not in (0, 64):
+            raise self.error("'luma_table' and 'chroma_table' hold 64 steps each (natural order), or none")
+        if self.chroma_table and not self.luma_table:
+            raise self.error("'chroma_table' needs 'luma_table'")
 
     def apply(self, state):
         """Nothing before the blend: the encode acts on the delivered frame (:meth:`finish`)."""
@@ -175,7 +410,11 @@ class Jpeg(Effect):
         from ..errors import LowcamError
 
         try:
-            out = jpeg_roundtrip(frame, self.quality, self.subsampling, self.chroma_quality)
+            if self.luma_table:
+                out = jpeg_roundtrip_tables(frame, self.luma_table, self.chroma_table or self.luma_table,
+                                            self.subsampling)
+            else:
+                out = jpeg_roundtrip(frame, self.quality, self.subsampling, self.chroma_quality)
         except LowcamError as e:
             raise LowcamError(f"{self.source}: {e}") from None
         return out, np.ones_like(footprint)

@@ -41,10 +41,12 @@ Contents
 - :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :func:`field_needed`: the pinhole half-extents the border of a region of the frame sees through a lens
-- :class:`LensDistortion`: warps the pinhole render through the lens into the supersampled grid (sec. 5.2 step 1)
+- :class:`LensDistortion`: warps the pinhole render through the lens into the working grid, 2x2 supersampled (sec.
+  5.2 steps 1-2)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
+- :data:`SWITCH_MODELS`, :data:`SWITCH_GAIN`: the lens forms the candidate may switch to, and when
 - :func:`fit_radial_distortion`: the candidate: distortion, focal length and centre from the optical flow, the
-  render's field of view held
+  render's field of view held, in the profile's lens form or a wider one
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
 - :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
 
@@ -425,7 +427,12 @@ def field_needed(lens: LensModel, extent) -> tuple[float, float]:
 
 
 class LensDistortion(Effect):
-    """Warps the ideal pinhole render through the lens into the supersampled working grid (sec. 5.2 step 1).
+    """Warps the ideal pinhole render through the lens into the working grid (sec. 5.2 steps 1 and 2).
+
+    The render is sampled (bilinear) on the supersampled working grid, twice the working resolution, and each
+    working pixel is the mean of its 2x2 box of samples: the half-sampling of step 2, taken here so the
+    supersampled image is never held (:class:`~lowcam.effects.half_sampling.HalfSampling` adds the box's
+    enlargement).
 
     The render covers a pinhole field of view of ``render_hfov_deg`` horizontally (square pixels, centred); with
     0 the engine picks the field that just covers the working grid (frame plus margin) for a render of the
@@ -610,7 +617,11 @@ class LensDistortion(Effect):
 
     def apply(self, state):
         warp = self.render_warp(state, state.render.shape[:2])
-        state.working = warp(state.render, state.render_window())
+        window = state.window("render")
+        state.working = warp.halved(state.render, window)  # the 2x2 box of step 2 (half_sampling)
+        rows, cols = warp.output_window(window) or (slice(0, 0), slice(0, 0))
+        state.keep_window("working", None if window is None else (slice(rows.start // 2, -(-rows.stop // 2)),
+                                                                  slice(cols.start // 2, -(-cols.stop // 2))), self)
 
 
 # --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------
@@ -680,6 +691,32 @@ def _flow_targets(means, clean, lens_model, stride: int = 6):
     return tuple(np.concatenate(c) for c in zip(*out))
 
 
+#: The lens forms the ``radial_distortion`` candidate may switch a profile's lens to when its own cannot follow the
+#: measured geometry: the engine's general forms (Brown-Conrady k1..k3 with the centre, and the FOV model).
+SWITCH_MODELS = ("opencv", "fov")
+#: Another lens form replaces the profile's own when its robust residual is below this fraction of the own's.
+SWITCH_GAIN = 0.7
+
+
+def _family_start(values: dict, model: str, lens: LensModel, targets) -> dict:
+    """``values`` with the lens form ``model`` started at ``lens``'s centre: Brown-Conrady's focal length and
+    k1..k3 solved linearly from the ``targets`` (u, v, x, y: pixels and the camera-plane points they see, as
+    ``u - cx = fx x (1 + k1 r^2 + k2 r^4 + k3 r^6)``), the FOV form at ``lens``'s focal length with ``w`` 0.5
+    (where it has a gradient)."""
+    fx, fy, cx, cy = lens.pinhole_intrinsics()
+    kept = {k: v for k, v in values.items() if k in LensDistortion.keys_of(model)}
+    if model == "opencv":
+        u, v, x, y = targets
+        r2 = x * x + y * y
+        powers = np.stack([np.ones_like(r2), r2, r2 ** 2, r2 ** 3], axis=1)
+        a = np.linalg.lstsq(np.concatenate([x[:, None] * powers, (fy / fx) * y[:, None] * powers]),
+                            np.concatenate([u - cx, v - cy]), rcond=None)[0]
+        return dict(kept, model=model, fx_px=a[0], fy_px=a[0] * fy / fx, cx_px=cx, cy_px=cy, k1=a[1] / a[0],
+                    k2=a[2] / a[0], k3=a[3] / a[0], p1=0.0, p2=0.0)
+    return dict(kept, model=model, fx=fx / lens.width, fy=fy / lens.height, cx=(cx + 0.5) / lens.width,
+                cy=(cy + 0.5) / lens.height, w=0.5)
+
+
 def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     """The ``radial_distortion`` candidate: the lens model's distortion coefficients, focal length and centre
     (:data:`FIT_KEYS`) fitted together, with the render's field of view held where the profile has it (the
@@ -688,9 +725,11 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     The geometry is fitted, not the pixels: the optical flow from each measured mean to the clean model says
     where the measured frames look (:func:`_flow_targets`), and the lens parameters are fitted to those
     camera-plane points by robust least squares (no simulation per step); then the model is simulated again and
-    the flow measured again (``rounds`` in all). A round is kept only when it lowers the noise-free SSE against
-    the measured means. Returns (profile, params, shown values) or None when no textured capture shows the
-    geometry or nothing improves.
+    the flow measured again (``rounds`` in all). The forms of :data:`SWITCH_MODELS` are fitted to the same
+    points too (:func:`_family_start`); one replaces the profile's own form where its robust residual is below
+    :data:`SWITCH_GAIN` of the own's (a form too narrow for the real lens). A round is kept only when it
+    lowers the noise-free SSE against the measured means. Returns (profile, params, shown values) or None when
+    no textured capture shows the geometry or nothing improves.
     """
     from scipy.optimize import least_squares
 
@@ -704,37 +743,27 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
     half_render = np.tan(np.radians(hfov) / 2)
     values = dict(lens.values(), render_hfov_deg=hfov)
-    model = lens.model
-    keys = FIT_KEYS[model]
-    theta = np.array([values[k] if i is None else values[k][i] for k, i in keys], np.float64)
-    scale = np.maximum(1e-2 * np.abs(theta), 1e-2)  # typical parameter steps, for the solver
-    w_index = [key for key, _ in keys].index("w") if model == "fov" else None
 
-    def lens_at(t):
-        return LensDistortion(**_lens_values(values, model, t)).lens_model(geometry)
+    def theta_of(vals):
+        return np.array([vals[k] if i is None else vals[k][i] for k, i in FIT_KEYS[vals["model"]]], np.float64)
 
-    def simulate(t):
+    def lens_at(vals, t):
+        return LensDistortion(**_lens_values(vals, vals["model"], t)).lens_model(geometry)
+
+    def simulate(vals, t):
         try:
-            return ctx.clean(p.with_effect(effect, **_lens_values(values, model, t)), subset)
+            return ctx.clean(p.with_effect(effect, replace=True, **_lens_values(vals, vals["model"], t)), subset)
         except (LowcamError, ValueError):  # out of range, or the lens would see beyond the render
             return None
 
     def sse(images):
         return sum(float(((m - s) ** 2).sum()) for m, s in zip(means, images))
 
-    means = [ctx.means[i].astype(np.float64) for i in subset]
-    clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
-    start = best = sse(clean)
-    for _ in range(rounds):
-        here = lens_at(theta)
-        pu, pv, tx, ty = _flow_targets(means, clean, here)
-        if len(pu) < 20 * len(theta):
-            break
-        focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
-
-        def residual(t):
+    def fit_form(vals, t, pu, pv, tx, ty, focal):
+        """Robust least squares of the form ``vals["model"]`` from ``t`` to the targets: (theta, residual px)."""
+        def residual(th):
             try:
-                model_t = lens_at(t)
+                model_t = lens_at(vals, th)
                 x, y = model_t.undistort(pu, pv)
                 need_x, need_y = field_needed(model_t, geometry.frame_extent)
             except LowcamError:
@@ -744,16 +773,37 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
             beyond = max(0.0, need_x - edge, need_y - edge * geometry.height / geometry.width)
             return np.concatenate([x - tx, y - ty, [1e4 * beyond]]) * focal
 
-        start_at = theta.copy()
-        if model == "fov" and abs(theta[w_index]) < 0.05:  # the FOV form is even in w: no gradient at a pinhole
-            start_at[w_index] = 0.5
-        r = least_squares(residual, start_at, x_scale=scale, loss="soft_l1", f_scale=0.5, max_nfev=60)
-        trial = simulate(r.x)
+        keys = [key for key, _ in FIT_KEYS[vals["model"]]]
+        start_at = t.copy()
+        if vals["model"] == "fov" and abs(t[keys.index("w")]) < 0.05:  # the FOV form is even in w: no gradient
+            start_at[keys.index("w")] = 0.5                                # at a pinhole
+        r = least_squares(residual, start_at, x_scale=np.maximum(1e-2 * np.abs(t), 1e-2), loss="soft_l1",
+                          f_scale=0.5, max_nfev=60)
+        return r.x, 1.4826 * float(np.median(np.abs(r.fun[:-1])))
+
+    means = [ctx.means[i].astype(np.float64) for i in subset]
+    clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
+    start = best = sse(clean)
+    theta = theta_of(values)
+    for _ in range(rounds):
+        here = lens_at(values, theta)
+        pu, pv, tx, ty = _flow_targets(means, clean, here)
+        if len(pu) < 20 * len(theta):
+            break
+        focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
+        vals, fitted, own = values, *fit_form(values, theta, pu, pv, tx, ty, focal)
+        for other in (_family_start(values, m, here, (pu, pv, tx, ty)) for m in SWITCH_MODELS
+                      if m != values["model"]):
+            other_theta, residual = fit_form(other, theta_of(other), pu, pv, tx, ty, focal)
+            if residual < SWITCH_GAIN * own:
+                vals, fitted, own = other, other_theta, residual
+        trial = simulate(vals, fitted)
         if trial is None or sse(trial) >= best:
             break
-        theta, clean, best = r.x, trial, sse(trial)
+        values, theta, clean, best = vals, fitted, trial, sse(trial)
     if best >= start:
         return None
+    model, keys = values["model"], FIT_KEYS[values["model"]]
     fitted = _lens_values(values, model, theta)
     changed = {k: fitted[k] for k in dict.fromkeys(k for k, _ in keys)}
     if model in _TIED:
@@ -763,10 +813,14 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     def shown(value):
         return "[" + ", ".join(f"{x:.4g}" for x in value) + "]" if isinstance(value, list) else f"{value:.4g}"
 
-    text = ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
-                     for k in dict.fromkeys(k for k, _ in keys))
-    return p.with_effect(effect, **_lens_values(values, model, theta)), changed, \
-        {"fitted": f"{model}: {text} (render field {hfov:.2f} deg kept)"}
+    if model != lens.model:
+        changed["model"] = model
+        text = f"{lens.model} -> {model}: " + ", ".join(f"{k} {shown(changed[k])}"
+                                                         for k in dict.fromkeys(k for k, _ in keys))
+    else:
+        text = f"{model}: " + ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
+                                        for k in dict.fromkeys(k for k, _ in keys))
+    return p.with_effect(effect, replace=True, **fitted), changed, {"fitted": f"{text} (render field {hfov:.2f} deg kept)"}
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------
