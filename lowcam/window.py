@@ -155,7 +155,7 @@ class WindowedRemap:
                 cv2.remap(src, m1[part], m2[part], cv2.INTER_LINEAR, dst=total if k == 0 else tap,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                 if k:
-                    np.add(total, tap, out=total)
+                    cv2.add(total, tap, dst=total)  # in place, like np.add but faster on a strided block
             if taps > 1:
                 np.true_divide(total, np.float32(taps), out=total)
         return out

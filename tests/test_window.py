@@ -124,6 +124,8 @@ def test_varying_blur_in_a_window_equals_the_blur_of_the_whole_image(rng, corner
     sigma = np.linspace(0.2, 3.5, 24 * 18, dtype=np.float32).reshape(18, 24)  # several blur levels
     window = nonzero_window(image)
     assert np.array_equal(varying_gaussian(image, sigma, window), varying_gaussian(image, sigma))
+    whole = varying_gaussian(image, sigma)
+    assert varying_gaussian(image, sigma, window, in_place=True) is image and np.array_equal(image, whole)
     assert np.array_equal(varying_gaussian(image, sigma, (slice(0, 180), slice(0, 240))),
                           varying_gaussian(image, sigma))
 

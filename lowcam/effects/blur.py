@@ -79,20 +79,21 @@ def blur_level_maps(sigma_grid: np.ndarray, shape) -> list[tuple[float, np.ndarr
             for s, wg in zip(levels, level_weights(sigma_grid, levels)) if wg.any()]
 
 
-def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray, window=None) -> np.ndarray:
+def varying_gaussian(image: np.ndarray, sigma_grid: np.ndarray, window=None, in_place: bool = False) -> np.ndarray:
     """Blur ``image`` with a Gaussian whose sigma (px) varies smoothly as given by ``sigma_grid``.
 
     ``sigma_grid`` holds sigma at the cell centres of a coarse grid over the image (the paper's 24x18 cells, with
     bilinear interpolation between). The result blends a stack of uniform blurs with weights interpolated from
     the grid (:func:`blur_level_maps`), so the cost is a few separable blurs whatever the grid. A ``window``
     (rows, cols) holding every non-zero pixel (:func:`~lowcam.window.nonzero_window`) limits the work to it and
-    the widest kernel's reach, with the same result: outside, the blur of zeros is zero.
+    the widest kernel's reach, with the same result: outside, the blur of zeros is zero. With a window,
+    ``in_place`` writes the result into ``image``.
     """
     levels = blur_level_maps(sigma_grid, image.shape[:2])
     if window is None:
         return _blend_levels(image, levels)
     rows, cols = grow_window(window, gaussian_reach(sigma_grid), image.shape)
-    out = np.zeros_like(image)
+    out = image if in_place else image.copy()  # zero beyond the grown window, as its blur
     out[rows, cols] = _blend_levels(image[rows, cols], [(s, None if m is None else m[rows, cols]) for s, m in levels])
     return out
 
@@ -158,7 +159,7 @@ class SpatialBlur(Effect):
         window = state.window("working")
         if window is not None:  # the blur of zeros is zeros
             sigma = self.sigma_grid(state) * min(state.geometry.working_scale)
-            state.working = varying_gaussian(state.working, sigma, window)
+            state.working = varying_gaussian(state.working, sigma, window, in_place=True)
             state.keep_window("working", grow_window(window, gaussian_reach(sigma), state.working.shape), self)
 
 

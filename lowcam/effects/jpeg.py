@@ -332,9 +332,9 @@ def fit_jpeg(ctx, effect):
                 scores[key] = float(sum(((m - np.mean([jpeg_roundtrip(f, *key) for f in g], axis=0)) ** 2).sum()
                                         for m, g in zip(means, uncoded)))
             else:
-                frames = [simulate_capture(p.with_effect(effect, quality=q, subsampling=s, chroma_quality=key[2]),
-                                           caps[i], max(len(caps[i].frames), 4), inputs=ctx.inputs[i],
-                                           cache=ctx.cache) for i in idx]
+                frames = [simulate_capture(p.with_effect(effect, quality=q, subsampling=s, chroma_quality=key[2],
+                                                         **_SCALED), caps[i], max(len(caps[i].frames), 4),
+                                           inputs=ctx.inputs[i], cache=ctx.cache) for i in idx]
                 scores[key] = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
         return scores[key]
 
@@ -343,8 +343,9 @@ def fit_jpeg(ctx, effect):
 
     if getattr(ctx, "screening", False):  # screening: the usual subsampling on the coarse grid only
         q = min(_COARSE_QUALITY, key=lambda v: sse(v, "4:2:0"))
-        return p.with_effect(effect, quality=q, subsampling="4:2:0"), {"quality": q, "subsampling": "4:2:0"}, \
-            {"quality": q, "subsampling": "4:2:0", "chroma_quality": q}
+        return p.with_effect(effect, quality=q, subsampling="4:2:0", **_SCALED), \
+            {"quality": q, "subsampling": "4:2:0"}, {"quality": q, "subsampling": "4:2:0", "chroma_quality": q,
+                                                     "tables": "IJG-scaled"}
     q, s = min(((q, s) for s in SUBSAMPLINGS for q in _COARSE_QUALITY), key=lambda qs: sse(*qs))
     for steps in ((-12, -6, 0, 6, 12), (-3, 0, 3), (-1, 0, 1)):
         q = refine(q, steps, lambda v: sse(v, s))
@@ -355,6 +356,7 @@ def fit_jpeg(ctx, effect):
         q = refine(q, steps, lambda v: sse(v, s, qc))
     values = {"quality": q, "subsampling": s, "chroma_quality": 0 if qc == q else qc}
     shown = dict(values, chroma_quality=qc, tables="IJG-scaled")
+    values.update(_SCALED)
     # an encoder's own tables, read off the measured frames' DCT lattice, where they fit better than any scaling
     luma, chroma, share = estimate_tables(np.concatenate([caps[i].frames for i in idx]), s, standard_tables(q, qc))
     if (luma, chroma) != standard_tables(q, qc):
@@ -371,6 +373,9 @@ def fit_jpeg(ctx, effect):
             shown = dict(shown, tables=f"the encoder's own ({share:.0%} of the steps read off the frames)")
     return p.with_effect(effect, **values), values, shown
 
+
+#: The values that make a JPEG effect code with the IJG-scaled tables (no own tables).
+_SCALED = {"luma_table": [], "chroma_table": []}
 
 fit_jpeg.refines = True  # diagnosis calls it again, in full, for a promising candidate
 

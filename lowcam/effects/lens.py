@@ -612,7 +612,7 @@ class LensDistortion(Effect):
             if len(self._maps) > 8:
                 self._maps.clear()
             x, y = self.render_coordinates(state, render_shape)
-            self._maps[key] = WindowedRemap(x[None], y[None])
+            self._maps[key] = WindowedRemap(x[None], y[None], tile=16)
         return self._maps[key]
 
     def apply(self, state):
