@@ -315,6 +315,7 @@ def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None)
         if getattr(state, name) is not None:
             setattr(state, name, getattr(state, name).copy())
     state.applied = list(prefix.applied)
+    state._windows = dict(prefix._windows)
     state.seed, state.frame = int(seed), int(frame)
     _walk(state, start=start)
     return _finish(state, plate_u8)[0]

@@ -139,10 +139,14 @@ class WindowedRemap:
     def mean(self, src: np.ndarray, window: tuple[slice, slice] | None, taps: int) -> np.ndarray:
         """The mean of every run of ``taps`` consecutive blocks of the warp of ``src``, as (blocks / taps, rows,
         cols[, channels]): equal to ``self(src, window).reshape(-1, taps, ...).mean(axis=1)`` (the taps added in
-        order in float32), without holding every tap at once."""
+        order in float32), without holding every tap at once where the graphics cover less than 3/4 of it."""
         m1, m2 = self.maps
-        out = np.zeros((self.blocks // taps, self.rows, self.cols) + src.shape[2:], np.float32)
         rect = None if window is None else self.output_rect(window)
+        if rect is not None and (rect[1] - rect[0]) * (rect[3] - rect[2]) > 0.75 * self.rows * self.cols:
+            # most of the plane: one call for every tap, then the mean
+            warped = self(src, window).reshape((-1, taps, self.rows, self.cols) + src.shape[2:])
+            return warped.mean(axis=1) if taps > 1 else warped[:, 0]
+        out = np.zeros((self.blocks // taps, self.rows, self.cols) + src.shape[2:], np.float32)
         if rect is None:
             return out
         r0, r1, c0, c1 = rect

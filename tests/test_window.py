@@ -163,13 +163,15 @@ def test_halved_warp_equals_the_area_halving_of_the_whole_warp(rng, shape, strip
     assert not warp.halved(np.zeros(src_shape, np.float32), None).any()
 
 
-def test_tap_mean_equals_the_mean_of_every_tap(rng):
+@pytest.mark.parametrize("region", [(slice(0, 120), slice(0, 150)), (slice(30, 45), slice(40, 60))])
+def test_tap_mean_equals_the_mean_of_every_tap(rng, region):
+    """Both ways: one call for a source covering the frame, tap by tap for a small one."""
     src_shape = (120, 150, 2)
     x, y = _coordinates(rng, 12, 40, 50, src_shape)  # 3 groups of 4 taps
     warp = WindowedRemap(x, y, tile=8)
     src = np.zeros(src_shape, np.float32)
-    src[30:70, 40:90] = rng.uniform(0, 1, (40, 50, 2))
-    expected = warp(src, None if not src.any() else (slice(0, 120), slice(0, 150))).reshape(3, 4, 40, 50, 2)
+    src[region] = rng.uniform(0, 1, src[region].shape)
+    expected = warp(src, (slice(0, 120), slice(0, 150))).reshape(3, 4, 40, 50, 2)
     assert np.array_equal(warp.mean(src, nonzero_window(src), 4), expected.mean(axis=1))
 
 

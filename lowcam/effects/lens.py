@@ -794,6 +794,10 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
         vals, fitted, own = values, *fit_form(values, theta, pu, pv, tx, ty, focal)
         for other in (_family_start(values, m, here, (pu, pv, tx, ty)) for m in SWITCH_MODELS
                       if m != values["model"]):
+            if other["model"] == "opencv":  # its linear start's pixel residual first: refine only a promising one
+                u, v = lens_at(other, theta_of(other)).distort(tx, ty)
+                if 1.4826 * float(np.median(np.abs(np.concatenate([u - pu, v - pv])))) >= SWITCH_GAIN * own:
+                    continue
             other_theta, residual = fit_form(other, theta_of(other), pu, pv, tx, ty, focal)
             if residual < SWITCH_GAIN * own:
                 vals, fitted, own = other, other_theta, residual
