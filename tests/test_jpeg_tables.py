@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects.jpeg import estimate_tables, jpeg_roundtrip, jpeg_roundtrip_tables, standard_tables
+from lowcam.effects.jpeg import ijg_quality, jpeg_roundtrip, jpeg_roundtrip_tables, read_tables, standard_tables
 from lowcam.errors import ProfileError
 from lowcam.measure.synth import scenes
 
@@ -57,15 +57,26 @@ def test_standard_tables_are_the_ones_pillow_writes_at_an_ijg_quality(frames):
 
 @pytest.mark.parametrize("preset", ["web_low", "web_medium"])
 def test_tables_read_off_decoded_frames_are_the_encoders(frames, preset):
-    """Every step the frames show is the encoder's, exactly (the lowest frequencies always, 25-50 % of all); the
-    others keep the fallback's."""
+    """Every step the frames show is the encoder's, exactly (the lowest frequencies always, 25-50 % of all), and
+    they are no IJG quality's."""
     decoded, tables = zip(*(pillow(f, quality=preset) for f in frames["noise-field"]))
-    luma, chroma, share = estimate_tables(np.stack(decoded), "4:2:0", ([0] * 64, [0] * 64))  # 0: not shown
-    for found, true in ((luma, tables[0][0]), (chroma, tables[0][1])):
-        found, true = np.reshape(found, (8, 8)), np.reshape(true, (8, 8))
+    luma, chroma = read_tables(np.stack(decoded), "4:2:0")
+    for steps, true in ((luma, tables[0][0]), (chroma, tables[0][1])):
+        found = np.reshape([0 if x is None else x for x in steps], (8, 8))
+        true = np.reshape(true, (8, 8))
         assert np.array_equal(found[:3, :3], true[:3, :3]), found
-        assert np.mean(found[found > 0] == true[found > 0]) >= 0.95, found - true  # one near-tie may miss by 1
-    assert 0.25 <= share <= 0.5
+        assert np.mean(found[found > 0] == true[found > 0]) >= 0.95, found - true  # a near-tie may miss by 1
+    assert 0.25 <= sum(x is not None for x in luma + chroma) / 128 <= 0.5
+    assert ijg_quality(luma) is None
+
+
+@pytest.mark.parametrize("quality", [30, 60, 85])
+def test_an_ijg_quality_is_told_from_the_steps_read(frames, quality):
+    decoded = [pillow(f, quality=quality)[0] for f in frames["noise-field"]]
+    luma, chroma = read_tables(np.stack(decoded), "4:2:0")
+    assert standard_tables(ijg_quality(luma, near=50))[0] == standard_tables(quality)[0]
+    # the chroma's steps, read through its upsampling undone, may miss by one
+    assert all(x is None or abs(x - t) <= 0.04 * t for x, t in zip(chroma, standard_tables(quality)[1]))
 
 
 def test_tables_are_checked_in_the_profile(fire_i):

@@ -4,16 +4,24 @@ The frame is encoded with OpenCV's libjpeg and decoded again. The quantisation t
 [T.81] Annex K scaled by the IJG quality rule (``quality`` 50: the tables as printed; below 50: ``5000 / quality``
 percent; above: ``200 - 2 quality`` percent; libjpeg's ``jpeg_quality_scaling``). The chroma planes are kept at
 full resolution (4:4:4), halved across (4:2:2) or halved both ways (4:2:0) before the DCT [T.81, A.1.1]. The
-whole frame is recompressed, so no pixel keeps the plate's exact bytes.
+whole frame is recompressed, so no pixel keeps the plate's exact bytes. An encoder's own tables (``luma_table``,
+``chroma_table``), which OpenCV cannot write, are coded in numpy with libjpeg's rounding; diagnosis reads them off
+the frames: decoded blocks' DCT coefficients sit on the multiples of each frequency's step.
 
 Contents
 --------
 - :data:`SUBSAMPLINGS`: the chroma subsamplings the encoder offers, as the J:a:b names JPEG writers use
 - :func:`jpeg_roundtrip`: one 8-bit RGB frame encoded as JPEG and decoded again
+- :func:`jpeg_roundtrip_tables`: the same coding with an encoder's own tables, in numpy with libjpeg's rounding
+- :func:`quantisation_step`: one frequency's quantisation step from the DCT coefficients of decoded blocks
+- :func:`read_tables`: the luma and chroma steps decoded JPEG frames show
+- :func:`ijg_quality`: the IJG quality whose scaled standard table holds the steps read
+- :func:`standard_tables`: the IJG-scaled Annex K tables at a quality
 - :func:`fit_jpeg`: diagnosis's fit: the subsampling, quality and chroma quality whose coded noisy model frames
-  best match the measured means (coarse grid, then finer steps; only the coding is repeated)
-- :class:`Jpeg`: encodes the final 8-bit frame as JPEG (``quality``, ``chroma_quality``, ``subsampling``) and
-  decodes it again
+  best match the measured means (coarse grid, then finer steps; only the coding is repeated), then the tables
+  read off the frames
+- :class:`Jpeg`: encodes the final 8-bit frame as JPEG (``quality``, ``chroma_quality``, ``subsampling``, or an
+  encoder's own tables) and decodes it again
 - :data:`PLATE_QUALITIES`: the qualities at which :func:`jpeg_quality_from_plate` calibrates blockiness
 - :func:`block_difference_profile`: mean absolute neighbour difference at each phase of a period (the 8x8 grid)
 - :func:`jpeg_blockiness`: blockiness per axis, the grid's phase and the tile evidence that the grid is there
@@ -237,8 +245,8 @@ def quantisation_step(coefficients: np.ndarray, noise: float) -> int | None:
 
     Each step ``q`` is scored by ``mean(cos(2 pi c / q))`` over the coefficients beyond ``q / 2`` (those it
     codes as non-zero; at least :data:`_MIN_SUPPORT` of them), for ``q`` up to the largest coefficient (beyond,
-    every score tends to 1); the best wins, near-ties going to the larger step (a divisor fits as well but for
-    its noise). None when fewer than :data:`_MIN_SUPPORT` coefficients lie beyond ``noise`` or no step scores
+    every score tends to 1); the best wins, or a multiple of it scoring as well (a divisor of the true step fits as
+    well but for its noise), and is settled to the median of each coefficient over its multiple. None when fewer than :data:`_MIN_SUPPORT` coefficients lie beyond ``noise`` or no step scores
     0.5 (the step is not shown, or too fine for the noise)."""
     away = np.abs(coefficients[np.abs(coefficients) > noise])
     if away.size < _MIN_SUPPORT:
@@ -248,31 +256,45 @@ def quantisation_step(coefficients: np.ndarray, noise: float) -> int | None:
     coded = away[None, :] > steps[:, None] / 2
     support = coded.sum(axis=1)
     scores = np.where(support >= _MIN_SUPPORT, (phases * coded).sum(axis=1) / np.maximum(support, 1), -1.0)
-    best = scores.max()
-    if best < 0.5:
+    i = int(np.argmax(scores))
+    if scores[i] < 0.5:
         return None
-    return int(steps[np.flatnonzero(scores >= best - 0.01 * (1 - best) - 1e-3)[-1]])
+    # a divisor of the step scores about as well (a little lower, for its noise): take the multiple that does
+    multiples = [j for j in range(len(steps)) if steps[j] % steps[i] == 0 and j > i
+                 and scores[j] >= scores[i] - 0.01 * (1 - scores[i]) - 1e-3]
+    q = int(steps[multiples[-1] if multiples else i])
+    # where the coefficients sit on the first few multiples only, neighbouring steps score alike: the lattice's
+    # spacing, from each coefficient over its multiple, settles it
+    coded = away[away > q / 2]
+    return int(np.rint(np.median(coded / np.rint(coded / q))))
 
 
-def estimate_tables(frames: np.ndarray, subsampling: str, fallback: tuple) -> tuple[list, list, float]:
-    """The luma and chroma quantisation tables (natural order) of decoded JPEG ``frames`` (T, H, W, 3), from the
-    lattice of their blocks' DCT coefficients (:func:`quantisation_step`), and the share of the 128 entries
-    found so; an entry the frames do not show keeps ``fallback``'s (luma, chroma) value (the IJG-scaled tables
-    of the fitted quality)."""
+def read_tables(frames: np.ndarray, subsampling: str) -> tuple[list, list]:
+    """The luma and chroma quantisation steps (natural order) of decoded JPEG ``frames`` (T, H, W, 3), read off
+    the lattice of their blocks' DCT coefficients (:func:`quantisation_step`): 64 each, None where the frames do
+    not show the step."""
     luma, chroma = _dct_of_frames(np.asarray(frames), subsampling)
     # undoing the upsampling amplifies the decoder's rounding by up to 2 per halved axis, most at high frequencies
     rows, cols = _CHROMA_STEP[subsampling]
     gain = 1 / (0.75 + 0.25 * np.cos(np.pi * np.arange(8) / 8))
     chroma_noise = 4.0 * np.outer(gain if rows == 2 else np.ones(8), gain if cols == 2 else np.ones(8)).ravel()
-    tables, found = [], 0
-    for coefficients, noise, standby in ((luma, np.full(64, 3.0), fallback[0]), (chroma, chroma_noise, fallback[1])):
-        table = []
-        for k in range(64):
-            q = quantisation_step(coefficients[:, k], noise[k])
-            found += q is not None
-            table.append(int(q) if q is not None else int(standby[k]))
-        tables.append(table)
-    return tables[0], tables[1], found / 128
+    return ([quantisation_step(luma[:, k], 3.0) for k in range(64)],
+            [quantisation_step(chroma[:, k], chroma_noise[k]) for k in range(64)])
+
+
+def ijg_quality(steps: list, chroma: bool = False, near: int = 50) -> int | None:
+    """The IJG quality (1-100) whose scaled Annex K luma (``chroma``: chroma) table the steps read (None: not
+    shown) are: at least 90 % of them equal, none more than one step off (a step read from few coefficients, or
+    from clipped ones, may miss by one); the most equal, then the nearest ``near``; None when no quality is."""
+    read = [(x, k) for k, x in enumerate(steps) if x is not None]
+    best = None
+    for q in range(1, 101):
+        table = standard_tables(q)[1 if chroma else 0]
+        if all(abs(x - table[k]) <= 1 for x, k in read):
+            equal = sum(x == table[k] for x, k in read)
+            if equal >= 0.9 * len(read) and (best is None or (equal, -abs(q - near)) > best[0]):
+                best = ((equal, -abs(q - near)), q)
+    return None if best is None else best[1]
 
 
 def standard_tables(quality: int, chroma_quality: int = 0) -> tuple[list, list]:
@@ -357,9 +379,22 @@ def fit_jpeg(ctx, effect):
     values = {"quality": q, "subsampling": s, "chroma_quality": 0 if qc == q else qc}
     shown = dict(values, chroma_quality=qc, tables="IJG-scaled")
     values.update(_SCALED)
-    # an encoder's own tables, read off the measured frames' DCT lattice, where they fit better than any scaling
-    luma, chroma, share = estimate_tables(np.concatenate([caps[i].frames for i in idx]), s, standard_tables(q, qc))
-    if (luma, chroma) != standard_tables(q, qc):
+    # the tables, read off the measured frames' DCT lattice: IJG's at some quality (libjpeg codes those exactly),
+    # or an encoder's own, where they fit better than the qualities fitted
+    luma, chroma = read_tables(np.concatenate([caps[i].frames for i in idx]), s)
+    read = sum(x is not None for x in luma + chroma)
+    ql = ijg_quality(luma, near=q) if read else None
+    qc_read = ql if all(x is None for x in chroma) else ijg_quality(chroma, chroma=True, near=qc)
+    if ql is not None and qc_read is not None:
+        if (ql, qc_read) != (q, qc) and sse(ql, s, qc_read) < sse(q, s, qc):
+            q, qc = ql, qc_read
+            values.update(quality=q, chroma_quality=0 if qc == q else qc)
+            shown.update(quality=q, chroma_quality=qc, tables=f"IJG-scaled ({read} of the 128 steps read off "
+                                                             "the frames)")
+    elif read:
+        standard = standard_tables(q, qc)
+        luma, chroma = ([x if x is not None else t for x, t in zip(steps, table)]
+                        for steps, table in zip((luma, chroma), standard))
         own = {"subsampling": s, "luma_table": luma, "chroma_table": chroma}
         if shortcut:
             score = float(sum(((m - np.mean([jpeg_roundtrip_tables(f, luma, chroma, s) for f in g], axis=0)) ** 2
@@ -370,7 +405,7 @@ def fit_jpeg(ctx, effect):
             score = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
         if score < sse(q, s, qc):
             values = dict(values, **own)
-            shown = dict(shown, tables=f"the encoder's own ({share:.0%} of the steps read off the frames)")
+            shown = dict(shown, tables=f"the encoder's own ({read} of the 128 steps read off the frames)")
     return p.with_effect(effect, **values), values, shown
 
 
