@@ -12,25 +12,19 @@ the profile's ``[provenance]``.
 import argparse
 from pathlib import Path
 
-import numpy as np
-
+from lowcam.effects.jpeg import ijg_quality
 from lowcam.footage import find_footage, plate_profile, read_footage_clip
 from lowcam.profile import load_profile
 
 HERE = Path(__file__).resolve().parent
-#: The IJG (libjpeg) standard luminance quantisation table at quality 50 (ITU-T T.81 Annex K, Table K.1).
-IJG_LUMINANCE = np.array([16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57,
-                          69, 56, 14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81,
-                          104, 113, 92, 49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99])
 
 
-def ijg_quality(jpeg_path) -> int:
-    """The IJG quality whose scaled standard table the file's luminance table is (order-free: sums compared)."""
+def file_quality(jpeg_path) -> int:
+    """The IJG quality whose scaled standard tables the file's own are (read with Pillow)."""
     from PIL import Image
 
-    table = np.asarray(Image.open(jpeg_path).quantization[0], float)
-    scale = 100.0 * table.sum() / IJG_LUMINANCE.sum()  # libjpeg: scale = 5000 / q below 50, 200 - 2 q above
-    return int(round((200.0 - scale) / 2.0 if scale <= 100.0 else 5000.0 / scale))
+    tables = Image.open(jpeg_path).quantization
+    return ijg_quality(list(tables[0]))
 
 
 def main():
@@ -51,7 +45,7 @@ def main():
     # the phone's chroma is its JPEG's 4:2:0 (the chroma-bandwidth probe), not the Fire-i's 4:1:1 stage
     profile = profile.without("chroma_subsampling")
     profile.provenance["chroma_subsampling"] = "off: the footage's chroma is its JPEG's (chroma bandwidth probe)"
-    quality = ijg_quality(clip.frames[0])  # the plate's blockiness is too weak to read a quality this high
+    quality = file_quality(clip.frames[0])  # the plate's blockiness is too weak to read a quality this high
     profile = profile.with_effect("jpeg", quality=quality)
     profile.provenance["jpeg.quality"] = f"the footage's own JPEG quantisation tables (IJG quality {quality})"
     # what the footage did not measure keeps the Fire-i's values: say so

@@ -284,15 +284,16 @@ def read_tables(frames: np.ndarray, subsampling: str) -> tuple[list, list]:
 
 def ijg_quality(steps: list, chroma: bool = False, near: int = 50) -> int | None:
     """The IJG quality (1-100) whose scaled Annex K luma (``chroma``: chroma) table the steps read (None: not
-    shown) are: at least 90 % of them equal, none more than one step off (a step read from few coefficients, or
-    from clipped ones, may miss by one); the most equal, then the nearest ``near``; None when no quality is."""
-    read = [(x, k) for k, x in enumerate(steps) if x is not None]
+    shown) are, judged on the lowest frequencies (row + column <= 4, where the coefficients are many): at least
+    80 % of those read equal, none more than one step off (clipped coefficients read a little low); the most
+    equal, then the nearest ``near``. None when no quality is, or none of those steps was read."""
+    read = [(x, k) for k, x in enumerate(steps) if x is not None and k // 8 + k % 8 <= 4]
     best = None
     for q in range(1, 101):
         table = standard_tables(q)[1 if chroma else 0]
-        if all(abs(x - table[k]) <= 1 for x, k in read):
+        if read and all(abs(x - table[k]) <= 1 for x, k in read):
             equal = sum(x == table[k] for x, k in read)
-            if equal >= 0.9 * len(read) and (best is None or (equal, -abs(q - near)) > best[0]):
+            if equal >= 0.8 * len(read) and (best is None or (equal, -abs(q - near)) > best[0]):
                 best = ((equal, -abs(q - near)), q)
     return None if best is None else best[1]
 
@@ -384,7 +385,7 @@ def fit_jpeg(ctx, effect):
     luma, chroma = read_tables(np.concatenate([caps[i].frames for i in idx]), s)
     read = sum(x is not None for x in luma + chroma)
     ql = ijg_quality(luma, near=q) if read else None
-    qc_read = ql if all(x is None for x in chroma) else ijg_quality(chroma, chroma=True, near=qc)
+    qc_read = ijg_quality(chroma, chroma=True, near=qc) if any(x is not None for x in chroma) else ql
     if ql is not None and qc_read is not None:
         if (ql, qc_read) != (q, qc) and sse(ql, s, qc_read) < sse(q, s, qc):
             q, qc = ql, qc_read
