@@ -119,9 +119,13 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
         engine = _engine_stage(result.state, stage, result.frame if stage == "plate_blend" else None)
         group = build_camera_group(camera, name="Lowcam parity camera", until=stage)
         suffix = ".png" if stage == "plate_blend" else ".exr"
-        node = render_group(group, {"Image": render_image, "Plate": plate, "Noise": 0.0}, engine.shape[:2],
-                            out_dir / f"{stage}{suffix}")
-        node = node.astype(np.float32)
+        # the engine's lens warp takes the 2x2 box of half-sampling itself; the group's stays supersampled
+        factor = 2 if stage == "lens_distortion" else 1
+        shape = (engine.shape[0] * factor, engine.shape[1] * factor)
+        node = render_group(group, {"Image": render_image, "Plate": plate, "Noise": 0.0}, shape,
+                            out_dir / f"{stage}{suffix}").astype(np.float32)
+        if factor == 2:
+            node = node.reshape(engine.shape[0], 2, engine.shape[1], 2, -1).mean(axis=(1, 3))
         if stage in ("bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening", "quantisation"):
             node = np.stack([node[..., 0], node[..., 1]], -1) * 255.0
         elif stage != "plate_blend":
