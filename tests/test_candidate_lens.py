@@ -20,16 +20,15 @@ SCENES = ("chart", "noise-field")
 DECOYS = ("chromatic_aberration", "vignetting", "defocus")
 HFOV_DEG = 90.0  # the renders' fixed horizontal field of view
 
-# (lens, the diagnosed profile's lens, the error bound after the fit: 1.25, or what an open case reaches). The TG-4
-# and S120 profiles carry the FOV form, too narrow for those lenses: the candidate must switch to Brown-Conrady.
-KNOWN_FAILING = pytest.mark.xfail(strict=True, reason="open: the GoPro's distortion is beyond Brown-Conrady over this "
-                                   "field and the FOV form leaves 3.05")
+# (lens, the diagnosed profile's lens, the error bound after the fit). The TG-4 and S120 profiles carry the FOV form,
+# too narrow for those lenses: the candidate must switch to Brown-Conrady. The GoPro's profile carries lensfun's
+# own ptlens form, from a pinhole: the fit must find the database's coefficients.
 CASES = [
     pytest.param("Canon PowerShot G12 & compatibles (Standard)", dict(model="opencv"), 1.25, id="G12-poly5-opencv"),
     pytest.param("Olympus Tough TG-4 & compatibles", dict(model="fov", w=0.3), 1.25, id="TG4-poly3-fov",
                  marks=pytest.mark.slow),
     pytest.param("GoPro Hero3+ black & compatibles", dict(model="ptlens"), 1.25, id="GoPro-ptlens-ptlens",
-                 marks=(KNOWN_FAILING, pytest.mark.slow)),
+                 marks=pytest.mark.slow),
     pytest.param("Canon PowerShot S120 & compatibles", dict(model="fov", w=0.0), 1.25, id="S120-ptlens-fov",
                  marks=pytest.mark.slow),
 ]
@@ -108,3 +107,9 @@ def test_radial_distortion_fits_a_real_lens(tmp_path, fire_i, name, diagnosed, b
     if diagnosed["model"] == "fov":  # the form switched, and says so
         assert d.candidates[0].params.get("model") == "opencv", d.candidates[0].params
         assert "lens fov -> opencv" in d.candidates[0].evidence
+    if diagnosed["model"] == "ptlens":  # lensfun's own form: its coefficients are the database's
+        fitted = d.candidates[0].params
+        assert "model" not in fitted, fitted
+        a, b, c = lens.calib_distortion[0].terms
+        assert np.allclose([fitted["lensfun_a"], fitted["lensfun_b"], fitted["lensfun_c"]], [a, b, c], atol=0.01)
+        assert fitted["focal_length"] == pytest.approx(profile.effect("lens_distortion").focal_length / 1.04, rel=0.005)

@@ -627,7 +627,8 @@ class LensDistortion(Effect):
 # --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------
 
 #: Per lens model, the parameters the ``radial_distortion`` candidate fits: (key, index into a vector key or None).
-#: The focal length and the centre always; fy follows fx (square pixels kept).
+#: The focal length and the centre always, then the distortion coefficients from the lowest order in the radius
+#: (ptlens: ``c`` of ``Ru^2``, then ``b``, ``a``); fy follows fx (square pixels kept).
 FIT_KEYS = {
     "fov": (("fx", None), ("cx", None), ("cy", None), ("w", None)),
     "opencv": (("fx_px", None), ("cx_px", None), ("cy_px", None), ("k1", None), ("k2", None), ("k3", None)),
@@ -642,8 +643,8 @@ FIT_KEYS = {
     "poly3": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None)),
     "poly5": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_k1", None),
               ("lensfun_k2", None)),
-    "ptlens": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_a", None),
-               ("lensfun_b", None), ("lensfun_c", None)),
+    "ptlens": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_c", None),
+               ("lensfun_b", None), ("lensfun_a", None)),
 }
 _TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
 
@@ -725,9 +726,12 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     The geometry is fitted, not the pixels: the optical flow from each measured mean to the clean model says
     where the measured frames look (:func:`_flow_targets`), and the lens parameters are fitted to those
     camera-plane points by robust least squares (no simulation per step); then the model is simulated again and
-    the flow measured again (``rounds`` in all). The forms of :data:`SWITCH_MODELS` are fitted to the same
-    points too (:func:`_family_start`); one replaces the profile's own form where its robust residual is below
-    :data:`SWITCH_GAIN` of the own's (a form too narrow for the real lens). A round is kept only when it
+    the flow measured again (``rounds`` in all). From a pinhole, the focal length, centre and the lowest-order
+    coefficient are fitted first, then all (higher orders fitted at once from zero fold the lens). The forms of
+    :data:`SWITCH_MODELS` are fitted to the same points too (:func:`_family_start`); one replaces the current
+    form where its robust residual is below :data:`SWITCH_GAIN` of the current's (a form too narrow for the
+    real lens); the profile's own form is fitted again from the profile in every round, so a switch made on
+    the first round's flow (near the centre only) can be undone on the next. A round is kept only when it
     lowers the noise-free SSE against the measured means. Returns (profile, params, shown values) or None when
     no textured capture shows the geometry or nothing improves.
     """
@@ -773,18 +777,29 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
             beyond = max(0.0, need_x - edge, need_y - edge * geometry.height / geometry.width)
             return np.concatenate([x - tx, y - ty, [1e4 * beyond]]) * focal
 
+        def solve(start, free):
+            def of(sub):
+                full = start.copy()
+                full[free] = sub
+                return full
+            r = least_squares(lambda sub: residual(of(sub)), start[free], loss="soft_l1", f_scale=0.5,
+                              x_scale=np.maximum(1e-2 * np.abs(start[free]), 1e-2), max_nfev=60)
+            return of(r.x), 1.4826 * float(np.median(np.abs(r.fun[:-1])))
+
         keys = [key for key, _ in FIT_KEYS[vals["model"]]]
         start_at = t.copy()
         if vals["model"] == "fov" and abs(t[keys.index("w")]) < 0.05:  # the FOV form is even in w: no gradient
             start_at[keys.index("w")] = 0.5                                # at a pinhole
-        r = least_squares(residual, start_at, x_scale=np.maximum(1e-2 * np.abs(t), 1e-2), loss="soft_l1",
-                          f_scale=0.5, max_nfev=60)
-        return r.x, 1.4826 * float(np.median(np.abs(r.fun[:-1])))
+        if len(t) > 4 and not np.any(t[3:]):  # from a pinhole: the lowest order first (higher ones fold it)
+            start_at, _ = solve(start_at, np.arange(4))
+        return solve(start_at, np.arange(len(t)))
 
     means = [ctx.means[i].astype(np.float64) for i in subset]
     clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
     start = best = sse(clean)
     theta = theta_of(values)
+    original = values  # the profile's own form restarts from the profile in each round (after a switch, the
+                       # next round's flow reaches further out)
     for _ in range(rounds):
         here = lens_at(values, theta)
         pu, pv, tx, ty = _flow_targets(means, clean, here)
@@ -792,10 +807,13 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
             break
         focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
         vals, fitted, own = values, *fit_form(values, theta, pu, pv, tx, ty, focal)
-        for other in (_family_start(values, m, here, (pu, pv, tx, ty)) for m in SWITCH_MODELS
-                      if m != values["model"]):
+        for other in (original if m == original["model"] else _family_start(values, m, here, (pu, pv, tx, ty))
+                      for m in dict.fromkeys((original["model"], *SWITCH_MODELS)) if m != values["model"]):
             if other["model"] == "opencv":  # its linear start's pixel residual first: refine only a promising one
-                u, v = lens_at(other, theta_of(other)).distort(tx, ty)
+                try:
+                    u, v = lens_at(other, theta_of(other)).distort(tx, ty)
+                except LowcamError:  # coefficients out of the lens's range: not this form
+                    continue
                 if 1.4826 * float(np.median(np.abs(np.concatenate([u - pu, v - pv])))) >= SWITCH_GAIN * own:
                     continue
             other_theta, residual = fit_form(other, theta_of(other), pu, pv, tx, ty, focal)
