@@ -47,6 +47,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .parallel import row_strips, thread_map
 from .window import nonzero_window
 
 
@@ -443,7 +444,9 @@ def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tu
     # One pass over the window: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
     # limits below) make it at least as strict; only a render it refuses is checked again for the exact error.
     inside = rgba[window]
-    if cv2.countNonZero(cv2.inRange(inside, *_RENDER_BOUNDS)) == inside.shape[0] * inside.shape[1]:
+    passed = thread_map(lambda rows: cv2.countNonZero(cv2.inRange(inside[rows], *_RENDER_BOUNDS)),
+                        row_strips(inside.shape[0]))
+    if sum(passed) == inside.shape[0] * inside.shape[1]:
         return rgba, window
     if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once
         _check_finite(name, rgba)

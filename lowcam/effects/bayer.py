@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from ..geometry import BAYER_BORDER, CFA_CHANNELS, COLOUR_INDEX, sample_texture
+from ..parallel import thread_map
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 
@@ -123,10 +124,11 @@ class BayerSampling(Effect):
         cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
-        for src, ks, warp in zip(pairs, _COLOUR_PLANES, warps):
-            sampled = warp.mean(src, window, n)
-            state.bayer[ks] = sampled[..., 0]
-            state.bayer_alpha[ks] = sampled[..., 1]
+        # the colours side by side (each one's taps added in order, as alone); green, with two planes, first
+        order = sorted(range(3), key=lambda c: -warps[c].blocks)
+        for c, sampled in zip(order, thread_map(lambda c: warps[c].mean(pairs[c], window, n), order)):
+            state.bayer[_COLOUR_PLANES[c]] = sampled[..., 0]
+            state.bayer_alpha[_COLOUR_PLANES[c]] = sampled[..., 1]
         state.bayer *= np.float32(255.0 / self.render_white)
 
 
