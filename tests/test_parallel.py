@@ -1,6 +1,7 @@
 """The engine's own threads: results never depend on how many there are, and a forked child gets its own."""
 import hashlib
 import multiprocessing
+import threading
 
 import cv2
 import numpy as np
@@ -77,10 +78,14 @@ def _child_sum(queue):
 def test_a_forked_child_runs_its_own_threads(opencv_threads):
     """A batch worker forked after the engine has run (its pool's threads exist only in the parent) still runs."""
     opencv_threads(2)
-    assert thread_map(abs, [-1, -2]) == [1, 2]  # the parent's pool exists
+    # both of the parent's pool threads are started (an inherited full pool never starts one in the child)
+    both = threading.Barrier(2, timeout=10)
+    assert sorted(thread_map(lambda _: both.wait(), [0, 1])) == [0, 1]
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
     child = context.Process(target=_child_sum, args=(queue,))
     child.start()
-    child.join(60)
+    child.join(30)
+    if child.exitcode is None:
+        child.kill()
     assert child.exitcode == 0 and queue.get(timeout=5) == sum(range(1, 101))
