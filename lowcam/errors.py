@@ -7,6 +7,7 @@ Contents
 --------
 - :class:`LowcamError`: bad input or configuration: a missing or corrupt file, a wrong size, an unknown key
 - :class:`ProfileError`: a profile that does not validate: unknown key, wrong type, value out of range
+- :class:`NotFitted`: a fit that cannot be made from the data at hand, with the one-line reason why
 """
 
 
@@ -16,3 +17,8 @@ class LowcamError(Exception):
 
 class ProfileError(LowcamError):
     """A profile that does not validate: unknown key, wrong type, value out of range."""
+
+
+class NotFitted(Exception):
+    """A fit that cannot be made from the data at hand (a diagnosis candidate, a plate estimate): the message is
+    the one-line reason, shown to the user beside the candidate's name ("the captures never reach the corners")."""

@@ -198,6 +198,14 @@ class Effect(ParamSet):
         self.enabled = bool(enabled)
         super().__init__(source, base_dir, **values)
 
+    def implausible(self) -> list[str]:
+        """What in this effect's parameters no real camera has, one short phrase each (empty: plausible).
+
+        Box ranges of what diagnosis searches are :attr:`Search.bounds`; this says what boxes cannot (luma weights
+        >= 0 summing to 1, a monotone tone curve, a noise variance >= 0 at every level 0-255). Diagnosis and plate
+        estimation keep their fits inside; calibration and reports name what lies outside."""
+        return []
+
     def apply(self, state) -> None:  # pragma: no cover - interface
         """Run this step of the imaging chain on ``state`` (a :class:`lowcam.pipeline.SimState`) in place."""
         raise NotImplementedError

@@ -96,6 +96,19 @@ class Noise(Effect):
                 raise self.error(f"'{key}' = {[a, b]}: the intercept a must lie in [-255, 255] (negative under a "
                                  f"black level) and the slope b in [0, 255]")
 
+    def implausible(self) -> list[str]:
+        """A channel whose law gives no noise at some level in 0-255 DN: every real sensor has read noise at every
+        level it delivers (a negative intercept is a black level the delivered frames sit above, which a
+        calibration may measure, but not a value to assume for footage)."""
+        out = []
+        for key in ("red", "green", "blue"):
+            a, b = getattr(self, key)
+            if a + 255.0 * b <= 0.0:
+                out.append(f"{key} noise is 0 at every level")
+            elif a < 0.0:
+                out.append(f"{key} noise is 0 below {-a / b:.0f} DN")
+        return out
+
     def sigma(self, channel: str, mean_dn):
         """Noise sigma (DN) of ``channel`` ("red", "green", "blue") at mean signal ``mean_dn``.
 

@@ -27,7 +27,8 @@ Contents
 - :data:`WORKERS`: captures simulated at a time by a comparison made from the main thread
 - :class:`CaptureStats`: one capture's measured and simulated frames and its error sums
 - :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
-- :func:`capture_inputs`: (ideal render, plate) for a capture, rendering the target's ideal view when needed
+- :class:`CaptureInputs`: what a capture is simulated from: the ideal render, the plate, the mask of compared pixels
+- :func:`capture_inputs`: a capture's :class:`CaptureInputs`, rendering the target's ideal view when needed
 - :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
 - :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
 - :func:`row_noise_variance`: per channel, the variance of the per-frame row means of the noise of a stack
@@ -39,6 +40,7 @@ Contents
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -89,13 +91,27 @@ class Comparison:
         return "explained" if self.error <= EXPLAINED_BELOW * self.noise_floor else "not explained"
 
 
-def capture_inputs(profile, capture):
-    """(ideal render, plate) for a capture, rendering the target's ideal view when needed."""
+class CaptureInputs(NamedTuple):
+    """What a capture is simulated from and compared on: ``ideal`` (h, w, 4) premultiplied RGBA, ``plate`` (H, W, 3)
+    uint8 or None, ``mask`` (H, W) bool or None: the output pixels compared (False: left out as a nuisance, an
+    occluder or the board's border, and shown as masked in the report; None: every pixel)."""
+
+    ideal: np.ndarray
+    plate: np.ndarray | None
+    mask: np.ndarray | None = None
+
+
+def capture_inputs(profile, capture) -> CaptureInputs:
+    """A capture's :class:`CaptureInputs`, rendering the target's ideal view when needed; the mask is the
+    capture's own (``mask`` in set.toml) and the target fit's, both."""
     if capture.ideal is not None:
-        return capture.ideal, capture.plate
+        return CaptureInputs(capture.ideal, capture.plate, capture.mask)
     from .targets import ideal_from_target
 
-    return ideal_from_target(profile, capture)
+    ideal, plate, mask = ideal_from_target(profile, capture)
+    if capture.mask is not None:
+        mask = capture.mask if mask is None else mask & capture.mask
+    return CaptureInputs(ideal, plate, mask)
 
 
 def prefix_key(profile, count: int) -> str:
@@ -109,7 +125,7 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it."""
     from ..pipeline import deterministic_prefix, prepare, resume
 
-    ideal, plate = inputs or capture_inputs(profile, capture)
+    ideal, plate, _ = inputs or capture_inputs(profile, capture)
     key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
     token = cache.get(key) if cache is not None else None
     if token is None:
@@ -121,14 +137,15 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     return np.stack([resume(token, seed, k, profile) for k in range(count)])
 
 
-def _variance_log_ratios(vF, vG, level, min_pixels: int = 400) -> list[float]:
+def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> list[float]:
     out = []
     nb = len(INTENSITY_BINS) - 1
+    keep = slice(None) if mask is None else mask.ravel()
     for c in range(3):
-        idx = np.clip(np.digitize(level[..., c].ravel(), INTENSITY_BINS) - 1, 0, nb - 1)
+        idx = np.clip(np.digitize(level[..., c].ravel()[keep], INTENSITY_BINS) - 1, 0, nb - 1)
         count = np.bincount(idx, minlength=nb)
-        sf = np.bincount(idx, vF[..., c].ravel(), nb)
-        sg = np.bincount(idx, vG[..., c].ravel(), nb)
+        sf = np.bincount(idx, vF[..., c].ravel()[keep], nb)
+        sg = np.bincount(idx, vG[..., c].ravel()[keep], nb)
         for b in np.nonzero(count >= min_pixels)[0]:
             mf, mg = sf[b] / count[b], sg[b] / count[b]
             if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
@@ -152,9 +169,10 @@ def _row_log_ratios(F, G) -> list[float]:
     return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
 
 
-def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None
-                  ) -> CaptureStats:
-    """The error sums of one capture's measured frames F against simulated frames G (see the module docstring).
+def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None,
+                  mask: np.ndarray | None = None) -> CaptureStats:
+    """The error sums of one capture's measured frames F against simulated frames G (see the module docstring),
+    over the pixels ``mask`` (H, W) keeps (all when None).
 
     With one measured frame its noise cannot be measured: the per-pixel variance ``assumed_noise`` (the diagnosed
     profile's, fixed while candidates are compared) stands for both, or the model's own when None. Then a model
@@ -170,9 +188,13 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
     r = mF - mG
+    if mask is not None:  # left-out pixels carry no residual and no noise
+        r = r * mask[..., None]
+        noise = noise * mask[..., None]
     sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
-            "model_noise": float(vG.sum(dtype=np.float64)) / k, "noise_map": noise, "variance_map": vF,
-            "variance": _variance_log_ratios(vF, vG, mG) if n > 1 else [],
+            "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
+            "noise_map": noise, "variance_map": vF, "mask": mask,
+            "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
             "rows": _row_log_ratios(Ff, Gf) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
@@ -195,7 +217,8 @@ def where(stats: list[CaptureStats]) -> dict:
     def ratio(sel_r2, sel_noise):
         return float(np.sqrt(sel_r2 / max(sel_noise, 1e-12)))
 
-    r2 = [s.residual ** 2 for s in stats]
+    r2 = [s.residual ** 2 if s.sums.get("mask") is None else s.residual ** 2 * s.sums["mask"][..., None]
+          for s in stats]
     noise = [s.sums["noise_map"] for s in stats]
     out = {"channels": [], "regions": [], "bands": [], "intensities": []}
     for c, name in enumerate(("red", "green", "blue")):
@@ -212,7 +235,8 @@ def where(stats: list[CaptureStats]) -> dict:
     power = np.zeros(3)
     expected = np.zeros(3)
     for s, nz in zip(stats, noise):
-        spec = np.abs(np.fft.fft2(s.residual, axes=(0, 1))) ** 2 / (h * w)
+        res = s.residual if s.sums.get("mask") is None else s.residual * s.sums["mask"][..., None]
+        spec = np.abs(np.fft.fft2(res, axes=(0, 1))) ** 2 / (h * w)
         fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij")
         f = np.hypot(fx, fy)
         for k, (lo, hi, _) in enumerate(bands):
@@ -251,10 +275,10 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
 
     def one(i):
         cap = mset.captures[i]
-        sim = simulate_capture(profile, cap, sim_frames or max(len(cap.frames), 4),
-                               inputs=inputs[i] if inputs else None, cache=cache,
+        here = CaptureInputs(*inputs[i]) if inputs else capture_inputs(profile, cap)
+        sim = simulate_capture(profile, cap, sim_frames or max(len(cap.frames), 4), inputs=here, cache=cache,
                                until="bayer_sampling")  # the front diagnosis's noise-free frames share
-        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None)
+        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask)
 
     if WORKERS > 1 and len(chosen) > 1 and threading.current_thread() is threading.main_thread():
         from concurrent.futures import ThreadPoolExecutor

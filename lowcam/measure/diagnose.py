@@ -161,7 +161,7 @@ class Context:
             self.cache, self.memo = {}, OrderedDict()
             self.means = [c.mean.astype(np.float32) for c in mset.captures]
             self.moving = any(np.any(c.angular_velocity) for c in mset.captures)
-            texture = [ideal[..., :3].std() for ideal, _ in self.inputs]
+            texture = [inp.ideal[..., :3].std() for inp in self.inputs]
             # Captures with structure: flat fields say nothing about geometry or blur.
             self.textured = [i for i, t in enumerate(texture) if t > 0.02]
             self.moving_ones = [i for i, c in enumerate(mset.captures) if np.any(c.angular_velocity)]
@@ -214,14 +214,20 @@ class Context:
             out.append(frame)
         return out
 
+    def _difference(self, i, frame):
+        d = self.means[i] - frame
+        mask = self.inputs[i].mask
+        return d if mask is None else d * mask[..., None]
+
     def residual(self, profile, subset=None) -> np.ndarray:
-        """The measured means less the noise-free frames, flattened over the captures (all, or ``subset``)."""
+        """The measured means less the noise-free frames, flattened over the captures (all, or ``subset``); masked
+        pixels (:class:`~lowcam.measure.compare.CaptureInputs`) read 0."""
         idx = range(len(self.inputs)) if subset is None else subset
-        return np.concatenate([(self.means[i] - s).ravel() for i, s in zip(idx, self.clean(profile, subset))])
+        return np.concatenate([self._difference(i, s).ravel() for i, s in zip(idx, self.clean(profile, subset))])
 
     def _sse_per_capture(self, profile, subset=None) -> np.ndarray:
         idx = range(len(self.inputs)) if subset is None else subset
-        return np.array([np.square(self.means[i] - s).sum(dtype=np.float64)
+        return np.array([np.square(self._difference(i, s)).sum(dtype=np.float64)
                          for i, s in zip(idx, self.clean(profile, subset))])
 
     def sse(self, profile, subset=None) -> float:

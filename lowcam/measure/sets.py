@@ -8,6 +8,8 @@ A folder holds ``set.toml``::
     frames = ["frames/chart-a-*.png"]   # 8-bit RGB at the profile's output size; several frames of a static scene
                                         # (one frame works too: its noise is then taken from the model)
     plate = "plates/chart-a.png"        # optional: the real background where the ideal is transparent
+    mask = "masks/chart-a.png"          # optional: greyscale, black where the frames are not to be compared (a
+                                        # hand, a reflection); white elsewhere
     angular_velocity = [0.0, 0.0, 0.0]  # optional, rad/s in the camera frame
     exposure_s = 0.033                  # optional, s
 
@@ -35,7 +37,7 @@ from .. import schema
 from ..errors import LowcamError
 from ..motion import MAX_RATE
 
-CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "angular_velocity", "exposure_s"}
+CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "mask", "angular_velocity", "exposure_s"}
 
 
 @dataclass
@@ -45,6 +47,7 @@ class Capture:
     ideal: np.ndarray | None = None  # (h, w, 4) premultiplied RGBA
     target: str | None = None
     plate: np.ndarray | None = None
+    mask: np.ndarray | None = None  # (H, W) bool: the pixels compared (None: all)
     angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     exposure_s: float | None = None
     frame_names: list[str] = field(default_factory=list)
@@ -87,7 +90,7 @@ def load_set(folder, profile=None) -> MeasurementSet:
             raise LowcamError(f"{where}: a second capture of that name")
         if ("ideal" in entry) == ("target" in entry):
             raise LowcamError(f"{where}: give exactly one of 'ideal' and 'target'")
-        files = {k: schema.existing_file(entry[k], where, k, folder) for k in ("ideal", "plate") if k in entry}
+        files = {k: schema.existing_file(entry[k], where, k, folder) for k in ("ideal", "plate", "mask") if k in entry}
         target = entry.get("target")
         if target is not None and parse_target(target, f"{where}: 'target'")[0] != "checkerboard":
             raise LowcamError(f"{where}: 'target': only checkerboard targets can be rendered so far")
@@ -113,8 +116,25 @@ def load_set(folder, profile=None) -> MeasurementSet:
             cap.ideal = read_render(files["ideal"])
         if "plate" in files:
             cap.plate = read_plate(files["plate"], frames.shape[2], frames.shape[1])
+        if "mask" in files:
+            cap.mask = _read_mask(files["mask"], frames.shape[2], frames.shape[1])
         captures.append(cap)
     return MeasurementSet(folder, captures)
+
+
+def _read_mask(path, width: int, height: int) -> np.ndarray:
+    """A capture's mask image as (H, W) bool, True where the frames are compared (grey above half)."""
+    from ..io import read_image
+
+    raw = read_image(path)
+    img = raw.astype(np.float64)
+    img = img.mean(axis=2) if img.ndim == 3 else img
+    if img.shape != (height, width):
+        raise LowcamError(f"{path}: the mask is {img.shape[1]}x{img.shape[0]}, the frames are {width}x{height}")
+    mask = img > np.iinfo(raw.dtype).max / 2
+    if not mask.any():
+        raise LowcamError(f"{path}: the mask leaves no pixel to compare (white marks the pixels compared)")
+    return mask
 
 
 def _nonempty(value, where: str, key: str) -> str:

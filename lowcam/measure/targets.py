@@ -33,7 +33,7 @@ Contents
 - :func:`render_board_view`: a pinhole render (premultiplied RGBA, opaque on the paper) of a chessboard at a pose
 - :func:`board_pose`: a ``target`` capture's board description and pose (through the profile's lens)
 - :func:`fit_target`: a ``target`` capture's pose and nuisances, with one render-then-simulate pass
-- :func:`ideal_from_target`: (ideal render, plate) for a ``target`` capture, the board's pose and nuisances fitted
+- :func:`ideal_from_target`: (ideal render, plate, mask) for a ``target`` capture, the board's pose and nuisances fitted
 """
 from __future__ import annotations
 
@@ -372,15 +372,15 @@ def fit_target(profile, capture):
     return spec, rvec, tvec, fitted
 
 
-def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """(ideal render, plate) for a ``target`` capture: the board's pose from the frames through the profile's
+def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the frames through the profile's
     lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`; ``nuisances=False``: a
     one-square white border and the 95th/5th percentiles of the green mean inside the corners' hull as white and
     black, the former behaviour, kept for comparison), and the frames' own mean as the plate around the paper."""
     spec, rvec, tvec, u8 = board_pose(profile, capture)
     if nuisances:
         _, rvec, tvec, fitted = fit_target(profile, capture)
-        return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8
+        return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8, None
     from ..captures import detect_target
 
     img = detect_target(u8, spec)[1]
@@ -389,4 +389,4 @@ def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndar
     cv2.fillConvexPoly(inside, hull, 1)
     values = capture.mean[..., 1][inside > 0]
     white, black = np.percentile(values, 95) / 255.0, np.percentile(values, 5) / 255.0
-    return render_board_view(profile, rvec, tvec, spec[1], spec[2], white=white, black=black), u8
+    return render_board_view(profile, rvec, tvec, spec[1], spec[2], white=white, black=black), u8, None
