@@ -93,10 +93,14 @@ def assert_verdict_matches_numbers(d):
         assert d.verdict == "missing-effect" and f"{best.score:.3f}" in d.summary(), d.summary()
     else:
         assert d.verdict == "unexplained", d.summary()
-    assert best is None or best.full, "the best candidate's error is always the full one"
+    assert best is None or best.full and best.held_out_full, "the best candidate's errors are always the full ones"
     doc = d.as_json()
+    ranked = [c["score"] for c in doc["candidates"][len(d.added):]]
+    assert ranked == sorted(ranked), "candidates are ranked by their decision error"
     for c in doc["candidates"]:
-        assert c["error_out_of_sample"] >= c["error_after"] - 1e-9 and "error_is_estimate" in c
+        # the decision error is the held-out one; without one the candidate takes no credit
+        expected = c["error_held_out"] if c["error_held_out"] is not None else max(c["error_after"], d.error)
+        assert abs(c["score"] - expected) < 1e-3 and c["held_out"] and "error_is_estimate" in c, c
 
 
 def run_case(tmp_path, fire_i, add, remove, seed, diagnosed=None, only=None, only_scenes=None, frames=6):

@@ -14,6 +14,7 @@ Contents
 - :func:`demosaic_bilinear`: bilinear demosaicing (the raw-Bayer pipeline, sec. 7); returns (H, W, 3)
 - :func:`demosaic_gradient_corrected`: Malvar-He-Cutler gradient-corrected bilinear demosaicing; returns (H, W, 3)
 - :func:`demosaic_edge_aware`: OpenCV's edge-aware demosaicing of the planes; returns (H, W, 3)
+- :func:`demosaic_monochrome`: a sensor without colour filters: each pixel its own sensel; returns (H, W, 3)
 - :data:`DEMOSAICERS`: method name -> demosaicing function, the ``method`` choices of :class:`Demosaic`
 - :class:`Demosaic`: full-colour premultiplied RGB and per-channel alpha from the planes (sec. 5.2 step 8)
 - :data:`DEMOSAIC_METHODS`: the methods identification compares: block, bilinear and OpenCV's edge-aware
@@ -49,7 +50,8 @@ class BayerSampling(Effect):
 
     Each channel reads its own colour component (and alpha) at its sensels' positions, moved by the
     chromatic-aberration grid and averaged over the motion-blur taps when those stages ran. Values are scaled to
-    8-bit digital numbers (DN): a render value of ``render_white`` gives 255 DN.
+    8-bit digital numbers (DN): a render value of ``render_white`` gives 255 DN. A sensor without colour filters
+    (``colour_filters = false``) has every sensel read the same mix ``grey_weights`` of the colour components.
     """
 
     name = "bayer_sampling"
@@ -58,7 +60,14 @@ class BayerSampling(Effect):
     order = 110
     node = NodeStage("Bayer Sampling", "image", "bayer_sampling")
     always_runs = True
-    params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN")}
+    params = {"render_white": Param(1.0, low=1e-6, high=1e6, doc="render value that gives 255 DN"),
+              "colour_filters": Param(True, bool, doc="false: a monochrome sensor, every sensel unfiltered"),
+              "grey_weights": Param([0.2126, 0.7152, 0.0722], "vector", length=3, low=0.0, high=1.0,
+                                    doc="an unfiltered sensel's response to the render's R, G, B (BT.709 luma)")}
+
+    def implausible(self) -> list[str]:
+        total = sum(self.grey_weights)
+        return [] if self.colour_filters or abs(total - 1.0) <= 0.05 else [f"grey weights summing to {total:.3f}"]
 
     def __deepcopy__(self, memo):
         """Copies share the kept warps: one immutable tuple holding everything they depend on, replaced whole
@@ -121,7 +130,12 @@ class BayerSampling(Effect):
         # Each colour is sampled from a 2-channel (colour, alpha) image: half the memory traffic of RGBA.
         h, w = state.working.shape[:2]
         pairs = [np.empty((h, w, 2), np.float32) for _ in range(3)]
-        cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
+        if self.colour_filters:
+            cv2.mixChannels([state.working], pairs, [0, 0, 3, 1, 1, 2, 3, 3, 2, 4, 3, 5])
+        else:  # every sensel sees the same mix of the light
+            grey = cv2.transform(state.working, np.array([list(self.grey_weights) + [0.0]], np.float32))
+            for pair in pairs:
+                cv2.merge([grey, state.working[..., 3]], pair)
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
         # the colours side by side (each one's taps added in order, as alone); green, with two planes, first
@@ -254,10 +268,18 @@ def demosaic_edge_aware(planes: np.ndarray, geometry) -> np.ndarray:
     return (out - np.float32(1000)) / np.float32(scale) + np.float32(lo)
 
 
+def demosaic_monochrome(planes: np.ndarray, geometry) -> np.ndarray:
+    """A sensor without colour filters: each output pixel is its own sensel (:func:`mosaic`), in every channel;
+    returns (H, W, 3). With the crosstalk's rows all equal, every sensel has seen the same mix of the light."""
+    frame = mosaic(planes, geometry).astype(np.float32)
+    return np.ascontiguousarray(np.repeat(frame[..., None], 3, axis=2))
+
+
 #: Method name -> demosaicing function ``fn(planes, geometry) -> (H, W, 3)``: the ``method`` choices of
 #: :class:`Demosaic`.
 DEMOSAICERS = {"block": demosaic_block, "bilinear": demosaic_bilinear,
-               "gradient_corrected": demosaic_gradient_corrected, "edge_aware": demosaic_edge_aware}
+               "gradient_corrected": demosaic_gradient_corrected, "edge_aware": demosaic_edge_aware,
+               "monochrome": demosaic_monochrome}
 
 
 class Demosaic(Effect):
@@ -265,7 +287,8 @@ class Demosaic(Effect):
 
     ``method = "block"``: the Fire-i's 2x2-block scheme (sec. 4.4.1); ``"bilinear"``: bilinear interpolation
     (sec. 7, and the assumption of the paper's earlier version); ``"gradient_corrected"``: Malvar-He-Cutler
-    [Malvar2004]; ``"edge_aware"``: OpenCV's edge-aware method [OpenCV-EA]. Alpha travels with colour, so each
+    [Malvar2004]; ``"edge_aware"``: OpenCV's edge-aware method [OpenCV-EA]; ``"monochrome"``: no colour filters,
+    each pixel its own sensel (with the crosstalk's rows equal, a grey sensor). Alpha travels with colour, so each
     output channel carries its own alpha (sec. 5.2 step 8).
     """
 

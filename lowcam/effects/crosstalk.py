@@ -14,6 +14,8 @@ stays white.
 Contents
 --------
 - :data:`FIRE_I_CROSSTALK`: the Fire-i filter response to 700/546/438 nm primaries (sec. 4.2)
+- :func:`colour_matrix_problems`: what in a colour matrix no real camera has (:data:`MIN_OWN_WEIGHT`,
+  :data:`MAX_NEGATIVE`, :data:`MIN_DETERMINANT`)
 - :class:`Crosstalk`: mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
 - :func:`fit_colour_matrix`: the 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches)
 - :func:`crosstalk_from_colour_matrix`: the sensor's own mixing, the saturation setting undone (sec. 4.2, 4.4.2)
@@ -29,11 +31,39 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import NotFitted
 from .base import Effect, NodeStage, Param, Search
 from .saturation import SATURATION_LUMA, saturation_matrix
 
 #: Fire-i filter response to 700/546/438 nm primaries, rows sum to 1 (sec. 4.2).
 FIRE_I_CROSSTALK = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]
+
+
+#: What a real camera's colour matrix keeps within (:func:`colour_matrix_problems`): each channel's weight on
+#: itself at least :data:`MIN_OWN_WEIGHT`, no other weight below -:data:`MAX_NEGATIVE`, a determinant at least
+#: :data:`MIN_DETERMINANT` (a matrix that folds the colours together is a grey camera: ``monochrome``).
+MIN_OWN_WEIGHT = 0.2
+MAX_NEGATIVE = 1.0
+MIN_DETERMINANT = 0.05
+
+
+def colour_matrix_problems(matrix, what: str = "the colour matrix") -> list[str]:
+    """What in a 3x3 colour matrix (rows: output channels) no real camera has: a channel weighing itself below
+    :data:`MIN_OWN_WEIGHT` (a negative green weight on green), a weight below -:data:`MAX_NEGATIVE`, or a
+    determinant below :data:`MIN_DETERMINANT` (three equal rows remove every colour).
+
+    >>> colour_matrix_problems([[0.91, -0.73, 0.81]] * 3)[0]
+    'the colour matrix weighs green at -0.73 on itself'
+    """
+    m = np.asarray(matrix, np.float64)
+    names = ("red", "green", "blue")
+    out = [f"{what} weighs {names[k]} at {m[k, k]:.2f} on itself" for k in range(3) if m[k, k] < MIN_OWN_WEIGHT]
+    if m.min() < -MAX_NEGATIVE:
+        out.append(f"{what} has a weight of {m.min():.2f}")
+    det = float(np.linalg.det(m))
+    if det < MIN_DETERMINANT:
+        out.append(f"{what} removes colour (determinant {det:.3f}): a grey camera is 'monochrome'")
+    return out
 
 
 def _rows_to_one(m: np.ndarray) -> np.ndarray:
@@ -50,18 +80,19 @@ def fit_colour_mixing(ctx, effect: str):
     captures) is kept.
     """
     p = ctx.profile
-    s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p)])
-    m = np.concatenate([c.reshape(-1, 3) for c in ctx.means])
+    if not ctx.scene_has_colour():
+        raise NotFitted("the ideal renders hold no colour (a grey target): no colour matrix can be told")
+    s, m = ctx.pixels(p)
     ok = (s.max(1) < 250) & (m.max(1) < 250) & (s.min(1) > 3) & (m.min(1) > 3)
     if ok.sum() < 100:
-        return None
+        raise NotFitted("fewer than 100 pixels are unclipped in both the model and the frames")
     t = fit_colour_matrix(s[ok], m[ok])
     old = p.effect(effect)
     k = old.total_matrix() if old.enabled else np.eye(3)
     sat = p.effect("saturation")
     options = []
     if sat is not None and sat.enabled and abs(np.linalg.det(saturation_matrix(sat.saturation, sat.luma))) < 1e-9:
-        return None  # a monochrome output: no colour mixing can be told
+        raise NotFitted("the profile delivers grey: no colour mixing can be told")
     if sat is not None and sat.enabled:
         S = saturation_matrix(sat.saturation, sat.luma)
         c = np.asarray(sat.colour_correction, np.float64)
@@ -108,6 +139,9 @@ class Crosstalk(Effect):
     def check(self):
         if any(len(row) != 3 for row in self.matrix):
             raise self.error("'matrix' must be 3x3")
+
+    def implausible(self) -> list[str]:
+        return colour_matrix_problems(self.total_matrix(), "the crosstalk")
 
     def total_matrix(self) -> np.ndarray:
         m = np.asarray(self.matrix, np.float64)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import NotFitted
 from .base import Effect, Param, Search
 
 
@@ -84,20 +85,25 @@ def _offsets(ctx):
 
 
 def _with_map(ctx, effect: str, values: np.ndarray):
-    """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy in the workdir)."""
-    path = ctx.workdir / f"{effect}.npy"
+    """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy in the workdir, a file of
+    its own per fit: a candidate is fitted on several folds at once)."""
+    import os
+    import tempfile
+
+    handle, path = tempfile.mkstemp(prefix=f"{effect}-", suffix=".npy", dir=ctx.workdir)
+    os.close(handle)
     np.save(path, values.astype(np.float32))
     return ctx.profile.with_effect(effect, replace=True, texture=str(path)), {"texture": str(path)}
 
 
 def fit_dense_offset(ctx, effect: str):
-    """DSNU's fit: the per-pixel mean offset of the measured means from the clean model (closed form), or None
+    """DSNU's fit: the per-pixel mean offset of the measured means from the clean model (closed form); NotFitted
     when its energy sits in a few outliers (:func:`offset_evidence`: hot pixels, not a dense map)."""
     _, diff, noise_var = _offsets(ctx)
     offset = diff.mean(0)
     ev = offset_evidence(diff, noise_var)
     if ev["sparse"]:
-        return None
+        raise NotFitted(f"the offsets sit in {100 * ev['pixels']:.2f} % of the pixels: hot pixels, not a dense map")
     profile, params = _with_map(ctx, effect, offset)
     shown = {"sigma_dn": float(offset.std()), "tail_percent": 100 * ev["pixels"], "share": 100 * ev["share"]}
     return profile, dict(params, sigma_dn=shown["sigma_dn"]), shown
@@ -105,8 +111,8 @@ def fit_dense_offset(ctx, effect: str):
 
 def fit_hot_pixels(ctx, effect: str):
     """Hot pixels' fit: the pixels far brighter than the model (outliers of the offset map, :func:`offset_evidence`)
-    in every capture that can show them; their mean offset per channel. None when there are none, or when the
-    map is dense (the outliers are many, or hold little of the offset energy: DSNU)."""
+    in every capture that can show them; their mean offset per channel. NotFitted when there are none, or when
+    the map is dense (the outliers are many, or hold little of the offset energy: DSNU)."""
     clipped, diff, noise_var = _offsets(ctx)
     with np.errstate(all="ignore"):
         offset = np.nan_to_num(np.nanmean(clipped, axis=0))
@@ -114,8 +120,10 @@ def fit_hot_pixels(ctx, effect: str):
     ev = offset_evidence(diff, noise_var)
     cut = OUTLIER_SIGMAS * ev["spread"]
     hot = (offset - ev["median"] > cut) & (low - ev["median"] > 0.5 * cut)
-    if not hot.any() or not ev["sparse"]:
-        return None
+    if not hot.any():
+        raise NotFitted("no pixel stays bright in every capture")
+    if not ev["sparse"]:
+        raise NotFitted("the fixed offsets are spread over the frame: a dense map, not hot pixels")
     n = int(hot.any(axis=-1).sum())
     profile, params = _with_map(ctx, effect, np.where(hot, offset, 0.0))
     shown = {"count": n, "percent": 100 * n / hot[..., 0].size, "median_dn": float(np.median(offset[hot])),

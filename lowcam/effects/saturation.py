@@ -11,6 +11,7 @@ off-diagonal entries, rows summing to 1 so white stays white (e.g. Adobe DNG spe
 Contents
 --------
 - :data:`SATURATION_LUMA`: the rows of the control's fixed part A (sec. 4.4.2)
+- :data:`LUMA_SUM_TOLERANCE`: how far from 1 luma weights may sum
 - :func:`saturation_matrix`: the Fire-i saturation control ``S(beta)``
 - :class:`Saturation`: colour correction and the saturation control on the demosaiced premultiplied colour
 
@@ -28,6 +29,8 @@ from .base import Effect, NodeStage, Param, Search
 
 #: Rows of the saturation control's fixed part A (sec. 4.4.2).
 SATURATION_LUMA = (0.2915, 0.5887, 0.1113)
+#: Luma weights sum to 1 within this (the paper's sum to 0.9915).
+LUMA_SUM_TOLERANCE = 0.05
 
 
 def saturation_matrix(beta: float, luma=SATURATION_LUMA) -> np.ndarray:
@@ -57,9 +60,8 @@ class Saturation(Effect):
     writes = "rgb"
     order = 240
     node = NodeStage("Saturation", "rgb", "saturation")
-    searches = (Search("monochrome", "the frames carry no colour: a monochrome sensor (saturation 0, luma "
-                                     "weights {weights})", fit="monochrome",
-                       requires="saturation"),)
+    searches = (Search("monochrome", "the frames carry no colour: {form} (luma weights {weights}, {how})",
+                       fit="monochrome", requires="saturation", full_error=True),)
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
         "luma": Param(list(SATURATION_LUMA), "vector", length=3, low=0.0, high=1.0),
@@ -70,6 +72,16 @@ class Saturation(Effect):
     def check(self):
         if any(len(row) != 3 for row in self.colour_correction):
             raise self.error("'colour_correction' must be 3x3")
+
+    def implausible(self) -> list[str]:
+        """Luma weights below 0 or not summing to 1 within :data:`LUMA_SUM_TOLERANCE`, and a colour correction no
+        camera has (:func:`lowcam.effects.crosstalk.colour_matrix_problems`)."""
+        from .crosstalk import colour_matrix_problems
+
+        out = [f"a negative luma weight ({min(self.luma):.3f})"] if min(self.luma) < 0 else []
+        if abs(sum(self.luma) - 1.0) > LUMA_SUM_TOLERANCE:
+            out.append(f"luma weights summing to {sum(self.luma):.3f}")
+        return out + colour_matrix_problems(self.colour_correction, "the colour correction")
 
     def total_matrix(self) -> np.ndarray:
         """``S(beta) C``: what the stage does to the colour."""

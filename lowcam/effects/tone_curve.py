@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import NotFitted
 from .base import Effect, Param, Search
 
 
@@ -63,12 +64,11 @@ def fit_tone_curve(ctx, effect: str):
 
     have = ctx.profile.effect(effect)
     base = ctx.profile.without(effect) if have is not None and have.enabled else ctx.profile
-    s = np.concatenate([c.ravel() for c in ctx.clean(base)])
-    m = np.concatenate([c.ravel() for c in ctx.means])
+    s, m = (x.ravel() for x in ctx.pixels(base))
     ok = (m > 0.5) & (m < 254.5) & (s > 0.0)
     s, m = s[ok], m[ok]
     if s.size < 100:
-        return None
+        raise NotFitted("fewer than 100 pixels are unclipped")
     bins = np.clip(np.floor(s).astype(np.int64), 0, 511)
     count = np.bincount(bins, minlength=512)
     keep = count > 0

@@ -24,6 +24,7 @@ Contents
 - :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
 - :data:`SIM_SEED`: the first noise seed of the simulated frames
 - :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
+- :data:`CACHED_FRONTS`: deterministic fronts of the chain a shared cache keeps
 - :data:`WORKERS`: captures simulated at a time by a comparison made from the main thread
 - :class:`CaptureStats`: one capture's measured and simulated frames and its error sums
 - :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
@@ -49,6 +50,9 @@ from ..errors import LowcamError
 EXPLAINED_BELOW = 1.1
 SIM_SEED = 1000
 INTENSITY_BINS = np.linspace(0, 256, 17)
+#: Deterministic fronts of the chain a shared ``cache`` keeps (:func:`simulate_capture`), least recently used out
+#: first.
+CACHED_FRONTS = 64
 #: Captures simulated at a time by a comparison made from the main thread (NumPy and OpenCV release the GIL); a
 #: comparison made inside diagnosis's candidate threads runs its captures in turn.
 WORKERS = 2
@@ -127,13 +131,16 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
 
     ideal, plate, _ = inputs or capture_inputs(profile, capture)
     key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
-    token = cache.get(key) if cache is not None else None
+    token = cache.pop(key, None) if cache is not None else None
     if token is None:
         token = prepare(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, until)
-        if cache is not None:
-            if len(cache) > 64:
-                cache.clear()
-            cache[key] = token
+    if cache is not None:  # least recently used out first: the diagnosed profile's fronts stay
+        cache[key] = token
+        while len(cache) > CACHED_FRONTS:
+            try:
+                cache.pop(next(iter(cache)))
+            except (KeyError, StopIteration, RuntimeError):  # another thread changed it meanwhile
+                break
     return np.stack([resume(token, seed, k, profile) for k in range(count)])
 
 

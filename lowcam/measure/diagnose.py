@@ -1,19 +1,28 @@
-"""Which physical effect does the profile lack? Fit each candidate, re-simulate, rank by how far the error falls.
+"""Which physical effect does the profile lack? Fit each candidate, re-simulate, rank by the error on held-out captures.
 
 Every candidate is an effect the profile lacks, one whose parameters may be wrong, or one it should not have
 (``without_EFFECT``, and ``monochrome``). Each is fitted to the measured temporal means on a noise-free simulation
-(:meth:`Context.clean`), in two passes so that a diagnosis takes seconds:
+(:meth:`Context.clean`), and judged on captures its fit did not see:
 
-1. **Screening.** Every candidate is fitted coarsely: its grid values (walked from the profile's value towards
-   lower error), its closed-form fit, or one Gauss-Newton step of its continuous parameters from finite
-   differences (:func:`gauss_newton`).
-2. **Fitting.** The :data:`FITTED` best screened candidates are fitted to convergence (more Gauss-Newton steps).
+1. **Screening on two folds.** The captures are dealt into two halves (:meth:`Context.folds`); every candidate
+   is fitted coarsely on each half (its grid values walked from the profile's value towards lower error, its
+   closed-form fit, or one Gauss-Newton step of its continuous parameters, :func:`gauss_newton`) and measured on
+   the other half. Each capture is thus measured with a fit that did not see it: the held-out error.
+2. **Fitting.** The :data:`FITTED` best by held-out error are fitted to convergence on every capture (the profile
+   that would be added), and their folds' fits are finished from it.
+3. **Identifiable and plausible.** A fitted number's standard error is half the difference of its two folds' fits
+   (:attr:`Candidate.uncertainty`); a searched key on which the folds disagree by more than
+   :data:`UNDETERMINED_SPREAD` of its range, or that the captures do not show at all, is not determined by the
+   data: it is held at the profile's value and the candidate fitted again (or not offered when nothing is left
+   to fit). A fit whose effect no real camera has (:meth:`lowcam.effects.Effect.implausible`) is not offered;
+   a number at a bound of its search is flagged. Why a candidate could not be fitted is kept
+   (:attr:`Diagnosis.not_fitted`).
 
-Each candidate's error is then estimated from its noise-free residual and the noise the first comparison measured
-(:meth:`Context.estimate`), and the :data:`FULL_ERRORS` best estimates, and every candidate that changes the
-noise itself, get the full noise-aware error of :mod:`lowcam.measure.compare`. Ranking is by the error expected on
-new frames (:attr:`Candidate.score`): a dense per-pixel map absorbs part of the noise of the means it was fitted
-to, so its mean family is corrected out of sample.
+Each error is estimated from the noise-free residual and the noise the first comparison measured
+(:meth:`Context.estimate`); the best candidate, every candidate that changes the noise, and the runners-up that
+could still win, get the full noise-aware errors of :mod:`lowcam.measure.compare`, in sample and held out.
+Ranking and verdicts use the held-out error (:attr:`Candidate.score`); a candidate that nothing could be held out
+of (one capture shows it, and its fit takes whole frames) takes no credit.
 
 Measured and assumed. With one frame per capture the frames' noise cannot be measured; every candidate is then
 compared against the noise of the diagnosed profile (``assumed_noise`` in :func:`lowcam.measure.compare.compare`),
@@ -21,33 +30,35 @@ so a candidate cannot lower the error by only adding model noise. ``Diagnosis.as
 families were measured.
 
 Verdict (:attr:`Diagnosis.verdict`): ``explained`` when the profile's own error is at most 1.1; ``missing-effect``
-when the best candidate's expected error is at most :data:`UNEXPLAINED_ABOVE` (it is named, with that error);
+when the best candidate's held-out error is at most :data:`UNEXPLAINED_ABOVE` (it is named, with that error);
 ``unexplained`` otherwise (``where`` then still says where the residual lives).
 
 Contents
 --------
-- :data:`UNEXPLAINED_ABOVE`: the best candidate's expected error above which the verdict is ``unexplained`` (1.25)
+- :data:`UNEXPLAINED_ABOVE`: the best candidate's held-out error above which the verdict is ``unexplained`` (1.25)
 - :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
-- :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its estimated error is within this
+- :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its held-out error is within this
   factor of the best screened candidate's
 - :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
 - :data:`NOT_REMOVABLE`: effects no ``without_EFFECT`` candidate removes (the chain needs them)
-- :class:`Candidate`: one fitted candidate: its error after (in sample and expected), params and evidence
-- :class:`Context`: the measured set, the profile, memoised noise-free simulations and the error estimate
+- :data:`TILE_PX`, :data:`UNDETERMINED_SPREAD`, :data:`AT_BOUND`: the folds' image tiles, and when a fitted number
+  is not determined or at its bound
+- :class:`Candidate`: one fitted candidate: its errors in sample and held out, params, uncertainties and evidence
+- :class:`Context`: the measured set, the profile, memoised noise-free simulations, the error estimate, folds
 - :func:`candidates`: candidate name -> (effect class, :class:`~lowcam.effects.Search`) pairs, in chain order
 - :func:`removal_candidates`: the ``without_EFFECT`` candidates of a profile
 - :func:`candidate_effect`: the profile effect a candidate adds or changes
 - :func:`gauss_newton`: bounded Gauss-Newton (Levenberg-Marquardt) steps on the noise-free residual
-- :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence), or None
+- :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence)
 - :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
 - :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
-- :func:`fit_monochrome`: a sensor without colour: the saturation control at 0, its luma weights fitted
+- :func:`fit_monochrome`: a camera without colour: no colour filters, or grey output; its luma weights
 - :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
 - :data:`NOISE_FITS`: the closed-form fits whose candidates change the noise (always fully compared)
-- :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map (it absorbs noise)
-- :class:`Diagnosis`: the comparison, the ranked candidates, the verdict and the time taken
-- :func:`rank`: screen, fit and rank the named candidates
+- :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map
+- :class:`Diagnosis`: the comparison, the ranked candidates, those not fitted and why, the verdict, the time
+- :func:`rank`: screen, fit and rank the named candidates by their held-out errors
 - :func:`polish`: refit several added effects together (each in turn with the others held)
 - :func:`diagnose`: rank the candidates (all, or ``only``) for a measurement set, with forward selection
 - :class:`Step`: one step of :func:`explain`: the diagnosis, the effect added and the error after
@@ -64,6 +75,10 @@ References
   (PRNU and DSNU).
 - [Nocedal2006] J. Nocedal and S. J. Wright, "Numerical Optimization", 2nd ed., Springer 2006, ch. 10
   (Gauss-Newton and Levenberg-Marquardt).
+- [Hastie2009] T. Hastie, R. Tibshirani and J. Friedman, "The Elements of Statistical Learning", 2nd ed.,
+  Springer 2009, sec. 7.10 (cross-validation).
+- [Shao1989] J. Shao and C. F. J. Wu, "A General Theory for Jackknife Variance Estimation", Annals of Statistics
+  17(3), 1176-1197, 1989 (the delete-d jackknife).
 """
 from __future__ import annotations
 
@@ -77,8 +92,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import EXPLAINED_BELOW, capture_inputs, combine, compare, prefix_key, row_noise_variance, \
-    simulate_capture
+from ..errors import NotFitted
+from .compare import EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare, prefix_key, \
+    row_noise_variance, simulate_capture
 
 UNEXPLAINED_ABOVE = 1.25
 FITTED = 4
@@ -91,12 +107,32 @@ NOT_REMOVABLE = ("bayer_sampling", "demosaic", "yuv_blend", "noise", "raw_blend"
 _MEMO_ENTRIES = 160  # noise-free frames kept (one capture each, about 4 MB at 640x480)
 #: Candidates fitted at once (threads: OpenCV and numpy release the GIL); the results do not depend on it.
 WORKERS = 2
+#: Side (px) of the image tiles of the two spatial folds, used when fewer than two captures show a candidate.
+TILE_PX = 64
+#: Sets of at most this many captures are cross-validated leaving one capture out at a time; larger ones on two
+#: halves.
+LEAVE_ONE_OUT_UP_TO = 5
+#: A fitted parameter whose two folds' estimates differ by more than this share of its searched range is not
+#: determined by the data.
+UNDETERMINED_SPREAD = 0.5
+#: A fitted parameter within this share of its searched range from a bound is flagged as at the bound.
+AT_BOUND = 0.01
+#: The ideal renders hold colour when their chroma varies by at least this (render units) on opaque pixels
+#: (:meth:`Context.scene_has_colour`).
+SCENE_CHROMA = 0.01
 
 
 @dataclass
 class Candidate:
-    """One fitted candidate. ``error_after`` is the error with it, in sample (the full noise-aware error when
-    ``full``, else estimated from the noise-free fit: :meth:`Context.estimate`); ``families`` its families."""
+    """One fitted candidate.
+
+    ``error_after`` is its error in sample: with the fit that saw the captures it is measured on (the full
+    noise-aware error when ``full``, else estimated from the noise-free fit: :meth:`Context.estimate`).
+    ``held_out`` is its error on captures held out of the fit (two folds: each half of the captures fitted, the
+    other half measured; ``validation`` says how, or why it could not be), with its ``held_out_families``;
+    ranking and verdicts use it (:attr:`score`). ``uncertainty``: each fitted number's standard error from the
+    spread of the folds' fits; ``flags``: fitted numbers at a bound of their search, or effects outside what a
+    real camera has (:meth:`lowcam.effects.Effect.implausible`)."""
 
     effect: str
     error_after: float
@@ -109,76 +145,159 @@ class Candidate:
     full: bool = False
     seconds: float = 0.0
     comparison: object = field(default=None, repr=False)  # the full comparison, when ``full``
+    held_out: float | None = None
+    held_out_families: dict = field(default_factory=dict)
+    held_out_full: bool = False
+    validation: str = ""
+    base_error: float = float("inf")
+    uncertainty: dict = field(default_factory=dict)
+    flags: list = field(default_factory=list)
 
     @property
     def score(self) -> float:
-        """The error expected on new frames, by which candidates are ranked. A per-pixel map fitted to the means
-        of C captures absorbs 1/C of their noise, so its mean family is inflated by ``sqrt((1 + 1/C) / (1 - 1/C))``
-        (in sample the residual variance is (1 - 1/C) of the noise, on new frames (1 + 1/C)); effects with a
-        handful of parameters keep their error."""
-        if not self.per_pixel or not self.families:
-            return self.error_after
-        f = 1.0 / max(self.captures, 2)
-        families = dict(self.families, mean=self.families["mean"] * float(np.sqrt((1 + f) / (1 - f))))
-        return float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
+        """The decision error, by which candidates are ranked and verdicts given: the held-out error. Without
+        one (nothing could be held out of its fit) the candidate takes no credit: the profile's own error."""
+        if self.held_out is None:
+            return max(self.error_after, self.base_error)
+        return self.held_out
 
     @property
     def optimistic(self) -> float:
-        """The lowest error the candidate could have: its expected error with its noise families at the floor."""
-        if not self.families:
+        """The lowest decision error the candidate could have: with its noise families at the floor."""
+        fam = self.held_out_families if self.held_out is not None else self.families
+        if not fam:
             return self.score
-        families = {k: 1.0 if k in ("variance", "rows") else v for k, v in self.families.items()}
-        error = float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
-        return Candidate(self.effect, error, {}, "", per_pixel=self.per_pixel, captures=self.captures,
-                         families=families).score
+        fam = {k: 1.0 if k in ("variance", "rows") else v for k, v in fam.items()}
+        error = float(np.sqrt(sum(v * v for v in fam.values()) / len(fam)))
+        return error if self.held_out is not None else max(error, self.base_error)
 
     def as_json(self) -> dict:
+        def number(v):
+            return round(v, 6) if isinstance(v, float) else v
+
+        held = None if self.held_out is None else round(self.held_out, 4)
         return {"effect": self.effect, "error_after": round(self.error_after, 4),
-                "error_out_of_sample": round(self.score, 4), "score": round(self.score, 4),
-                "error_is_estimate": not self.full, "seconds": round(self.seconds, 3),
+                "error_in_sample": round(self.error_after, 4), "error_held_out": held,
+                "held_out": self.validation, "error_out_of_sample": round(self.score, 4),
+                "score": round(self.score, 4), "error_is_estimate": not self.full,
+                "held_out_is_estimate": not self.held_out_full, "seconds": round(self.seconds, 3),
                 "families": {k: round(v, 4) for k, v in self.families.items()},
-                "params": {k: (v if not isinstance(v, float) else round(v, 6)) for k, v in self.params.items()},
-                "evidence": self.evidence}
+                "held_out_families": {k: round(v, 4) for k, v in self.held_out_families.items()},
+                "params": {k: number(v) for k, v in self.params.items()},
+                "uncertainty": {k: round(v, 6) for k, v in self.uncertainty.items()},
+                "flags": list(self.flags), "evidence": self.evidence}
 
 
 class Context:
     """The measured set, the profile, memoised noise-free simulations and the error estimate.
 
     ``assumed_noise`` (per capture, or None) is the noise that one-frame captures are compared against; by
-    default the diagnosed profile's own, from its first comparison (:attr:`base`)."""
+    default the diagnosed profile's own, from its first comparison (:attr:`base`). :meth:`view` is the same
+    context over some of the captures (and pixels), sharing the simulations: the folds candidates are fitted on
+    and measured on (:meth:`folds`)."""
 
     def __init__(self, mset, profile, workdir: Path, assumed_noise=None, parent=None, base=None):
         self.mset, self.profile, self.workdir = mset, profile, Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
-        self._local, self._lock = threading.local(), threading.Lock()  # candidates are fitted in threads
+        self._local = threading.local()  # candidates are fitted in threads
         if parent is not None:  # the same set: share its inputs, means, capture choices and simulations
-            for name in ("inputs", "cache", "memo", "_lock", "means", "moving", "textured", "moving_ones", "quick",
-                         "screen_textured"):
+            for name in ("inputs", "cache", "memo", "_lock", "means", "texture"):
                 setattr(self, name, getattr(parent, name))
             assumed_noise = assumed_noise or parent.assumed_noise
         else:
+            self._lock = threading.Lock()
             self.inputs = [capture_inputs(profile, c) for c in mset.captures]
             self.cache, self.memo = {}, OrderedDict()
             self.means = [c.mean.astype(np.float32) for c in mset.captures]
-            self.moving = any(np.any(c.angular_velocity) for c in mset.captures)
-            texture = [inp.ideal[..., :3].std() for inp in self.inputs]
-            # Captures with structure: flat fields say nothing about geometry or blur.
-            self.textured = [i for i, t in enumerate(texture) if t > 0.02]
-            self.moving_ones = [i for i, c in enumerate(mset.captures) if np.any(c.angular_velocity)]
-            # a few captures for screening and quick full errors: the two flattest and the most textured
-            by_texture = [int(i) for i in np.argsort(texture)]
-            self.quick = list(dict.fromkeys((*by_texture[:2], by_texture[-1])))
-            self.screen_textured = sorted(self.textured, key=lambda i: -texture[i])[:2]
+            self.texture = [float(inp.ideal[..., :3].std()) for inp in self.inputs]
+        self._choose_captures()
         first = base or compare(mset, profile, cache=self.cache, inputs=self.inputs, assumed_noise=assumed_noise)
         self.assumed_noise = assumed_noise or [s.sums["variance_map"] if len(s.measured) == 1 else None
                                                for s in first.captures]
+        self._calibrate(first)
+
+    def _choose_captures(self) -> None:
+        captures = self.mset.captures
+        self.moving = any(np.any(c.angular_velocity) for c in captures)
+        # Captures with structure: flat fields say nothing about geometry or blur.
+        self.textured = [i for i, t in enumerate(self.texture) if t > 0.02]
+        self.moving_ones = [i for i, c in enumerate(captures) if np.any(c.angular_velocity)]
+        # a few captures for screening and quick full errors: the two flattest and the most textured
+        by_texture = [int(i) for i in np.argsort(self.texture)]
+        self.quick = list(dict.fromkeys((*by_texture[:2], by_texture[-1])))
+        self.screen_textured = sorted(self.textured, key=lambda i: -self.texture[i])[:2]
+        self._folds = {}
+
+    def _calibrate(self, first) -> None:
+        """Per capture: the noise the mean family divides by, the model's noise in the simulated frames' mean,
+        and the offset of noisy from noise-free frames (clipping, rounding), measured once and kept."""
         self.base = first
-        # per capture: the noise the mean family divides by, the model's noise in the simulated frames' mean, and
-        # the offset of noisy from noise-free frames (clipping, rounding), measured once and kept
         self._noise = np.array([s.sums["mean"][1] for s in first.captures])
         self._model_noise = np.array([s.sums["model_noise"] for s in first.captures])
-        self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - self._sse_per_capture(profile) - \
-            self._model_noise
+        self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - \
+            self._sse_per_capture(self.profile) - self._model_noise
+
+    def view(self, indices, masks=None) -> "Context":
+        """This context over the captures ``indices`` only, and within them the pixels ``masks`` (one (H, W)
+        bool per index, or None) keep; simulations are shared."""
+        from .sets import MeasurementSet
+
+        out = object.__new__(Context)
+        out.mset = MeasurementSet(self.mset.path, [self.mset.captures[i] for i in indices])
+        out.profile, out.workdir, out._local = self.profile, self.workdir, threading.local()
+        for name in ("cache", "memo", "_lock"):
+            setattr(out, name, getattr(self, name))
+        masks = masks or [None] * len(indices)
+        out.inputs = [self.inputs[i] if m is None else
+                      self.inputs[i]._replace(mask=m if self.inputs[i].mask is None else m & self.inputs[i].mask)
+                      for i, m in zip(indices, masks)]
+        out.means = [self.means[i] for i in indices]
+        out.texture = [self.texture[i] for i in indices]
+        out.assumed_noise = [self.assumed_noise[i] for i in indices]
+        out._choose_captures()
+        stats = [self.base.captures[i] if m is None else
+                 capture_stats(self.base.captures[i].measured, self.base.captures[i].simulated,
+                               self.base.captures[i].name, out.assumed_noise[k], out.inputs[k].mask)
+                 for k, (i, m) in enumerate(zip(indices, masks))]
+        error, families = combine(stats)
+        out._calibrate(Comparison(error, families, stats, self.base.noise_floor))
+        return out
+
+    def folds(self, captures: str, tiles: bool):
+        """The folds a candidate searching ``captures`` ("all", "textured", "moving") is fitted and measured on:
+        (``[(fitted on, measured on), ...]`` views, each capture measured once, and how they were made).
+
+        Up to :data:`LEAVE_ONE_OUT_UP_TO` captures, each is left out in turn; more are dealt alternately into two
+        halves by kind (moving, then texture), so each half holds flat, textured and moving captures alike. When a
+        fold would be fitted on none of the captures the candidate is fitted on, the frames are split into two
+        chequerboards of :data:`TILE_PX` tiles instead (``tiles``: the fit honours masks), else the result is a
+        string saying why nothing can be held out."""
+        n = len(self.inputs)
+        relevant = set(range(n) if captures == "all" else self.subset(captures))
+        order = sorted(range(n), key=lambda i: (i in self.moving_ones, self.texture[i], i))
+        held = [[i] for i in order] if n <= LEAVE_ONE_OUT_UP_TO else [order[0::2], order[1::2]]
+        if len(held) > 1 and all(relevant - set(h) for h in held) and len(relevant) > 1:
+            key = "captures"
+            if key not in self._folds:
+                pairs = [(self.view(sorted(set(range(n)) - set(h))), self.view(sorted(h))) for h in held]
+                how = (f"leave-one-out over {n} captures" if n <= LEAVE_ONE_OUT_UP_TO else
+                       "2 folds of captures")
+                self._folds[key] = (pairs, how)
+            return self._folds[key]
+        if not relevant:
+            return "no capture shows it"
+        if not tiles:
+            return (f"only {len(relevant)} capture{'s' * (len(relevant) != 1)} show{'s' * (len(relevant) == 1)} "
+                    "it and its fit takes whole frames: nothing can be held out")
+        if "tiles" not in self._folds:
+            h, w = self.means[0].shape[:2]
+            yy, xx = np.mgrid[0:h, 0:w]
+            chequer = ((yy // TILE_PX + xx // TILE_PX) % 2 == 0)
+            everything = list(range(len(self.inputs)))
+            a = self.view(everything, [chequer] * len(everything))
+            b = self.view(everything, [~chequer] * len(everything))
+            self._folds["tiles"] = ([(a, b), (b, a)], f"2 folds of {TILE_PX}-px image tiles")
+        return self._folds["tiles"]
 
     @property
     def screening(self) -> bool:
@@ -200,15 +319,16 @@ class Context:
         key = prefix_key(q, len(q.effects))
         out = []
         for i in range(len(self.inputs)) if subset is None else subset:
+            capture = self.mset.captures[i]
             with self._lock:
-                frame = self.memo.get((key, i))
+                frame = self.memo.get((key, id(capture)))
                 if frame is not None:
-                    self.memo.move_to_end((key, i))
+                    self.memo.move_to_end((key, id(capture)))
             if frame is None:
-                frame = simulate_capture(q, self.mset.captures[i], 1, inputs=self.inputs[i], cache=self.cache,
+                frame = simulate_capture(q, capture, 1, inputs=self.inputs[i], cache=self.cache,
                                          until="bayer_sampling")[0].astype(np.float32)
                 with self._lock:
-                    self.memo[(key, i)] = frame
+                    self.memo[(key, id(capture))] = frame
                     if len(self.memo) > _MEMO_ENTRIES:
                         self.memo.popitem(last=False)
             out.append(frame)
@@ -218,6 +338,17 @@ class Context:
         d = self.means[i] - frame
         mask = self.inputs[i].mask
         return d if mask is None else d * mask[..., None]
+
+    def pixels(self, profile, subset=None) -> tuple[np.ndarray, np.ndarray]:
+        """(noise-free model, measured mean), each (N, 3) float64: every compared pixel of the captures (all, or
+        ``subset``), for the fits made in closed form."""
+        idx = range(len(self.inputs)) if subset is None else subset
+        model, measured = [], []
+        for i, s in zip(idx, self.clean(profile, subset)):
+            mask = self.inputs[i].mask
+            model.append(s.reshape(-1, 3) if mask is None else s[mask])
+            measured.append(self.means[i].reshape(-1, 3) if mask is None else self.means[i][mask])
+        return np.concatenate(model).astype(np.float64), np.concatenate(measured).astype(np.float64)
 
     def residual(self, profile, subset=None) -> np.ndarray:
         """The measured means less the noise-free frames, flattened over the captures (all, or ``subset``); masked
@@ -238,16 +369,35 @@ class Context:
         """The full noise-aware comparison (:func:`~lowcam.measure.compare.compare`) against the assumed noise."""
         return compare(self.mset, profile, sim_frames, self.cache, self.inputs, self.assumed_noise, subset)
 
+    def mean_sums(self, profile, subset=None) -> tuple[np.ndarray, np.ndarray]:
+        """Per capture (all, or ``subset``): the mean family's numerator and denominator expected of ``profile``
+        from its noise-free residual (:meth:`estimate`)."""
+        idx = list(range(len(self.inputs))) if subset is None else list(subset)
+        num = self._sse_per_capture(profile, subset) + self._model_noise[idx] + self._offset[idx]
+        return np.maximum(num, 0.0), self._noise[idx]
+
     def estimate(self, profile, subset=None) -> tuple[float, dict]:
         """(error, families) expected of ``profile`` (over all captures, or ``subset``) from its noise-free
         residual: the mean family's residual is the noise-free one plus the model's noise in the mean of the
         simulated frames and the first comparison's offset of noisy from noise-free frames; the noise families are
         the first comparison's."""
-        idx = list(range(len(self.inputs))) if subset is None else list(subset)
-        num = max(float((self._sse_per_capture(profile, subset) + self._model_noise[idx] + self._offset[idx]).sum()),
-                  0.0)
-        families = dict(self.base.families, mean=float(np.sqrt(num / self._noise[idx].sum())))
+        num, den = self.mean_sums(profile, subset)
+        return self.families_with_mean(float(num.sum()), float(den.sum()))
+
+    def families_with_mean(self, num: float, den: float) -> tuple[float, dict]:
+        """(error, families): the first comparison's noise families with the mean family ``sqrt(num / den)``."""
+        families = dict(self.base.families, mean=float(np.sqrt(max(num, 0.0) / den)))
         return float(np.sqrt(sum(v * v for v in families.values()) / len(families))), families
+
+    def scene_has_colour(self) -> bool:
+        """True when some capture's ideal render holds colour (its chroma, each opaque pixel's channels about their
+        mean, varies by at least :data:`SCENE_CHROMA`): a sensor's colour weights are determined by the data only
+        then (a grey chart shows every set of weights summing to 1 alike)."""
+        for inp in self.inputs:
+            rgb = inp.ideal[..., :3][inp.ideal[..., 3] > 0.5]
+            if rgb.size and float((rgb - rgb.mean(axis=1, keepdims=True)).std()) >= SCENE_CHROMA:
+                return True
+        return False
 
     def subset(self, captures: str):
         """The captures (indices, or None for all) a search with ``captures`` fits on."""
@@ -291,14 +441,17 @@ def gauss_newton(ctx, build, x0, bounds, subset=None, steps: int = 4):
     Parameters are scaled to their bounds; the Jacobian comes from forward differences of 5 % of each range
     (towards the inside; 25 % where that changes nothing); each step is clipped to the bounds and halved until the
     SSE falls (backtracking), which
-    copes with effects that hardly act near their start (a blur of sigma 0). Returns (x, SSE)."""
+    copes with effects that hardly act near their start (a blur of sigma 0). Returns (x, SSE, blind): ``blind``
+    the indices of the parameters that change nothing the captures show (their Jacobian column is 0)."""
     lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
     span = np.maximum(hi - lo, 1e-12)
     x = np.clip(np.asarray(x0, float), lo, hi)
     r = ctx.residual(build(x), subset)
     sse = float(np.dot(r, r))
+    blind: set = set()
     for _ in range(steps):
         jac = np.zeros((r.size, len(x)), np.float32)
+        blind = set()
         for k in range(len(x)):
             for size in (0.05, 0.25):  # a wider difference where the effect hardly acts
                 h = size * span[k] if x[k] + size * span[k] <= hi[k] else -size * span[k]
@@ -307,6 +460,8 @@ def gauss_newton(ctx, build, x0, bounds, subset=None, steps: int = 4):
                 jac[:, k] = (r - ctx.residual(build(xk), subset)) / (h / span[k])  # d(model)/d(scaled x)
                 if np.abs(jac[:, k]).max() > 1e-3:
                     break
+            else:
+                blind.add(k)
         jtj = (jac.T @ jac).astype(np.float64)
         ridge = 1e-3 * np.diag(np.diag(jtj)) + 1e-9 * np.trace(jtj) * np.eye(len(x))
         target = np.clip(x + np.linalg.lstsq(jtj + ridge, (jac.T @ r).astype(np.float64), rcond=None)[0] * span,
@@ -324,24 +479,33 @@ def gauss_newton(ctx, build, x0, bounds, subset=None, steps: int = 4):
                 break
         if not moved:
             break
-    return x, sse
+    return x, sse, blind
 
 
 class _Fit:
-    """One candidate's fit in progress: :meth:`screen` (coarse), then :meth:`finish` (to convergence)."""
+    """One candidate's fit in progress on one context: :meth:`screen` (coarse), then :meth:`finish` (to
+    convergence). ``hold``: searched keys kept at the profile's value (the data do not determine them)."""
 
-    def __init__(self, ctx, name, cls, search):
+    def __init__(self, ctx, name, cls, search, hold=()):
         self.ctx, self.name, self.cls, self.search = ctx, name, cls, search
         self.values = dict(search.fixed)
-        self.keys = list(search.bounds)
-        self.bounds = list(search.bounds.values())
+        self.keys = [k for k in search.bounds if k not in hold]
+        self.bounds = [search.bounds[k] for k in self.keys]
         self.subset = ctx.screening_subset(search.captures)  # fitted on a few captures; polish uses all
         have = ctx.profile.effect(cls.name)
         current = have.values() if have is not None and have.enabled and not search.replace else {}
-        self.x = np.array([current.get(k, search.start.get(k, cls.params[k].default)) for k in self.keys], float)
+        start = lambda k: current.get(k, search.start.get(k, cls.params[k].default))  # noqa: E731
+        self.values.update({k: start(k) for k in hold})
+        self.x = np.array([start(k) for k in self.keys], float)
         self.result = None  # (profile, params, shown) once fitted in closed form
-        self.done = False
+        self.screened = self.done = False
         self.seconds = 0.0
+        self.blind: set = set()  # keys the captures do not show
+
+    @property
+    def fits_anything(self) -> bool:
+        """False for a candidate that only sets fixed values (a demosaicing method): nothing is learnt."""
+        return bool(self.keys or self.search.grid or self.search.fit)
 
     def build(self, x=None, extra=None):
         values = dict(self.values, **(extra or {}))
@@ -376,8 +540,13 @@ class _Fit:
     def _fit(self):
         return CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
 
+    def _gauss_newton(self, steps):
+        self.x, _, blind = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=steps)
+        self.blind = {self.keys[k] for k in blind}
+
     def screen(self):
         started = time.perf_counter()
+        self.screened = True
         fit = self._fit()
         if fit:
             self.ctx.screening = True  # a fit that ``refines`` does a coarse version now, the full one in finish
@@ -390,7 +559,7 @@ class _Fit:
             for key, options in self.search.grid.items():
                 self._grid(key, list(options))
             if self.keys:
-                self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=1)
+                self._gauss_newton(1)
             self.done = not self.keys
         self.seconds += time.perf_counter() - started
 
@@ -401,47 +570,62 @@ class _Fit:
             self.seconds += time.perf_counter() - started
             return
         if self.keys:
-            self.x, _ = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset,
-                                     steps=max(1, self.search.evals // 10))
+            self._gauss_newton(max(1, self.search.evals // 10))
         self.done = True
         self.seconds += time.perf_counter() - started
 
     def fitted(self):
-        """(profile with it, fitted params, values shown in the evidence), or None."""
-        if self.result is not None or self.search.fit:
+        """(profile with it, fitted params, values shown in the evidence)."""
+        if self.search.fit:
             return self.result
         values = dict(self.values, **dict(zip(self.keys, map(float, self.x))))
         return self.build(), values, values
 
+    def numbers(self) -> dict:
+        """The fitted numbers by name (searched keys, and the scalars and vectors of a closed-form fit), for
+        their spread between folds."""
+        if not self.search.fit:
+            return dict(zip(self.keys, map(float, self.x)))
+        out = {}
+        for key, value in (self.result[1] if self.result else {}).items():
+            arr = np.asarray(value) if isinstance(value, (int, float, list, tuple)) and not isinstance(value, bool) \
+                else None
+            if arr is not None and arr.dtype.kind in "fi" and 0 < arr.size <= 16:
+                out[key] = arr.astype(float)
+        return out
 
-def _fits(ctx, name):
-    """The :class:`_Fit` of candidate ``name`` on ``ctx.profile``, or None when the profile or the captures cannot
-    show it."""
+
+def _fits(ctx, name, hold=()):
+    """The :class:`_Fit` of candidate ``name`` on ``ctx.profile``; :class:`~lowcam.errors.NotFitted` with the
+    reason when the profile or the captures cannot show it."""
+    reasons = []
     for cls, search in candidates()[name]:
         have = ctx.profile.effect(cls.name)
-        if search.requires and ctx.profile.effect(search.requires) is None:
-            continue
         if search.when and (have is None or any(getattr(have, k) != v for k, v in search.when.items())):
-            continue
-        if search.captures == "moving" and not ctx.moving:
-            continue
-        if search.per_pixel and any(len(c.frames) < 2 for c in ctx.mset.captures):
-            continue  # a dense map's out-of-sample correction assumes a residual of noise: measure the noise first
-        if search.fixed and have is not None and have.enabled and all(
+            continue  # a search for another form of the effect (a lens model)
+        if search.requires and ctx.profile.effect(search.requires) is None:
+            reasons.append(f"the profile has no {search.requires}")
+        elif search.captures == "moving" and not ctx.moving:
+            reasons.append("no capture moves")
+        elif search.captures == "textured" and not ctx.textured:
+            reasons.append("no capture has texture")
+        elif search.per_pixel and any(len(c.frames) < 2 for c in ctx.mset.captures):
+            # a dense map fitted to one frame cannot tell the sensor's pattern from that frame's noise
+            reasons.append("a per-pixel map needs several frames per capture")
+        elif search.fixed and have is not None and have.enabled and all(
                 getattr(have, k) == v for k, v in search.fixed.items()):
-            continue
-        return _Fit(ctx, name, cls, search)
-    return None
+            reasons.append("the profile has it already")
+        else:
+            return _Fit(ctx, name, cls, search, hold)
+    raise NotFitted(reasons[0] if reasons else "no search applies to the profile's form of the effect")
 
 
 def fit_candidate(ctx, name: str):
-    """Fit candidate ``name`` on ``ctx.profile`` to convergence: (profile with it, fitted params, evidence), or
-    None when the profile or the captures cannot show it."""
+    """Fit candidate ``name`` on ``ctx.profile`` to convergence: (profile with it, fitted params, evidence);
+    :class:`~lowcam.errors.NotFitted` when the profile or the captures cannot show it."""
     if name.startswith("without_"):
         return _removal(ctx, name)
     f = _fits(ctx, name)
-    if f is None:
-        return None
     f.screen()
     if not f.done:
         f.finish()
@@ -451,7 +635,7 @@ def fit_candidate(ctx, name: str):
 def _evidence(ctx, f):
     fitted = f.fitted()
     if fitted is None:
-        return None
+        raise NotFitted("the fit found nothing")
     profile, params, shown = fitted
     have = ctx.profile.effect(f.cls.name)
     was = {f"was_{k}": v for k, v in (have.values() if have is not None else {}).items()}
@@ -461,7 +645,7 @@ def _evidence(ctx, f):
 def _removal(ctx, name):
     effect = candidate_effect(name)
     if ctx.profile.effect(effect) is None:
-        return None
+        raise NotFitted(f"the profile has no {effect}")
     return ctx.profile.without(effect), {}, f"the frames look as if the camera had no {effect}"
 
 
@@ -485,34 +669,55 @@ def fit_row_noise(ctx, effect):
     excess = float(np.mean([row_noise_variance(st.measured) - row_noise_variance(st.simulated)
                             for st in ctx.base.captures if len(st.measured) > 1] or [0.0]))
     if excess <= 0:
-        return None
+        raise NotFitted("row means of the noise vary no more than pixel noise explains")
     sigma = float(np.sqrt(excess))
     return ctx.profile.with_effect(effect, sigma_dn=sigma), {"sigma_dn": sigma}, {"sigma_dn": sigma}
 
 
 def fit_monochrome(ctx, effect):
-    """A sensor without colour: the saturation control at 0 (every channel the luma), the luma's weights fitted
-    by least squares to the measured grey (the means' channel average) from the model's colour before the
-    saturation control. Lateral colour stays: through a grey sensor it is a slight blur, and no fringe. None when
-    the measured frames are not grey."""
-    from ..effects.saturation import saturation_matrix
+    """A camera without colour, in whichever of two forms fits the measured means better (noise-free SSE):
+
+    - *no colour filters*: every sensel sees the same mix of the light (``bayer_sampling.colour_filters`` off,
+      its ``grey_weights``), each output pixel is its own sensel (``demosaic.method = "monochrome"``), and the
+      crosstalk and lateral colour of colour filters are gone;
+    - *grey output*: a colour camera whose processor delivers the luma of the demosaiced colour (the saturation
+      control at 0).
+
+    The weights (>= 0, summing to 1 within :data:`~lowcam.effects.saturation.LUMA_SUM_TOLERANCE`) are fitted by
+    non-negative least squares to the measured grey only where the ideal renders hold colour
+    (:meth:`Context.scene_has_colour`); a grey scene shows every such set of weights alike, so they are then the
+    profile's. NotFitted when the measured frames carry colour, or the model delivers grey already."""
+    from ..effects.saturation import LUMA_SUM_TOLERANCE, saturation_matrix
 
     p = ctx.profile
     sat = p.effect(effect)
-    s = np.concatenate([c.reshape(-1, 3) for c in ctx.clean(p, ctx.quick)]).astype(np.float64)
-    m = np.concatenate([ctx.means[i].reshape(-1, 3) for i in ctx.quick]).astype(np.float64)
+    s, m = ctx.pixels(p, ctx.quick)
     grey = m.mean(axis=1)
     if np.abs(m - grey[:, None]).mean() > 0.1 * max(m.std(), 1e-6):
-        return None  # the frames carry colour
+        raise NotFitted("the frames carry colour")
     control = saturation_matrix(sat.saturation, sat.luma)
-    if abs(np.linalg.det(control)) < 1e-9:
-        return None  # the model is monochrome already
-    ok = (s.max(1) < 250) & (grey < 250) & (s.min(1) > 3)
-    before = np.linalg.solve(control, s[ok].T).T  # the colour before the control
-    luma = np.clip(np.linalg.lstsq(before, grey[ok], rcond=None)[0], 0.0, 1.0)
-    p = p.with_effect(effect, saturation=0.0, luma=luma.tolist())
+    if abs(np.linalg.det(control)) < 1e-9 or not p.effect("bayer_sampling").colour_filters:
+        raise NotFitted("the profile delivers grey already")
+    if ctx.scene_has_colour():
+        from scipy.optimize import nnls
+
+        ok = (s.max(1) < 250) & (grey < 250) & (s.min(1) > 3)
+        luma = nnls(np.linalg.solve(control, s[ok].T).T, grey[ok])[0]  # from the colour before the control
+        total = float(luma.sum())
+        luma *= np.clip(total, 1 - LUMA_SUM_TOLERANCE, 1 + LUMA_SUM_TOLERANCE) / max(total, 1e-12)
+        how = "fitted"
+    else:
+        luma = np.asarray(sat.luma, np.float64)
+        how = "the profile's: a grey scene does not determine them"
+    forms = [("grey output of a colour sensor", p.with_effect(effect, saturation=0.0, luma=luma.tolist()))]
+    unfiltered = p.without(*(n for n in ("crosstalk", "chromatic_aberration") if p.effect(n) is not None))
+    forms.append(("a sensor without colour filters",
+                  unfiltered.with_effect("bayer_sampling", colour_filters=False, grey_weights=luma.tolist())
+                  .with_effect("demosaic", method="monochrome")))
+    form, profile = min(forms, key=lambda f: ctx.sse(f[1], ctx.quick))
     weights = " ".join(f"{w:.3f}" for w in luma)
-    return p, {"saturation": 0.0, "luma": luma.round(4).tolist()}, {"weights": weights}
+    return profile, {"form": form, "luma": luma.round(4).tolist(), "luma_weights": how}, \
+        {"form": form, "weights": weights, "how": how}
 
 
 #: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
@@ -521,7 +726,7 @@ NOISE_FITS = ("row_noise",)
 
 
 def per_pixel(name: str) -> bool:
-    """True for a candidate fitted as a dense per-pixel map (it absorbs noise: :attr:`Candidate.score`)."""
+    """True for a candidate fitted as a dense per-pixel map."""
     return not name.startswith("without_") and any(search.per_pixel for _, search in candidates()[name])
 
 
@@ -537,6 +742,7 @@ class Diagnosis:
     scratch: object = None  # the temporary folder of fitted maps; removed with the Diagnosis
     seconds: float = 0.0
     added: list = field(default_factory=list)  # forward selection: the candidates added before the last round
+    not_fitted: dict = field(default_factory=dict)  # candidate -> why it could not be fitted
 
     @property
     def error(self) -> float:
@@ -556,15 +762,18 @@ class Diagnosis:
         return "unexplained"
 
     def summary(self) -> str:
-        """One line: the error, the verdict and the numbers it rests on."""
+        """One line: the error, the verdict and the numbers it rests on (held-out errors)."""
         v, b = self.verdict, self.best
         if v == "explained":
             why = f"at the noise floor (explained up to {EXPLAINED_BELOW})"
         elif v == "missing-effect":
-            why = f"{b.effect} brings it to {b.score:.3f} (at most {UNEXPLAINED_ABOVE})"
+            why = f"{b.effect} brings it to {b.score:.3f} held out (at most {UNEXPLAINED_ABOVE})"
+        elif b is not None:
+            why = f"the best candidate, {b.effect}, leaves {b.score:.3f} held out (above {UNEXPLAINED_ABOVE})"
         else:
-            why = (f"the best candidate, {b.effect}, leaves {b.score:.3f} (above {UNEXPLAINED_ABOVE})" if b else
-                   "no candidate could be fitted")
+            why = "no candidate could be fitted" + (
+                ": " + "; ".join(f"{k}: {r}" for k, r in list(self.not_fitted.items())[:3]) if self.not_fitted
+                else "")
         return f"error {self.error:.3f}, verdict {v}: {why}"
 
     def as_json(self) -> dict:
@@ -572,42 +781,243 @@ class Diagnosis:
                 "verdict": self.verdict, "summary": self.summary(), "seconds": round(self.seconds, 2),
                 "families": {k: round(v, 4) for k, v in self.comparison.families.items()},
                 "measured": self.comparison.measured, "added": [c.effect for c in self.added],
-                "candidates": [c.as_json() for c in self.candidates], "where": self.comparison.where}
+                "candidates": [c.as_json() for c in self.candidates],
+                "not_fitted": [{"effect": k, "reason": r} for k, r in self.not_fitted.items()],
+                "where": self.comparison.where}
 
 
-def _screened_error(ctx, f) -> float:
-    if f.search.fit:
-        return ctx.estimate(f.result[0], ctx.quick)[0] if f.result is not None else np.inf
-    return ctx.estimate(f.build(), f.subset)[0]
+class _Trial:
+    """One candidate's fits: on the first fold's fitting half (every candidate), on the second fold's too (the
+    finalists, so that every capture is measured with a fit that did not see it), and on every capture (the
+    best: the profile that would be added)."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.folds: list = []  # [(fitted on, measured on, _Fit or None)]
+        self.how = ""  # how it is held out, or why it cannot be
+        self.main = None  # _Fit on every capture
+        self.fixed = None  # (profile, params, evidence) of a candidate that fits nothing (a removal, a method)
+        self.reason = ""  # why it cannot be fitted at all
+        self.every = False  # every fold fitted, not the first only
+
+    def used(self) -> list:
+        """The folds fitted: every one, or the first alone (screening a set of two halves)."""
+        return self.folds if self.every else self.folds[:1]
+
+    def fits(self) -> list:
+        return [f for _, _, f in self.used() if f is not None] + ([self.main] if self.main is not None else [])
+
+    def shown(self):
+        """The fit whose profile and numbers the candidate shows: on every capture, else the first fold's."""
+        return self.main or (self.folds[0][2] if self.folds else None)
+
+    def validation(self) -> str:
+        if not self.folds:
+            return self.how
+        fitted_on, measured_on, _ = self.folds[0]
+        if self.every:
+            return self.how
+        if self.how.startswith("2 folds of captures"):
+            return f"fitted on {len(fitted_on.inputs)} captures, measured on the other {len(measured_on.inputs)}"
+        return f"fitted on one of {self.how}, measured on the other"
 
 
-def _candidate(ctx, name, fitted, seconds, subset) -> Candidate:
-    """A fitted candidate with its estimated error on ``subset`` (the captures it was fitted on, so no more
-    simulations are needed); a candidate that changes the noise gets the full error on :attr:`Context.quick`.
-    ``seconds`` (the fit's) grows by this error's."""
+def _attempt(work, trial, fold=None):
+    """Run ``work()`` (a fit step); a :class:`~lowcam.errors.NotFitted` drops the fold's fit (or the trial's)."""
+    try:
+        work()
+    except NotFitted as e:
+        if fold is None:
+            trial.reason, trial.main = str(e), None
+        else:
+            trial.folds[fold] = trial.folds[fold][:2] + (None,)
+            trial.reason = trial.reason or str(e)
+
+
+def _base_sums(view):
+    return np.array([s.sums["mean"][0] for s in view.base.captures]), view._noise
+
+
+def _measured_sums(view, f):
+    """The mean family's sums of ``f``'s fit on the captures of ``view``: simulated on those of its kind (the
+    captures that can show it), the profile's own on the others (a flat field, a still capture)."""
+    num, den = _base_sums(view)
+    idx = view.subset(f.search.captures)
+    idx = list(range(len(view.inputs))) if idx is None else idx
+    if idx:
+        num = num.copy()
+        num[idx] = view.mean_sums(f.fitted()[0], idx)[0]
+    return num, den
+
+
+def _held_out(ctx, trial) -> tuple[float, dict] | None:
+    """(error, families) of the whole set with every measured capture judged by a fit that did not see it: every
+    fold pooled, or, with only the first fold fitted, its measured half's improvement over the profile carried
+    to the whole set (its mean family scaled by the half's ratio). None when no fold has a fit."""
+    used = [(held, f) for _, held, f in trial.used()]
+    if not any(f is not None and f.fitted() is not None for _, f in used):
+        return None
+    num = den = base = 0.0
+    for held, f in used:
+        n, d = _measured_sums(held, f) if f is not None and f.fitted() is not None else _base_sums(held)
+        num, den, base = num + float(n.sum()), den + float(d.sum()), base + float(_base_sums(held)[0].sum())
+    if not trial.every:  # one half measured: its ratio to the profile's, over the whole set
+        num, den = _carried(ctx, num, base), float(ctx._noise.sum())
+    return ctx.families_with_mean(num, den)
+
+
+def _carried(ctx, num: float, base: float) -> float:
+    """The whole set's mean-family numerator when some captures' numerator ``num`` stands against the profile's
+    own ``base`` on the same captures: the profile's whole numerator times that ratio."""
+    return num / max(base, 1e-12) * float(sum(s.sums["mean"][0] for s in ctx.base.captures))
+
+
+def _spread(trial) -> tuple[dict, set]:
+    """Each fitted number's standard error from its two folds' fits (half their difference: the delete-half
+    jackknife [Shao1989]), and the searched keys the data do not determine (the folds disagree by more than
+    :data:`UNDETERMINED_SPREAD` of the range, or the captures do not show the key at all)."""
+    se, loose = {}, set()
+    for f in trial.fits():
+        loose |= f.blind
+    fits = [f for _, _, f in trial.used() if f is not None and f.fitted() is not None]
+    if len(fits) < 2:
+        return se, loose
+    k, numbers = len(fits), [f.numbers() for f in fits]
+    search = fits[0].search
+    for key in set.intersection(*(set(n) for n in numbers)):
+        values = np.stack([np.asarray(n[key], float) for n in numbers])
+        # delete-d jackknife with d = n / k left out per fold: var = (k - 1) / k sum (theta_j - mean)^2
+        se[key] = float(np.sqrt((k - 1) / k * ((values - values.mean(0)) ** 2).sum(0)).max())
+        if key in search.bounds:
+            lo, hi = search.bounds[key]
+            if np.ptp(values, axis=0).max() > UNDETERMINED_SPREAD * (hi - lo):
+                loose.add(key)
+    return se, loose
+
+
+def _flags(ctx, f, profile) -> list[str]:
+    """Fitted numbers at a bound of their search, and effects that no real camera has."""
+    out = []
+    if f is not None and not f.search.fit:
+        for key, value, (lo, hi) in zip(f.keys, f.x, f.bounds):
+            out += [f"{key} at its bound {bound:g}" for bound in (lo, hi) if abs(value - bound) <= AT_BOUND * (hi - lo)]
+    for effect in profile.effects:
+        before = ctx.profile.effect(effect.name)
+        if effect.enabled and (before is None or before.values() != effect.values()):
+            out += [f"implausible: {p}" for p in effect.implausible()]
+    return out
+
+
+def _setup(ctx, name, hold=()) -> _Trial:
+    """A candidate's trial: its folds' fits (or why it has none), not yet run."""
+    trial = _Trial(name)
+    try:
+        if name.startswith("without_"):
+            trial.fixed = _removal(ctx, name)
+            return trial
+        probe = _fits(ctx, name, hold)
+        if not probe.fits_anything:
+            trial.fixed = _evidence(ctx, probe)
+            return trial
+        folds = ctx.folds(probe.search.captures, tiles=not probe.search.fit)
+        if isinstance(folds, str):
+            trial.how, trial.main = folds, probe
+            return trial
+        pairs, trial.how = folds
+        for fitted_on, measured_on in pairs:
+            try:
+                f = _fits(fitted_on, name, hold)
+            except NotFitted:
+                f = None
+            trial.folds.append((fitted_on, measured_on, f))
+    except NotFitted as e:
+        trial.reason = str(e)
+    return trial
+
+
+def _candidate(ctx, trial, base_error) -> Candidate | None:
+    """The trial's :class:`Candidate` with its estimated errors (in sample on the captures its fits saw, held
+    out on those they did not: :func:`_held_out`); None (with ``trial.reason``) when nothing could be fitted or
+    the fit is not a real camera's."""
     started = time.perf_counter()
-    profile, params, evidence = fitted
-    if _changes_noise(name):
-        cmp = ctx.compare(profile, ctx.quick, 4)
-        error, families = cmp.error, cmp.families
-    else:
-        error, families = ctx.estimate(profile, subset)
-    clean = {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in params.items()}
-    return Candidate(name, error, clean, evidence, profile, per_pixel(name), len(ctx.mset.captures), dict(families),
-                     False, seconds + time.perf_counter() - started)
+    n = len(ctx.mset.captures)
+    if trial.fixed is not None:
+        profile, params, evidence = trial.fixed
+        error, families = ctx.estimate(profile)
+        return Candidate(trial.name, error, params, evidence, profile, False, n, families, held_out=error,
+                         held_out_families=families, validation="nothing fitted", base_error=base_error,
+                         seconds=time.perf_counter() - started)
+    f = trial.shown()
+    try:
+        if f is None:
+            raise NotFitted(trial.reason or "the fit found nothing")
+        profile, params, evidence = _evidence(f.ctx, f)
+    except NotFitted as e:
+        trial.reason = str(e)
+        return None
+    flags = _flags(ctx, f, profile)
+    implausible = [x[len("implausible: "):] for x in flags if x.startswith("implausible: ")]
+    if implausible:
+        trial.reason = "the fit is not a real camera's: " + "; ".join(implausible)
+        return None
+    num = base = 0.0  # in sample: each fit on the captures it was fitted to, carried to the whole set
+    for g in trial.fits():
+        if g.fitted() is not None:
+            idx = list(range(len(g.ctx.inputs))) if g.subset is None else g.subset
+            num += float(g.ctx.mean_sums(g.fitted()[0], idx)[0].sum())
+            base += float(_base_sums(g.ctx)[0][idx].sum())
+    error, families = ctx.families_with_mean(_carried(ctx, num, base), float(ctx._noise.sum()))
+    c = Candidate(trial.name, error, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
+                                      for k, v in params.items()}, evidence, profile, f.search.per_pixel, n,
+                  families, validation=trial.validation(), base_error=base_error, flags=flags)
+    held = _held_out(ctx, trial)
+    if held is not None:
+        c.held_out, c.held_out_families = held
+    c.uncertainty, loose = _spread(trial)
+    c.flags += [f"{k} not determined by the data" for k in sorted(loose)]
+    c.seconds = sum(g.seconds for g in trial.fits()) + time.perf_counter() - started
+    return c
 
 
-def _full(ctx, c: Candidate) -> None:
+def _full(ctx, c: Candidate, trial, in_sample: bool = True) -> None:
+    """The full noise-aware errors: in sample (``c.profile`` on every capture) and held out (each fold's fit on
+    the captures it did not see, carried to the whole set as in :func:`_held_out`)."""
     started = time.perf_counter()
-    c.comparison = ctx.compare(c.profile)
-    c.error_after, c.families, c.full = c.comparison.error, dict(c.comparison.families), True
+    if in_sample:
+        c.comparison = ctx.compare(c.profile)
+        c.error_after, c.families, c.full = c.comparison.error, dict(c.comparison.families), True
+    if c.validation == "nothing fitted":
+        c.held_out, c.held_out_families, c.held_out_full = c.error_after, dict(c.families), c.full
+    elif trial is not None and trial.folds:
+        stats, base = [], []
+        for _, held, f in trial.used():
+            good = f is not None and f.fitted() is not None
+            stats += held.compare(f.fitted()[0]).captures if good else held.base.captures
+            base += held.base.captures
+        _, families = combine(stats)
+        if not trial.every:  # one half measured: its mean family's ratio to the profile's, over the whole set
+            families["mean"] *= ctx.base.families["mean"] / max(combine(base)[1]["mean"], 1e-12)
+        c.held_out_families = families
+        c.held_out = float(np.sqrt(sum(v * v for v in families.values()) / len(families)))
+        c.held_out_full = True
     c.seconds += time.perf_counter() - started
 
 
-def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
-    """Screen every named candidate on ``ctx.profile``, fit the :data:`FITTED` most promising to convergence,
-    estimate each one's error and compute the full error of the :data:`FULL_ERRORS` best (and of every
-    candidate that changes the noise); ranked by :attr:`Candidate.score`."""
+def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate], dict]:
+    """Cross-validated ranking of the named candidates on ``ctx.profile``. Returns (candidates ranked by their
+    held-out error, {candidate: why it could not be fitted}).
+
+    1. Every candidate is screened on the first fold (:meth:`Context.folds`): fitted coarsely on one half of the
+       captures and measured on the other.
+    2. The :data:`FITTED` best by held-out error (within :data:`REFINE_WITHIN` of the best) are fitted on every
+       fold to convergence, so that every capture is measured with a fit that did not see it (leaving one capture
+       out, every fold is screened already).
+    3. Every candidate's errors are estimated, in sample and held out; the finalists' fitted numbers get their
+       spread between the folds, and keys the data do not determine are held at the profile's value and the
+       candidate refitted.
+    4. The best is fitted on every capture (the profile that would be added); it, every candidate that changes
+       the noise, and every runner-up that could still win with its noise families at the floor (at most
+       :data:`FULL_ERRORS`) get the full noise-aware errors."""
     def in_turn(work, items, label):  # ``work`` on each item, WORKERS at a time, results in order
         done = iter(range(len(items)))
 
@@ -619,51 +1029,100 @@ def rank(ctx, base_error: float, names, progress=None) -> list[Candidate]:
         with ThreadPoolExecutor(WORKERS) as pool:
             return list(pool.map(one, items))
 
-    def screened(name):
-        started = time.perf_counter()
-        if name.startswith("without_"):
-            fitted = _removal(ctx, name)
-            return None if fitted is None else _candidate(ctx, name, fitted, time.perf_counter() - started, ctx.quick)
-        f = _fits(ctx, name)
-        if f is not None:
-            f.screen()
-        return f
+    def run(trials, step, label, folds=(0,), main=False):
+        jobs = [(t, k) for t in trials for k in folds if k < len(t.folds) and t.folds[k][2] is not None]
+        jobs += [(t, None) for t in trials if main and t.main is not None]
 
-    found = in_turn(screened, names, str)
-    out = [x for x in found if isinstance(x, Candidate)]
-    fits = [x for x in found if isinstance(x, _Fit)]
-    # refine the most promising: by the error estimated on the captures each was screened on (no new simulations
-    # for searched ones), against the best of every candidate screened
-    screened_errors = sorted((_screened_error(ctx, f), k) for k, f in enumerate(fits))
-    best = screened_errors[0][0] if screened_errors else 0.0
-    pending = [fits[k] for e, k in screened_errors if not fits[k].done and e <= REFINE_WITHIN * best][:FITTED]
-    in_turn(_Fit.finish, pending, lambda f: f"{f.name} (refining)")
+        def one(job):
+            t, k = job
+            f = t.main if k is None else t.folds[k][2]
+            if f.done if step == "finish" else f.screened:
+                return
+            _attempt(getattr(f, step), t, k)
 
-    def estimated(f):
-        started = time.perf_counter()
-        fitted = _evidence(ctx, f)
-        return None if fitted is None else _candidate(ctx, f.name, fitted, f.seconds + time.perf_counter() - started,
-                                                      ctx.quick if f.search.fit else f.subset)
+        in_turn(one, jobs, lambda job: f"{job[0].name} ({label})")
 
-    out += [c for c in in_turn(estimated, fits, lambda f: f"{f.name} (estimating)") if c is not None]
-    out.sort(key=lambda c: c.score)
-    while out and not out[0].full:  # the best is always fully compared
+    def screened(trials):
+        for t in trials:  # leaving one capture out, every fold is screened (a few small captures)
+            t.every = len(t.folds) > 2
+        every = tuple(range(max([len(t.folds) for t in trials] + [1])))
+        run(trials, "screen", "screening", folds=(0,), main=True)
+        run([t for t in trials if t.every], "screen", "screening", folds=every[1:])
+        held = {t.name: _held_out(ctx, t) for t in trials if t.folds}
+        errors = sorted((h[0], t.name) for t in trials if (h := held.get(t.name)) is not None)
+        top = errors[0][0] if errors else np.inf
+        finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
+        run([t for t in finalists if not t.every], "finish", "fitting")
+        for t in finalists:
+            t.every = True
+        run(finalists, "screen", "fitting the other folds", folds=every[1:])
+        run(finalists, "finish", "fitting", folds=every)
+
+    trials = [_setup(ctx, n) for n in names]
+    by_name = {t.name: t for t in trials}
+    screened(trials)
+    out = [c for c in in_turn(lambda t: _candidate(ctx, t, base_error), trials,
+                              lambda t: f"{t.name} (estimating)") if c is not None]
+    # keys the data do not determine: held at the profile's value, the candidate fitted again
+    for c in list(out):
+        loose = [x[:-len(" not determined by the data")] for x in c.flags if x.endswith("not determined by the data")]
+        f = by_name[c.effect].shown()
+        if not loose or f is None or f.search.fit:
+            continue
+        out.remove(c)
+        if set(loose) >= set(f.search.bounds):
+            by_name[c.effect].reason = f"not determined by the data: {', '.join(loose)}"
+            continue
+        again = by_name[c.effect] = _setup(ctx, c.effect, hold=loose)
+        screened([again])
+        redone = _candidate(ctx, again, base_error)
+        if redone is not None:
+            redone.flags.append(f"{', '.join(loose)} held at the profile's value: not determined by the data")
+            redone.evidence += f" ({', '.join(loose)} held at the profile's value)"
+            out.append(redone)
+    for c in [c for c in out if _changes_noise(c.effect)]:  # its estimate cannot see what it does
         if progress:
-            progress(0, 1, f"{out[0].effect} (full error)")
-        _full(ctx, out[0])
+            progress(0, 1, f"{c.effect} (full error)")
+        _full(ctx, c, by_name[c.effect])
+
+    def settle():  # the best: fitted on every capture (the profile to add), its errors the full ones
         out.sort(key=lambda c: c.score)
+        while out and not (out[0].full and out[0].held_out_full):
+            c, t = out[0], by_name.get(out[0].effect)
+            if t is not None and t.main is None and t.folds:
+                f = t.folds[0][2]
+                t.main = _fits(ctx, t.name, tuple(k for k in f.search.bounds if k not in f.keys))
+                if progress:
+                    progress(0, 1, f"{t.name} (fitting on every capture)")
+                _attempt(t.main.screen, t)
+                if t.main is not None and not t.main.done:
+                    _attempt(t.main.finish, t)
+                if t.main is not None:
+                    c.profile, params, c.evidence = _evidence(ctx, t.main)
+                    c.params = dict(params)
+            if progress:
+                progress(0, 1, f"{c.effect} (full error)")
+            _full(ctx, c, t)
+            out.sort(key=lambda c: c.score)
+
+    settle()
     # an estimate keeps the first comparison's noise families; a runner-up that could still win with noise
     # families at the floor is fully compared too (the best first, at most FULL_ERRORS of them)
-    hopeful = sorted((c for c in out if not c.full and c.optimistic < out[0].score), key=lambda c: c.optimistic)
+    hopeful = sorted((c for c in out if not c.held_out_full and c.optimistic < out[0].score),
+                     key=lambda c: c.optimistic)
     for c in hopeful[:FULL_ERRORS]:
         if c.optimistic < out[0].score:
             if progress:
                 progress(0, 1, f"{c.effect} (full error)")
-            _full(ctx, c)
+            _full(ctx, c, by_name.get(c.effect), in_sample=False)
             out.sort(key=lambda c: c.score)
+    settle()
     for c in out:
-        c.evidence += f"; error {base_error:.2f} -> {c.error_after:.2f}" + ("" if c.full else " (estimated)")
-    return out
+        held = "" if c.held_out is None else f", {c.held_out:.2f} held out"
+        c.evidence += f"; error {base_error:.2f} -> {c.error_after:.2f} in sample{held}" + \
+            ("" if c.full else " (estimated)")
+    failed = {t.name: t.reason for t in by_name.values() if t.reason and not any(c.effect == t.name for c in out)}
+    return out, failed
 
 
 def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
@@ -677,8 +1136,11 @@ def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
                 continue
             here = Context(ctx.mset, profile, ctx.workdir / "polish", parent=ctx, base=ctx.base)
             here.quick, here.screen_textured = list(range(len(ctx.mset.captures))), list(here.textured)
-            fitted = fit_candidate(here, c.effect)
-            if fitted is not None and here.sse(fitted[0]) < here.sse(profile):
+            try:
+                fitted = fit_candidate(here, c.effect)
+            except NotFitted:
+                continue
+            if here.sse(fitted[0]) < here.sse(profile):
                 profile = fitted[0]
     return profile
 
@@ -699,25 +1161,26 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     ctx = Context(mset, profile, workdir, assumed_noise)
     base = ctx.base
     names = list(only or [*candidates(), *removal_candidates(profile)])
-    ranked = rank(ctx, base.error, names, progress)
+    ranked, failed = rank(ctx, base.error, names, progress)
     chosen: list[Candidate] = []
     for _ in range(rounds - 1):
-        if not ranked or ranked[0].error_after <= EXPLAINED_BELOW:
+        if not ranked or ranked[0].score <= EXPLAINED_BELOW or ranked[0].score >= base.error:
             break
         best = ranked[0]
         chosen.append(best)
         ctx = Context(mset, best.profile, workdir / f"after-{best.effect}", parent=ctx, base=best.comparison)
         remaining = [n for n in names if n not in {c.effect for c in chosen}]
-        again = rank(ctx, best.error_after, remaining, progress)
+        again, more = rank(ctx, best.error_after, remaining, progress)
+        failed.update(more)
         for c in again:
             c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
         ranked = again
-    if chosen and ranked and ranked[0].error_after > EXPLAINED_BELOW:
+    if chosen and ranked and ranked[0].score > EXPLAINED_BELOW:
         top = ranked[0]
         top.profile = polish(ctx, chosen + [top], top.profile)
-        _full(ctx, top)
+        _full(ctx, top, None)
         top.evidence += f"; all {len(chosen) + 1} refitted together: error {top.error_after:.2f}"
-    return Diagnosis(base, chosen + ranked, scratch, time.perf_counter() - started, chosen)
+    return Diagnosis(base, chosen + ranked, scratch, time.perf_counter() - started, chosen, failed)
 
 
 @dataclass
@@ -744,7 +1207,7 @@ def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain:
         assumed = assumed or [s.sums["variance_map"] if len(s.measured) == 1 else None
                               for s in d.comparison.captures]
         best = d.best
-        if d.verdict == "explained" or best is None or best.error_after > d.error * (1 - min_gain) or \
+        if d.verdict == "explained" or best is None or best.score > d.error * (1 - min_gain) or \
                 k == max_steps:
             steps.append(Step(d, None, profile))
             return steps
