@@ -447,11 +447,16 @@ def cmd_diagnose(args) -> int:
     atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     print(f"{mset.path}: {d.summary()} ({d.seconds:.1f} s)")
     for c in d.candidates[:5]:
-        expected = f" (expected on new frames {c.score:.3f})" if c.score != c.error_after else ""
-        print(f"  {c.effect:28s} error after {c.error_after:.3f}{expected}  {c.evidence}")
+        held = "not held out" if c.held_out is None else f"held out {c.held_out:.3f}"
+        flags = f" [{'; '.join(c.flags)}]" if c.flags else ""
+        print(f"  {c.effect:28s} error {c.error_after:.3f} in sample, {held}{flags}  {c.evidence}")
+    shown = d.not_fitted if only else {}  # asked for by name: say why each one that failed could not be fitted
+    for name, why in shown.items():
+        print(f"  {name:28s} not fitted: {why}")
     if args.report:
         page = write_compare_report(d.comparison, args.report, f"Diagnosis of {profile.name} against {mset.path}",
-                                    extra={"candidates": doc["candidates"], "measured": doc["measured"]})
+                                    extra={"candidates": doc["candidates"], "not_fitted": doc["not_fitted"],
+                                           "measured": doc["measured"]})
         print(f"{page}: report")
     if args.add_best:
         if d.best is None:
@@ -483,7 +488,8 @@ def _explain(args, mset, profile) -> int:
             d = step.diagnosis
             history.append({"profile": "start" if k == 0 else f"+ {steps[k - 1].added.effect}", "error": d.error})
             entry = {"step": k, "error": round(d.error, 4), "verdict": d.verdict, "summary": d.summary(),
-                     "measured": d.comparison.measured, "candidates": [c.as_json() for c in d.candidates[:8]]}
+                     "measured": d.comparison.measured, "candidates": [c.as_json() for c in d.candidates[:8]],
+                     "not_fitted": [{"effect": n, "reason": r} for n, r in d.not_fitted.items()]}
             if step.added is not None:
                 path = save_candidate_profile(step.added, steps_dir / f"{k + 1:02d}-{step.added.effect}.toml",
                                               step.profile)

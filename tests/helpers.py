@@ -79,9 +79,10 @@ def quiet_fire_i():
     return p
 
 
-def make_set(profile, folder, scenes, frames=4, seed=7, post=None, pre=None):
+def make_set(profile, folder, scenes, frames=4, seed=7, post=None, pre=None, mask=None):
     """A measurement set of bundled scenes through ``profile``; ``pre(ideal)`` changes the render before the
-    camera (optical), ``post(frame)`` each delivered 8-bit frame (after everything)."""
+    camera (optical), ``post(frame)`` each delivered 8-bit frame (after everything); ``mask`` (H, W) bool: the
+    pixels compared in every capture."""
     from lowcam.measure.sets import write_set
     from lowcam.measure.synth import scenes as bundled
     from lowcam.pipeline import simulate
@@ -95,7 +96,7 @@ def make_set(profile, folder, scenes, frames=4, seed=7, post=None, pre=None):
         # pattern across captures that per-pixel maps would take for DSNU
         shots = [simulate(render, profile, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": [post(s) if post else s for s in shots],
-                         "angular_velocity": omega})
+                         "angular_velocity": omega, "mask": mask})
     return write_set(folder, captures)
 
 

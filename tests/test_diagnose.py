@@ -293,9 +293,10 @@ def test_a_grey_camera_is_found_monochrome(tmp_path, fire_i):
                  workdir=tmp_path / "w")
     assert_verdict_matches_numbers(d)
     ranking = {c.effect: round(c.error_after, 3) for c in d.candidates}
-    # a colour matrix with three equal rows is a grey camera too: both explain it, chroma subsampling does not
+    # a colour matrix with three equal rows removes all colour: no colour camera's, so not offered
     assert d.error > 2 and ranking["monochrome"] <= 1.25 and ranking["chroma_subsampling"] > 2, ranking
-    assert d.candidates[0].effect in ("monochrome", "colour_matrix"), ranking
+    assert d.candidates[0].effect == "monochrome" and "colour_matrix" not in ranking, ranking
+    assert "removes colour" in d.not_fitted["colour_matrix"], d.not_fitted
     luma = d.candidates[[c.effect for c in d.candidates].index("monochrome")].params["luma"]
     assert np.allclose(luma, [0.299, 0.587, 0.114], atol=0.03), luma  # OpenCV's BT.601 weights, found
 
@@ -314,10 +315,12 @@ def test_until_explained_adds_effects_step_by_step_and_draws_the_history(tmp_pat
     doc = json.loads((tmp_path / "d.json").read_text())
     errors = [s["error"] for s in doc["steps"]]
     added = [s.get("added") for s in doc["steps"][:-1]]
-    assert {"tone_curve", "vignetting"} <= set(added), doc["steps"]
+    # the hidden change is no vignetting: removing the profile's, with the tone curve refitted, or a refitted one
+    assert "tone_curve" in added and {"vignetting", "without_vignetting"} & set(added), doc["steps"]
     assert all(b < a for a, b in zip(errors, errors[1:])), errors
     assert errors[0] > 10 and errors[-1] <= 1.15, errors  # near the floor (1.13 seen; 1.1 is "explained")
     steps = tmp_path / "fixed-steps"
     assert (steps / "history.png").stat().st_size > 10_000
     assert len(list(steps.glob("*.toml"))) == len(added)
-    assert lowcam.load_profile(tmp_path / "fixed.toml").effect("vignetting").enabled
+    vignetting = lowcam.load_profile(tmp_path / "fixed.toml").effect("vignetting")
+    assert vignetting is None or vignetting.implausible() == [], vignetting

@@ -135,10 +135,11 @@ class Search:
     effect the profile must already have (a candidate that changes a parameter). ``replace``: start from the
     effect's defaults rather than the profile's values. ``after``: the effect is placed (or found) right after
     this one in the chain rather than at its ``order`` (:meth:`lowcam.profile.Profile.with_effect`; a blur that
-    acts after sharpening). ``per_pixel``: the fit is a dense map with a value per pixel, which absorbs part of
-    the noise (diagnosis corrects its error out of sample). ``evidence`` is formatted with the fitted values
-    (``{key}``) and the profile's
-    (``{was_key}``).
+    acts after sharpening). ``per_pixel``: the fit is a dense map with a value per pixel (it needs several frames
+    per capture to tell the sensor's pattern from a frame's noise). ``reach``: searched keys the captures
+    determine only where their compared, rendered pixels reach this far from the centre (a share of the
+    half-diagonal; a fall-off's rho^4 term needs the corners): otherwise the key is held at the profile's value.
+    ``evidence`` is formatted with the fitted values (``{key}``) and the profile's (``{was_key}``).
     """
 
     candidate: str
@@ -156,6 +157,7 @@ class Search:
     evals: int = 20
     after: str = ""
     per_pixel: bool = False
+    reach: dict = field(default_factory=dict)
 
 
 class Effect(ParamSet):

@@ -82,7 +82,7 @@ class Vignetting(Effect):
     node = NodeStage("Vignetting", "mosaic", "gain")
     searches = (Search("vignetting", "radial fall-off k2 = {k2:.3f}, k4 = {k4:.3f}",
                        bounds={"k2": (-1.0, 0.5), "k4": (-1.0, 1.0)}, start={"k2": -0.2, "k4": 0.0}, replace=True,
-                       evals=30),)
+                       evals=30, reach={"k2": 0.5, "k4": 0.8}),)
     params = {
         "texture": Param("", "path", doc="greyscale PNG gain map; empty: radial model"),
         "k2": Param(0.0, low=-10.0, high=10.0),
@@ -113,6 +113,19 @@ class Vignetting(Effect):
                 self._texture = read_gain_map(self.texture)
             except LowcamError as e:
                 raise self.error(f"texture: {e}") from None
+
+    def implausible(self) -> list[str]:
+        """A radial fall-off that rises away from the centre (more than 2 %: a lens does not gather more light
+        off-axis), or leaves the corners almost dark (below 5 % of the centre)."""
+        if self._texture is not None or self.model != "radial":
+            return []
+        rho2 = np.linspace(0.0, 1.0, 101) ** 2
+        gain = 1 + self.k2 * rho2 + self.k4 * rho2 ** 2
+        out = [f"a fall-off that rises {100 * (gain.max() - 1):.0f} % away from the centre"] if gain.max() > 1.02 \
+            else []
+        if gain.min() < 0.05:
+            out.append(f"corners at {max(gain.min(), 0.0):.2f} of the centre's light")
+        return out
 
     def gain_texture(self, width: int, height: int) -> np.ndarray:
         if self._texture is not None:

@@ -389,6 +389,23 @@ class Context:
         families = dict(self.base.families, mean=float(np.sqrt(max(num, 0.0) / den)))
         return float(np.sqrt(sum(v * v for v in families.values()) / len(families))), families
 
+    def reach(self) -> float:
+        """How far from the centre the captures' compared, rendered pixels reach, as a share of the half-diagonal
+        (the 99.5th percentile of the farthest capture's; 1: the corners)."""
+        if getattr(self, "_reach", None) is None:
+            h, w = self.means[0].shape[:2]
+            yy, xx = np.mgrid[0:h, 0:w]
+            rho = np.hypot(xx - (w - 1) / 2, yy - (h - 1) / 2) / np.hypot(w / 2, h / 2)
+            reach = 0.0
+            for inp in self.inputs:
+                shown = _opaque_output(inp.ideal, (h, w))
+                if inp.mask is not None:
+                    shown &= inp.mask
+                if shown.any():
+                    reach = max(reach, float(np.percentile(rho[shown], 99.5)))
+            self._reach = min(reach, 1.0)
+        return self._reach
+
     def scene_has_colour(self) -> bool:
         """True when some capture's ideal render holds colour (its chroma, each opaque pixel's channels about their
         mean, varies by at least :data:`SCENE_CHROMA`): a sensor's colour weights are determined by the data only
@@ -406,6 +423,16 @@ class Context:
     def screening_subset(self, captures: str):
         """Fewer captures for screening: the two most textured, or :attr:`quick`."""
         return {"all": self.quick, "textured": self.screen_textured, "moving": self.moving_ones}[captures]
+
+
+def _opaque_output(ideal: np.ndarray, shape) -> np.ndarray:
+    """Where the ideal render is opaque, at the output's ``shape`` (rows, cols): the pixels whose content the
+    render gives (a target's paper, not the plate around it). The render is scaled to the frame (its field of
+    view a little wider than the frame's: close enough for how far content reaches)."""
+    import cv2
+
+    alpha = cv2.resize(np.ascontiguousarray(ideal[..., 3]), (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return alpha > 0.5
 
 
 # --- the candidates: each effect's declared searches (lowcam.effects.Search) ---------------------------------------
@@ -799,10 +826,20 @@ class _Trial:
         self.fixed = None  # (profile, params, evidence) of a candidate that fits nothing (a removal, a method)
         self.reason = ""  # why it cannot be fitted at all
         self.every = False  # every fold fitted, not the first only
+        self.unreached = ""  # why keys are held: the captures do not reach where they act
+        self.joint: dict = {}  # fold (None: every capture) -> the profile with the earlier additions refitted
 
     def used(self) -> list:
         """The folds fitted: every one, or the first alone (screening a set of two halves)."""
         return self.folds if self.every else self.folds[:1]
+
+    def profile_for(self, k):
+        """The profile fold ``k`` (None: every capture) measures: its fit's, with the earlier additions refitted
+        where that was done; None when the fold has no fit."""
+        if k in self.joint:
+            return self.joint[k]
+        f = self.main if k is None else self.folds[k][2]
+        return None if f is None or f.fitted() is None else f.fitted()[0]
 
     def fits(self) -> list:
         return [f for _, _, f in self.used() if f is not None] + ([self.main] if self.main is not None else [])
@@ -838,15 +875,16 @@ def _base_sums(view):
     return np.array([s.sums["mean"][0] for s in view.base.captures]), view._noise
 
 
-def _measured_sums(view, f):
-    """The mean family's sums of ``f``'s fit on the captures of ``view``: simulated on those of its kind (the
-    captures that can show it), the profile's own on the others (a flat field, a still capture)."""
+def _measured_sums(view, profile, captures: str):
+    """The mean family's sums of ``profile`` on the captures of ``view``: simulated on those of the kind
+    ``captures`` (the captures that can show the candidate), the profile's own on the others (a flat field, a
+    still capture)."""
     num, den = _base_sums(view)
-    idx = view.subset(f.search.captures)
+    idx = view.subset(captures)
     idx = list(range(len(view.inputs))) if idx is None else idx
     if idx:
         num = num.copy()
-        num[idx] = view.mean_sums(f.fitted()[0], idx)[0]
+        num[idx] = view.mean_sums(profile, idx)[0]
     return num, den
 
 
@@ -854,12 +892,13 @@ def _held_out(ctx, trial) -> tuple[float, dict] | None:
     """(error, families) of the whole set with every measured capture judged by a fit that did not see it: every
     fold pooled, or, with only the first fold fitted, its measured half's improvement over the profile carried
     to the whole set (its mean family scaled by the half's ratio). None when no fold has a fit."""
-    used = [(held, f) for _, held, f in trial.used()]
-    if not any(f is not None and f.fitted() is not None for _, f in used):
+    used = [(held, f, trial.profile_for(k)) for k, (_, held, f) in enumerate(trial.used())]
+    if all(p is None for _, _, p in used):
         return None
     num = den = base = 0.0
-    for held, f in used:
-        n, d = _measured_sums(held, f) if f is not None and f.fitted() is not None else _base_sums(held)
+    for held, f, p in used:
+        kind = f.search.captures if f is not None and not trial.joint else "all"
+        n, d = _measured_sums(held, p, kind) if p is not None else _base_sums(held)
         num, den, base = num + float(n.sum()), den + float(d.sum()), base + float(_base_sums(held)[0].sum())
     if not trial.every:  # one half measured: its ratio to the profile's, over the whole set
         num, den = _carried(ctx, num, base), float(ctx._noise.sum())
@@ -908,14 +947,26 @@ def _flags(ctx, f, profile) -> list[str]:
     return out
 
 
-def _setup(ctx, name, hold=()) -> _Trial:
-    """A candidate's trial: its folds' fits (or why it has none), not yet run."""
+def _setup(ctx, name, hold=(), refit=()) -> _Trial:
+    """A candidate's trial: its folds' fits (or why it has none), not yet run. With ``refit`` (effects added
+    earlier), a removal gets folds too: the earlier additions are refitted with it on each."""
     trial = _Trial(name)
     try:
         if name.startswith("without_"):
             trial.fixed = _removal(ctx, name)
+            folds = ctx.folds("all", tiles=False) if refit else "nothing added before"
+            if not isinstance(folds, str):
+                pairs, trial.how = folds
+                trial.folds, trial.every = [(a, b, None) for a, b in pairs], True
             return trial
         probe = _fits(ctx, name, hold)
+        unreached = [k for k, r in probe.search.reach.items() if k in probe.keys and ctx.reach() < r]
+        if unreached:
+            trial.unreached = f"the captures reach {100 * ctx.reach():.0f} % of the way to the corners"
+            if set(unreached) >= set(probe.keys) and not (probe.search.grid or probe.search.fit):
+                raise NotFitted(f"{', '.join(unreached)} not determined: {trial.unreached}")
+            hold = tuple(hold) + tuple(unreached)
+            probe = _fits(ctx, name, hold)
         if not probe.fits_anything:
             trial.fixed = _evidence(ctx, probe)
             return trial
@@ -943,10 +994,15 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
     n = len(ctx.mset.captures)
     if trial.fixed is not None:
         profile, params, evidence = trial.fixed
+        profile = trial.joint.get(None, profile)
         error, families = ctx.estimate(profile)
-        return Candidate(trial.name, error, params, evidence, profile, False, n, families, held_out=error,
-                         held_out_families=families, validation="nothing fitted", base_error=base_error,
-                         seconds=time.perf_counter() - started)
+        c = Candidate(trial.name, error, params, evidence, profile, False, n, families, held_out=error,
+                      held_out_families=families, validation="nothing fitted", base_error=base_error)
+        if trial.joint:
+            c.validation = f"the earlier additions refitted with it on {trial.how}"
+            c.held_out, c.held_out_families = _held_out(ctx, trial)
+        c.seconds = time.perf_counter() - started
+        return c
     f = trial.shown()
     try:
         if f is None:
@@ -955,16 +1011,18 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
     except NotFitted as e:
         trial.reason = str(e)
         return None
+    profile = trial.profile_for(None if trial.main is not None else 0) or profile
     flags = _flags(ctx, f, profile)
     implausible = [x[len("implausible: "):] for x in flags if x.startswith("implausible: ")]
     if implausible:
         trial.reason = "the fit is not a real camera's: " + "; ".join(implausible)
         return None
     num = base = 0.0  # in sample: each fit on the captures it was fitted to, carried to the whole set
-    for g in trial.fits():
-        if g.fitted() is not None:
+    for k, g in [(k, x[2]) for k, x in enumerate(trial.used())] + [(None, trial.main)]:
+        p = trial.profile_for(k)
+        if g is not None and p is not None:
             idx = list(range(len(g.ctx.inputs))) if g.subset is None else g.subset
-            num += float(g.ctx.mean_sums(g.fitted()[0], idx)[0].sum())
+            num += float(g.ctx.mean_sums(p, idx)[0].sum())
             base += float(_base_sums(g.ctx)[0][idx].sum())
     error, families = ctx.families_with_mean(_carried(ctx, num, base), float(ctx._noise.sum()))
     c = Candidate(trial.name, error, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
@@ -975,6 +1033,10 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
         c.held_out, c.held_out_families = held
     c.uncertainty, loose = _spread(trial)
     c.flags += [f"{k} not determined by the data" for k in sorted(loose)]
+    held = [k for k in f.search.bounds if k not in f.keys]
+    if held:
+        c.flags.append(f"{', '.join(held)} held at the profile's value" +
+                       (f": {trial.unreached}" if trial.unreached else ""))
     c.seconds = sum(g.seconds for g in trial.fits()) + time.perf_counter() - started
     return c
 
@@ -986,13 +1048,13 @@ def _full(ctx, c: Candidate, trial, in_sample: bool = True) -> None:
     if in_sample:
         c.comparison = ctx.compare(c.profile)
         c.error_after, c.families, c.full = c.comparison.error, dict(c.comparison.families), True
-    if c.validation == "nothing fitted":
+    if c.validation == "nothing fitted" and not (trial is not None and trial.joint):
         c.held_out, c.held_out_families, c.held_out_full = c.error_after, dict(c.families), c.full
     elif trial is not None and trial.folds:
         stats, base = [], []
-        for _, held, f in trial.used():
-            good = f is not None and f.fitted() is not None
-            stats += held.compare(f.fitted()[0]).captures if good else held.base.captures
+        for k, (_, held, _f) in enumerate(trial.used()):
+            p = trial.profile_for(k)
+            stats += held.compare(p).captures if p is not None else held.base.captures
             base += held.base.captures
         _, families = combine(stats)
         if not trial.every:  # one half measured: its mean family's ratio to the profile's, over the whole set
@@ -1003,9 +1065,11 @@ def _full(ctx, c: Candidate, trial, in_sample: bool = True) -> None:
     c.seconds += time.perf_counter() - started
 
 
-def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate], dict]:
+def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[Candidate], dict]:
     """Cross-validated ranking of the named candidates on ``ctx.profile``. Returns (candidates ranked by their
-    held-out error, {candidate: why it could not be fitted}).
+    held-out error, {candidate: why it could not be fitted}). ``refit``: the :class:`Candidate` s added before
+    (``ctx.profile`` holds them); they may have made up for what a candidate changes, so the finalists and the
+    removals are measured with them refitted (:func:`polish`, on the same folds).
 
     1. Every candidate is screened on the first fold (:meth:`Context.folds`): fitted coarsely on one half of the
        captures and measured on the other.
@@ -1057,10 +1121,24 @@ def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate],
             t.every = True
         run(finalists, "screen", "fitting the other folds", folds=every[1:])
         run(finalists, "finish", "fitting", folds=every)
+        if refit:
+            join(finalists)
 
-    trials = [_setup(ctx, n) for n in names]
+    def join(trials):  # the earlier additions refitted with each candidate, on each fold and on every capture
+        def one(job):
+            t, k = job
+            start = t.fixed[0] if t.fixed is not None else t.profile_for(k)
+            if start is not None:
+                t.joint[k] = polish(ctx if k is None else t.folds[k][0], list(refit), start, sweeps=1)
+
+        jobs = [(t, k) for t in trials for k in range(len(t.used()))] + \
+            [(t, None) for t in trials if t.main is not None or t.fixed is not None]
+        in_turn(one, jobs, lambda job: f"{job[0].name} (refitting the effects added before)")
+
+    trials = [_setup(ctx, n, refit=refit) for n in names]
     by_name = {t.name: t for t in trials}
     screened(trials)
+    join([t for t in trials if t.fixed is not None and t.folds])
     out = [c for c in in_turn(lambda t: _candidate(ctx, t, base_error), trials,
                               lambda t: f"{t.name} (estimating)") if c is not None]
     # keys the data do not determine: held at the profile's value, the candidate fitted again
@@ -1075,9 +1153,9 @@ def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate],
             continue
         again = by_name[c.effect] = _setup(ctx, c.effect, hold=loose)
         screened([again])
+        again.unreached = again.unreached or "not determined by the data"
         redone = _candidate(ctx, again, base_error)
         if redone is not None:
-            redone.flags.append(f"{', '.join(loose)} held at the profile's value: not determined by the data")
             redone.evidence += f" ({', '.join(loose)} held at the profile's value)"
             out.append(redone)
     for c in [c for c in out if _changes_noise(c.effect)]:  # its estimate cannot see what it does
@@ -1087,10 +1165,10 @@ def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate],
 
     def settle():  # the best: fitted on every capture (the profile to add), its errors the full ones
         out.sort(key=lambda c: c.score)
-        while out and not (out[0].full and out[0].held_out_full):
+        while out and not (out[0].full and (out[0].held_out_full or out[0].held_out is None)):
             c, t = out[0], by_name.get(out[0].effect)
-            if t is not None and t.main is None and t.folds:
-                f = t.folds[0][2]
+            f = next((x for _, _, x in t.folds if x is not None), None) if t is not None else None
+            if f is not None and t.main is None:
                 t.main = _fits(ctx, t.name, tuple(k for k in f.search.bounds if k not in f.keys))
                 if progress:
                     progress(0, 1, f"{t.name} (fitting on every capture)")
@@ -1100,6 +1178,8 @@ def rank(ctx, base_error: float, names, progress=None) -> tuple[list[Candidate],
                 if t.main is not None:
                     c.profile, params, c.evidence = _evidence(ctx, t.main)
                     c.params = dict(params)
+                    if refit:
+                        c.profile = t.joint[None] = polish(ctx, list(refit), c.profile, sweeps=1)
             if progress:
                 progress(0, 1, f"{c.effect} (full error)")
             _full(ctx, c, t)
@@ -1146,14 +1226,15 @@ def polish(ctx, chosen: list[Candidate], profile, sweeps: int = 2):
 
 
 def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int = 2, assumed_noise=None,
-             ) -> Diagnosis:
+             refit=()) -> Diagnosis:
     """Rank the candidates (all of :func:`candidates` and :func:`removal_candidates`, or ``only``) for a
     measurement set.
 
     Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
     later candidate's ``error_after`` then includes the ones before it, and the best of the last round has every
-    added effect refitted together (:func:`polish`) before its full error is computed.
+    added effect refitted together (:func:`polish`) before its full error is computed. ``refit``: candidates
+    added to ``profile`` before (:func:`explain`), refitted with the finalists and removals (:func:`rank`).
     """
     started = time.perf_counter()
     scratch = None if workdir else tempfile.TemporaryDirectory(prefix="lowcam-diagnose-")
@@ -1161,7 +1242,7 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     ctx = Context(mset, profile, workdir, assumed_noise)
     base = ctx.base
     names = list(only or [*candidates(), *removal_candidates(profile)])
-    ranked, failed = rank(ctx, base.error, names, progress)
+    ranked, failed = rank(ctx, base.error, names, progress, refit)
     chosen: list[Candidate] = []
     for _ in range(rounds - 1):
         if not ranked or ranked[0].score <= EXPLAINED_BELOW or ranked[0].score >= base.error:
@@ -1170,7 +1251,7 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
         chosen.append(best)
         ctx = Context(mset, best.profile, workdir / f"after-{best.effect}", parent=ctx, base=best.comparison)
         remaining = [n for n in names if n not in {c.effect for c in chosen}]
-        again, more = rank(ctx, best.error_after, remaining, progress)
+        again, more = rank(ctx, best.error_after, remaining, progress, [*refit, *chosen])
         failed.update(more)
         for c in again:
             c.evidence += f" (with {', '.join(x.effect for x in chosen)} added)"
@@ -1203,7 +1284,7 @@ def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain:
     assumed = None
     for k in range(max_steps + 1):
         d = diagnose(mset, profile, workdir=workdir / f"step-{k}", progress=progress, rounds=1,
-                     assumed_noise=assumed)
+                     assumed_noise=assumed, refit=added)
         assumed = assumed or [s.sums["variance_map"] if len(s.measured) == 1 else None
                               for s in d.comparison.captures]
         best = d.best

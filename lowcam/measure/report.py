@@ -9,6 +9,8 @@ Contents
 - :func:`read_history`: the set's comparison history; a damaged file is a one-line error
 - :func:`record_history`: append this comparison to the set's history (``<set>/.lowcam/history.json``)
 - :func:`history_figure`: the error against model versions, as a PNG
+- :func:`candidate_sections`: a diagnosis's candidates: errors in sample and held out, fitted numbers with their
+  standard errors, flags, and why the others could not be fitted
 - :func:`write_compare_report`: the HTML comparison report
 """
 from __future__ import annotations
@@ -278,7 +280,64 @@ def history_figure(entries, folder: Path) -> Path:
     return figure(folder / "history.png", draw, (7, 4))
 
 
+def _with_uncertainty(params: dict, uncertainty: dict) -> str:
+    """``key value +- standard error`` for each fitted number (vectors and matrices by their entries)."""
+    def shown(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(shown(x) for x in v) + "]"
+        return str(v)
+
+    return "; ".join(f"{k} {shown(v)}" + (f" &plusmn; {uncertainty[k]:.2g}" if k in uncertainty else "")
+                     for k, v in params.items() if not (isinstance(v, str) and v.endswith(".npy")))
+
+
+def candidate_sections(candidates: list[dict], not_fitted: list[dict], folder: Path,
+                       title: str = "Candidates", error: float | None = None) -> list[str]:
+    """HTML sections for a diagnosis (``Diagnosis.as_json()``'s ``candidates`` and ``not_fitted``): a figure of
+    each candidate's error in sample beside its error on held-out captures (and the profile's own ``error``), a table with its fitted numbers and
+    their standard errors, flags and evidence, and why each other candidate could not be fitted."""
+    if not candidates and not not_fitted:
+        return []
+    parts = [f"<h2>{html.escape(title)}</h2>"]
+    if candidates:
+        def bars(f):
+            ax = f.add_subplot(1, 1, 1)
+            names = [c["effect"] for c in candidates][::-1]
+            y = np.arange(len(names))
+            ax.barh(y + 0.2, [c["error_in_sample"] for c in candidates][::-1], 0.4, label="in sample",
+                    color="tab:grey")
+            ax.barh(y - 0.2, [c["error_held_out"] if c["error_held_out"] is not None else np.nan
+                              for c in candidates][::-1], 0.4, label="held out", color="tab:blue")
+            ax.set_yticks(y, names, fontsize=7)
+            ax.axvline(1.0, color="k", lw=0.8)
+            ax.axvline(1.25, color="grey", lw=0.8, ls="--")
+            if error is not None:
+                ax.axvline(error, color="tab:red", lw=1.0, label="the profile's own error")
+            ax.set_xlabel("error (1 = noise)")
+            ax.legend(fontsize=8)
+        path = figure(folder / "candidates.png", bars, (8, 1.5 + 0.25 * len(candidates)))
+        parts.append(image(folder, path, "errors in sample and held out"))
+        rows = "".join(
+            f"<tr><td>{html.escape(c['effect'])}</td><td>{c['error_in_sample']:.3f}</td><td>"
+            + ("&ndash;" if c["error_held_out"] is None else f"{c['error_held_out']:.3f}")
+            + f"</td><td>{html.escape(c['held_out'])}</td><td>{_with_uncertainty(c['params'], c['uncertainty'])}"
+            f"</td><td>{html.escape('; '.join(c['flags']))}</td><td>{html.escape(c['evidence'])}</td></tr>"
+            for c in candidates)
+        parts.append("<table border=1 cellpadding=3 style='border-collapse:collapse;font-size:small'><tr>"
+                     "<th>candidate</th><th>in sample</th><th>held out</th><th>how held out</th>"
+                     "<th>fitted (&plusmn; standard error)</th><th>flags</th><th>evidence</th></tr>"
+                     f"{rows}</table>")
+    if not_fitted:
+        parts.append("<h3>Not fitted</h3><ul>" + "".join(
+            f"<li><b>{html.escape(x['effect'])}</b>: {html.escape(x['reason'])}</li>" for x in not_fitted) + "</ul>")
+    return parts
+
+
 def write_compare_report(cmp, folder, title: str, history=None, extra: dict | None = None) -> Path:
+    """The HTML comparison report: the verdict, the error history, the diagnosis's candidates (``extra``'s
+    ``candidates`` and ``not_fitted``) or the steps that added effects (``extra``'s ``steps``), and every probe."""
     from ..io import make_output_folder
 
     folder = make_output_folder(folder)
@@ -292,6 +351,11 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
     parts = [f"<p><b>error {cmp.error:.3f}</b> (1.0 = the noise floor; explained below 1.1): "
              f"{html.escape(cmp.verdict)}. Families: " +
              ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()) + "</p>"]
+    extra = extra or {}
+    parts += candidate_sections(extra.get("candidates", []), extra.get("not_fitted", []), folder, error=cmp.error)
+    added = [(s["step"], c) for s in extra.get("steps", []) for c in s["candidates"][:1] if s.get("added")]
+    if added:
+        parts += candidate_sections([c for _, c in added], [], folder, "Effects added, step by step")
     for name, path in figures:
         parts.append(f"<h2>{html.escape(name)}</h2>{image(folder, path, name)}")
     parts.append("<h2>Numbers</h2>" + numbers_block(numbers))

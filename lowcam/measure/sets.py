@@ -143,7 +143,7 @@ def _nonempty(value, where: str, key: str) -> str:
 
 def write_set(folder, captures: list[dict]) -> Path:
     """Write a measurement set. Each dict: ``name``, ``ideal`` (RGBA array), ``frames`` (list of uint8 RGB),
-    optional ``plate``, ``angular_velocity``, ``exposure_s``."""
+    optional ``plate``, ``mask`` ((H, W) bool: the pixels compared), ``angular_velocity``, ``exposure_s``."""
     import tomli_w
 
     from ..io import atomic_write_bytes, write_exr, write_png
@@ -159,6 +159,9 @@ def write_set(folder, captures: list[dict]) -> Path:
         if c.get("plate") is not None:
             write_png(folder / "plates" / f"{name}.png", c["plate"])
             entry["plate"] = f"plates/{name}.png"
+        if c.get("mask") is not None:
+            write_png(folder / "masks" / f"{name}.png", np.where(np.asarray(c["mask"], bool), 255, 0).astype(np.uint8))
+            entry["mask"] = f"masks/{name}.png"
         if c.get("angular_velocity") is not None:
             entry["angular_velocity"] = [float(v) for v in c["angular_velocity"]]
         if c.get("exposure_s") is not None:
