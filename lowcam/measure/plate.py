@@ -220,11 +220,13 @@ class PlateEstimate:
 
     ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
     footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
-    parameter of ``effect`` or ``"other_effect.param"``; ``base_params``: the base profile's values of the same
-    parameters (None where it lacks them), filled by :func:`estimate_profile`;
-    ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
-    simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
-    :func:`estimate_profile` wrote ``params`` into the profile."""
+    parameter of ``effect`` or ``"other_effect.param"`` (``"other_effect.enabled": False`` turns that effect
+    off); ``base_params``: the base profile's values of the same parameters (None where it lacks them), filled by
+    :func:`estimate_profile`; ``confidence`` (0..1, earned from the measurement's own evidence) with a one-line
+    ``reason``; ``measurable``: False where the footage cannot show the statistic at all (too flat, too still):
+    nothing is estimated, and lines and reports say "not measurable" rather than a value; ``model``: the same
+    statistic measured on the profile's simulation of similar content (:func:`model_statistics`), ``None`` until
+    filled; ``applied``: whether :func:`estimate_profile` wrote ``params`` into the profile."""
 
     statistic: str
     effect: str
@@ -235,9 +237,17 @@ class PlateEstimate:
     model: dict | None = None
     applied: bool = False
     base_params: dict = field(default_factory=dict)
+    measurable: bool = True
+
+    @classmethod
+    def not_measurable(cls, statistic: str, effect: str, measured: dict, reason: str) -> "PlateEstimate":
+        """An estimate the footage cannot make: no params, confidence 0, ``measurable`` False."""
+        return cls(statistic, effect, measured, {}, 0.0, reason, measurable=False)
 
     def line(self) -> str:
         """One line for the terminal: what was found, how sure, whether it went into the profile."""
+        if not self.measurable:
+            return f"{self.statistic} ({self.effect}): not measurable ({self.reason}); not applied"
         what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
         state = "applied" if self.applied else "not applied"
         return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
@@ -249,6 +259,8 @@ def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
 
 
 def _fmt(v) -> str:
+    if v is None:
+        return "not measurable"
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, (list, tuple)):
@@ -263,13 +275,19 @@ class PlateProbe:
     ``estimate(footage, base)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it at
     all); ``base`` is the profile being refined (or None), for the parameters an estimate depends on.
     ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
-    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured)."""
+    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured).
+    ``compared``: the keys of that dict that ``compare --plate-only`` compares, footage against model (empty: all;
+    the noise's per-bin lists are left out: their bins lie at different levels in the two);
+    ``pairs``: the statistic also takes :class:`lowcam.registration.RegisteredPairs`, which the comparison
+    makes once per stack (:func:`register_footage`) before cutting it into tiles."""
 
     name: str
     effect: str
     estimate: Callable
     statistic: Callable[[np.ndarray], dict]
     about: str = ""
+    compared: tuple = ()
+    pairs: bool = False
 
 
 def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
@@ -382,25 +400,47 @@ def _codec(module: str, name: str) -> Callable:
     return call
 
 
-#: Every plate probe, in the order they run: the edges first, since the noise estimate divides by the gain of the
-#: row filters they fit (:func:`lowcam.effects.noise.noise_gain`); JPEG blockiness and chroma bandwidth after the
-#: vignetting.
+#: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
+#: next, since the noise estimate divides by the gain of the row filters the edges fit
+#: (:func:`lowcam.effects.noise.noise_gain`) and judges the codec's share of a moving shot's noise by the JPEG
+#: quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
-    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
-               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
-    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
-               "brightness of the same scene points at different radii over a moving shot"),
     PlateProbe("jpeg_blockiness", "jpeg", _codec("jpeg", "jpeg_quality_from_plate"),
                _codec("jpeg", "jpeg_blockiness_statistic"),
                "luma steps across the 8x8 grid over those inside blocks; the quality that codes the frame so"),
     PlateProbe("chroma_bandwidth", "chroma_subsampling", _codec("yuv", "chroma_subsampling_from_plate"),
                _codec("yuv", "chroma_bandwidth_statistic"),
                "chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum"),
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel from registered frame pairs (a moving camera, moving objects)",
+               compared=("sigma_at_dn",), pairs=True),
+    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
+               "brightness of the same scene points at different radii over a moving shot"),
     PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
                "angular velocity per frame from a gyro log"),
 ]
+
+
+def pair_starts(frames: int, count: int) -> list[int]:
+    """The first frames of up to ``count`` pairs of consecutive frames ``(i, i + 1)``, spread evenly over a shot
+    of ``frames`` frames."""
+    if frames < 2:
+        return []
+    return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
+
+
+def register_footage(footage: Footage, count: int = 12):
+    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` pairs of consecutive frames spread over the
+    shot (:func:`pair_starts`), each registered by a homography from tracked corners
+    (:func:`lowcam.registration.register_frames`)."""
+    from ..registration import register_frames
+
+    starts = pair_starts(len(footage), count)
+    frames = sorted(set(starts) | {i + 1 for i in starts})
+    at = {f: k for k, f in enumerate(frames)}
+    return register_frames(footage.stack(frames), [(at[i], at[i + 1]) for i in starts])
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
@@ -504,7 +544,11 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
                      probes: list[PlateProbe] | None = None):
     """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
     with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
-    with a ``[provenance]`` entry per parameter. Progress goes to stderr."""
+    with a ``[provenance]`` entry per parameter (``"effect.enabled": False`` turns the effect off, with an entry
+    for the effect: a JPEG chroma subsampling found replaces the base's own chroma subsampling rather than
+    stacking both), unless an effect it sets becomes one no real camera has (:meth:`Effect.implausible`: then it
+    is reported, not applied). The profile is named after the plate (``camera.name``, with provenance) once
+    anything is applied. Progress goes to stderr."""
     from ..profile import load_profile
 
     base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
@@ -514,7 +558,7 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters)
+        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters, codec)
         if est is None:
             continue
         estimates.append(est)
@@ -524,12 +568,41 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
             e = base.effect(effect)
             value = getattr(e, param, None) if e is not None else None
             est.base_params[key] = str(value) if isinstance(value, Path) else value  # a texture's path
-        if est.params and est.confidence >= min_confidence:
+        if est.params and est.measurable and est.confidence >= min_confidence:
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
-            for key, value in est.params.items():
-                effect, param = _target(est, key)
-                out = out.with_effect(effect, **{param: value})
-                out.provenance[f"{effect}.{param}"] = note
+            trial, entries = apply_estimate(out, est, note)
+            bad = [f"{e}: {w}" for e in {_target(est, k)[0] for k in est.params}
+                   if trial.effect(e) is not None and trial.effect(e).enabled for w in trial.effect(e).implausible()]
+            if bad:
+                est.reason += f"; not applied: {'; '.join(bad)}"
+                continue
+            out = trial
+            out.provenance.update(entries)
             est.applied = True
+    if any(e.applied for e in estimates):
+        out.camera.name = plate_name(base, footage)
+        out.provenance["camera.name"] = f"the plate {footage.path}, starting from {base.camera.name or base.name}"
     return out, estimates
+
+
+def plate_name(base, footage: Footage) -> str:
+    """The name of a profile estimated from ``footage`` starting from ``base``."""
+    return f"{base.camera.name or base.name}, estimated from the plate {Path(str(footage.path)).name}"
+
+
+def apply_estimate(profile, est: PlateEstimate, note: str):
+    """(a copy of ``profile`` with ``est.params`` set, its ``[provenance]`` entries): ``"effect.enabled": False``
+    disables that effect (entry ``effect``: off, and why), any other key sets a parameter (entry
+    ``effect.param``: ``note``)."""
+    out, entries = profile, {}
+    for key, value in est.params.items():
+        effect, param = _target(est, key)
+        if param == "enabled":
+            if not value and out.effect(effect) is not None and out.effect(effect).enabled:
+                out = out.without(effect)
+                entries[effect] = f"off: {note}"
+            continue
+        out = out.with_effect(effect, **{param: value})
+        entries[f"{effect}.{param}"] = note
+    return out, entries

@@ -167,13 +167,17 @@ def tile_slices(height: int, width: int, tiles: tuple[int, int] = TILES) -> list
             for i in range(tiles[0]) for j in range(tiles[1])]
 
 
-def _tile_values(probe, stack: np.ndarray, tiles) -> list[dict]:
+def _tile_values(probe, stack, tiles) -> list[dict]:
+    """Each tile's statistic, flattened, only its ``probe.compared`` keys (all where empty)."""
     out = []
     for sy, sx in tiles:
         try:
-            out.append(flatten_statistic(probe.statistic(stack[:, sy, sx])))
+            stat = probe.statistic(stack[:, sy, sx])
         except (ValueError, ArithmeticError, np.linalg.LinAlgError, LowcamError, NotImplementedError):
-            out.append({})  # this tile cannot show the statistic (too flat, too small)
+            stat = {}  # this tile cannot show the statistic (too flat, too small)
+        if probe.compared:
+            stat = {k: v for k, v in stat.items() if k in probe.compared}
+        out.append(flatten_statistic(stat))
     return out
 
 
@@ -206,7 +210,8 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
     ``frames`` model frames are simulated (twice as many with ``bias_correction``, the model filming its own
     frames, module docstring); up to ``max_footage_frames`` footage frames (evenly thinned) are measured. A probe
     whose statistic is empty on both is listed in ``skipped``."""
-    from .plate import PLATE_PROBES, Footage
+    from ..registration import register_frames
+    from .plate import PLATE_PROBES, Footage, register_footage
 
     probes = PLATE_PROBES if probes is None else probes
     if progress:
@@ -218,13 +223,19 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
     feet = footage.stack(max_frames=max_footage_frames)
     tf, tg = tile_slices(*feet.shape[1:3], tiles), tile_slices(*model.shape[1:3], tiles)
     rng = np.random.default_rng(seed)
-    stats, skipped = [], {}
+    stats, skipped, registered = [], {}, None
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        mine = _paired(probe, feet, tf, model, again, tg, rng)
+        if probe.pairs:  # registered once, cut into tiles after
+            if registered is None:
+                registered = (register_footage(footage, max_footage_frames - 1), register_frames(model),
+                              None if again is None else register_frames(again))
+            mine = _paired(probe, registered[0], tf, registered[1], registered[2], tg, rng)
+        else:
+            mine = _paired(probe, feet, tf, model, again, tg, rng)
         if not mine:
-            skipped[probe.name] = "no value measured on enough tiles of both the footage and the model"
+            skipped[probe.name] = "not measurable on enough tiles of both the footage and the model"
             continue
         stats += mine
     if not stats:
