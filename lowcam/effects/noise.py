@@ -19,10 +19,19 @@ Contents
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
   ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
-- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of a stack of frames
-- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`: the brightness bins (DN) of the noise level function measured on
-  footage, and the quantile of flat-block variances that gives its spatial lower envelope
+- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`, :data:`NLF_BLOCK_PX`, :data:`HEADLINE_DN`: the brightness bins (DN)
+  of the noise level function measured on footage, the quantile of flat-block variances that gives its spatial
+  lower envelope, the blocks (px) it is measured in and the levels (DN) it is read at
+- :data:`ROUNDING_FLOOR_DN2`: below this variance a bin shows pixels a codec repeated, not noise
+- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of footage: from
+  registered frame pairs (a moving camera, moving objects), a still stack's pixels, or single frames' flat blocks
+- :data:`BIN_SCATTER`: the scatter about a law allowed to every bin of footage besides its standard error
+- :func:`fit_plate_law`: ``[a, b]`` of a law fitted to a noise level function, both at least 0, and how far off it
+  may be
 - :func:`noise_gain`: how the chain after the noise scales it per channel, as the noise level function sees it
+- :data:`PLATE_PAIRS`, :data:`STILL_PX`: the frame pairs the plate's noise estimate registers, and the motion (px)
+  below which a pair is still
+- :data:`CODEC_FLICKER`: how much more noise a JPEG-coded pan shows than a still shot, by quality (measured)
 - :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
 References
@@ -382,17 +391,19 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
     return out
 
 
-def fit_plate_law(levels, sigmas, se, law: str) -> tuple[float, float, float]:
+def fit_plate_law(levels, sigmas, se, law: str, floor_dn: float = 0.0) -> tuple[float, float, float]:
     """``(a, b, relative_error)`` of ``law`` fitted to binned (mean, sigma, sigma's standard error) by weighted
-    least squares with ``a >= 0`` and ``b >= 0``, so the law is >= 0 over 0-255 DN (footage shows no black level
-    below its darkest bin, and a negative intercept would claim noise-free dark pixels). Each bin's error is its
+    least squares with ``b >= 0`` and the sigma at 0 DN at least ``floor_dn`` (``a >= floor_dn``, or its square
+    for the variance law), so the law is above 0 over 0-255 DN: footage shows no black level below its darkest
+    bin, and an intercept below the floor would claim dark pixels quieter than their 8-bit rounding. Each bin's error is its
     standard error and :data:`BIN_SCATTER` of the median sigma in quadrature, so that no bin of many blocks
     outweighs the rest; bins more than 25 % off the line (blocks still holding texture or motion) are dropped,
     keeping at least the better half, and the law fitted again (up to four times).
 
     ``relative_error``: how far the law may be off, relative to the sigma: the root sum of squares of the fit's
-    largest standard error over the measured levels (from the bins' standard errors alone) and of the bins'
-    robust deviation from the law (1.4826 times the median absolute relative deviation, over all bins: a law
+    largest standard error over the measured levels and :data:`HEADLINE_DN` (from the bins' standard errors
+    alone; a law read beyond the levels measured is extrapolated, and less sure) and of the bins' robust
+    deviation from the law (1.4826 times the median absolute relative deviation, over all bins: a law
     that does not describe the bins is no better known than it misses them)."""
     from scipy.optimize import nnls
 
@@ -403,9 +414,12 @@ def fit_plate_law(levels, sigmas, se, law: str) -> tuple[float, float, float]:
     se = np.maximum(np.asarray(se, np.float64), 1e-3 * np.maximum(s, 1e-3)) * slope
     y = s ** power
     ey = np.hypot(se, BIN_SCATTER * power * np.median(y))
+    floor = floor_dn ** power
     keep = np.ones(len(m), bool)
     for _ in range(4):
-        (a, b), _ = nnls(np.column_stack([np.ones(keep.sum()), m[keep]]) / ey[keep, None], y[keep] / ey[keep])
+        (a, b), _ = nnls(np.column_stack([np.ones(keep.sum()), m[keep]]) / ey[keep, None],
+                         (y[keep] - floor) / ey[keep])
+        a += floor
         fit = np.maximum(a + b * m, 1e-9)
         off = np.abs(y - fit) / fit / power
         new = off <= 0.25
@@ -420,9 +434,10 @@ def fit_plate_law(levels, sigmas, se, law: str) -> tuple[float, float, float]:
                             @ (np.column_stack([np.ones(keep.sum()), m[keep]]) / se[keep, None]))
     except np.linalg.LinAlgError:
         return float(a), float(b), float("inf")
-    grid = np.column_stack([np.ones(len(m)), m])
+    at = np.union1d(m, HEADLINE_DN)  # the measured levels and those a law is read at (extrapolated, if need be)
+    grid = np.column_stack([np.ones(len(at)), at])
     sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", grid, cov, grid), 0.0))
-    return float(a), float(b), float(np.hypot((sd / fit / power).max(), misfit))
+    return float(a), float(b), float(np.hypot((sd / np.maximum(a + b * at, 1e-9) / power).max(), misfit))
 
 
 def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
@@ -434,14 +449,20 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
     after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
     spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    A JPEG at the end of the chain is left out: what it does to noise depends on the scene (it flattens the
+    noise of flat blocks and keeps much of a textured block's), which a flat grey cannot tell, so the law read
+    through this gain is the noise the frames carried into their coding.
     ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
     ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
+    from ..errors import NotFitted
     def ideal(width, height):
         out = np.ones((height, width, 4), np.float32)
         out[..., :3] = level
         return out
     law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
            "blue": [sigma_dn ** 2, 0.0]}
+    if profile.effect("jpeg") is not None and profile.effect("jpeg").enabled:
+        profile = profile.without("jpeg")
     noisy = profile.with_effect("noise", **law)
     clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
     h, w = clean.shape[:2]
@@ -449,7 +470,12 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
                       for k in range(frames if method != "spatial" else 1)])
     stat = noise_level_statistic(diffs, method)
-    return [float(stat["sigma_at_dn"]["128"][c]) / sigma_dn for c in range(3)]
+    gains = [float(np.median(stat["sigma_dn"][ch])) / sigma_dn if stat["sigma_dn"][ch] else 0.0
+             for ch in ("red", "green", "blue")]
+    if min(gains) <= 0:
+        raise NotFitted(f"{profile.source}: the chain after the noise leaves none of it (a flat grey filmed with "
+                        f"{sigma_dn:g} DN of noise per sensel shows none): no law can be read through it")
+    return gains
 
 
 def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
@@ -486,7 +512,8 @@ def noise_level_function_from_plate(footage, base, film):
     :data:`MIN_LEVELS` brightness levels (a shot that cannot be registered) the flattest blocks of single frames
     stand in if they show more, a lower envelope that texture lifts, so it is reported, never applied. The output-domain noise level function
     is divided by the base profile's :func:`noise_gain` (what its sharpening, blur and demosaic do to per-sensel
-    noise) and fitted with the profile's law, intercept and slope at least 0 (:func:`fit_plate_law`); a law
+    noise) and fitted with the profile's law, its slope at least 0 and its sigma at 0 DN at least the 8-bit
+    rounding's (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a law
     :meth:`Noise.implausible` flags is not applied.
 
     Confidence, from the measurement's own evidence: ``0.95 (1 - s / 0.25) min(1, levels / 4)``, ``s`` how far
@@ -526,7 +553,7 @@ def noise_level_function_from_plate(footage, base, film):
     for c, channel in enumerate(channels):
         sig = np.asarray(stat["sigma_dn"][channel]) / gains[c]
         se = np.asarray(stat["sigma_se_dn"][channel]) / gains[c]
-        a, b, rel = fit_plate_law(stat["levels_dn"][channel], sig, se, law)
+        a, b, rel = fit_plate_law(stat["levels_dn"][channel], sig, se, law, np.sqrt(ROUNDING_FLOOR_DN2) / gains[c])
         params[channel] = [a, b]
         worst = max(worst, rel)
     flicker, note = _codec_flicker(footage, base, moving and method == "registered")

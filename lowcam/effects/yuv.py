@@ -16,6 +16,7 @@ Contents
 - :data:`SUBSAMPLING_FACTORS`: J:a:b name -> (horizontal, vertical) chroma subsampling factors
 - :func:`chroma_spectrum_ratio`: per 1-D frequency, the chroma power relative to the luma power along an axis
 - :func:`chroma_bandwidth_statistic`: the no-reference statistic of a stack: replication and JPEG chroma steps
+- :func:`chroma_detail`: how much detail the chroma holds (mean neighbour step of Cb and Cr, DN)
 - :func:`chroma_subsampling_evidence`: per axis, the three cues to the chroma subsampling factor (see below)
 - :func:`chroma_subsampling_from_plate`: the chroma subsampling the footage shows (a plate estimate)
 
@@ -174,12 +175,21 @@ def chroma_bandwidth_statistic(frames: np.ndarray) -> dict:
     :func:`chroma_subsampling_evidence` that depend little on the scene: ``replication_2`` and ``replication_4``
     (log10 power ratios), and the chroma's JPEG steps in DN, ``step8`` at odd multiples of 8 px and ``step32`` at
     multiples of 32 px (mean absolute step less the median over the 32 px phases; ``step8`` near 0 while
-    ``step32`` is not: halved chroma). ``{}`` for frames under 64 px."""
+    ``step32`` is not: halved chroma). ``{}`` (not measurable) for frames under 64 px or chroma without detail
+    (:func:`chroma_detail` under :data:`_CHROMA_DETAIL_DN`)."""
     f = np.asarray(frames)
-    if min(f.shape[-3:-1]) < 64:
+    if min(f.shape[-3:-1]) < 64 or chroma_detail(f) < _CHROMA_DETAIL_DN:
         return {}
     ev = chroma_subsampling_evidence(f, spectrum=False)
     return {f"{k}_{a}": ev[a][k] for a in ("h", "v") for k in ("replication_2", "replication_4", "step8", "step32")}
+
+
+def chroma_detail(frames: np.ndarray) -> float:
+    """The mean absolute step (DN) between neighbouring pixels of Cb and Cr, across and down, of an RGB stack:
+    about 0 where the chroma holds nothing a subsampling could change (a grey or flat scene, or a codec that
+    flattened it)."""
+    yuv = _yuv_stack(frames)
+    return float(np.mean([np.abs(np.diff(yuv[..., c], axis=a)).mean() for c in (1, 2) for a in (-1, -2)]))
 
 
 def _phase_power(plane: np.ndarray, axis: int, period: int) -> np.ndarray:
@@ -260,8 +270,7 @@ def chroma_subsampling_from_plate(footage, base=None):
     from .jpeg import _GRID_T, SUBSAMPLINGS, jpeg_blockiness
 
     frames = footage.stack(max_frames=6)
-    yuv = _yuv_stack(frames)
-    detail = float(np.mean([np.abs(np.diff(yuv[..., c], axis=a)).mean() for c in (1, 2) for a in (-1, -2)]))
+    detail = chroma_detail(frames)
     if detail < _CHROMA_DETAIL_DN:
         return PlateEstimate.not_measurable(
             "chroma_bandwidth", "chroma_subsampling", {"chroma_detail_dn": round(detail, 4)},

@@ -9,8 +9,12 @@ confident estimates to a copy of a base profile and records where each number ca
 measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
 frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
 
-The probes are walked in the order of :data:`PLATE_PROBES`; further probes (JPEG blockiness, chroma bandwidth) are
-added there with their estimators in their own effect modules.
+The probes are walked in the order of :data:`PLATE_PROBES`, each estimator in its own effect module. Temporal
+statistics (the noise) compare frames registered by a homography from tracked corners
+(:func:`register_footage`), so a panning camera and people walking through a fixed camera's view are not read
+as noise. Each confidence is earned from the measurement's own evidence (blocks, edges, levels, registered
+pixels, the scatter over tiles); footage that cannot show a statistic at all (flat, still) gives "not
+measurable" and no value.
 
 Contents
 --------
@@ -18,8 +22,12 @@ Contents
 - :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
 - :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
+  (or that the footage cannot show it: not measurable)
 - :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :data:`PLATE_PROBES`: every plate probe, in the order they run
+- :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
+- :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
+  start with the best of the next few frames
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
 - :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
@@ -29,6 +37,8 @@ Contents
 - :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
 - :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
 - :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
+- :func:`plate_name`: the name of a profile estimated from a plate
+- :func:`apply_estimate`: an estimate's params set in a profile (or an effect turned off), with provenance
 
 References
 ----------
@@ -49,7 +59,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import LowcamError
+from ..errors import LowcamError, NotFitted
 
 #: Estimates below this confidence are reported, not applied to the profile.
 MIN_CONFIDENCE = 0.5
@@ -432,15 +442,13 @@ def pair_starts(frames: int, count: int) -> list[int]:
 
 
 def register_footage(footage: Footage, count: int = 12):
-    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` pairs of consecutive frames spread over the
-    shot (:func:`pair_starts`), each registered by a homography from tracked corners
+    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
+    (:func:`pair_starts`), each frame registered, by a homography from tracked corners, with the one of the next
+    :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
     (:func:`lowcam.registration.register_frames`)."""
     from ..registration import register_frames
 
-    starts = pair_starts(len(footage), count)
-    frames = sorted(set(starts) | {i + 1 for i in starts})
-    at = {f: k for k, f in enumerate(frames)}
-    return register_frames(footage.stack(frames), [(at[i], at[i + 1]) for i in starts])
+    return register_frames(footage.frames, pair_starts(len(footage), count))
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
@@ -523,7 +531,7 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
-_HEADLINE_KEYS = ("method", "frames", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
                   "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
 
 
@@ -548,7 +556,8 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for the effect: a JPEG chroma subsampling found replaces the base's own chroma subsampling rather than
     stacking both), unless an effect it sets becomes one no real camera has (:meth:`Effect.implausible`: then it
     is reported, not applied). The profile is named after the plate (``camera.name``, with provenance) once
-    anything is applied. Progress goes to stderr."""
+    anything is applied. A probe whose fit cannot be made (:class:`lowcam.errors.NotFitted`) gives a not
+    measurable estimate with its reason. Progress goes to stderr."""
     from ..profile import load_profile
 
     base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
@@ -558,7 +567,10 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters, codec)
+        try:
+            est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters, codec)
+        except NotFitted as e:
+            est = PlateEstimate.not_measurable(probe.name, probe.effect, {}, str(e))
         if est is None:
             continue
         estimates.append(est)

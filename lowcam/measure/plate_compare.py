@@ -28,6 +28,14 @@ own error, so read errors below about 2 as explained by this method even where t
 (Estimating that floor by comparing the model's own frames with the profile was tried: it did not track the
 true profile's error.)
 
+Temporal statistics (the noise level function: a probe with ``pairs``) compare frame pairs registered once for
+the whole frame (:func:`lowcam.measure.plate.register_footage`: consecutive footage frames, the model's frames)
+and then cut into tiles, so that a panning camera's footage is measured like the model's still frames; only a
+probe's ``compared`` values are compared (the noise's sigma at 64, 128 and 192 DN, not its per-bin lists), and a
+value a tile did not measure (a level it lacks) is left out, never made up. A JPEG-coded pan still reads its
+codec's changing coding error as noise (:data:`lowcam.effects.noise.CODEC_FLICKER`), which the model's still
+frames do not show.
+
 Both stacks are cut into the same :data:`TILES` grid (by relative position, so each tile holds the same part of
 the scene in both). Every numeric value ``s`` of every probe's statistic is measured per tile on the footage and
 on the (bias-corrected) model; the paired difference ``d_t = s_footage(t) - s_model(t)`` has its mean over tiles
