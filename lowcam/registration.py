@@ -49,7 +49,8 @@ Contents
 - :func:`registered_difference`: one pair's level and difference (DN), NaN where not compared
 - :data:`PAIR_GAP`, :data:`GAP_GAIN_PX`: how many frames ahead a pair's second frame may lie, and how much smaller
   a farther frame's rounding offset must be for it to be paired instead
-- :func:`rounding_offset`: the mean sub-pixel offset (px) nearest-neighbour sampling leaves under a homography
+- :func:`rounding_offset`: the sub-pixel offset (px) nearest-neighbour sampling leaves under a homography, and
+  how much it varies over the frame
 - :func:`register_frames`: :class:`RegisteredPairs` of frame pairs of a shot, each with the frame (of the next
   few) that nearest-neighbour sampling reads most exactly
 
@@ -77,7 +78,6 @@ GAP_GAIN_PX = 0.05
 PAIR_GAP = 3
 GRADIENT_SIGMA_PX = 0.7
 MASK_SIGMA_PX = 1.5
-ROUNDING_WEIGHT = 1.0
 MIN_ERROR_PX = 0.03
 ERROR_CELL_PX = 32
 GRADIENT_SHARE = 0.3
@@ -239,22 +239,24 @@ def registered_difference(a: np.ndarray, b: np.ndarray, reg: Registration) -> tu
     h, w, c = a.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     if reg.registered:
-        pts = cv2.perspectiveTransform(np.stack([xx, yy], -1).reshape(1, -1, 2), reg.H)[0].reshape(h, w, 2)
-        px, py = pts[..., 0], pts[..., 1]
+        px, py = cv2.split(cv2.perspectiveTransform(cv2.merge([xx, yy]), reg.H))
     else:
         px, py = xx, yy
     nx, ny = np.rint(px), np.rint(py)
     seen = (nx >= 1) & (nx <= w - 2) & (ny >= 1) & (ny <= h - 2)
-    ix, iy = np.clip(nx, 0, w - 1).astype(np.intp), np.clip(ny, 0, h - 1).astype(np.intp)
-    dx, dy = (px - nx)[..., None], (py - ny)[..., None]
-    soft = np.stack([cv2.GaussianBlur(b[..., k], (0, 0), GRADIENT_SIGMA_PX) for k in range(c)], -1)
-    gx = np.stack([cv2.Sobel(soft[..., k], cv2.CV_32F, 1, 0, ksize=1, scale=0.5) for k in range(c)], -1)
-    gy = np.stack([cv2.Sobel(soft[..., k], cv2.CV_32F, 0, 1, ksize=1, scale=0.5) for k in range(c)], -1)
-    warped = b[iy, ix] + gx[iy, ix] * dx + gy[iy, ix] * dy
+    dx, dy = px - nx, py - ny
+
+    def nearest(img):  # img at (nx, ny): each value one of its own pixels
+        out = cv2.remap(img, nx, ny, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        return out[..., None] if out.ndim == 2 else out
+
+    soft = cv2.GaussianBlur(b, (0, 0), GRADIENT_SIGMA_PX)
+    bn = nearest(b)
+    warped = (bn + nearest(cv2.Sobel(soft, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)) * dx[..., None]
+              + nearest(cv2.Sobel(soft, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)) * dy[..., None])
     diff = a - warped
     level = 0.5 * (a + warped)
-    keep = seen & np.all((a > DARK_DN) & (a < SATURATED_DN) & (b[iy, ix] > DARK_DN) & (b[iy, ix] < SATURATED_DN),
-                         axis=2)
+    keep = seen & ((a > DARK_DN) & (a < SATURATED_DN) & (bn > DARK_DN) & (bn < SATURATED_DN)).all(axis=2)
     # the flattest pixels give a first noise scale; steeper pixels are kept while the registration's error times
     # their gradient stays a small share of it
     steep = cv2.GaussianBlur(a.mean(axis=2), (0, 0), MASK_SIGMA_PX)  # smooth enough that noise barely steepens it
@@ -273,12 +275,12 @@ def registered_difference(a: np.ndarray, b: np.ndarray, reg: Registration) -> tu
         flat = keep & (grad <= np.quantile(grad[keep], 0.25))
         sigma0 = np.nanmedian([_noise_scale(diff[..., k][flat]) for k in range(c)]) / np.sqrt(2.0)
         if np.isfinite(sigma0) and sigma0 > 0:
-            keep &= grad * (eps + ROUNDING_WEIGHT * np.hypot(dx[..., 0], dy[..., 0])) <= GRADIENT_SHARE * max(sigma0, 0.25)
+            keep &= grad * (eps + np.hypot(dx, dy)) <= GRADIENT_SHARE * max(sigma0, 0.25)
     # structure: the difference averaged over a window stays near 0 where only noise differs
     if keep.any():
         filled = np.where(keep[..., None], diff, 0.0).astype(np.float32)
         weight = cv2.GaussianBlur(keep.astype(np.float32), (0, 0), STRUCTURE_SIGMA_PX)
-        mean = np.stack([cv2.GaussianBlur(filled[..., k], (0, 0), STRUCTURE_SIGMA_PX) for k in range(c)], -1)
+        mean = cv2.GaussianBlur(filled, (0, 0), STRUCTURE_SIGMA_PX).reshape(h, w, c)
         mean = mean / np.maximum(weight, 1e-3)[..., None]
         moving = np.zeros((h, w), bool)
         for k in range(c):
@@ -295,15 +297,17 @@ def registered_difference(a: np.ndarray, b: np.ndarray, reg: Registration) -> tu
     return level, diff
 
 
-def rounding_offset(H: np.ndarray, shape, step: int = 16) -> float:
-    """The mean distance (px) between the images under ``H`` of a grid of pixels (every ``step`` px of a frame of
-    ``shape`` (rows, cols)) and the pixels nearest them: what nearest-neighbour sampling leaves to the first-order
-    correction (0 for the identity or a whole-pixel shift)."""
+def rounding_offset(H: np.ndarray, shape, step: int = 16) -> tuple[float, float]:
+    """(mean, spread) of the offsets (px) between the images under ``H`` of a grid of pixels (every ``step`` px of
+    a frame of ``shape`` (rows, cols)) and the pixels nearest them: what nearest-neighbour sampling leaves to the
+    first-order correction (0 for the identity or a whole-pixel shift). ``spread``: their standard deviation per
+    axis, about 0.29 px (uniform) where a rotation or zoom varies them over the frame, near 0 for a shift."""
     import cv2
 
     yy, xx = np.mgrid[0:shape[0]:step, 0:shape[1]:step].astype(np.float32)
     p = cv2.perspectiveTransform(np.stack([xx, yy], -1).reshape(1, -1, 2), np.asarray(H, np.float64))[0]
-    return float(np.linalg.norm(p - np.rint(p), axis=1).mean())
+    off = p - np.rint(p)
+    return float(np.linalg.norm(off, axis=1).mean()), float(off.std(axis=0).max())
 
 
 def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredPairs:
@@ -312,7 +316,8 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredP
     (:func:`registered_difference`). Each start is paired with the next frame, or (``max_gap`` > 1) with the
     one of the next ``max_gap`` frames whose registration (the consecutive ones chained) leaves the smallest
     :func:`rounding_offset`, where that is :data:`GAP_GAIN_PX` smaller than the next frame's: a camera panning
-    1.37 px a frame is compared across 3 frames (4.11 px), where nearest-neighbour sampling is nearly exact.
+    1.37 px a frame is compared across 3 frames (4.11 px), where nearest-neighbour sampling is nearly exact. (Only
+    where the motion is about a shift, its offsets much the same over the frame; a rotation's vary anyway.)
     ``pairs`` of the result lists the frame numbers paired."""
     count = len(frames)
 
@@ -331,15 +336,16 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredP
     levels, diffs, regs, pairs = [], [], [], []
     for i in starts:
         reg, j = step(i), i + 1
-        if max_gap > 1 and reg.registered:
-            shape = np.shape(frames[i])[:2]
-            H, best = reg.H, rounding_offset(reg.H, shape)
+        shape = np.shape(frames[i])[:2]
+        best, spread = rounding_offset(reg.H, shape)
+        if max_gap > 1 and reg.registered and best > GAP_GAIN_PX and spread < 0.15:  # a shift: another may fit
+            H = reg.H
             for k in range(i + 2, min(i + max_gap, count - 1) + 1):
                 nxt = step(k - 1)
                 if not nxt.registered:
                     break
                 H = nxt.H @ H
-                score = rounding_offset(H, shape)
+                score = rounding_offset(H, shape)[0]
                 if score < best - GAP_GAIN_PX:
                     best, j = score, k
             if j > i + 1:

@@ -282,10 +282,12 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
     keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var) & (dof >= 1)
     mean, var, dof = mean[keep], var[keep] / (chi2.ppf(quantile, dof[keep]) / dof[keep]), dof[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
+    order = np.argsort(idx, kind="stable")
+    bins, first, counts = np.unique(idx[order], return_index=True, return_counts=True)
     out = {"levels": [], "sigmas": [], "counts": [], "se": [], "repeated": 0}
-    for b in np.unique(idx):
-        sel = idx == b
-        if sel.sum() >= min_count:
+    for start, n in zip(first, counts):
+        if n >= min_count:
+            sel = order[start:start + n]
             v, se = _quantile_se(var[sel], quantile)
             if v < ROUNDING_FLOOR_DN2:  # unchanged pixels: a codec repeated or flattened them (not measurable)
                 out["repeated"] += 1
@@ -293,7 +295,7 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
             sigma = float(np.sqrt(v))
             out["levels"].append(float(mean[sel].mean()))
             out["sigmas"].append(sigma)
-            out["counts"].append(int(sel.sum()))
+            out["counts"].append(int(n))
             out["se"].append(float(se / (2 * sigma)) if sigma > 0 else float("inf"))
     return out
 
