@@ -184,8 +184,8 @@ class RegisteredPairs:
     """Registered differences of frame pairs, each on its first frame's pixel grid: ``level`` (P, H, W, C), the
     mean of the two frames (DN), and ``diff`` (P, H, W, C), first frame less the registered second (DN); both NaN
     where the pixel is not compared (not seen by both, clipped, too steep for the registration's error, or moving).
-    ``registrations``: each pair's :class:`Registration` (``[]`` for a slice); ``pairs``: the frame numbers paired. Slicing ``pairs[:, rows, cols]`` cuts
-    both arrays, as a stack of frames is cut into tiles."""
+    ``registrations``: each pair's :class:`Registration` (``[]`` for a slice); ``pairs``: the frame numbers
+    paired. Slicing ``pairs[:, rows, cols]`` cuts both arrays, as a stack of frames is cut into tiles."""
 
     level: np.ndarray
     diff: np.ndarray

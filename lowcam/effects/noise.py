@@ -270,12 +270,12 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
                 min_count: int = 30, floor_dn: float = 4.0) -> dict:
     """One channel's noise level function: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
     each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom, a number
-    or one per member) divided by that quantile of chi-square / dof, so textured or moving members above it do
-    not lift it [Liu2008's lower envelope]. Means below ``floor_dn`` (noise clipped at 0) or above
-    ``saturation_dn`` are left out. Returns ``{"levels", "sigmas", "counts", "se"}`` (DN, DN, members, the sigma's
-    standard error in DN) and ``"repeated"`` (bins left out as below), bins with fewer than ``min_count`` members left out, and bins whose variance lies
-    below :data:`ROUNDING_FLOOR_DN2` (pixels a codec repeated from frame to frame or flattened: the noise is not
-    measurable there, not 0)."""
+    or one per member) divided by that quantile of chi-square / dof, so textured or moving members above it do not
+    lift it [Liu2008's lower envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are
+    left out. Returns ``{"levels", "sigmas", "counts", "se"}`` (DN, DN, members, the sigma's standard error in DN)
+    and ``"repeated"`` (bins left out as below), bins with fewer than ``min_count`` members left out, and bins whose
+    variance lies below :data:`ROUNDING_FLOOR_DN2` (pixels a codec repeated from frame to frame or flattened: the
+    noise is not measurable there, not 0)."""
     from scipy.stats import chi2
 
     dof = np.broadcast_to(np.asarray(dof, np.float64), np.shape(mean))
@@ -283,7 +283,7 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
     mean, var, dof = mean[keep], var[keep] / (chi2.ppf(quantile, dof[keep]) / dof[keep]), dof[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
     order = np.argsort(idx, kind="stable")
-    bins, first, counts = np.unique(idx[order], return_index=True, return_counts=True)
+    _, first, counts = np.unique(idx[order], return_index=True, return_counts=True)
     out = {"levels": [], "sigmas": [], "counts": [], "se": [], "repeated": 0}
     for start, n in zip(first, counts):
         if n >= min_count:
@@ -397,9 +397,9 @@ def fit_plate_law(levels, sigmas, se, law: str, floor_dn: float = 0.0) -> tuple[
     """``(a, b, relative_error)`` of ``law`` fitted to binned (mean, sigma, sigma's standard error) by weighted
     least squares with ``b >= 0`` and the sigma at 0 DN at least ``floor_dn`` (``a >= floor_dn``, or its square
     for the variance law), so the law is above 0 over 0-255 DN: footage shows no black level below its darkest
-    bin, and an intercept below the floor would claim dark pixels quieter than their 8-bit rounding. Each bin's error is its
-    standard error and :data:`BIN_SCATTER` of the median sigma in quadrature, so that no bin of many blocks
-    outweighs the rest; bins more than 25 % off the line (blocks still holding texture or motion) are dropped,
+    bin, and an intercept below the floor would claim dark pixels quieter than their 8-bit rounding. Each bin's
+    error is its standard error and :data:`BIN_SCATTER` of the median sigma in quadrature, so that no bin of many
+    blocks outweighs the rest; bins more than 25 % off the line (blocks still holding texture or motion) are dropped,
     keeping at least the better half, and the law fitted again (up to four times).
 
     ``relative_error``: how far the law may be off, relative to the sigma: the root sum of squares of the fit's
@@ -507,22 +507,23 @@ def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
 def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
-    Up to :data:`PLATE_PAIRS` pairs of consecutive frames, spread over the shot, are registered
+    Up to :data:`PLATE_PAIRS` frame pairs spread over the shot are registered
     (:func:`lowcam.measure.plate.register_footage`); where at least 3 pairs hold still (no pixel moves more than
     :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes from frame to
     frame. :func:`noise_level_statistic` measures the registered differences; where they show fewer than
-    :data:`MIN_LEVELS` brightness levels (a shot that cannot be registered) the flattest blocks of single frames
-    stand in if they show more, a lower envelope that texture lifts, so it is reported, never applied. The output-domain noise level function
-    is divided by the base profile's :func:`noise_gain` (what its sharpening, blur and demosaic do to per-sensel
-    noise) and fitted with the profile's law, its slope at least 0 and its sigma at 0 DN at least the 8-bit
-    rounding's (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a law
-    :meth:`Noise.implausible` flags is not applied.
+    :data:`MIN_LEVELS` brightness levels (a shot that cannot be registered, or an inter-frame codec that repeats
+    most pixels) the flattest blocks of single frames stand in if they show more: a lower envelope that texture
+    lifts, so it is reported, never applied. The output-domain noise level function is divided by the base
+    profile's :func:`noise_gain` (what its sharpening, blur and demosaic do to per-sensel noise) and fitted with
+    the profile's law, its slope at least 0 and its sigma at 0 DN at least the 8-bit rounding's
+    (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a law :meth:`Noise.implausible` flags is
+    not applied.
 
     Confidence, from the measurement's own evidence: ``0.95 (1 - s / 0.25) min(1, levels / 4)``, ``s`` how far
     the fitted sigma may be off (:func:`fit_plate_law`: its standard error from the bins' block counts and
-    scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot (:data:`CODEC_FLICKER`). Fewer than
-    :data:`MIN_LEVELS` brightness levels: not measurable. ``base``: the profile being refined; ``film``: as
-    :func:`noise_gain` takes it."""
+    scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot
+    (:data:`CODEC_FLICKER`). Fewer than :data:`MIN_LEVELS` brightness levels: not measurable. ``base``: the
+    profile being refined; ``film``: as :func:`noise_gain` takes it."""
     from ..measure.plate import PlateEstimate, register_footage
 
     law = getattr(base.effect("noise"), "law", "sigma_linear")
@@ -533,7 +534,9 @@ def noise_level_function_from_plate(footage, base, film):
     used = pairs if moving else pairs.select(still)
     method = "registered"
     stat = noise_level_statistic(used, method)
-    if min(len(stat["levels_dn"][ch]) for ch in channels) < MIN_LEVELS:  # single frames' flattest blocks instead
+    registered_levels = min(len(stat["levels_dn"][ch]) for ch in channels)
+    repeated = max(stat["repeated_bins"].values())
+    if registered_levels < MIN_LEVELS:  # single frames' flattest blocks instead
         spatial = noise_level_statistic(footage.stack(max_frames=6), "spatial")
         if min(len(spatial["levels_dn"][ch]) for ch in channels) >= MIN_LEVELS:
             method, stat = "spatial", spatial
@@ -542,7 +545,6 @@ def noise_level_function_from_plate(footage, base, film):
                 "levels_dn": stat["levels_dn"], "sigma_dn": stat["sigma_dn"], "blocks": stat["blocks"]}
     levels = min(len(stat["levels_dn"][ch]) for ch in channels)
     if levels < MIN_LEVELS:
-        repeated = max(stat["repeated_bins"].values())
         return PlateEstimate.not_measurable(
             "noise_level_function", "noise", measured,
             f"{levels} brightness level{'s' * (levels != 1)} with enough flat blocks (at least {MIN_LEVELS} "
@@ -562,13 +564,15 @@ def noise_level_function_from_plate(footage, base, film):
     confidence = 0.95 * float(np.clip(1 - worst / 0.25, 0, 1)) * min(1.0, levels / 4) * flicker
     if method == "spatial":
         confidence = min(confidence, 0.4)
-        where = (f"too few registered pixels ({used.compared:.0%}): flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of "
-                 f"single frames instead (texture lifts them: reported only)")
+        where = (f"the registered frame pairs ({used.compared:.0%} of their pixels compared) show {registered_levels} "
+                 f"brightness level{'s' * (registered_levels != 1)}" + (
+                     f" ({repeated} more where the codec repeats pixels unchanged from frame to frame)"
+                     if repeated else "") + f": flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of single frames "
+                 "instead (texture lifts them: reported only)")
     else:
         kind = f"{len(used)} still frame pairs" if not moving else f"{len(used)} registered frame pairs"
         where = f"{kind}, {stat['compared']:.0%} of their pixels compared"
-    repeated = max(stat["repeated_bins"].values())
-    if repeated:
+    if repeated and method == "registered":
         where += (f"; {repeated} brightness bin{'s' * (repeated > 1)} left out where the codec repeats pixels "
                   "unchanged from frame to frame (no noise to measure there)")
     reason = f"{where}, {levels} brightness levels, law within {worst:.0%} of them{note}"

@@ -259,13 +259,14 @@ def chroma_subsampling_from_plate(footage, base=None):
     Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
     spectrum; module docstring), the confidence is the weaker axis's. Where one axis shows repeated samples
     and the other shows neither repetition nor a JPEG grid, the other is taken as full (the same upsampler
-    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2, 4:2:0)
-    on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling`` (where ``base``, the profile being
-    refined, has one: the JPEG probe runs first and adds it when it measures the quality) and turns
-    :class:`ChromaSubsampling` off (``"chroma_subsampling.enabled": False``: the codec's subsampling is the camera's only one, not a second
-    one on top of the base's); otherwise the horizontal factor sets :class:`ChromaSubsampling`'s ``group`` (the
-    engine's chroma subsampling is horizontal only; a vertical factor is reported). Chroma with no detail (mean
-    neighbour step of Cb and Cr under :data:`_CHROMA_DETAIL_DN`, a grey or flat scene): not measurable."""
+    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2,
+    4:2:0) on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling`` (where ``base``, the profile
+    being refined, has one: the JPEG probe runs first and adds it when it measures the quality) and turns
+    :class:`ChromaSubsampling` off (``"chroma_subsampling.enabled": False``: the codec's subsampling is the
+    camera's only one, not a second one on top of the base's); otherwise the horizontal factor sets
+    :class:`ChromaSubsampling`'s ``group`` (the engine's chroma subsampling is horizontal only; a vertical factor
+    is reported). Chroma with no detail (mean neighbour step of Cb and Cr under :data:`_CHROMA_DETAIL_DN`, a grey
+    or flat scene): not measurable."""
     from ..measure.plate import PlateEstimate
     from .jpeg import _GRID_T, SUBSAMPLINGS, jpeg_blockiness
 

@@ -531,7 +531,8 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
-_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px",
+                  "overshoot", "gain_at_rho", "pairs",
                   "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
 
 
