@@ -8,7 +8,10 @@ the second by pyramidal Lucas-Kanade [Bouguet2000], kept where tracking back ret
 tracks move no more than :data:`STILL_RATIO` times they scatter about that homography (median against median),
 the pair is still: the identity (a homography would fit the tracker's noise, or a flat scene's aperture-bound
 tracks). A pair with fewer than :data:`MIN_INLIERS` consistent tracks (a flat scene) keeps the identity
-unregistered: only its flat pixels are compared, where a small motion changes nothing.
+unregistered: only its flat pixels are compared, where a small motion changes nothing. A gyro log would give a
+rotating camera's homography ``K R K^-1`` [Hartley2004], but on the phone-gyro-video clip it predicts the tracked
+corners to a median 1.34 px (:mod:`lowcam.motion`), far above the tenth of a pixel the difference needs, and
+footage read with a gyro knows neither its lens's K nor the gyro's axes: the frames register themselves.
 
 The second frame is read at the first one's pixels by **nearest-neighbour** sampling: every value compared is one
 of the frame's own pixels, so the noise keeps its variance and its spatial correlation (bilinear interpolation at
@@ -19,17 +22,16 @@ frame smoothed by a Gaussian of :data:`GRADIENT_SIGMA_PX` (the noise it adds is 
 variance). A pixel is compared only where
 
 - both frames see it (and neither is clipped below :data:`DARK_DN` or above :data:`SATURATED_DN`);
-- the misalignment left (px), the registration's own error (``eps``: the RANSAC inliers' reprojection error
-  over the square root of the inliers per degree of freedom, at least :data:`MIN_ERROR_PX`; locally, where the
-  tracks fit the homography worse than the inliers typically do, by that excess: a rolling shutter bends the
-  frame, near objects show parallax, a moving object moves) plus the rounding offset ``|p - n|`` (the
-  first-order correction takes out the smooth part of it, not fine texture the smoothed gradient misses;
-  measured on sub-pixel pans of scikit-image's photographs, leaving it out read up to 20 % more noise),
-  times the local gradient (DN/px, of the first frame's grey smoothed by
-  :data:`MASK_SIGMA_PX`, which the noise itself barely steepens: a mask that the noise chose would keep its
-  quieter pixels) stays below :data:`GRADIENT_SHARE` of the
-  noise's standard deviation (a first, robust estimate on the flattest pixels): the misregistered scene adds at
-  most ``GRADIENT_SHARE^2`` of the noise variance there;
+- the misalignment left (px) times the local gradient (DN/px, of the first frame's grey smoothed by
+  :data:`MASK_SIGMA_PX`, which the noise itself barely steepens: a mask the noise chose would keep its quieter
+  pixels) stays below :data:`GRADIENT_SHARE` of the noise's standard deviation (a first, robust estimate on the
+  flattest pixels), so the misregistered scene adds at most ``GRADIENT_SHARE^2`` of the noise variance there. The
+  misalignment is the registration's own error (``eps``: the RANSAC inliers' reprojection error over the square
+  root of the inliers per degree of freedom, at least :data:`MIN_ERROR_PX`; locally, where the tracks fit the
+  homography worse than the inliers typically do, by that excess: a rolling shutter bends the frame, near
+  objects show parallax, a moving object moves) plus the rounding offset ``|p - n|`` (the first-order correction
+  takes out its smooth part, not fine texture the smoothed gradient misses: on sub-pixel pans of scikit-image's
+  photographs, leaving it out read up to 20 % more noise);
 - the difference, averaged over a Gaussian window of :data:`STRUCTURE_SIGMA_PX`, lies within
   :data:`STRUCTURE_LIMIT` robust standard deviations of that average over the frame (noise averages away; a
   moving object, parallax or a lighting change does not), grown by :data:`STRUCTURE_GROW_PX`.
@@ -102,7 +104,6 @@ class Registration:
     inliers: int
     error_px: float
     registered: bool
-
     motion_px: float = float("nan")
     local_error_px: np.ndarray | None = None
 
@@ -194,14 +195,6 @@ class RegisteredPairs:
 
     def __len__(self) -> int:
         return len(self.level)
-
-    @property
-    def shape(self) -> tuple:
-        return self.level.shape
-
-    @property
-    def ndim(self) -> int:
-        return self.level.ndim
 
     def __getitem__(self, key) -> "RegisteredPairs":
         return RegisteredPairs(self.level[key], self.diff[key], [])
@@ -360,6 +353,4 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredP
     if not levels:
         empty = np.zeros((0,) + frame(0).shape, np.float32)
         return RegisteredPairs(empty, empty.copy(), [])
-    out = RegisteredPairs(np.stack(levels), np.stack(diffs), regs)
-    out.pairs = pairs
-    return out
+    return RegisteredPairs(np.stack(levels), np.stack(diffs), regs, pairs)

@@ -36,8 +36,10 @@ blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between ne
 at the frame's corner): 1.0 without a grid. The quality is found by coding the footage's own frame again, shifted
 by half a block so its old grid falls inside the new blocks, at :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`),
 and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the
-frame being coded already (a second recoding extrapolates back to one coding). The confidence is the tile
-evidence: the grid's log ratio per 64 px tile, its mean over its standard error (a t statistic), on both axes.
+frame being coded already (a second recoding extrapolates back to one coding). The confidence is earned from
+the tiles (64 px): that the grid is there (its log ratio per tile, mean over standard error: a t statistic, on
+both axes) and how narrow a range of qualities the block step's scatter over the tiles leaves. A frame too flat
+for coding it again to tell qualities apart is not measurable, whatever its grid.
 
 References
 ----------
@@ -599,7 +601,10 @@ def jpeg_quality_from_plate(footage, base=None):
     curve = np.minimum.accumulate(curve)  # the step falls as the quality rises
     level = _step_level(frames, phases)
     tiles = _tile_levels(frames, phases)
-    se = float(tiles.std(ddof=1) / np.sqrt(len(tiles))) if len(tiles) >= 4 else float("inf")
+    if len(tiles) < 4:
+        return PlateEstimate.not_measurable(name, effect, measured, f"{len(tiles)} tiles of {_TILE_PX} px: frames "
+                                            "too small to tell the block step's scatter")
+    se = float(tiles.std(ddof=1) / np.sqrt(len(tiles)))
     span = float(curve[0] - curve[-1])
     measured.update(block_step_dn=round(level, 4), block_step_se_dn=round(se, 4),
                     calibration={"quality": [int(v) for v in qs], "block_step_dn": [round(float(v), 4) for v in curve]})

@@ -24,7 +24,7 @@ Contents
   lower envelope, the blocks (px) it is measured in and the levels (DN) it is read at
 - :data:`ROUNDING_FLOOR_DN2`: below this variance a bin shows pixels a codec repeated, not noise
 - :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of footage: from
-  registered frame pairs (a moving camera, moving objects), a still stack's pixels, or single frames' flat blocks
+  registered frame pairs (a moving camera, moving objects) or single frames' flat blocks
 - :data:`BIN_SCATTER`: the scatter about a law allowed to every bin of footage besides its standard error
 - :func:`fit_plate_law`: ``[a, b]`` of a law fitted to a noise level function, both at least 0, and how far off it
   may be
@@ -245,7 +245,7 @@ BIN_SCATTER = 0.1
 NLF_BLOCK_PX = 8
 #: The levels (DN) at which a noise level function is read for tables and comparisons.
 HEADLINE_DN = (64, 128, 192)
-#: Frame pairs the plate's noise estimate registers (consecutive frames, spread over the shot).
+#: Frame pairs the plate's noise estimate registers (spread over the shot).
 PLATE_PAIRS = 12
 #: A pair whose registration moves no pixel by more than this (px) counts as still (no codec flicker).
 STILL_PX = 0.5
@@ -320,18 +320,18 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
     """The noise level function of footage: sigma (DN) against mean (DN) per channel.
 
     ``frames``: a stack (T, H, W, 3) float32 DN, or :class:`lowcam.registration.RegisteredPairs`.
-    ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each pair of consecutive
-    frames registered (:func:`lowcam.registration.register_frames`: tracked homography, nearest-neighbour
-    sampling, moving and steep pixels left out); in ``block`` x ``block`` blocks of the first frame's grid with
-    at least half their pixels compared, the variance of the difference (about its block mean: an exposure step
-    between the frames cancels) over 2 is one sample of the noise variance at the block's mean level, with
-    ``n - 1`` degrees of freedom; each bin's sigma is the median of its blocks (unbiased for the chi-square
-    spread), so blocks a moving object or misregistration lifts do not lift it. A still shot is the case of the
-    identity: its pixels are compared where they are. ``"temporal"`` (a still stack): each pixel's mean and
-    variance over the frames, the median per bin. ``"spatial"`` (one frame at a time, the default for one frame):
-    the variance inside blocks about their best-fitting plane, whose flattest members (the
-    :data:`SPATIAL_QUANTILE` quantile) give the noise [Liu2008, Foi2008]; texture can only lift it and a codec
-    that flattens blocks lowers it. Means outside ``floor_dn``-``saturation_dn`` are left out (clipped noise).
+    ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each frame registered with
+    the next, or the one of the next few that nearest-neighbour sampling reads most exactly
+    (:func:`lowcam.registration.register_frames`: tracked homography, nearest-neighbour sampling, moving and steep
+    pixels left out); in ``block`` x ``block`` blocks of the first frame's grid with at least half their pixels
+    compared, the variance of the difference (about its block mean: an exposure step between the frames cancels)
+    over 2 is one sample of the noise variance at the block's mean level, with ``n - 1`` degrees of freedom; each
+    bin's sigma is the median of its blocks (unbiased for the chi-square spread), so blocks a moving object or
+    misregistration lifts do not lift it. A still shot is the case of the identity: its pixels are compared where
+    they are. ``"spatial"`` (one frame at a time, the default for one frame): the variance inside blocks about
+    their best-fitting plane, whose flattest members (the :data:`SPATIAL_QUANTILE` quantile) give the noise
+    [Liu2008, Foi2008]; texture can only lift it and a codec that flattens blocks lowers it. Means outside
+    ``floor_dn``-``saturation_dn`` are left out (clipped noise).
 
     Returns ``{"method", "levels_dn", "sigma_dn", "blocks", "sigma_se_dn": {channel: [per bin]}, "repeated_bins":
     {channel: bins whose pixels a codec repeated unchanged (below :data:`ROUNDING_FLOOR_DN2`)}, "sigma_at_dn":
@@ -349,8 +349,8 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
         if x.ndim == 3:
             x = x[None]
         method = method or ("registered" if len(x) >= 2 else "spatial")
-        if method in ("registered", "temporal") and len(x) < 2:
-            raise ValueError(f"a {method} noise level function needs at least 2 frames")
+        if method == "registered" and len(x) < 2:
+            raise ValueError("a registered noise level function needs at least 2 frames")
         if method == "registered":
             pairs = register_frames(x)
     channels = ("red", "green", "blue")
@@ -364,10 +364,6 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
                 var = np.nanvar(d[ok], axis=1, ddof=1) / 2
                 mean = np.nanmean(lv[ok], axis=1)
             nlf = _binned_nlf(mean, var, n[ok] - 1, 0.5, saturation_dn, min_count=20, floor_dn=floor_dn)
-        elif method == "temporal":
-            k = len(x) - 1
-            nlf = _binned_nlf(x[..., c].mean(axis=0).ravel(), x[..., c].var(axis=0, ddof=1).ravel(), k, 0.5,
-                              saturation_dn, floor_dn=floor_dn)
         elif method == "spatial":
             blocks = _blocks(x[..., c], block).astype(np.float64)
             # each block less its best-fitting plane (shading, vignetting), leaving b^2 - 3 degrees of freedom
@@ -379,7 +375,7 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
             nlf = _binned_nlf(blocks.mean(axis=1), (resid ** 2).sum(axis=1) / k, k, SPATIAL_QUANTILE,
                               saturation_dn, min_count=10, floor_dn=floor_dn)
         else:
-            raise ValueError(f"unknown noise level method '{method}' (registered, temporal or spatial)")
+            raise ValueError(f"unknown noise level method '{method}' (registered or spatial)")
         out["levels_dn"][channel] = nlf["levels"]
         out["sigma_dn"][channel] = nlf["sigmas"]
         out["blocks"][channel] = nlf["counts"]

@@ -585,8 +585,8 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
             trial, entries = apply_estimate(out, est, note)
-            bad = [f"{e}: {w}" for e in {_target(est, k)[0] for k in est.params}
-                   if trial.effect(e) is not None and trial.effect(e).enabled for w in trial.effect(e).implausible()]
+            touched = [trial.effect(name) for name in {_target(est, k)[0] for k in est.params}]
+            bad = [f"{e.name}: {why}" for e in touched if e is not None and e.enabled for why in e.implausible()]
             if bad:
                 est.reason += f"; not applied: {'; '.join(bad)}"
                 continue
