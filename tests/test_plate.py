@@ -82,7 +82,8 @@ def test_temporal_noise_law_recovered_from_a_still_shot():
     assert plate.still_segments(shot) == [(0, 8)]
     base = _profile(filters=False)
     est = plate.PLATE_PROBES[[p.name for p in plate.PLATE_PROBES].index("noise_level_function")].estimate(shot, base)
-    assert est.measured["method"] == "temporal" and est.confidence >= plate.MIN_CONFIDENCE
+    assert est.measured["method"] == "registered" and est.measured["still_pairs"] == 7
+    assert est.confidence >= plate.MIN_CONFIDENCE
     per_sensel = [1.0, np.sqrt(2.0), 1.0]
     for mu in (50.0, 128.0, 200.0):
         got = np.array([est.params[ch][0] + est.params[ch][1] * mu for ch in ("red", "green", "blue")])
@@ -232,7 +233,8 @@ def engine_estimates():
 
 def test_engine_set_noise_and_vignetting_within_10_percent(engine_estimates):
     truth, base, profile, est = engine_estimates
-    assert est["noise_level_function"].applied and est["noise_level_function"].measured["method"] == "temporal"
+    noise = est["noise_level_function"]
+    assert noise.applied and noise.measured["method"] == "registered" and noise.measured["still_pairs"] >= 3
     got, want = profile.effect("noise"), truth.effect("noise")
     for mu in (50.0, 128.0, 200.0):
         for ch in ("red", "green", "blue"):
@@ -255,20 +257,21 @@ def test_engine_set_edges(engine_estimates):
     assert edge.base_params == {"horizontal_blur.sigma": 0.9, "sharpening.sharpness": 80.0}
 
 
-def test_engine_set_spatial_noise_within_25_percent():
-    """A moving shot only (no still segment): the flattest blocks' lower envelope gives the law within 25 %,
-    never below it by more than 5 % (texture can only lift the envelope); it is marked less sure."""
+def test_engine_set_moving_shot_noise_within_10_percent():
+    """A moving shot only (no still pair): the registered frame pairs give the law within 10 %, as sure as a
+    still shot's (the engine makes no codec, so nothing but noise changes between registered frames)."""
     truth = _profile()
     frames = _engine_shot(truth, 6, 5.0, seed=2)
     probe = plate.PLATE_PROBES[[p.name for p in plate.PLATE_PROBES].index("noise_level_function")]
     est = probe.estimate(plate.Footage(frames), truth.with_effect("noise", red=[2.0, 0.0], green=[2.0, 0.0],
                                                                    blue=[2.0, 0.0]))
-    assert est.measured["method"] == "spatial" and est.confidence < 0.9
+    assert est.measured["method"] == "registered" and est.measured["still_pairs"] == 0
+    assert est.confidence >= plate.MIN_CONFIDENCE, est.line()
     got = truth.with_effect("noise", **est.params).effect("noise")
     for mu in (50.0, 128.0, 200.0):
         for ch in ("red", "green", "blue"):
             ratio = got.sigma(ch, mu) / truth.effect("noise").sigma(ch, mu)
-            assert 0.95 < ratio < 1.25, (ch, mu, ratio)
+            assert 0.9 < ratio < 1.1, (ch, mu, ratio)
 
 
 # --- the command ------------------------------------------------------------------------------------------------------

@@ -85,12 +85,19 @@ def test_no_blockiness_is_claimed_on_uncompressed_frames():
 
 @pytest.mark.parametrize("name", ["astronaut", "coffee", "chelsea"])
 def test_chroma_subsampling_of_pillows_jpegs_is_told_apart(name):
+    """The JPEG's subsampling replaces the base's own chroma subsampling (the Fire-i's 4:1:1 of the graphics)
+    rather than stacking both; without a JPEG effect in the profile (its quality unmeasured) it is reported only,
+    not written beside a JPEG of an assumed quality."""
     frames = noisy(name)
+    coded = load_profile("fire-i").with_effect("jpeg", quality=90)
     for code, expected in ((0, "4:4:4"), (1, "4:2:2"), (2, "4:2:0")):
-        est = chroma_subsampling_from_plate(footage([pillow_jpeg(f, 90, code) for f in frames]))
+        shot = footage([pillow_jpeg(f, 90, code) for f in frames])
+        est = chroma_subsampling_from_plate(shot, coded)
         assert est.measured["subsampling"] == expected, (expected, est.line())
         assert est.confidence >= 0.5, est.line()
-        assert est.effect == "jpeg" and est.params == {"subsampling": expected}
+        assert est.effect == "jpeg" and est.params == {"subsampling": expected, "chroma_subsampling.enabled": False}
+        alone = chroma_subsampling_from_plate(shot, load_profile("fire-i"))
+        assert alone.params == {} and alone.measured["subsampling"] == expected and "reported only" in alone.reason
 
 
 def test_chroma_subsampling_of_opencvs_411_jpeg_and_of_repeated_chroma():

@@ -680,13 +680,15 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     profile, estimates = plate.estimate_profile(shot, base, progress=progress, min_confidence=threshold)
     if not any(e.applied for e in estimates):
         raise LowcamError(f"{shot.path}: nothing could be estimated from the plate: "
-                          + "; ".join(f"{e.statistic}: {e.reason}" for e in estimates))
+                          + "; ".join(f"{e.statistic}: {'' if e.measurable else 'not measurable, '}{e.reason}"
+                                      for e in estimates))
     values: dict[str, dict] = {}
     for est in estimates:
         if est.applied:
             for key, value in est.params.items():
                 effect, param = plate._target(est, key)
                 values.setdefault(effect, {})[param] = value
+    values["camera"] = {"name": profile.camera.name}
     provenance = {k: v for k, v in profile.provenance.items() if base.provenance.get(k) != v}
     figures = []
     if plot_dir:
@@ -694,7 +696,8 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
             print("the base profile filming similar content", file=sys.stderr, flush=True)
         plate.model_statistics(shot, base, estimates)
         figures = _plate_figures(estimates, Path(plot_dir), base)
-    numbers = {est.statistic: {"effect": est.effect, "confidence": est.confidence, "reason": est.reason,
+    numbers = {est.statistic: {"effect": est.effect, "measurable": est.measurable,
+                               "confidence": est.confidence if est.measurable else None, "reason": est.reason,
                                "applied": est.applied, "params": est.params, "base_params": est.base_params,
                                "footage": plate.headline(est.measured),
                                "model": None if est.model is None else plate.headline(est.model)}
@@ -711,7 +714,8 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
                 out.append(f"{prefix}{k} = {plate._fmt(v)}")
         return "; ".join(out) if not prefix else out
 
-    table = [{"statistic": e.statistic, "effect": e.effect, "confidence": f"{e.confidence:.2f}", "why": e.reason,
+    table = [{"statistic": e.statistic, "effect": e.effect,
+              "confidence": f"{e.confidence:.2f}" if e.measurable else "not measurable", "why": e.reason,
               "footage": flat(plate.headline(e.measured)) or "-",
               "base profile on similar content": "-" if e.model is None else (flat(plate.headline(e.model)) or "-"),
               "estimated": flat(e.params) or "-", "base profile's values": flat(e.base_params) or "-",
@@ -730,6 +734,14 @@ def apply_to_profile(profile, calibrations, out_path: Path):
     for cal in calibrations:
         for name in list(cal.values) + [n for n in cal.textures if n not in cal.values]:
             values = dict(cal.values.get(name, {}))
+            if name == "camera":  # the camera's own settings (a plate profile's name)
+                new = new.copy()
+                for key, value in values.items():
+                    setattr(new.camera, key, value)
+                continue
+            if values.get("enabled", True) is False:  # an effect the calibration turns off
+                new = new.without(name) if new.effect(name) is not None else new
+                continue
             texture = cal.textures.get(name)
             if texture is not None:
                 path = tex_dir / texture.file

@@ -36,8 +36,10 @@ blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between ne
 at the frame's corner): 1.0 without a grid. The quality is found by coding the footage's own frame again, shifted
 by half a block so its old grid falls inside the new blocks, at :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`),
 and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the
-frame being coded already (a second recoding extrapolates back to one coding). The confidence is the tile
-evidence: the grid's log ratio per 64 px tile, its mean over its standard error (a t statistic), on both axes.
+frame being coded already (a second recoding extrapolates back to one coding). The confidence is earned from
+the tiles (64 px): that the grid is there (its log ratio per tile, mean over standard error: a t statistic, on
+both axes) and how narrow a range of qualities the block step's scatter over the tiles leaves. A frame too flat
+for coding it again to tell qualities apart is not measurable, whatever its grid.
 
 References
 ----------
@@ -465,7 +467,7 @@ class Jpeg(Effect):
 PLATE_QUALITIES = (5, 10, 15, 20, 25, 30, 40, 50, 60, 70, 80, 85, 90, 95)
 
 _TILE_PX = 64  # tile side (px) of the grid evidence
-_GRID_T = (3.0, 8.0)  # t statistic of the grid: no evidence at the first, full confidence at the second
+_GRID_T = (3.0, 4.5)  # tile t statistic of the grid: none below the first, certain from the second
 
 
 def _luma(frames: np.ndarray) -> np.ndarray:
@@ -562,6 +564,13 @@ def _quality_curve(frame: np.ndarray, phases: tuple[int, int]) -> tuple[np.ndarr
     return np.array(PLATE_QUALITIES, float), np.array(out)
 
 
+def _tile_levels(frames: np.ndarray, phases: tuple[int, int]) -> np.ndarray:
+    """The block step level (:func:`_step_level`, DN) of each :data:`_TILE_PX` tile of a stack."""
+    h, w = frames.shape[1:3]
+    return np.array([_step_level(frames[:, i:i + _TILE_PX, j:j + _TILE_PX], phases)
+                     for i in range(0, h - _TILE_PX + 1, _TILE_PX) for j in range(0, w - _TILE_PX + 1, _TILE_PX)])
+
+
 def jpeg_quality_from_plate(footage, base=None):
     """The IJG quality the footage's JPEG blockiness implies, as a :class:`lowcam.measure.plate.PlateEstimate`
     for the ``jpeg`` effect (see "Blockiness from the footage alone" above).
@@ -571,37 +580,60 @@ def jpeg_quality_from_plate(footage, base=None):
     middle frame again at :data:`PLATE_QUALITIES` (bias-corrected, :func:`_quality_curve`) and interpolates the
     quality whose step matches (the curve made monotone). Measured: within 9 of the true quality on Pillow's
     and the engine's JPEGs at 20, 50 and 80 (three scenes).
-    The confidence is ``(t - 3) / 5`` of the weaker axis's tile t statistic, clipped to 0..1: without an 8x8 grid
-    (uncompressed or high-quality frames, or a grid the scaler smeared) it is near 0, and nothing is applied.
-    A step below that of quality 95 gives quality 95 ("at least")."""
+
+    The confidence is earned from two pieces of evidence: that the grid is there, ``(t - 3) / 1.5`` of the weaker
+    axis's tile t statistic clipped to 0..1 (without an 8x8 grid, in uncompressed or high-quality frames or a grid
+    a scaler smeared, it is near 0), times the precision of the quality, ``1 - w / 40`` clipped to 0..1, ``w`` the
+    width of the qualities whose steps lie within two standard errors of the measured one (the step's scatter
+    over 64 px tiles). Not measurable: frames too flat for coding them again to tell qualities apart (the
+    calibration's steps span under 1 DN or ten standard errors from quality 5 to 95), or a step above quality
+    5's. A step below quality 95's gives quality 95 ("at least")."""
     from ..measure.plate import PlateEstimate
 
+    name, effect = "jpeg_blockiness", "jpeg"
     frames = footage.stack(max_frames=8)
     b = jpeg_blockiness(frames)
     t = min(b["t_h"], b["t_v"])
-    confidence = float(np.clip((t - _GRID_T[0]) / (_GRID_T[1] - _GRID_T[0]), 0, 1))
+    grid = float(np.clip((t - _GRID_T[0]) / (_GRID_T[1] - _GRID_T[0]), 0, 1))
     measured = {k: round(v, 4) if isinstance(v, float) else v for k, v in b.items()}
-    aligned = b["phase_h"] == 7 and b["phase_v"] == 7
-    if confidence <= 0:
-        return PlateEstimate("jpeg_blockiness", "jpeg", measured, {}, 0.0,
-                             f"no 8x8 grid (tile t statistic {t:.1f} < {_GRID_T[0]:.0f}): uncompressed, or "
-                             "coded at a high quality")
-    mid = frames[len(frames) // 2]
-    qs, curve = _quality_curve(mid, (b["phase_h"], b["phase_v"]))
+    phases = (b["phase_h"], b["phase_v"])
+    qs, curve = _quality_curve(frames[len(frames) // 2], phases)
     curve = np.minimum.accumulate(curve)  # the step falls as the quality rises
-    level = _step_level(frames, (b["phase_h"], b["phase_v"]))
-    measured["block_step_dn"] = round(level, 4)
-    if level <= curve[-1]:
-        q = int(qs[-1])
-        note = f"; block step {level:.3f} DN at or below quality {q}'s: at least {q}"
-    elif level >= curve[0]:
-        q = int(qs[0])
-        note = f"; block step {level:.3f} DN above quality {q}'s"
-    else:
-        q = int(round(float(np.interp(-level, -curve, qs))))
-        note = ""
-    measured["calibration"] = {"quality": [int(v) for v in qs], "block_step_dn": [round(float(v), 4) for v in curve]}
-    reason = (f"8x8 grid on both axes (tile t statistic {t:.1f})" + ("" if aligned else
+    level = _step_level(frames, phases)
+    tiles = _tile_levels(frames, phases)
+    if len(tiles) < 4:
+        return PlateEstimate.not_measurable(name, effect, measured, f"{len(tiles)} tiles of {_TILE_PX} px: frames "
+                                            "too small to tell the block step's scatter")
+    se = float(tiles.std(ddof=1) / np.sqrt(len(tiles)))
+    span = float(curve[0] - curve[-1])
+    measured.update(block_step_dn=round(level, 4), block_step_se_dn=round(se, 4),
+                    calibration={"quality": [int(v) for v in qs], "block_step_dn": [round(float(v), 4) for v in curve]})
+    if not span >= max(1.0, 10 * se):
+        return PlateEstimate.not_measurable(
+            name, effect, measured, f"too flat: coding the frame again at qualities 5 to 95 changes its block step "
+            f"by {span:.2f} DN (at least {max(1.0, 10 * se):.2f} needed to tell qualities apart)")
+    if t < _GRID_T[0]:
+        return PlateEstimate(name, effect, measured, {}, 0.0,
+                             f"no 8x8 grid (tile t statistic {t:.1f} < {_GRID_T[0]:.0f}): uncompressed, or coded at a "
+                             "high quality")
+    if level >= curve[0]:
+        return PlateEstimate.not_measurable(
+            name, effect, measured, f"block step {level:.3f} DN above quality {int(qs[0])}'s ({curve[0]:.3f}): no "
+            "IJG quality codes this scene so")
+
+    def quality(step):
+        return float(qs[-1]) if step <= curve[-1] else float(qs[0]) if step >= curve[0] else \
+            float(np.interp(-step, -curve, qs))
+
+    q = int(round(quality(level)))
+    lo, hi = quality(level + 2 * se), quality(level - 2 * se)
+    precision = float(np.clip(1 - (hi - lo) / 40.0, 0, 1))
+    note = f"; block step {level:.3f} DN at or below quality {int(qs[-1])}'s: at least {q}" if level <= curve[-1] \
+        else ""
+    aligned = b["phase_h"] == 7 and b["phase_v"] == 7
+    reason = (f"8x8 grid on both axes (tile t statistic {t:.1f}); quality {lo:.0f}-{hi:.0f} within two standard "
+              f"errors of the block step" + ("" if aligned else
               f"; the grid is offset ({(b['phase_h'] + 1) % 8}, {(b['phase_v'] + 1) % 8}) px: cropped or "
               "shifted after coding") + note)
-    return PlateEstimate("jpeg_blockiness", "jpeg", measured, {"quality": q}, round(confidence, 3), reason)
+    measured["quality_range"] = [round(lo), round(hi)]
+    return PlateEstimate(name, effect, measured, {"quality": q}, round(grid * precision, 3), reason)

@@ -19,10 +19,19 @@ Contents
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
   ``a`` may be negative (a black level)
 - :func:`fit_noise`: both noise laws per channel from a stack (N, H, W, 3) of frames of a static scene, in DN
-- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of a stack of frames
-- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`: the brightness bins (DN) of the noise level function measured on
-  footage, and the quantile of flat-block variances that gives its spatial lower envelope
+- :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`, :data:`NLF_BLOCK_PX`, :data:`HEADLINE_DN`: the brightness bins (DN)
+  of the noise level function measured on footage, the quantile of flat-block variances that gives its spatial
+  lower envelope, the blocks (px) it is measured in and the levels (DN) it is read at
+- :data:`ROUNDING_FLOOR_DN2`: below this variance a bin shows pixels a codec repeated, not noise
+- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of footage: from
+  registered frame pairs (a moving camera, moving objects) or single frames' flat blocks
+- :data:`BIN_SCATTER`: the scatter about a law allowed to every bin of footage besides its standard error
+- :func:`fit_plate_law`: ``[a, b]`` of a law fitted to a noise level function, both at least 0, and how far off it
+  may be
 - :func:`noise_gain`: how the chain after the noise scales it per channel, as the noise level function sees it
+- :data:`PLATE_PAIRS`, :data:`STILL_PX`: the frame pairs the plate's noise estimate registers, and the motion (px)
+  below which a pair is still
+- :data:`CODEC_FLICKER`: how much more noise a JPEG-coded pan shows than a still shot, by quality (measured)
 - :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
 References
@@ -226,89 +235,207 @@ def fit_noise(stack, demosaic: str = "block", saturation_dn: float = 220.0) -> d
 NLF_BIN_DN = 12.0
 #: The quantile of block variances that the spatial noise level function takes in each bin (its lower envelope).
 SPATIAL_QUANTILE = 0.05
+#: Variance (DN^2) of rounding to whole DN: a bin whose noise variance measures below it shows pixels a codec
+#: repeated or flattened (an inter-frame codec's skipped blocks, a vector quantiser's codebook), not noise.
+ROUNDING_FLOOR_DN2 = 1.0 / 12.0
+#: The scatter allowed to every bin besides its standard error when a law is fitted, as a share of the median
+#: sigma: the bins of footage scatter about any law by more than their block counts say (scene, codec).
+BIN_SCATTER = 0.1
+#: Side (px) of the blocks of registered differences (and of the spatial method's blocks).
+NLF_BLOCK_PX = 8
+#: The levels (DN) at which a noise level function is read for tables and comparisons.
+HEADLINE_DN = (64, 128, 192)
+#: Frame pairs the plate's noise estimate registers (spread over the shot).
+PLATE_PAIRS = 12
+#: A pair whose registration moves no pixel by more than this (px) counts as still (no codec flicker).
+STILL_PX = 0.5
+#: How much a pan's registered noise reads above a still shot's of the same scene when the frames are JPEG-coded,
+#: by IJG quality (skimage's astronaut, chelsea and coffee, Pillow 4:2:0, noise variance 0.5 + 0.05 DN, measured
+#: with :func:`noise_level_statistic`): the coding error of a moving scene changes from frame to frame.
+CODEC_FLICKER = {95: 1.05, 90: 1.14, 85: 1.22, 80: 1.28, 70: 1.45, 50: 1.6}
 
 
-def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof: int, quantile: float, saturation_dn: float = 220.0,
-                min_count: int = 30, floor_dn: float = 4.0) -> tuple[list[float], list[float]]:
-    """(levels, sigmas) of one channel: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
-    each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom) divided
-    by that quantile of chi-square / dof, so textured or moving members above it do not lift it [Liu2008's lower
-    envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are left out."""
+def _quantile_se(values: np.ndarray, quantile: float) -> tuple[float, float]:
+    """(the ``quantile`` of ``values``, its standard error): half the spread of the order statistics one binomial
+    standard deviation either side of it."""
+    v = np.sort(values)
+    n = len(v)
+    spread = np.sqrt(n * quantile * (1 - quantile))
+    lo = v[int(np.clip(np.floor(quantile * n - spread), 0, n - 1))]
+    hi = v[int(np.clip(np.ceil(quantile * n + spread), 0, n - 1))]
+    return float(np.quantile(v, quantile)), float(max(hi - lo, 0.0) / 2)
+
+
+def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturation_dn: float = 220.0,
+                min_count: int = 30, floor_dn: float = 4.0) -> dict:
+    """One channel's noise level function: the pixels (or blocks) binned by mean in :data:`NLF_BIN_DN`-wide bins,
+    each bin's variance the ``quantile`` of its members' variances (each with ``dof`` degrees of freedom, a number
+    or one per member) divided by that quantile of chi-square / dof, so textured or moving members above it do not
+    lift it [Liu2008's lower envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are
+    left out. Returns ``{"levels", "sigmas", "counts", "se"}`` (DN, DN, members, the sigma's standard error in DN)
+    and ``"repeated"`` (bins left out as below), bins with fewer than ``min_count`` members left out, and bins whose
+    variance lies below :data:`ROUNDING_FLOOR_DN2` (pixels a codec repeated from frame to frame or flattened: the
+    noise is not measurable there, not 0)."""
     from scipy.stats import chi2
 
-    bias = chi2.ppf(quantile, dof) / dof
-    keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var)
-    mean, var = mean[keep], var[keep]
+    dof = np.broadcast_to(np.asarray(dof, np.float64), np.shape(mean))
+    keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var) & (dof >= 1)
+    mean, var, dof = mean[keep], var[keep] / (chi2.ppf(quantile, dof[keep]) / dof[keep]), dof[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
-    levels, sigmas = [], []
-    for b in np.unique(idx):
-        sel = idx == b
-        if sel.sum() >= min_count:
-            levels.append(float(mean[sel].mean()))
-            sigmas.append(float(np.sqrt(max(np.quantile(var[sel], quantile) / bias, 0.0))))
-    return levels, sigmas
-
-
-def noise_level_statistic(frames, method: str | None = None, block: int = 8, floor_dn: float = 4.0,
-                          saturation_dn: float = 220.0) -> dict:
-    """The noise level function of a stack (T, H, W, 3) float32 DN: sigma (DN) against mean (DN) per channel.
-
-    ``method = "temporal"`` (a still shot): each pixel's mean and variance over the frames; ``"spatial"`` (one
-    frame at a time): the variance inside ``block`` x ``block`` blocks about their best-fitting plane, whose flattest
-    members give the noise [Liu2008, Foi2008]. Each brightness bin's sigma is its members' median variance
-    (temporal) or :data:`SPATIAL_QUANTILE` quantile (spatial), unbiased for the chi-square spread of that quantile
-    (the spatial one stays biased by the noise's own spatial correlation, which
-    :func:`noise_level_function_from_plate` calibrates on the model). ``None``: temporal for 3 frames or more. Means
-    outside ``floor_dn``-``saturation_dn`` are left out (clipped noise). Returns ``{"method", "levels_dn": {channel:
-    [...]}, "sigma_dn": {channel: [...]}, "sigma_at_dn": {"64"|"128"|"192": [r, g, b]}}`` (the last interpolated
-    from the bins, for comparisons)."""
-    x = np.asarray(frames, np.float32)
-    if x.ndim == 3:
-        x = x[None]
-    method = method or ("temporal" if len(x) >= 3 else "spatial")
-    out = {"method": method, "levels_dn": {}, "sigma_dn": {}}
-    for c, channel in enumerate(("red", "green", "blue")):
-        if method == "temporal":
-            if len(x) < 2:
-                raise ValueError("a temporal noise level function needs at least 2 frames")
-            k = len(x) - 1
-            mean = x[..., c].mean(axis=0).ravel()
-            var = x[..., c].var(axis=0, ddof=1).ravel()
-            levels, sigmas = _binned_nlf(mean, var, k, 0.5, saturation_dn, floor_dn=floor_dn)
-        else:
-            t, h, w = x.shape[:3]
-            b = block
-            blocks = x[:, : h // b * b, : w // b * b, c].reshape(t, h // b, b, w // b, b).transpose(0, 1, 3, 2, 4)
-            blocks = blocks.reshape(-1, b * b).astype(np.float64)
-            # each block less its best-fitting plane (shading, vignetting), leaving b^2 - 3 degrees of freedom
-            yy, xx = np.mgrid[0:b, 0:b]
-            design = np.column_stack([np.ones(b * b), xx.ravel() - (b - 1) / 2, yy.ravel() - (b - 1) / 2])
-            resid = blocks - blocks @ np.linalg.pinv(design).T @ design.T
-            k = b * b - 3
-            levels, sigmas = _binned_nlf(blocks.mean(axis=1), (resid ** 2).sum(axis=1) / k, k, SPATIAL_QUANTILE,
-                                         saturation_dn, min_count=10, floor_dn=floor_dn)
-        out["levels_dn"][channel] = levels
-        out["sigma_dn"][channel] = sigmas
-    out["sigma_at_dn"] = {str(m): [float(np.interp(m, out["levels_dn"][ch], out["sigma_dn"][ch]))
-                                   if out["levels_dn"][ch] else float("nan") for ch in ("red", "green", "blue")]
-                          for m in (64, 128, 192)}
+    order = np.argsort(idx, kind="stable")
+    _, first, counts = np.unique(idx[order], return_index=True, return_counts=True)
+    out = {"levels": [], "sigmas": [], "counts": [], "se": [], "repeated": 0}
+    for start, n in zip(first, counts):
+        if n >= min_count:
+            sel = order[start:start + n]
+            v, se = _quantile_se(var[sel], quantile)
+            if v < ROUNDING_FLOOR_DN2:  # unchanged pixels: a codec repeated or flattened them (not measurable)
+                out["repeated"] += 1
+                continue
+            sigma = float(np.sqrt(v))
+            out["levels"].append(float(mean[sel].mean()))
+            out["sigmas"].append(sigma)
+            out["counts"].append(int(n))
+            out["se"].append(float(se / (2 * sigma)) if sigma > 0 else float("inf"))
     return out
 
 
-def _fit_bins(levels, sigmas, law: str) -> tuple[float, float]:
-    """``[a, b]`` of ``law`` fitted to binned (mean, sigma) by least squares (variance or sigma, as the law),
-    twice dropping the bins more than 25 % off the line (a bin whose flattest blocks still hold texture)."""
+def _blocks(x: np.ndarray, b: int) -> np.ndarray:
+    """(N, b*b) blocks of the last two axes of ``x`` (..., H, W) (rows and columns beyond whole blocks dropped)."""
+    h, w = x.shape[-2:]
+    x = x[..., : h // b * b, : w // b * b]
+    x = x.reshape(x.shape[:-2] + (h // b, b, w // b, b))
+    return np.swapaxes(x, -3, -2).reshape(-1, b * b)
+
+
+def _read_at(levels, sigmas, at_dn: float):
+    """The noise level function read at ``at_dn`` (DN), or None outside the measured levels (+- half a bin)."""
+    if not levels or not levels[0] - NLF_BIN_DN / 2 <= at_dn <= levels[-1] + NLF_BIN_DN / 2:
+        return None
+    return float(np.interp(at_dn, levels, sigmas))
+
+
+def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BLOCK_PX, floor_dn: float = 4.0,
+                          saturation_dn: float = 220.0) -> dict:
+    """The noise level function of footage: sigma (DN) against mean (DN) per channel.
+
+    ``frames``: a stack (T, H, W, 3) float32 DN, or :class:`lowcam.registration.RegisteredPairs`.
+    ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each frame registered with
+    the next, or the one of the next few that nearest-neighbour sampling reads most exactly
+    (:func:`lowcam.registration.register_frames`: tracked homography, nearest-neighbour sampling, moving and steep
+    pixels left out); in ``block`` x ``block`` blocks of the first frame's grid with at least half their pixels
+    compared, the variance of the difference (about its block mean: an exposure step between the frames cancels)
+    over 2 is one sample of the noise variance at the block's mean level, with ``n - 1`` degrees of freedom; each
+    bin's sigma is the median of its blocks (unbiased for the chi-square spread), so blocks a moving object or
+    misregistration lifts do not lift it. A still shot is the case of the identity: its pixels are compared where
+    they are. ``"spatial"`` (one frame at a time, the default for one frame): the variance inside blocks about
+    their best-fitting plane, whose flattest members (the :data:`SPATIAL_QUANTILE` quantile) give the noise
+    [Liu2008, Foi2008]; texture can only lift it and a codec that flattens blocks lowers it. Means outside
+    ``floor_dn``-``saturation_dn`` are left out (clipped noise).
+
+    Returns ``{"method", "levels_dn", "sigma_dn", "blocks", "sigma_se_dn": {channel: [per bin]}, "repeated_bins":
+    {channel: bins whose pixels a codec repeated unchanged (below :data:`ROUNDING_FLOOR_DN2`)}, "sigma_at_dn":
+    {"64"|"128"|"192": [r, g, b]}}`` (``sigma_at_dn`` interpolated between bins; None where that level was not
+    measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
+    ``compared`` (the share of pixels compared)."""
+    from ..registration import RegisteredPairs, register_frames
+
+    if isinstance(frames, RegisteredPairs):
+        pairs, method = frames, method or "registered"
+        if method != "registered":
+            raise ValueError(f"registered pairs are measured by the 'registered' method, not '{method}'")
+    else:
+        x = np.asarray(frames, np.float32)
+        if x.ndim == 3:
+            x = x[None]
+        method = method or ("registered" if len(x) >= 2 else "spatial")
+        if method == "registered" and len(x) < 2:
+            raise ValueError("a registered noise level function needs at least 2 frames")
+        if method == "registered":
+            pairs = register_frames(x)
+    channels = ("red", "green", "blue")
+    out = {"method": method, "levels_dn": {}, "sigma_dn": {}, "blocks": {}, "sigma_se_dn": {}, "repeated_bins": {}}
+    for c, channel in enumerate(channels):
+        if method == "registered":
+            d, lv = _blocks(pairs.diff[..., c], block), _blocks(pairs.level[..., c], block)
+            n = np.isfinite(d).sum(axis=1)
+            ok = n >= block * block // 2
+            with np.errstate(invalid="ignore"):
+                var = np.nanvar(d[ok], axis=1, ddof=1) / 2
+                mean = np.nanmean(lv[ok], axis=1)
+            nlf = _binned_nlf(mean, var, n[ok] - 1, 0.5, saturation_dn, min_count=20, floor_dn=floor_dn)
+        elif method == "spatial":
+            blocks = _blocks(x[..., c], block).astype(np.float64)
+            # each block less its best-fitting plane (shading, vignetting), leaving b^2 - 3 degrees of freedom
+            yy, xx = np.mgrid[0:block, 0:block]
+            design = np.column_stack([np.ones(block * block), xx.ravel() - (block - 1) / 2,
+                                      yy.ravel() - (block - 1) / 2])
+            resid = blocks - blocks @ np.linalg.pinv(design).T @ design.T
+            k = block * block - 3
+            nlf = _binned_nlf(blocks.mean(axis=1), (resid ** 2).sum(axis=1) / k, k, SPATIAL_QUANTILE,
+                              saturation_dn, min_count=10, floor_dn=floor_dn)
+        else:
+            raise ValueError(f"unknown noise level method '{method}' (registered or spatial)")
+        out["levels_dn"][channel] = nlf["levels"]
+        out["sigma_dn"][channel] = nlf["sigmas"]
+        out["blocks"][channel] = nlf["counts"]
+        out["sigma_se_dn"][channel] = nlf["se"]
+        out["repeated_bins"][channel] = nlf["repeated"]
+    out["sigma_at_dn"] = {str(m): [_read_at(out["levels_dn"][ch], out["sigma_dn"][ch], m) for ch in channels]
+                          for m in HEADLINE_DN}
+    if method == "registered":
+        out["pairs"] = len(pairs)
+        out["compared"] = pairs.compared
+    return out
+
+
+def fit_plate_law(levels, sigmas, se, law: str, floor_dn: float = 0.0) -> tuple[float, float, float]:
+    """``(a, b, relative_error)`` of ``law`` fitted to binned (mean, sigma, sigma's standard error) by weighted
+    least squares with ``b >= 0`` and the sigma at 0 DN at least ``floor_dn`` (``a >= floor_dn``, or its square
+    for the variance law), so the law is above 0 over 0-255 DN: footage shows no black level below its darkest
+    bin, and an intercept below the floor would claim dark pixels quieter than their 8-bit rounding. Each bin's
+    error is its standard error and :data:`BIN_SCATTER` of the median sigma in quadrature, so that no bin of many
+    blocks outweighs the rest; bins more than 25 % off the line (blocks still holding texture or motion) are dropped,
+    keeping at least the better half, and the law fitted again (up to four times).
+
+    ``relative_error``: how far the law may be off, relative to the sigma: the root sum of squares of the fit's
+    largest standard error over the measured levels and :data:`HEADLINE_DN` (from the bins' standard errors
+    alone; a law read beyond the levels measured is extrapolated, and less sure) and of the bins' robust
+    deviation from the law (1.4826 times the median absolute relative deviation, over all bins: a law
+    that does not describe the bins is no better known than it misses them)."""
+    from scipy.optimize import nnls
+
     m = np.asarray(levels, np.float64)
-    y = np.asarray(sigmas, np.float64) ** (2 if law == "variance_linear" else 1)
+    s = np.asarray(sigmas, np.float64)
+    power = 2 if law == "variance_linear" else 1
+    slope = power * s ** (power - 1)  # d(sigma^power) / d(sigma)
+    se = np.maximum(np.asarray(se, np.float64), 1e-3 * np.maximum(s, 1e-3)) * slope
+    y = s ** power
+    ey = np.hypot(se, BIN_SCATTER * power * np.median(y))
+    floor = floor_dn ** power
     keep = np.ones(len(m), bool)
-    for _ in range(3):
-        a, b = np.linalg.lstsq(np.column_stack([np.ones(keep.sum()), m[keep]]), y[keep], rcond=None)[0]
-        fit = np.maximum(a + b * m, 1e-6)
-        new = np.abs(y - fit) <= 0.25 * fit * (2 if law == "variance_linear" else 1)
-        if new.sum() < 2 or (new == keep).all():
+    for _ in range(4):
+        (a, b), _ = nnls(np.column_stack([np.ones(keep.sum()), m[keep]]) / ey[keep, None],
+                         (y[keep] - floor) / ey[keep])
+        a += floor
+        fit = np.maximum(a + b * m, 1e-9)
+        off = np.abs(y - fit) / fit / power
+        new = off <= 0.25
+        if new.sum() < (len(m) + 1) // 2:  # at least the better half of the bins
+            new = off <= np.sort(off)[(len(m) - 1) // 2]
+        if (new == keep).all():
             break
         keep = new
-    return float(a), float(max(b, 0.0))
+    misfit = 1.4826 * float(np.median(np.abs(y - fit) / fit / power))
+    try:
+        cov = np.linalg.inv((np.column_stack([np.ones(keep.sum()), m[keep]]) / se[keep, None]).T
+                            @ (np.column_stack([np.ones(keep.sum()), m[keep]]) / se[keep, None]))
+    except np.linalg.LinAlgError:
+        return float(a), float(b), float("inf")
+    at = np.union1d(m, HEADLINE_DN)  # the measured levels and those a law is read at (extrapolated, if need be)
+    grid = np.column_stack([np.ones(len(at)), at])
+    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", grid, cov, grid), 0.0))
+    return float(a), float(b), float(np.hypot((sd / np.maximum(a + b * at, 1e-9) / power).max(), misfit))
 
 
 def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
@@ -320,59 +447,133 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
     after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
     spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    A JPEG at the end of the chain is left out: what it does to noise depends on the scene (it flattens the
+    noise of flat blocks and keeps much of a textured block's), which a flat grey cannot tell, so the law read
+    through this gain is the noise the frames carried into their coding.
     ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
     ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
+    from ..errors import NotFitted
     def ideal(width, height):
         out = np.ones((height, width, 4), np.float32)
         out[..., :3] = level
         return out
     law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
            "blue": [sigma_dn ** 2, 0.0]}
+    if profile.effect("jpeg") is not None and profile.effect("jpeg").enabled:
+        profile = profile.without("jpeg")
     noisy = profile.with_effect("noise", **law)
     clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
     h, w = clean.shape[:2]
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
     diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
-                      for k in range(frames if method == "temporal" else 1)])
+                      for k in range(frames if method != "spatial" else 1)])
     stat = noise_level_statistic(diffs, method)
-    return [float(stat["sigma_at_dn"]["128"][c]) / sigma_dn for c in range(3)]
+    gains = [float(np.median(stat["sigma_dn"][ch])) / sigma_dn if stat["sigma_dn"][ch] else 0.0
+             for ch in ("red", "green", "blue")]
+    if min(gains) <= 0:
+        raise NotFitted(f"{profile.source}: the chain after the noise leaves none of it (a flat grey filmed with "
+                        f"{sigma_dn:g} DN of noise per sensel shows none): no law can be read through it")
+    return gains
+
+
+def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
+    """(confidence factor, note) for the codec's share of a moving shot's registered noise: 1 for a still shot
+    or uncoded frames; for JPEG-coded frames (the profile's ``jpeg`` effect, which the JPEG probe sets before the
+    noise runs, or an 8x8 grid the footage shows at an unmeasured quality) ``1 - (r - 1) / 0.5`` where ``r`` is
+    :data:`CODEC_FLICKER` at that quality (the lowest quality's where unmeasured), clipped to 0..1."""
+    if not moving:
+        return 1.0, ""
+    jpeg = base.effect("jpeg") if base is not None else None
+    if jpeg is not None and jpeg.enabled:
+        quality, how = int(jpeg.quality), f"about quality {int(jpeg.quality)}"
+    else:
+        from .jpeg import _GRID_T, jpeg_blockiness
+
+        grid = jpeg_blockiness(footage.stack(max_frames=4))
+        if min(grid["t_h"], grid["t_v"]) < _GRID_T[0]:
+            return 1.0, ""
+        quality, how = min(CODEC_FLICKER), "a quality not measured"
+    qs = sorted(CODEC_FLICKER)
+    ratio = float(np.interp(quality, qs, [CODEC_FLICKER[q] for q in qs]))
+    factor = float(np.clip(1 - (ratio - 1) / 0.5, 0.0, 1.0))
+    return factor, (f"; the camera moves and the frames are JPEG-coded at {how}: the coding error of a moving "
+                    f"scene changes from frame to frame and reads as noise (about {ratio:.2f} x a still shot's)")
 
 
 def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
-    Where the camera holds still for 3 frames or more (:func:`lowcam.measure.plate.still_segments`) each pixel's
-    temporal variance is used; otherwise the flattest blocks of single frames (Liu2008's lower envelope). The
-    output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
-    blur and demosaic do to per-sensel noise) and fitted with the profile's law. Confidence: temporal 0.9 with
-    8 frames or more, spatial 0.6 (texture can lift the envelope), both scaled down below 4 brightness levels.
-    ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
-    from ..measure.plate import PlateEstimate, still_segments
+    Up to :data:`PLATE_PAIRS` frame pairs spread over the shot are registered
+    (:func:`lowcam.measure.plate.register_footage`); where at least 3 pairs hold still (no pixel moves more than
+    :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes from frame to
+    frame. :func:`noise_level_statistic` measures the registered differences; where they show fewer than
+    :data:`MIN_LEVELS` brightness levels (a shot that cannot be registered, or an inter-frame codec that repeats
+    most pixels) the flattest blocks of single frames stand in if they show more: a lower envelope that texture
+    lifts, so it is reported, never applied. The output-domain noise level function is divided by the base
+    profile's :func:`noise_gain` (what its sharpening, blur and demosaic do to per-sensel noise) and fitted with
+    the profile's law, its slope at least 0 and its sigma at 0 DN at least the 8-bit rounding's
+    (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a law :meth:`Noise.implausible` flags is
+    not applied.
+
+    Confidence, from the measurement's own evidence: ``0.95 (1 - s / 0.25) min(1, levels / 4)``, ``s`` how far
+    the fitted sigma may be off (:func:`fit_plate_law`: its standard error from the bins' block counts and
+    scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot
+    (:data:`CODEC_FLICKER`). Fewer than :data:`MIN_LEVELS` brightness levels: not measurable. ``base``: the
+    profile being refined; ``film``: as :func:`noise_gain` takes it."""
+    from ..measure.plate import PlateEstimate, register_footage
+
     law = getattr(base.effect("noise"), "law", "sigma_linear")
-    runs = still_segments(footage)
-    if runs:
-        start, stop = max(runs, key=lambda r: r[1] - r[0])
-        stop = min(stop, start + 30)
-        frames = footage.stack(range(start, stop))
-        method, n = "temporal", stop - start
-    else:
-        frames = footage.stack(max_frames=6)
-        method, n = "spatial", len(frames)
-    stat = noise_level_statistic(frames, method)
-    measured = {"method": method, "frames": n, "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"],
-                "sigma_dn": stat["sigma_dn"]}
-    levels = min(len(stat["levels_dn"][ch]) for ch in ("red", "green", "blue"))
-    if levels < 2:
-        return PlateEstimate("noise_level_function", "noise", measured, {}, 0.0,
-                             f"{levels} brightness level(s) with enough pixels: no noise law can be fitted")
+    channels = ("red", "green", "blue")
+    pairs = register_footage(footage, PLATE_PAIRS)
+    still = [k for k, r in enumerate(pairs.registrations) if r.motion_px < STILL_PX]
+    moving = len(still) < 3
+    used = pairs if moving else pairs.select(still)
+    method = "registered"
+    stat = noise_level_statistic(used, method)
+    registered_levels = min(len(stat["levels_dn"][ch]) for ch in channels)
+    repeated = max(stat["repeated_bins"].values())
+    if registered_levels < MIN_LEVELS:  # single frames' flattest blocks instead
+        spatial = noise_level_statistic(footage.stack(max_frames=6), "spatial")
+        if min(len(spatial["levels_dn"][ch]) for ch in channels) >= MIN_LEVELS:
+            method, stat = "spatial", spatial
+    measured = {"method": method, "pairs": len(used), "still_pairs": len(still),
+                "compared": round(float(used.compared), 3), "sigma_at_dn": stat["sigma_at_dn"],
+                "levels_dn": stat["levels_dn"], "sigma_dn": stat["sigma_dn"], "blocks": stat["blocks"]}
+    levels = min(len(stat["levels_dn"][ch]) for ch in channels)
+    if levels < MIN_LEVELS:
+        return PlateEstimate.not_measurable(
+            "noise_level_function", "noise", measured,
+            f"{levels} brightness level{'s' * (levels != 1)} with enough flat blocks (at least {MIN_LEVELS} "
+            f"needed to tell the law's intercept from its slope)" + (
+                f"; {repeated} more where the codec repeats pixels unchanged" if repeated else ""))
     gains = noise_gain(base, method, film)
     params = {"law": law}
     measured["gain"] = gains
-    for c, channel in enumerate(("red", "green", "blue")):
+    worst = 0.0
+    for c, channel in enumerate(channels):
         sig = np.asarray(stat["sigma_dn"][channel]) / gains[c]
-        params[channel] = list(_fit_bins(stat["levels_dn"][channel], sig, law))
-    confidence = (min(0.9, 0.5 + 0.05 * n) if method == "temporal" else 0.6) * min(1.0, levels / 4)
-    where = (f"{n} still frames, temporal variance" if method == "temporal" else
-             f"no still segment: flattest {8}x{8} blocks of {n} frames")
-    return PlateEstimate("noise_level_function", "noise", measured, params, round(confidence, 3),
-                         f"{where}, {levels} brightness levels")
+        se = np.asarray(stat["sigma_se_dn"][channel]) / gains[c]
+        a, b, rel = fit_plate_law(stat["levels_dn"][channel], sig, se, law, np.sqrt(ROUNDING_FLOOR_DN2) / gains[c])
+        params[channel] = [a, b]
+        worst = max(worst, rel)
+    flicker, note = _codec_flicker(footage, base, moving and method == "registered")
+    confidence = 0.95 * float(np.clip(1 - worst / 0.25, 0, 1)) * min(1.0, levels / 4) * flicker
+    if method == "spatial":
+        confidence = min(confidence, 0.4)
+        where = (f"the registered frame pairs ({used.compared:.0%} of their pixels compared) show {registered_levels} "
+                 f"brightness level{'s' * (registered_levels != 1)}" + (
+                     f" ({repeated} more where the codec repeats pixels unchanged from frame to frame)"
+                     if repeated else "") + f": flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of single frames "
+                 "instead (texture lifts them: reported only)")
+    else:
+        kind = f"{len(used)} still frame pairs" if not moving else f"{len(used)} registered frame pairs"
+        where = f"{kind}, {stat['compared']:.0%} of their pixels compared"
+    if repeated and method == "registered":
+        where += (f"; {repeated} brightness bin{'s' * (repeated > 1)} left out where the codec repeats pixels "
+                  "unchanged from frame to frame (no noise to measure there)")
+    reason = f"{where}, {levels} brightness levels, law within {worst:.0%} of them{note}"
+    bad = Noise(True, "plate", None, **params).implausible()
+    if bad:
+        confidence = 0.0
+        reason += f"; not applied: {'; '.join(bad)}"
+    return PlateEstimate("noise_level_function", "noise", measured, params, round(confidence, 3), reason)

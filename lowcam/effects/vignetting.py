@@ -251,8 +251,8 @@ def vignetting_from_plate(footage, base=None):
     frames = footage.stack(max_frames=31)
     stat = vignetting_statistic(frames)
     if not stat:
-        return PlateEstimate("radial_falloff", "vignetting", {}, {}, 0.0,
-                             "the camera hardly moves: vignetting needs a moving shot")
+        return PlateEstimate.not_measurable("radial_falloff", "vignetting", {},
+                                            "the camera hardly moves: vignetting needs a moving shot")
     h, w = footage.shape
     coverage = min(1.0, stat["shift_px_total"] / (0.1 * np.hypot(w, h)))
     confidence = 0.9 * coverage * (1.0 if stat["corner_gain_se"] < 0.02 else 0.5)

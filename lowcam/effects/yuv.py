@@ -16,6 +16,7 @@ Contents
 - :data:`SUBSAMPLING_FACTORS`: J:a:b name -> (horizontal, vertical) chroma subsampling factors
 - :func:`chroma_spectrum_ratio`: per 1-D frequency, the chroma power relative to the luma power along an axis
 - :func:`chroma_bandwidth_statistic`: the no-reference statistic of a stack: replication and JPEG chroma steps
+- :func:`chroma_detail`: how much detail the chroma holds (mean neighbour step of Cb and Cr, DN)
 - :func:`chroma_subsampling_evidence`: per axis, the three cues to the chroma subsampling factor (see below)
 - :func:`chroma_subsampling_from_plate`: the chroma subsampling the footage shows (a plate estimate)
 
@@ -140,6 +141,8 @@ _GRID_HALVED_BELOW = 0.6  # JPEG grid cue: g8 / g32 below this means halved chro
 _GRID_VISIBLE = 0.3        # JPEG grid cue: g32 (log step excess) needed to read the cue at all
 _DROP_HALVED_BELOW = -0.45 # spectrum cue: chroma_drop below this suggests halved chroma
 _SPECTRUM_CONFIDENCE = 0.35  # the spectrum cue alone never gives more (the scene's colour detail confounds it)
+_STEP_VISIBLE_DN = 0.05    # JPEG grid cue: the chroma's 32 px step (DN) needed besides g32 (flat chroma has none)
+_CHROMA_DETAIL_DN = 0.05   # mean |neighbour difference| of Cb and Cr (DN) below which chroma shows nothing
 
 
 def _yuv_stack(frames: np.ndarray) -> np.ndarray:
@@ -172,12 +175,21 @@ def chroma_bandwidth_statistic(frames: np.ndarray) -> dict:
     :func:`chroma_subsampling_evidence` that depend little on the scene: ``replication_2`` and ``replication_4``
     (log10 power ratios), and the chroma's JPEG steps in DN, ``step8`` at odd multiples of 8 px and ``step32`` at
     multiples of 32 px (mean absolute step less the median over the 32 px phases; ``step8`` near 0 while
-    ``step32`` is not: halved chroma). ``{}`` for frames under 64 px."""
+    ``step32`` is not: halved chroma). ``{}`` (not measurable) for frames under 64 px or chroma without detail
+    (:func:`chroma_detail` under :data:`_CHROMA_DETAIL_DN`)."""
     f = np.asarray(frames)
-    if min(f.shape[-3:-1]) < 64:
+    if min(f.shape[-3:-1]) < 64 or chroma_detail(f) < _CHROMA_DETAIL_DN:
         return {}
     ev = chroma_subsampling_evidence(f, spectrum=False)
     return {f"{k}_{a}": ev[a][k] for a in ("h", "v") for k in ("replication_2", "replication_4", "step8", "step32")}
+
+
+def chroma_detail(frames: np.ndarray) -> float:
+    """The mean absolute step (DN) between neighbouring pixels of Cb and Cr, across and down, of an RGB stack:
+    about 0 where the chroma holds nothing a subsampling could change (a grey or flat scene, or a codec that
+    flattened it)."""
+    yuv = _yuv_stack(frames)
+    return float(np.mean([np.abs(np.diff(yuv[..., c], axis=a)).mean() for c in (1, 2) for a in (-1, -2)]))
 
 
 def _phase_power(plane: np.ndarray, axis: int, period: int) -> np.ndarray:
@@ -231,7 +243,7 @@ def _axis_factor(e: dict) -> tuple[int, float, str]:
         r = e[f"replication_{k}"]
         if r < _REPLICATED_BELOW:
             return k, float(np.clip((_REPLICATED_BELOW - r) / 0.5 + 0.5, 0, 1)), f"repeated samples ({r:.2f})"
-    if e["g32"] > _GRID_VISIBLE:
+    if e["g32"] > _GRID_VISIBLE and e["step32"] >= _STEP_VISIBLE_DN:
         ratio = e["g8"] / e["g32"]
         visible = float(np.clip(e["g32"] / (2 * _GRID_VISIBLE), 0, 1))
         margin = float(np.clip(abs(ratio - _GRID_HALVED_BELOW) / 0.25, 0, 1))
@@ -247,14 +259,23 @@ def chroma_subsampling_from_plate(footage, base=None):
     Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
     spectrum; module docstring), the confidence is the weaker axis's. Where one axis shows repeated samples
     and the other shows neither repetition nor a JPEG grid, the other is taken as full (the same upsampler
-    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2, 4:2:0)
-    on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling``; otherwise the horizontal factor sets
+    would have repeated there), with the confidence of its repetition cue. A JPEG-style result (4:4:4, 4:2:2,
+    4:2:0) on footage with a JPEG grid sets the ``jpeg`` effect's ``subsampling`` (where ``base``, the profile
+    being refined, has one: the JPEG probe runs first and adds it when it measures the quality) and turns
+    :class:`ChromaSubsampling` off (``"chroma_subsampling.enabled": False``: the codec's subsampling is the
+    camera's only one, not a second one on top of the base's); otherwise the horizontal factor sets
     :class:`ChromaSubsampling`'s ``group`` (the engine's chroma subsampling is horizontal only; a vertical factor
-    is reported)."""
+    is reported). Chroma with no detail (mean neighbour step of Cb and Cr under :data:`_CHROMA_DETAIL_DN`, a grey
+    or flat scene): not measurable."""
     from ..measure.plate import PlateEstimate
-    from .jpeg import SUBSAMPLINGS, jpeg_blockiness
+    from .jpeg import _GRID_T, SUBSAMPLINGS, jpeg_blockiness
 
     frames = footage.stack(max_frames=6)
+    detail = chroma_detail(frames)
+    if detail < _CHROMA_DETAIL_DN:
+        return PlateEstimate.not_measurable(
+            "chroma_bandwidth", "chroma_subsampling", {"chroma_detail_dn": round(detail, 4)},
+            f"the chroma holds no detail (mean step {detail:.3f} DN between neighbours): any subsampling looks alike")
     ev = chroma_subsampling_evidence(frames)
     (fh, ch, why_h), (fv, cv, why_v) = _axis_factor(ev["h"]), _axis_factor(ev["v"])
     # an upsampler that repeats samples along one axis would repeat them along the other too if it subsampled
@@ -274,8 +295,15 @@ def chroma_subsampling_from_plate(footage, base=None):
     confidence = round(min(ch, cv), 3)
     reason = f"across: {why_h}; down: {why_v}"
     grid = jpeg_blockiness(frames)
-    if name in SUBSAMPLINGS and min(grid["t_h"], grid["t_v"]) >= 3.0:
-        return PlateEstimate("chroma_bandwidth", "jpeg", measured, {"subsampling": name}, confidence, reason)
+    if name in SUBSAMPLINGS and min(grid["t_h"], grid["t_v"]) >= _GRID_T[0]:
+        jpeg = base.effect("jpeg") if base is not None else None
+        if jpeg is None or not jpeg.enabled:
+            return PlateEstimate("chroma_bandwidth", "jpeg", measured, {}, confidence,
+                                 f"{reason}; JPEG {name}, reported only: the profile has no JPEG effect and its "
+                                 "quality was not measured (a JPEG at an assumed quality is not written)")
+        # the JPEG's subsampling is the camera's only one: the base's own chroma subsampling goes
+        return PlateEstimate("chroma_bandwidth", "jpeg", measured,
+                             {"subsampling": name, "chroma_subsampling.enabled": False}, confidence, reason)
     if fv > 1:
         reason += "; the vertical halving is reported only (the engine's chroma subsampling is horizontal)"
     return PlateEstimate("chroma_bandwidth", "chroma_subsampling", measured, {"group": fh}, confidence, reason)

@@ -9,8 +9,12 @@ confident estimates to a copy of a base profile and records where each number ca
 measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
 frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
 
-The probes are walked in the order of :data:`PLATE_PROBES`; further probes (JPEG blockiness, chroma bandwidth) are
-added there with their estimators in their own effect modules.
+The probes are walked in the order of :data:`PLATE_PROBES`, each estimator in its own effect module. Temporal
+statistics (the noise) compare frames registered by a homography from tracked corners
+(:func:`register_footage`), so a panning camera and people walking through a fixed camera's view are not read
+as noise. Each confidence is earned from the measurement's own evidence (blocks, edges, levels, registered
+pixels, the scatter over tiles); footage that cannot show a statistic at all (flat, still) gives "not
+measurable" and no value.
 
 Contents
 --------
@@ -18,8 +22,12 @@ Contents
 - :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
 - :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
+  (or that the footage cannot show it: not measurable)
 - :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :data:`PLATE_PROBES`: every plate probe, in the order they run
+- :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
+- :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
+  start with the best of the next few frames
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
 - :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
@@ -29,6 +37,8 @@ Contents
 - :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
 - :func:`model_statistics`: fill each estimate's ``model`` with the statistic measured on the profile's simulation
 - :func:`estimate_profile`: (profile, estimates): the confident estimates applied to a copy of the base profile
+- :func:`plate_name`: the name of a profile estimated from a plate
+- :func:`apply_estimate`: an estimate's params set in a profile (or an effect turned off), with provenance
 
 References
 ----------
@@ -49,7 +59,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import LowcamError
+from ..errors import LowcamError, NotFitted
 
 #: Estimates below this confidence are reported, not applied to the profile.
 MIN_CONFIDENCE = 0.5
@@ -220,11 +230,13 @@ class PlateEstimate:
 
     ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
     footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
-    parameter of ``effect`` or ``"other_effect.param"``; ``base_params``: the base profile's values of the same
-    parameters (None where it lacks them), filled by :func:`estimate_profile`;
-    ``confidence`` (0..1) with a one-line ``reason``; ``model``: the same statistic measured on the profile's
-    simulation of similar content (:func:`model_statistics`), ``None`` until filled; ``applied``: whether
-    :func:`estimate_profile` wrote ``params`` into the profile."""
+    parameter of ``effect`` or ``"other_effect.param"`` (``"other_effect.enabled": False`` turns that effect
+    off); ``base_params``: the base profile's values of the same parameters (None where it lacks them), filled by
+    :func:`estimate_profile`; ``confidence`` (0..1, earned from the measurement's own evidence) with a one-line
+    ``reason``; ``measurable``: False where the footage cannot show the statistic at all (too flat, too still):
+    nothing is estimated, and lines and reports say "not measurable" rather than a value; ``model``: the same
+    statistic measured on the profile's simulation of similar content (:func:`model_statistics`), ``None`` until
+    filled; ``applied``: whether :func:`estimate_profile` wrote ``params`` into the profile."""
 
     statistic: str
     effect: str
@@ -235,9 +247,17 @@ class PlateEstimate:
     model: dict | None = None
     applied: bool = False
     base_params: dict = field(default_factory=dict)
+    measurable: bool = True
+
+    @classmethod
+    def not_measurable(cls, statistic: str, effect: str, measured: dict, reason: str) -> "PlateEstimate":
+        """An estimate the footage cannot make: no params, confidence 0, ``measurable`` False."""
+        return cls(statistic, effect, measured, {}, 0.0, reason, measurable=False)
 
     def line(self) -> str:
         """One line for the terminal: what was found, how sure, whether it went into the profile."""
+        if not self.measurable:
+            return f"{self.statistic} ({self.effect}): not measurable ({self.reason}); not applied"
         what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
         state = "applied" if self.applied else "not applied"
         return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
@@ -249,6 +269,8 @@ def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
 
 
 def _fmt(v) -> str:
+    if v is None:
+        return "not measurable"
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, (list, tuple)):
@@ -263,13 +285,19 @@ class PlateProbe:
     ``estimate(footage, base)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it at
     all); ``base`` is the profile being refined (or None), for the parameters an estimate depends on.
     ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
-    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured)."""
+    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured).
+    ``compared``: the keys of that dict that ``compare --plate-only`` compares, footage against model (empty: all;
+    the noise's per-bin lists are left out: their bins lie at different levels in the two);
+    ``pairs``: the statistic also takes :class:`lowcam.registration.RegisteredPairs`, which the comparison
+    makes once per stack (:func:`register_footage`) before cutting it into tiles."""
 
     name: str
     effect: str
     estimate: Callable
     statistic: Callable[[np.ndarray], dict]
     about: str = ""
+    compared: tuple = ()
+    pairs: bool = False
 
 
 def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
@@ -382,25 +410,45 @@ def _codec(module: str, name: str) -> Callable:
     return call
 
 
-#: Every plate probe, in the order they run: the edges first, since the noise estimate divides by the gain of the
-#: row filters they fit (:func:`lowcam.effects.noise.noise_gain`); JPEG blockiness and chroma bandwidth after the
-#: vignetting.
+#: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
+#: next, since the noise estimate divides by the gain of the row filters the edges fit
+#: (:func:`lowcam.effects.noise.noise_gain`) and judges the codec's share of a moving shot's noise by the JPEG
+#: quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
-    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
-               "sigma against mean per channel: temporal where the camera holds still, else flat regions"),
-    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
-               "brightness of the same scene points at different radii over a moving shot"),
     PlateProbe("jpeg_blockiness", "jpeg", _codec("jpeg", "jpeg_quality_from_plate"),
                _codec("jpeg", "jpeg_blockiness_statistic"),
                "luma steps across the 8x8 grid over those inside blocks; the quality that codes the frame so"),
     PlateProbe("chroma_bandwidth", "chroma_subsampling", _codec("yuv", "chroma_subsampling_from_plate"),
                _codec("yuv", "chroma_bandwidth_statistic"),
                "chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum"),
+    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
+               "sigma against mean per channel from registered frame pairs (a moving camera, moving objects)",
+               compared=("sigma_at_dn",), pairs=True),
+    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
+               "brightness of the same scene points at different radii over a moving shot"),
     PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
                "angular velocity per frame from a gyro log"),
 ]
+
+
+def pair_starts(frames: int, count: int) -> list[int]:
+    """The first frames of up to ``count`` pairs of consecutive frames ``(i, i + 1)``, spread evenly over a shot
+    of ``frames`` frames."""
+    if frames < 2:
+        return []
+    return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
+
+
+def register_footage(footage: Footage, count: int = 12):
+    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
+    (:func:`pair_starts`), each frame registered, by a homography from tracked corners, with the one of the next
+    :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
+    (:func:`lowcam.registration.register_frames`)."""
+    from ..registration import register_frames
+
+    return register_frames(footage.frames, pair_starts(len(footage), count))
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
@@ -483,7 +531,8 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
-_HEADLINE_KEYS = ("method", "frames", "sigma_at_dn", "edges", "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
+_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px",
+                  "overshoot", "gain_at_rho", "pairs",
                   "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
 
 
@@ -504,7 +553,12 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
                      probes: list[PlateProbe] | None = None):
     """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
     with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
-    with a ``[provenance]`` entry per parameter. Progress goes to stderr."""
+    with a ``[provenance]`` entry per parameter (``"effect.enabled": False`` turns the effect off, with an entry
+    for the effect: a JPEG chroma subsampling found replaces the base's own chroma subsampling rather than
+    stacking both), unless an effect it sets becomes one no real camera has (:meth:`Effect.implausible`: then it
+    is reported, not applied). The profile is named after the plate (``camera.name``, with provenance) once
+    anything is applied. A probe whose fit cannot be made (:class:`lowcam.errors.NotFitted`) gives a not
+    measurable estimate with its reason. Progress goes to stderr."""
     from ..profile import load_profile
 
     base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
@@ -514,7 +568,10 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters)
+        try:
+            est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters, codec)
+        except NotFitted as e:
+            est = PlateEstimate.not_measurable(probe.name, probe.effect, {}, str(e))
         if est is None:
             continue
         estimates.append(est)
@@ -524,12 +581,41 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
             e = base.effect(effect)
             value = getattr(e, param, None) if e is not None else None
             est.base_params[key] = str(value) if isinstance(value, Path) else value  # a texture's path
-        if est.params and est.confidence >= min_confidence:
+        if est.params and est.measurable and est.confidence >= min_confidence:
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
-            for key, value in est.params.items():
-                effect, param = _target(est, key)
-                out = out.with_effect(effect, **{param: value})
-                out.provenance[f"{effect}.{param}"] = note
+            trial, entries = apply_estimate(out, est, note)
+            touched = [trial.effect(name) for name in {_target(est, k)[0] for k in est.params}]
+            bad = [f"{e.name}: {why}" for e in touched if e is not None and e.enabled for why in e.implausible()]
+            if bad:
+                est.reason += f"; not applied: {'; '.join(bad)}"
+                continue
+            out = trial
+            out.provenance.update(entries)
             est.applied = True
+    if any(e.applied for e in estimates):
+        out.camera.name = plate_name(base, footage)
+        out.provenance["camera.name"] = f"the plate {footage.path}, starting from {base.camera.name or base.name}"
     return out, estimates
+
+
+def plate_name(base, footage: Footage) -> str:
+    """The name of a profile estimated from ``footage`` starting from ``base``."""
+    return f"{base.camera.name or base.name}, estimated from the plate {Path(str(footage.path)).name}"
+
+
+def apply_estimate(profile, est: PlateEstimate, note: str):
+    """(a copy of ``profile`` with ``est.params`` set, its ``[provenance]`` entries): ``"effect.enabled": False``
+    disables that effect (entry ``effect``: off, and why), any other key sets a parameter (entry
+    ``effect.param``: ``note``)."""
+    out, entries = profile, {}
+    for key, value in est.params.items():
+        effect, param = _target(est, key)
+        if param == "enabled":
+            if not value and out.effect(effect) is not None and out.effect(effect).enabled:
+                out = out.without(effect)
+                entries[effect] = f"off: {note}"
+            continue
+        out = out.with_effect(effect, **{param: value})
+        entries[f"{effect}.{param}"] = note
+    return out, entries

@@ -28,6 +28,14 @@ own error, so read errors below about 2 as explained by this method even where t
 (Estimating that floor by comparing the model's own frames with the profile was tried: it did not track the
 true profile's error.)
 
+Temporal statistics (the noise level function: a probe with ``pairs``) compare frame pairs registered once for
+the whole frame (:func:`lowcam.measure.plate.register_footage`: consecutive footage frames, the model's frames)
+and then cut into tiles, so that a panning camera's footage is measured like the model's still frames; only a
+probe's ``compared`` values are compared (the noise's sigma at 64, 128 and 192 DN, not its per-bin lists), and a
+value a tile did not measure (a level it lacks) is left out, never made up. A JPEG-coded pan still reads its
+codec's changing coding error as noise (:data:`lowcam.effects.noise.CODEC_FLICKER`), which the model's still
+frames do not show.
+
 Both stacks are cut into the same :data:`TILES` grid (by relative position, so each tile holds the same part of
 the scene in both). Every numeric value ``s`` of every probe's statistic is measured per tile on the footage and
 on the (bias-corrected) model; the paired difference ``d_t = s_footage(t) - s_model(t)`` has its mean over tiles
@@ -167,13 +175,17 @@ def tile_slices(height: int, width: int, tiles: tuple[int, int] = TILES) -> list
             for i in range(tiles[0]) for j in range(tiles[1])]
 
 
-def _tile_values(probe, stack: np.ndarray, tiles) -> list[dict]:
+def _tile_values(probe, stack, tiles) -> list[dict]:
+    """Each tile's statistic, flattened, only its ``probe.compared`` keys (all where empty)."""
     out = []
     for sy, sx in tiles:
         try:
-            out.append(flatten_statistic(probe.statistic(stack[:, sy, sx])))
+            stat = probe.statistic(stack[:, sy, sx])
         except (ValueError, ArithmeticError, np.linalg.LinAlgError, LowcamError, NotImplementedError):
-            out.append({})  # this tile cannot show the statistic (too flat, too small)
+            stat = {}  # this tile cannot show the statistic (too flat, too small)
+        if probe.compared:
+            stat = {k: v for k, v in stat.items() if k in probe.compared}
+        out.append(flatten_statistic(stat))
     return out
 
 
@@ -206,7 +218,8 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
     ``frames`` model frames are simulated (twice as many with ``bias_correction``, the model filming its own
     frames, module docstring); up to ``max_footage_frames`` footage frames (evenly thinned) are measured. A probe
     whose statistic is empty on both is listed in ``skipped``."""
-    from .plate import PLATE_PROBES, Footage
+    from ..registration import register_frames
+    from .plate import PLATE_PROBES, Footage, register_footage
 
     probes = PLATE_PROBES if probes is None else probes
     if progress:
@@ -218,13 +231,19 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
     feet = footage.stack(max_frames=max_footage_frames)
     tf, tg = tile_slices(*feet.shape[1:3], tiles), tile_slices(*model.shape[1:3], tiles)
     rng = np.random.default_rng(seed)
-    stats, skipped = [], {}
+    stats, skipped, registered = [], {}, None
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
-        mine = _paired(probe, feet, tf, model, again, tg, rng)
+        if probe.pairs:  # registered once, cut into tiles after
+            if registered is None:
+                registered = (register_footage(footage, max_footage_frames - 1), register_frames(model),
+                              None if again is None else register_frames(again))
+            mine = _paired(probe, registered[0], tf, registered[1], registered[2], tg, rng)
+        else:
+            mine = _paired(probe, feet, tf, model, again, tg, rng)
         if not mine:
-            skipped[probe.name] = "no value measured on enough tiles of both the footage and the model"
+            skipped[probe.name] = "not measurable on enough tiles of both the footage and the model"
             continue
         stats += mine
     if not stats:
