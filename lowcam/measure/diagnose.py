@@ -289,15 +289,16 @@ class Context:
         if not tiles:
             return (f"only {len(relevant)} capture{'s' * (len(relevant) != 1)} show{'s' * (len(relevant) == 1)} "
                     "it and its fit takes whole frames: nothing can be held out")
-        if "tiles" not in self._folds:
+        key = ("tiles", tuple(sorted(relevant)))  # only the captures that show it: the others it leaves alone
+        if key not in self._folds:
             h, w = self.means[0].shape[:2]
             yy, xx = np.mgrid[0:h, 0:w]
             chequer = ((yy // TILE_PX + xx // TILE_PX) % 2 == 0)
-            everything = list(range(len(self.inputs)))
-            a = self.view(everything, [chequer] * len(everything))
-            b = self.view(everything, [~chequer] * len(everything))
-            self._folds["tiles"] = ([(a, b), (b, a)], f"2 folds of {TILE_PX}-px image tiles")
-        return self._folds["tiles"]
+            shown = sorted(relevant)
+            a = self.view(shown, [chequer] * len(shown))
+            b = self.view(shown, [~chequer] * len(shown))
+            self._folds[key] = ([(a, b), (b, a)], f"2 folds of {TILE_PX}-px image tiles")
+        return self._folds[key]
 
     @property
     def screening(self) -> bool:
@@ -895,14 +896,34 @@ def _held_out(ctx, trial) -> tuple[float, dict] | None:
     used = [(held, f, trial.profile_for(k)) for k, (_, held, f) in enumerate(trial.used())]
     if all(p is None for _, _, p in used):
         return None
-    num = den = base = 0.0
+    num = base = 0.0
     for held, f, p in used:
         kind = f.search.captures if f is not None and not trial.joint else "all"
-        n, d = _measured_sums(held, p, kind) if p is not None else _base_sums(held)
-        num, den, base = num + float(n.sum()), den + float(d.sum()), base + float(_base_sums(held)[0].sum())
-    if not trial.every:  # one half measured: its ratio to the profile's, over the whole set
-        num, den = _carried(ctx, num, base), float(ctx._noise.sum())
-    return ctx.families_with_mean(num, den)
+        num += float((_measured_sums(held, p, kind) if p is not None else _base_sums(held))[0].sum())
+        base += float(_base_sums(held)[0].sum())
+    if trial.every:  # every fold measured; captures outside the folds (they cannot show it) keep the profile's
+        num += _outside(ctx, trial)
+    else:  # one half measured: its ratio to the profile's, over the whole set
+        num = _carried(ctx, num, base)
+    return ctx.families_with_mean(num, float(ctx._noise.sum()))
+
+
+def _half_estimate(ctx, profile) -> tuple[float, dict]:
+    """:meth:`Context.estimate` of a profile nothing was fitted for, on the half of the captures every candidate
+    is screened on (carried to the whole set, as :func:`_held_out`), or on every capture of a small set."""
+    folds = ctx.folds("all", tiles=False)
+    if isinstance(folds, str) or len(folds[0]) > 2:
+        return ctx.estimate(profile)
+    held = folds[0][0][1]
+    num, base = float(held.mean_sums(profile)[0].sum()), float(_base_sums(held)[0].sum())
+    return ctx.families_with_mean(_carried(ctx, num, base), float(ctx._noise.sum()))
+
+
+def _outside(ctx, trial) -> float:
+    """The profile's own mean-family numerator over the captures no fold of ``trial`` measures."""
+    covered = {id(c) for _, held, _ in trial.folds for c in held.mset.captures}
+    return float(sum(s.sums["mean"][0] for c, s in zip(ctx.mset.captures, ctx.base.captures)
+                     if id(c) not in covered))
 
 
 def _carried(ctx, num: float, base: float) -> float:
@@ -945,6 +966,15 @@ def _flags(ctx, f, profile) -> list[str]:
         if effect.enabled and (before is None or before.values() != effect.values()):
             out += [f"implausible: {p}" for p in effect.implausible()]
     return out
+
+
+def _warm(trial, source, folds) -> None:
+    """Start the Gauss-Newton fits of ``folds`` from ``source``'s fitted keys (converged fits need fewer steps)."""
+    if source is None or not source.keys:
+        return
+    for _, _, f in folds:
+        if f is not None and not f.screened and f.keys == source.keys:
+            f.x = np.clip(source.x, [b[0] for b in f.bounds], [b[1] for b in f.bounds])
 
 
 def _setup(ctx, name, hold=(), refit=()) -> _Trial:
@@ -995,7 +1025,7 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
     if trial.fixed is not None:
         profile, params, evidence = trial.fixed
         profile = trial.joint.get(None, profile)
-        error, families = ctx.estimate(profile)
+        error, families = _half_estimate(ctx, profile)
         c = Candidate(trial.name, error, params, evidence, profile, False, n, families, held_out=error,
                       held_out_families=families, validation="nothing fitted", base_error=base_error)
         if trial.joint:
@@ -1041,9 +1071,10 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
     return c
 
 
-def _full(ctx, c: Candidate, trial, in_sample: bool = True) -> None:
+def _full(ctx, c: Candidate, trial, in_sample: bool = True, sim_frames: int | None = None) -> None:
     """The full noise-aware errors: in sample (``c.profile`` on every capture) and held out (each fold's fit on
-    the captures it did not see, carried to the whole set as in :func:`_held_out`)."""
+    the captures it did not see, carried to the whole set as in :func:`_held_out`), with ``sim_frames``
+    simulated frames per capture (default: as many as measured, at least 4)."""
     started = time.perf_counter()
     if in_sample:
         c.comparison = ctx.compare(c.profile)
@@ -1054,8 +1085,11 @@ def _full(ctx, c: Candidate, trial, in_sample: bool = True) -> None:
         stats, base = [], []
         for k, (_, held, _f) in enumerate(trial.used()):
             p = trial.profile_for(k)
-            stats += held.compare(p).captures if p is not None else held.base.captures
+            stats += held.compare(p, sim_frames=sim_frames).captures if p is not None else held.base.captures
             base += held.base.captures
+        if trial.every:  # captures outside the folds keep the profile's own
+            covered = {id(c) for _, held, _ in trial.folds for c in held.mset.captures}
+            stats += [s for c, s in zip(ctx.mset.captures, ctx.base.captures) if id(c) not in covered]
         _, families = combine(stats)
         if not trial.every:  # one half measured: its mean family's ratio to the profile's, over the whole set
             families["mean"] *= ctx.base.families["mean"] / max(combine(base)[1]["mean"], 1e-12)
@@ -1119,6 +1153,7 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:
             t.every = True
+            _warm(t, t.folds[0][2], t.folds[1:])
         run(finalists, "screen", "fitting the other folds", folds=every[1:])
         run(finalists, "finish", "fitting", folds=every)
         if refit:
@@ -1161,7 +1196,9 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     for c in [c for c in out if _changes_noise(c.effect)]:  # its estimate cannot see what it does
         if progress:
             progress(0, 1, f"{c.effect} (full error)")
-        _full(ctx, c, by_name[c.effect])
+        _full(ctx, c, by_name[c.effect], in_sample=False, sim_frames=4)
+        quick = ctx.compare(c.profile, ctx.quick, 4)
+        c.error_after, c.families = quick.error, dict(quick.families)
 
     def settle():  # the best: fitted on every capture (the profile to add), its errors the full ones
         out.sort(key=lambda c: c.score)
@@ -1170,6 +1207,10 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
             f = next((x for _, _, x in t.folds if x is not None), None) if t is not None else None
             if f is not None and t.main is None:
                 t.main = _fits(ctx, t.name, tuple(k for k in f.search.bounds if k not in f.keys))
+                if f.keys == t.main.keys:  # from the folds' mean
+                    fits = [x for _, _, x in t.used() if x is not None]
+                    t.main.x = np.clip(np.mean([x.x for x in fits], axis=0), [b[0] for b in f.bounds],
+                                       [b[1] for b in f.bounds])
                 if progress:
                     progress(0, 1, f"{t.name} (fitting on every capture)")
                 _attempt(t.main.screen, t)
