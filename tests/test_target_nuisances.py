@@ -200,6 +200,7 @@ def occluded_views():
     return profile, captures, footprints
 
 
+@pytest.mark.slow
 def test_an_occluder_on_the_board_is_masked(occluded_views):
     """The occluder is found from the board fit alone, masked (False = not compared) over nearly all of what it
     changes, and little else; with its mask the comparison is back near the noise floor, without it it is not."""
@@ -243,6 +244,7 @@ def camera_effect_views():
     return profile, falloff, halos
 
 
+@pytest.mark.slow
 def test_a_camera_fall_off_and_halos_are_not_masked(camera_effect_views):
     """Masking is conservative: the fall-off towards the corners and the halos at every edge are the camera's
     (smooth in the image, or at the edges), so next to nothing is masked."""
@@ -253,6 +255,7 @@ def test_a_camera_fall_off_and_halos_are_not_masked(camera_effect_views):
         assert masked <= 0.002, (cap.name, masked)
 
 
+@pytest.mark.slow
 def test_the_light_on_the_paper_leaves_a_camera_fall_off_to_the_camera(camera_effect_views):
     """The light on the paper, richer than bilinear, still cannot take the camera's radial fall-off: the profile
     given the true fall-off (its board fitted through it) explains the frames much better than the profile that
@@ -294,6 +297,7 @@ def lamp_views():
     return profile, captures, lights
 
 
+@pytest.mark.slow
 def test_a_smooth_light_on_the_paper_beyond_bilinear_is_taken_by_the_board(lamp_views):
     """A lamp's pool of light on the paper is the target's, not the camera's: the fitted light follows it (much
     closer than the best bilinear field can), and the comparison is near the noise floor."""
@@ -308,3 +312,52 @@ def test_a_smooth_light_on_the_paper_beyond_bilinear_is_taken_by_the_board(lamp_
         misfit = np.sqrt(np.mean((fit.white * fit.light(s, t) - truth) ** 2))
         assert misfit <= 0.5 * bilinear_misfit, (cap.name, misfit, bilinear_misfit)
     assert compare(_set(captures), profile).families["mean"] <= 2.0
+
+
+def test_outliers_are_compact_departures_not_smooth_ones():
+    """The outlier finder on an analytic departure map (paper whites): a fall-off of 15 % towards the frame's
+    corners, halos along every square's edge, noise, and one blob (a glint) of +0.4: the blob is found, nothing
+    else is."""
+    from lowcam.measure.targets import _board_outliers
+
+    rng = np.random.default_rng(3)
+    h, w = 480, 640
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    rho2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / (np.hypot(w, h) / 2) ** 2
+    squares = ((xx // 40) + (yy // 40)) % 2 == 0
+    edge = (np.minimum(xx % 40, 39 - xx % 40) < 3) | (np.minimum(yy % 40, 39 - yy % 40) < 3)
+    rel = -0.15 * rho2 + rng.normal(0, 0.01, (h, w)) + np.where(edge, 0.3 * np.sign(rng.normal(size=(h, w))), 0)
+    blob = (xx - 300) ** 2 + (yy - 200) ** 2 < 12 ** 2
+    rel[blob] += 0.4
+    found = _board_outliers(rel, ~edge, squares, 40.0)
+    assert found[blob].mean() >= 0.95
+    assert (found & ~(cv2.dilate(blob.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)).mean() <= 0.001
+
+
+def test_the_light_beyond_bilinear_takes_the_paper_s_shapes_but_not_a_radial_fall_off():
+    """On a tilted view's samples (board coordinates through an OpenCV homography, rho^2 from the image), the
+    light kept free of the view's rho^2 fits a saddle and cubic light on the paper, and leaves a radial fall-off's
+    curvature alone: what it takes of ``1 - 0.4 rho^2`` is its bilinear part only."""
+    from lowcam.measure.targets import _fit_light, _light_basis, _radial_free
+
+    r_mat = cv2.Rodrigues(np.array([0.25, -0.2, 0.1]))[0]
+    k = np.array([[365.0, 0, 319.5], [0, 365.0, 239.5], [0, 0, 1]])
+    hom = k @ np.column_stack([r_mat[:, 0], r_mat[:, 1], [0.02, -0.01, 0.3]])
+    s, t = [c.ravel() for c in np.meshgrid(np.linspace(-1, 1, 90), np.linspace(-1, 1, 60))]
+    p = hom @ np.vstack([0.125 * s, 0.0875 * t, np.ones_like(s)])
+    x, y = p[0] / p[2], p[1] / p[2]
+    rho2 = ((x - 319.5) ** 2 + (y - 239.5) ** 2) / 400.0 ** 2
+    dark = (np.floor(s * 5) + np.floor(t * 3.5)) % 2 == 0
+    basis = _light_basis(s, t)
+    free = _radial_free(basis, rho2, np.where(dark, 0.01, 1.0))
+    bilinear = basis[:, :4]
+
+    def misfit(light, columns):
+        r = np.where(dark, 0.1, 1.0) * light
+        a, beta = _fit_light(r, columns, dark)
+        return np.sqrt(np.mean((columns @ a - light) ** 2))
+
+    paper = 1 + 0.1 * s - 0.05 * t + 0.12 * (s ** 2 - t ** 2) + 0.08 * s ** 3 - 0.06 * s * t ** 2
+    assert misfit(paper, basis @ free) <= 0.35 * misfit(paper, bilinear)  # a little of it lies along rho^2
+    fall_off = 1 - 0.4 * rho2
+    assert misfit(fall_off, basis @ free) >= 0.9 * misfit(fall_off, bilinear)

@@ -54,12 +54,11 @@ def _residual_energy(stats) -> tuple[float, float]:
 
 
 def masked_shares(cmp) -> dict:
-    """Per capture with a mask: the share of its pixels left out of the comparison (``pixels``) and the share of
-    its residual energy they hold (``residual``: the sum of |residual|^2 / noise over the masked pixels, over all
-    its pixels)."""
+    """Per capture with pixels left out of the comparison: their share (``pixels``) and the share of its residual
+    energy they hold (``residual``: the sum of |residual|^2 / noise over the masked pixels, over all its pixels)."""
     out = {}
     for s in cmp.captures:
-        if s.sums.get("mask") is not None:
+        if s.sums.get("mask") is not None and not s.sums["mask"].all():
             masked, total = _residual_energy(s)
             out[s.name] = {"pixels": float((~s.sums["mask"]).mean()), "residual": masked / max(total, 1e-12)}
     return out
