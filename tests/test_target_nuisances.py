@@ -228,9 +228,9 @@ def _flat_fire_i():
 @pytest.fixture(scope="module")
 def camera_effect_views():
     """Three views at random poses, near (the board fills most of the frame), put through the profile, then given
-    camera effects it lacks, with numpy and OpenCV: a radial fall-off ``1 - 0.5 rho^2`` (0.5 at the corners, as in many webcams;
-    ``rho`` from the frame's centre over the half-diagonal), and, in a second set of the same views, also sharper
-    edges (an unsharp mask, 0.6 x (frame - Gaussian blur, sigma 1.2 px)): halos at every edge.
+    camera effects it lacks, with numpy and OpenCV: a radial fall-off ``1 - 0.5 rho^2`` (0.5 at the corners, as
+    in many webcams; ``rho`` from the frame's centre over the half-diagonal), and, in a second set of the same
+    views, also sharper edges (an unsharp mask, 0.6 x (frame - Gaussian blur, sigma 1.2 px)): halos at every edge.
     (profile, captures with the fall-off, captures with the fall-off and the halos)."""
     profile = _flat_fire_i()
     rng = np.random.default_rng(31)

@@ -61,7 +61,8 @@ def fit_veiling_glare(ctx, effect: str):
     the brightest and dimmest. The fit: for each radius of :data:`RADII_PX`, the frames with a trial haze give the
     model's response per unit strength ``J``; the strength is ``<J, R> / <J, J>`` (``R``: the residual, masked
     pixels left out), kept within the search bounds; the radius whose linear prediction leaves the least is
-    chosen, refined between its neighbours on the grid by a parabola in log radius. None when no capture has dark areas (a haze cannot be seen) or no haze lowers the error."""
+    chosen, refined between its neighbours on the grid by a parabola in log radius. None when no capture has dark
+    areas (a haze cannot be seen) or no haze lowers the error."""
     have = ctx.profile.effect(effect)
     base = ctx.profile.without(effect) if have is not None and have.enabled else ctx.profile
     subset = ctx.screening_subset("textured") if ctx.screening else ctx.subset("textured")
@@ -79,7 +80,8 @@ def fit_veiling_glare(ctx, effect: str):
     def trial(radius):
         """(drop in squared error the linear model predicts, strength, radius, response per unit strength)."""
         frames = ctx.clean(base.with_effect(effect, strength=_TRIAL_STRENGTH, radius_px=radius), idx)
-        jac = [(t - c) / _TRIAL_STRENGTH * (1.0 if k is None else k[..., None]) for t, c, k in zip(frames, clean, masks)]
+        jac = [(t - c) / _TRIAL_STRENGTH * (1.0 if k is None else k[..., None])
+               for t, c, k in zip(frames, clean, masks)]
         jj = sum(float((j.astype(np.float64) ** 2).sum()) for j in jac)
         jr = sum(float((j.astype(np.float64) * r).sum()) for j, r in zip(jac, resid))
         strength = float(np.clip(jr / max(jj, 1e-12), lo, hi))

@@ -284,11 +284,11 @@ def _board_outliers(rel: np.ndarray, detect: np.ndarray, dark: np.ndarray, squar
     ``rel`` is the measured flat-equivalent value less the fitted board's, over the paper white there (H, W), looked
     at on ``detect`` (the squares' and margin's pixels away from every edge: blur and sharpening live at the edges,
     and they are the camera's). Per square colour (``dark`` or not), a cubic in image coordinates is fitted to
-    ``rel`` robustly (from the median, points beyond the threshold left out, four times): what is smooth in the image (the camera's
-    fall-off, a haze on the black squares) stays with the camera. A seed departs from it by more than
-    :data:`OUTLIER_LEVEL` paper whites and :data:`OUTLIER_SIGMAS` robust sigmas; a region is the pixels departing
-    by half of that connected to at least ``(square_px / 6)^2`` seeds (one pixel's noise or a JPEG block is not
-    an occluder), grown over the edges between the squares (a dilation and closing by 4 px)."""
+    ``rel`` robustly (from the median, points beyond the threshold left out, four times): what is smooth in the
+    image (the camera's fall-off, a haze on the black squares) stays with the camera. A seed departs from it by
+    more than :data:`OUTLIER_LEVEL` paper whites and :data:`OUTLIER_SIGMAS` robust sigmas; a region is the pixels
+    departing by half of that connected to at least ``(square_px / 6)^2`` seeds (one pixel's noise or a JPEG block
+    is not an occluder), grown over the edges between the squares (a dilation and closing by 4 px)."""
     h, w = rel.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     xn, yn = (xx - (w - 1) / 2) / (w / 2), (yy - (h - 1) / 2) / (w / 2)
@@ -539,10 +539,11 @@ def fit_target(profile, capture):
 
 
 def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the frames through the profile's
-    lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`; ``nuisances=False``: a
-    one-square white border and the 95th/5th percentiles of the green mean inside the corners' hull as white and
-    black, the former behaviour, kept for comparison), and the frames' own mean as the plate around the paper."""
+    """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the
+    frames through the profile's lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`;
+    ``nuisances=False``: a one-square white border and the 95th/5th percentiles of the green mean inside the
+    corners' hull as white and black, the former behaviour, kept for comparison, and no mask), the frames' own mean
+    as the plate around the paper, and the mask: False on the board fit's outliers (None when there are none)."""
     spec, rvec, tvec, u8 = board_pose(profile, capture)
     if nuisances:
         _, rvec, tvec, fitted = fit_target(profile, capture)
