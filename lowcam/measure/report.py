@@ -4,6 +4,7 @@ Measured-versus-model probes are drawn for each physical effect; the error histo
 
 Contents
 --------
+- :func:`masked_shares`: per capture, the share of pixels masked and of the residual energy they hold
 - :func:`probe_figures`: every probe as (title, PNG path)
 - :func:`history_path`: where a set keeps its comparison history
 - :func:`read_history`: the set's comparison history; a damaged file is a one-line error
@@ -40,6 +41,31 @@ def _pick(stats, key):
     return stats[int(np.argmax(scores) if key == "texture" else np.argmin(scores))]
 
 
+def _full_noise(stats) -> np.ndarray:
+    """(H, W, 3): the noise variance of the difference of the means at every pixel, masked ones included (the
+    comparison's own noise map is 0 where it does not compare): the measured frames' per-pixel variance (or the
+    one assumed for them) x (1 / frames + 1 / simulated frames)."""
+    return stats.sums["variance_map"] * (1 / len(stats.measured) + 1 / len(stats.simulated))
+
+
+def _residual_energy(stats) -> tuple[float, float]:
+    """(in the masked pixels, in all): the sum of |residual|^2 / noise of one capture."""
+    energy = (stats.residual ** 2 / _full_noise(stats)).sum(-1)
+    mask = stats.sums.get("mask")
+    return (0.0 if mask is None else float(energy[~mask].sum())), float(energy.sum())
+
+
+def masked_shares(cmp) -> dict:
+    """Per capture with pixels left out of the comparison: their share (``pixels``) and the share of its residual
+    energy they hold (``residual``: the sum of |residual|^2 / noise over the masked pixels, over all its pixels)."""
+    out = {}
+    for s in cmp.captures:
+        if s.sums.get("mask") is not None and not s.sums["mask"].all():
+            masked, total = _residual_energy(s)
+            out[s.name] = {"pixels": float((~s.sums["mask"]).mean()), "residual": masked / max(total, 1e-12)}
+    return out
+
+
 def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     """Every probe as (title, PNG path)."""
     from ..effects.bayer import block_correlations
@@ -52,17 +78,31 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     def fig(name, title, draw, size=(7, 4)):
         out.append((title, figure(folder / f"{name}.png", draw, size)))
 
-    # residual maps, in units of the noise of the means
+    # residual maps, in units of the noise of the means, one panel per capture; masked regions tinted
+    shares = masked_shares(cmp)
+    cols = min(len(stats), 4)
+    rows = -(-len(stats) // cols)
+
     def residual_maps(f):
-        n = len(stats)
-        for k, s in enumerate(stats):
-            ax = f.add_subplot(1, n, k + 1)
-            z = np.sqrt((s.residual ** 2).sum(-1) / s.sums["noise_map"].sum(-1))
-            im = ax.imshow(z, cmap="magma", vmin=0, vmax=max(3.0, float(np.percentile(z, 99))))
-            ax.set_title(s.name, fontsize=8)
+        maps = [np.sqrt((s.residual ** 2).sum(-1) / _full_noise(s).sum(-1)) for s in stats]
+        top = max(3.0, float(np.percentile(np.concatenate([z.ravel() for z in maps]), 99)))
+        for k, (s, z) in enumerate(zip(stats, maps)):
+            ax = f.add_subplot(rows, cols, k + 1)
+            im = ax.imshow(z, cmap="magma", vmin=0, vmax=top)
+            title = s.name
+            mask = s.sums.get("mask")
+            if mask is not None and not mask.all():
+                tint = np.zeros(mask.shape + (4,), np.float32)
+                tint[~mask] = (0.0, 0.9, 1.0, 0.45)
+                ax.imshow(tint)
+                ax.contour(~mask, [0.5], colors="cyan", linewidths=0.6)
+                share = shares[s.name]
+                title += f": masked {share['pixels']:.1%} of pixels, {share['residual']:.0%} of residual"
+            ax.set_title(title, fontsize=8)
             ax.axis("off")
-        f.colorbar(im, ax=f.axes, shrink=0.6, label="|residual| / noise")
-    fig("residual_maps", "Residual maps", residual_maps, (3 * len(stats), 3))
+            f.colorbar(im, ax=ax, fraction=0.035, pad=0.02).ax.tick_params(labelsize=6)
+    fig("residual_maps", "Residual maps (|residual| / noise; masked regions tinted, not compared)", residual_maps,
+        (4.2 * cols, 3.2 * rows))
 
     w = cmp.where
 
@@ -346,11 +386,22 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
         figures.insert(0, ("Error history", history_figure(history, folder)))
     numbers = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict,
                "families": cmp.families, "where": cmp.where}
+    shares = masked_shares(cmp)
+    if shares:
+        numbers["masked"] = shares
     if extra:
         numbers.update(extra)
     parts = [f"<p><b>error {cmp.error:.3f}</b> (1.0 = the noise floor; explained below 1.1): "
              f"{html.escape(cmp.verdict)}. Families: " +
              ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()) + "</p>"]
+    if shares:
+        pixels = sum(v["pixels"] for v in shares.values()) / len(cmp.captures)
+        masked, total = np.sum([_residual_energy(s) for s in cmp.captures], axis=0)
+        held = masked / max(total, 1e-12)
+        parts.append(f"<p>Left out of the comparison (tinted on the residual maps): {pixels:.1%} of the pixels, in "
+                     f"{len(shares)} of {len(cmp.captures)} captures, holding {held:.0%} of the residual energy: "
+                     "where the frames are not the fitted chart (an occluder, a glint, the paper's edge) or the "
+                     "capture's own mask.</p>")
     extra = extra or {}
     parts += candidate_sections(extra.get("candidates", []), extra.get("not_fitted", []), folder, error=cmp.error)
     added = [(s["step"], c) for s in extra.get("steps", []) for c in s["candidates"][:1] if s.get("added")]

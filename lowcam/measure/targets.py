@@ -4,31 +4,47 @@ The board's pose is estimated from the mean of the frames through the profile's 
 blamed for anything, the target's own nuisances are fitted to the frames (:func:`fit_board_nuisances`):
 
 - the **paper white and black** (render units, at the board's centre),
-- a smooth **illumination field** on the paper, bilinear in board coordinates ``(s, t)`` (each -1..1 across the
-  squares): ``L = 1 + c_s s + c_t t + c_st s t``, one per capture. Lighting lives on the paper, so the field is
-  written in board coordinates. It is kept low order on purpose: the camera's vignetting is radial in image
-  coordinates and projects onto the board as ``~ s^2 + t^2`` (rotation-invariant, no ``s t`` term), so a
-  bilinear field cannot absorb a centred fall-off; only its one-sided part, which a tilted lamp also makes.
+- a smooth **illumination field** on the paper, in board coordinates ``(s, t)`` (each -1..1 across the squares),
+  one per capture: ``L = 1 + sum_k c_k s^i t^j`` over :data:`LIGHT_TERMS` (bilinear, then the terms of degree 2
+  and 3). Lighting lives on the paper, so the field is written in board coordinates. The camera's vignetting is
+  radial in image coordinates: on the board it is a smooth function a cubic could follow, and within one view
+  nothing tells the two apart. The bilinear part of a fall-off goes to the light (a tilted lamp makes it too),
+  as the bilinear field always did; its curvature does not: the terms beyond bilinear are kept orthogonal to the
+  view's ``rho^2`` (:func:`_radial_free`), so an even bowl or dome on the board (``~ s^2 + t^2`` for a centred
+  view) stays the camera's, while saddles, one-sided curvature and the cubic terms are the paper's. The terms
+  beyond bilinear carry a small ridge (:data:`LIGHT_RIDGE`) and are used only when the white squares are
+  measured (not clipped) and the richer light predicts squares held out of its fit better
+  (:func:`_richer_light_holds`); else the light stays bilinear.
 - the **white paper margin** around the squares, per side (left, top, right, bottom, in squares, continuous): the
   first strong falling edge of the measured paper-ness ``r / (white L)`` outward from the squares' outer edge.
   The paper is rendered out to it, the frames' own mean (the plate) lies beyond.
+- the **outliers** of the fit (:func:`_board_outliers`): regions where the frames are not the fitted board (a
+  hand or a finger, a glint, a stain, the paper's edge where the print does not end as modelled), found in the
+  flat-equivalent domain as departures from the fit beyond what is smooth in the image, grown into connected
+  regions. They are the capture's mask (:class:`~lowcam.measure.compare.CaptureInputs`), left out of the
+  comparison, and the light is fitted again without them. They come from the data and the profile the board is
+  fitted through (in diagnosis, the diagnosed one), so every candidate is compared on the same pixels.
 
 The fit is made in the profile's own "flat-equivalent render value" domain: the quiet profile (no noise, no
 quantisation) is run once per profile on flat renders at :data:`FLAT_LEVELS`, and each measured mean pixel is
 inverted through its own response curve (piecewise linear). Vignetting, the tone curve, the bit depth and the
 gains of the profile are thereby camera effects kept out of the nuisances: they are common to all views and
 come from the profile. The fit itself is then linear least squares (alternating between the field and the
-black/white ratio, with outliers such as fingers on the board rejected), well under 0.5 s per capture once the
+black/white ratio, with outliers such as fingers on the board rejected), under a second per capture once the
 profile's flat responses are cached.
 
 Contents
 --------
 - :data:`FLAT_LEVELS`: the flat render values at which the profile's response is tabulated
 - :data:`MAX_MARGIN`: the widest paper margin searched for, in squares
-- :class:`BoardNuisances`: the fitted paper white, black, illumination field and margins of one capture
+- :data:`OUTLIER_LEVEL`, :data:`OUTLIER_SIGMAS`: how far from the board fit an outlier departs
+- :data:`LIGHT_TERMS`, :data:`LIGHT_RIDGE`, :data:`RICH_LIGHT_SUPPORT`: the illumination field's terms and when
+  the terms beyond bilinear are used
+- :class:`BoardNuisances`: the fitted paper white, black, illumination field, margins and outliers of one capture
 - :func:`flat_response`: the quiet profile's per-pixel output (channel mean, DN) for flat renders, cached
 - :func:`board_coordinates`: per output pixel, the board coordinates (in squares) through the lens and the pose
-- :func:`fit_board_nuisances`: white, black, illumination and margins from a capture's mean, pose and profile
+- :func:`fit_board_nuisances`: white, black, illumination, margins and outliers from a capture's mean, pose and
+  profile
 - :func:`board_texture`: a printed chessboard with its paper margin, lit, and its pixel -> metre origin offset
 - :func:`render_board_view`: a pinhole render (premultiplied RGBA, opaque on the paper) of a chessboard at a pose
 - :func:`board_pose`: a ``target`` capture's board description and pose (through the profile's lens)
@@ -38,7 +54,7 @@ Contents
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -49,26 +65,48 @@ from ..errors import LowcamError
 FLAT_LEVELS = (0.0, 0.03, 0.08, 0.16, 0.3, 0.5, 0.75, 1.05, 1.5)
 #: The widest white paper margin searched for around the squares, in squares.
 MAX_MARGIN = 2.0
+#: An outlier of the board fit departs from it by this much at least (paper whites, flat-equivalent) ...
+OUTLIER_LEVEL = 0.08
+#: ... and by this many robust sigmas of the fit's departures (:func:`_board_outliers`).
+OUTLIER_SIGMAS = 5.0
 _RESPONSES: OrderedDict = OrderedDict()
+
+
+#: The illumination polynomial's terms after the constant, as exponents (i, j) of ``s^i t^j``: the bilinear ones
+#: first, then those of degree 2 and 3.
+LIGHT_TERMS = ((1, 0), (0, 1), (1, 1), (2, 0), (0, 2), (2, 1), (1, 2), (3, 0), (0, 3))
+_BILINEAR = 3
+#: The ridge on the light's terms beyond the bilinear ones (per white sample; the terms' mean squares are ~0.1-0.3
+#: over the board, so a term the white squares determine is shrunk by a few per cent only).
+LIGHT_RIDGE = 0.01
+#: The light beyond bilinear is fitted only where at least this share of the white squares' pixels is measured
+#: (not clipped: clipped white squares do not tell the light), and where it predicts held-out squares better.
+RICH_LIGHT_SUPPORT = 0.8
 
 
 @dataclass
 class BoardNuisances:
     """A board's nuisances. ``white``/``black``: render values of the paper at the board's centre;
-    ``illumination``: ``(c_s, c_t, c_st)`` of ``L = 1 + c_s s + c_t t + c_st s t`` with ``s, t`` in -1..1
+    ``illumination``: the coefficients ``c_k`` of ``L = 1 + sum_k c_k s^i t^j`` over :data:`LIGHT_TERMS` (the
+    first three: ``s``, ``t``, ``s t``; a shorter tuple leaves the later terms at 0) with ``s, t`` in -1..1
     across the squares; ``margins``: white paper beyond the squares (left, top, right, bottom) in squares;
-    ``flipped``: the square at the first inner corner's top-left is white (the parity seen in the frames)."""
+    ``flipped``: the square at the first inner corner's top-left is white (the parity seen in the frames);
+    ``outliers``: (H, W) bool, the output pixels where the frames are not the fitted board (an occluder, a
+    reflection, the paper's edge where it is not modelled), or None when not looked for."""
 
     white: float = 0.9
     black: float = 0.1
     illumination: tuple = (0.0, 0.0, 0.0)
     margins: tuple = (1.0, 1.0, 1.0, 1.0)
     flipped: bool = False
+    outliers: np.ndarray | None = field(default=None, repr=False)
 
     def light(self, s, t):
         """The illumination field at board coordinates (s, t)."""
-        cs, ct, cst = self.illumination
-        return 1.0 + cs * s + ct * t + cst * s * t
+        out = 1.0
+        for c, (i, j) in zip(self.illumination, LIGHT_TERMS):
+            out = out + c * s ** i * t ** j
+        return out
 
 
 def _quiet(profile):
@@ -133,25 +171,76 @@ def _board_st(u, v, inner):
     return (u - (inner[0] - 1) / 2) / (cols / 2), (v - (inner[1] - 1) / 2) / (rows / 2)
 
 
-def _fit_light(r, s, t, dark, iterations: int = 20):
-    """Least squares of r = k (a0 + a1 s + a2 t + a3 s t), k = 1 on white and beta on black squares: alternating
-    between the field (4x4 normal equations) and beta (closed form), outliers beyond 4 robust sigmas dropped
-    twice (fingers, glints). Returns (a, beta)."""
-    basis = np.column_stack([np.ones_like(s), s, t, s * t])
+def _light_basis(s, t, terms=LIGHT_TERMS) -> np.ndarray:
+    """(N, 1 + len(terms)): the constant and ``s^i t^j`` for each term."""
+    return np.column_stack([np.ones_like(s)] + [s ** i * t ** j for i, j in terms])
+
+
+def _radial_free(basis: np.ndarray, rho2: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(K, K - 1): the light's coefficient vectors that keep the camera's radial fall-off out of it.
+
+    In one view, a fall-off fixed in the image, ``1 + k2 rho^2 (+ ...)`` (``rho``: radius from the frame's centre
+    over the half-diagonal, as :func:`lowcam.effects.vignetting.radial_vignetting` has it), is a smooth function on
+    the paper that a cubic in ``(s, t)`` could follow, and nothing in the view tells the two apart. Its bilinear
+    part is left to the light (as the bilinear field always did: a tilted lamp makes it too); the rest,
+    ``rho^2_perp`` (orthogonal to the bilinear terms under the fit's ``weight``), is not: the higher terms'
+    combination ``H a_h`` must be orthogonal to it, ``rho^2_perp^T W H a_h = 0``. The returned basis spans the
+    bilinear coefficients and the null space of that 1 x (K - 4) constraint: a light fitted in it cannot take the
+    fall-off's curvature (an even bowl or dome on the board, which a lamp's pool centred on it also makes, is
+    therefore left to the camera too); it takes saddles, one-sided curvature and the cubic terms."""
+    nb = 1 + _BILINEAR
+    bil, high = basis[:, :nb], basis[:, nb:]
+    sw = np.sqrt(weight)
+    perp = rho2 - bil @ np.linalg.lstsq(bil * sw[:, None], rho2 * sw, rcond=None)[0]
+    c = (perp * weight) @ high
+    c /= max(float(np.linalg.norm(c)), 1e-12)
+    free = np.linalg.svd(c[None, :])[2][1:].T
+    out = np.zeros((basis.shape[1], nb + free.shape[1]))
+    out[:nb, :nb] = np.eye(nb)
+    out[nb:, nb:] = free
+    return out
+
+
+def _fit_light(r, basis, dark, iterations: int = 20, ridge=None):
+    """Least squares of r = k (basis @ a), k = 1 on white and beta on black squares (the basis's first column the
+    constant): alternating between the field (normal equations) and beta (closed form), outliers beyond 4 robust
+    sigmas dropped twice (fingers, glints). ``ridge`` (per column, or None): ``ridge_k * a_k^2`` per white sample
+    is added to the squared error, so a term the white squares do not determine (where they are clipped, say)
+    stays near 0 rather than following the black squares alone. Returns (a, beta)."""
+    n = basis.shape[1]
+    ridge = np.zeros(n) if ridge is None else np.asarray(ridge, np.float64)
     keep = np.ones(r.size, bool)
-    a, beta = np.array([np.median(r[~dark]), 0.0, 0.0, 0.0]), 0.1
+    a, beta = np.zeros(n), 0.1
+    a[0] = np.median(r[~dark])
     for rnd in range(3):
         w, b = keep & ~dark, keep & dark
         gw, gb = basis[w].T @ basis[w], basis[b].T @ basis[b]
         hw, hb = basis[w].T @ r[w], basis[b].T @ r[b]
         for _ in range(iterations):
-            a = np.linalg.solve(gw + beta ** 2 * gb + 1e-12 * np.eye(4), hw + beta * hb)
+            a = np.linalg.solve(gw + beta ** 2 * gb + np.diag(ridge * w.sum() + 1e-12), hw + beta * hb)
             beta = float(a @ hb / max(a @ gb @ a, 1e-12))
         if rnd < 2:
             resid = r - np.where(dark, beta, 1.0) * (basis @ a)
             mad = 1.4826 * np.median(np.abs(resid[keep])) + 1e-6
             keep = np.abs(resid) < 4 * mad
     return a, beta
+
+
+def _richer_light_holds(r, bilinear, rich, dark, blocks) -> bool:
+    """True when the light ``rich`` (basis columns; its first ``1 + 3`` the bilinear ones) predicts squares held
+    out of its fit better than ``bilinear``: two-fold, the board split into blocks of 2 x 2 squares
+    (``blocks``: True on one half), each half fitted (:func:`_fit_light`) and scored on the other by the median
+    absolute error; the richer light must lower it by 2 % at least."""
+    def held_out(basis):
+        ridge = np.r_[np.zeros(1 + _BILINEAR), np.full(basis.shape[1] - 1 - _BILINEAR, LIGHT_RIDGE)]
+        errors = []
+        for fold in (blocks, ~blocks):
+            if fold.sum() < 100 or (~fold).sum() < 100:
+                return np.inf
+            a, beta = _fit_light(r[fold], basis[fold], dark[fold], ridge=ridge)
+            errors.append(np.abs(r[~fold] - np.where(dark[~fold], beta, 1.0) * (basis[~fold] @ a)))
+        return float(np.median(np.concatenate(errors)))
+    return held_out(rich) < 0.98 * held_out(bilinear)
 
 
 def _margin(d, q, max_margin: float) -> float:
@@ -189,17 +278,58 @@ def _margin(d, q, max_margin: float) -> float:
     return float(np.clip(start + (i + 1 + np.clip(frac, -0.5, 0.5)) * bin_w, start, max_margin))
 
 
+def _board_outliers(rel: np.ndarray, detect: np.ndarray, dark: np.ndarray, square_px: float) -> np.ndarray:
+    """(H, W) bool: the regions where the frames are not the fitted board.
+
+    ``rel`` is the measured flat-equivalent value less the fitted board's, over the paper white there (H, W), looked
+    at on ``detect`` (the squares' and margin's pixels away from every edge: blur and sharpening live at the edges,
+    and they are the camera's). Per square colour (``dark`` or not), a cubic in image coordinates is fitted to
+    ``rel`` robustly (from the median, points beyond the threshold left out, four times): what is smooth in the
+    image (the camera's fall-off, a haze on the black squares) stays with the camera. A seed departs from it by
+    more than :data:`OUTLIER_LEVEL` paper whites and :data:`OUTLIER_SIGMAS` robust sigmas; a region is the pixels
+    departing by half of that connected to at least ``(square_px / 6)^2`` seeds (one pixel's noise or a JPEG block
+    is not an occluder), grown over the edges between the squares (a dilation and closing by 4 px)."""
+    h, w = rel.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xn, yn = (xx - (w - 1) / 2) / (w / 2), (yy - (h - 1) / 2) / (w / 2)
+    seeds, weak = np.zeros(rel.shape, bool), np.zeros(rel.shape, bool)
+    for cls in (dark, ~dark):
+        sel = detect & cls
+        if sel.sum() < 50:
+            continue
+        basis = np.column_stack([xn[sel] ** i * yn[sel] ** j for i in range(4) for j in range(4 - i)])
+        e = rel[sel].astype(np.float64)
+        d = e - np.median(e)
+        for k in range(5):
+            if k:
+                d = e - basis @ np.linalg.lstsq(basis[keep], e[keep], rcond=None)[0]
+            thr = max(OUTLIER_SIGMAS * 1.4826 * float(np.median(np.abs(d if k == 0 else d[keep]))), OUTLIER_LEVEL)
+            keep = np.abs(d) < thr
+        seeds[sel], weak[sel] = np.abs(d) >= thr, np.abs(d) >= thr / 2
+    if not seeds.any():
+        return seeds
+    n, labels = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+    count = np.bincount(labels[seeds], minlength=n)
+    count[0] = 0
+    region = (count >= max(10.0, (square_px / 6) ** 2))[labels]
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
+    region = cv2.dilate(region.astype(np.uint8), disc)
+    return cv2.morphologyEx(region, cv2.MORPH_CLOSE, disc) > 0
+
+
 def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: float,
                         max_margin: float = MAX_MARGIN, max_samples: int = 30000, simulated=None,
                         previous: BoardNuisances | None = None) -> BoardNuisances:
-    """Fit a board's paper white and black, its bilinear illumination field and its paper margins to the mean
-    of a capture's frames (H, W, 3, DN), given the board's pose (see the module docstring for the method).
+    """Fit a board's paper white and black, its illumination field, its paper margins and its outliers to the
+    mean of a capture's frames (H, W, 3, DN), given the board's pose (see the module docstring for the method).
     ``simulated`` (the quiet profile's frame of the board rendered with ``previous``) corrects the squares for
     what the chain does beyond a flat field (sharpening halos near the edges): measured x model / simulated.
 
-    Two passes: white, black and light on the inner squares (the outer ones may be cut by the paper's edge),
-    then the margins, then white, black and light again on every square inside the paper. Pixels within 3 px
-    of a square's edge are left out (the camera's blur lives there); at most ``max_samples`` pixels are used."""
+    White, black and a bilinear light on the inner squares (the outer ones may be cut by the paper's edge), then
+    the margins, then white, black and the light (:data:`LIGHT_TERMS` where they hold) on every square inside the
+    paper, then the outliers of that fit (:func:`_board_outliers`) and the fit again without them. Pixels within
+    3 px of a square's edge are left out (the camera's blur lives there); at most ``max_samples`` pixels are
+    used."""
     table = flat_response(profile)
     u, v = board_coordinates(profile, rvec, tvec, square)
     x0, x1, y0, y1 = -1.0, float(inner[0]), -1.0, float(inner[1])  # the squares' outer edges, in squares
@@ -220,7 +350,7 @@ def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: fl
                                              np.asarray(simulated, np.float32).mean(axis=2).ravel()[pick])
         model = np.zeros(u.size, np.float32)
         ss, tt = _board_st(u.ravel()[pick], v.ravel()[pick], inner)
-        dark_prev = (parity.ravel()[pick] != previous.flipped)
+        dark_prev = (parity.ravel()[pick] != previous.flipped) & on_squares.ravel()[pick]
         model[pick] = np.where(dark_prev, previous.black, previous.white) * previous.light(ss, tt)
         ratio = np.ones(u.size, np.float32)
         good = np.zeros(u.size, bool)
@@ -233,11 +363,33 @@ def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: fl
         raise LowcamError("the board's squares are too small in the frame to fit its paper and lighting")
     even_dark = bool(np.median(value[cores[0] & ok & inner_sq]) < np.median(value[cores[1] & ok & inner_sq]))
 
-    def light_fit(region):
+    h, w = u.shape
+    rho2_map = ((np.arange(w)[None, :] - (w - 1) / 2) ** 2 + (np.arange(h)[:, None] - (h - 1) / 2) ** 2) / \
+        (np.hypot(w, h) / 2) ** 2
+
+    white_cores = cores[1] if even_dark else cores[0]
+
+    def light_fit(region, beta0=None):
+        """Bilinear light (``beta0`` None) or the cubic one, kept free of the radial fall-off (:func:`_radial_free`,
+        its weights 1 on white and ``beta0^2`` on black squares) when it predicts held-out squares better
+        (:func:`_richer_light_holds`)."""
         idx = np.flatnonzero((cores[0] | cores[1]) & ok & region)
         idx = idx[::max(1, len(idx) // max_samples)]
         s, t = _board_st(u.flat[idx], v.flat[idx], inner)
-        a, beta = _fit_light(light_value.flat[idx].astype(np.float64), s, t, cores[0].flat[idx] == even_dark)
+        dark = cores[0].flat[idx] == even_dark
+        r = light_value.flat[idx].astype(np.float64)
+        basis = _light_basis(s, t, LIGHT_TERMS[:_BILINEAR])
+        if beta0 is not None:
+            rich = _light_basis(s, t)
+            free = _radial_free(rich, rho2_map.flat[idx], np.where(dark, beta0 ** 2, 1.0))
+            blocks = (np.floor(u.flat[idx] / 2) + np.floor(v.flat[idx] / 2)).astype(np.int64) % 2 == 0
+            measured = (white_cores & region & ok).sum() / max((white_cores & region).sum(), 1)
+            if measured >= RICH_LIGHT_SUPPORT and _richer_light_holds(r, basis, rich @ free, dark, blocks):
+                basis = rich @ free
+        ridge = np.r_[np.zeros(1 + _BILINEAR), np.full(basis.shape[1] - 1 - _BILINEAR, LIGHT_RIDGE)]
+        a, beta = _fit_light(r, basis, dark, ridge=ridge)
+        if basis.shape[1] > 1 + _BILINEAR:
+            a = free @ a
         if a[0] <= 0:
             raise LowcamError("the board's paper white could not be fitted (is the board lit?)")
         return BoardNuisances(white=float(a[0]), black=float(beta * a[0]),
@@ -245,10 +397,11 @@ def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: fl
 
     nuis = light_fit(inner_sq)
     # the paper margin, side by side: paper-ness r / (white L) against the distance from the squares' edge;
-    # inside the outer squares (the paper may cut into them) only their white ones count
+    # inside the outer squares (the paper may cut into them) only their white ones count, and not within 3 px of
+    # a black one (its blurred edge would make a falling edge where the squares end)
     ss, tt = _board_st(u, v, inner)
     paperness = value / np.maximum(nuis.white * nuis.light(ss, tt), 1e-6)
-    light_sq = ~(on_squares & (parity == even_dark))
+    light_sq = cv2.dilate((on_squares & (parity == even_dark)).astype(np.uint8), kernel) == 0
     sides = [(x0 - u, (v > y0 + 0.5) & (v < y1 - 0.5)), (y0 - v, (u > x0 + 0.5) & (u < x1 - 0.5)),
              (u - x1, (v > y0 + 0.5) & (v < y1 - 0.5)), (v - y1, (u > x0 + 0.5) & (u < x1 - 0.5))]
     margins = []
@@ -256,10 +409,23 @@ def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: fl
         m = along & ok & (d >= -1) & (d < max_margin) & light_sq
         margins.append(_margin(d[m], paperness[m], max_margin))
     left, top, right, bottom = margins
+    beta0 = nuis.black / nuis.white
     paper = (u > x0 - left) & (u < x1 + right) & (v > y0 - top) & (v < y1 + bottom)
-    paper = cv2.erode(paper.astype(np.uint8), kernel) > 0
-    nuis = light_fit(paper)
+    nuis = light_fit(cv2.erode(paper.astype(np.uint8), kernel) > 0, beta0)
+    # the outliers of this fit (occluders, the paper's edge), then the fit again without them
+    dark_px = on_squares & (parity == even_dark)
+    light = nuis.light(ss, tt)
+    expected = np.where(dark_px, nuis.black, nuis.white) * light
+    rel = (light_value - expected) / np.maximum(nuis.white * light, 1e-6)
+    detect = ok & near & paper & np.logical_or.reduce(
+        [cv2.erode((paper & part).astype(np.uint8), kernel) > 0 for part in (dark_px, on_squares & ~dark_px,
+                                                                             ~on_squares)])
+    square_px = float(np.sqrt(max(on_squares.sum(), 1) / ((inner[0] + 1) * (inner[1] + 1))))
+    outliers = _board_outliers(rel, detect, dark_px, square_px)
+    if outliers.any():
+        nuis = light_fit(cv2.erode((paper & ~outliers).astype(np.uint8), kernel) > 0, beta0)
     nuis.margins = tuple(margins)
+    nuis.outliers = outliers
     return nuis
 
 
@@ -373,14 +539,16 @@ def fit_target(profile, capture):
 
 
 def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the frames through the profile's
-    lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`; ``nuisances=False``: a
-    one-square white border and the 95th/5th percentiles of the green mean inside the corners' hull as white and
-    black, the former behaviour, kept for comparison), and the frames' own mean as the plate around the paper."""
+    """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the
+    frames through the profile's lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`;
+    ``nuisances=False``: a one-square white border and the 95th/5th percentiles of the green mean inside the
+    corners' hull as white and black, the former behaviour, kept for comparison, and no mask), the frames' own mean
+    as the plate around the paper, and the mask: False on the board fit's outliers (None when there are none)."""
     spec, rvec, tvec, u8 = board_pose(profile, capture)
     if nuisances:
         _, rvec, tvec, fitted = fit_target(profile, capture)
-        return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8, None
+        mask = None if fitted.outliers is None or not fitted.outliers.any() else ~fitted.outliers
+        return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8, mask
     from ..captures import detect_target
 
     img = detect_target(u8, spec)[1]
