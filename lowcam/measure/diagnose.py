@@ -1076,11 +1076,12 @@ def _full(ctx, c: Candidate, trial, in_sample: bool = True, sim_frames: int | No
     the captures it did not see, carried to the whole set as in :func:`_held_out`), with ``sim_frames``
     simulated frames per capture (default: as many as measured, at least 4)."""
     started = time.perf_counter()
-    if in_sample:
+    fixed = c.validation == "nothing fitted" and not (trial is not None and trial.joint)
+    if in_sample or fixed:  # nothing fitted: its error in sample is its error held out
         c.comparison = ctx.compare(c.profile)
         c.error_after, c.families, c.full = c.comparison.error, dict(c.comparison.families), True
-    if c.validation == "nothing fitted" and not (trial is not None and trial.joint):
-        c.held_out, c.held_out_families, c.held_out_full = c.error_after, dict(c.families), c.full
+    if fixed:
+        c.held_out, c.held_out_families, c.held_out_full = c.error_after, dict(c.families), True
     elif trial is not None and trial.folds:
         stats, base = [], []
         for k, (_, held, _f) in enumerate(trial.used()):
