@@ -77,6 +77,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import NotFitted
 from .compare import EXPLAINED_BELOW, capture_inputs, combine, compare, prefix_key, row_noise_variance, \
     simulate_capture
 
@@ -340,6 +341,7 @@ class _Fit:
         current = have.values() if have is not None and have.enabled and not search.replace else {}
         self.x = np.array([current.get(k, search.start.get(k, cls.params[k].default)) for k in self.keys], float)
         self.result = None  # (profile, params, shown) once fitted in closed form
+        self.reason = None  # why a fit could not be made (NotFitted)
         self.done = False
         self.seconds = 0.0
 
@@ -383,6 +385,8 @@ class _Fit:
             self.ctx.screening = True  # a fit that ``refines`` does a coarse version now, the full one in finish
             try:
                 self.result = fit(self.ctx, self.cls.name)
+            except NotFitted as e:
+                self.result, self.reason = None, str(e)
             finally:
                 self.ctx.screening = False
             self.done = self.result is None or not getattr(fit, "refines", False)
@@ -397,7 +401,11 @@ class _Fit:
     def finish(self):
         started = time.perf_counter()
         if self.search.fit:  # a fit that refines: its full version
-            self.result, self.done = self._fit()(self.ctx, self.cls.name), True
+            try:
+                self.result = self._fit()(self.ctx, self.cls.name)
+            except NotFitted as e:
+                self.result, self.reason = None, str(e)
+            self.done = True
             self.seconds += time.perf_counter() - started
             return
         if self.keys:
