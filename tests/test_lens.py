@@ -60,6 +60,24 @@ def test_opencv_model_matches_cv2_projectpoints():
     assert np.abs(und[:, 0] - pts[:, :2]).max() < 1e-5
 
 
+def test_opencv_radial_inverse_matches_cv2_and_stops_at_the_peak():
+    """Without tangential terms the inverse solves the radius alone: cv2.projectPoints' pixels come back to their
+    rays; a pixel beyond the largest radius the lens reaches (its radius turns back at r = 1.22 here) comes back
+    to the ray of that peak, not to a point of the far branch."""
+    k = dict(k1=-0.3932, k2=0.3044, k3=-0.1141)  # a compact's 24 mm wide angle fitted by Brown-Conrady
+    lens = OpenCVLens(W, H, 487.68, 487.68, 319.5, 239.5, **k)
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(-0.95, 0.95, 300), rng.uniform(-0.7, 0.7, 300), np.ones(300)])
+    K = np.array([[487.68, 0, 319.5], [0, 487.68, 239.5], [0, 0, 1]])
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, np.array([k["k1"], k["k2"], 0, 0, k["k3"]]))
+    x, y = lens.undistort(ref[:, 0, 0], ref[:, 0, 1])
+    assert np.abs(np.column_stack([x, y]) - pts[:, :2]).max() < 1e-9
+    r = np.linspace(0, 2, 20001)
+    peak = r[np.argmax(r * (1 + r * r * (k["k1"] + r * r * (k["k2"] + r * r * k["k3"]))))]
+    x, y = lens.undistort(np.array([319.5 + 500.0]), np.array([239.5]))  # 500 px out: beyond the lens's reach
+    assert x[0] == pytest.approx(peak, abs=1e-3) and y[0] == 0.0
+
+
 @pytest.mark.parametrize("model, coefficients", [
     ("polynomial", dict(k1=-0.12, k2=0.02, k3=-0.003)),
     ("division", dict(division_k1=-0.08, division_k2=0.01)),
