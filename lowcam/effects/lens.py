@@ -54,7 +54,8 @@ Contents
   5.2 steps 1-2)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
 - :func:`range_of`: the ranges of the parameters the candidate fits in a lens model
-- :data:`REACH_GAIN`: how much further out the flow must reach for the candidate to go on with another round
+- :data:`SSE_GAIN`, :data:`REACH_GAIN`: how much a lens must lower the error to be kept, and how much further out
+  the flow must reach for the candidate to go on with another round
 - :data:`SWITCH_MODELS`, :data:`SWITCH_GAIN`, :data:`LINEAR_STARTS`: the lens forms the candidate may switch to,
   when, and which start from a linear solve
 - :data:`LENSFUN_FOLD_MARGIN`, :data:`CAUCHY_SCALE_PX`, :data:`FOLD_WEIGHT`, :data:`FOLD_RAYS`: the candidate's
@@ -766,6 +767,10 @@ def _flow_targets(means, clean, lens_model, stride: int = 6):
     return tuple(np.concatenate(c) for c in zip(*out))
 
 
+#: A lens the ``radial_distortion`` candidate simulates is kept only where it lowers the noise-free SSE against the
+#: measured means by this fraction: less is the flow's noise (where the frames already look through the profile's
+#: lens), not worth a candidate.
+SSE_GAIN = 1e-3
 #: After its second round, the ``radial_distortion`` candidate goes on only while the flow reaches this much further
 #: out (a fraction of the frame's half-diagonal) than in the round before: a lens fitted to the flow reaching only
 #: the inner frame, then simulated, lets the next round's flow reach further.
@@ -838,13 +843,13 @@ def _family_start(values: dict, model: str, lens: LensModel, targets) -> dict:
     """``values`` with the lens form ``model`` started at ``lens``'s centre, from the ``targets`` (u, v, x, y:
     pixels and the camera-plane points they see, ``r = hypot(x, y)``).
 
-    Brown-Conrady: the focal length and k1..k3 solved linearly, as ``u - cx = fx x (1 + k1 r^2 + k2 r^4 + k3
-    r^6)``. Lensfun's ptlens, in the profile's lensfun frame where it has one, else on a frame that is its own
-    calibration sensor (crop factors 1, the frame's aspect ratio; one unit ``U`` px is half its shorter side): ``U Rd = F r (1 - a - b - c) + (F^2 c / U) r^2 + (F^3 b /
-    U^2) r^3 + (F^4 a / U^3) r^4`` with ``Ru = F r / U``, linear in its four coefficients ``A1..A4``; then ``F =
-    A1 + A2 U / F + A3 U^2 / F^2 + A4 U^3 / F^3`` by fixed-point iteration from ``A1`` and ``c = A2 U / F^2``,
-    ``b = A3 U^2 / F^3``, ``a = A4 U^3 / F^4``. The FOV form: at ``lens``'s focal length with ``w`` 0.5 (where it
-    has a gradient)."""
+    Brown-Conrady: the focal length and k1..k3 solved linearly, as ``u - cx = fx x (1 + k1 r^2 + k2 r^4 +
+    k3 r^6)``. Lensfun's ptlens, in the profile's lensfun frame where it has one, else on a frame that is its
+    own calibration sensor (crop factors 1, the frame's aspect ratio; one unit ``U`` px is half its shorter
+    side): ``U Rd = F r (1 - a - b - c) + (F^2 c / U) r^2 + (F^3 b / U^2) r^3 + (F^4 a / U^3) r^4`` with ``Ru =
+    F r / U``, linear in its four coefficients ``A1..A4``; then ``F = A1 + A2 U / F + A3 U^2 / F^2 + A4 U^3 /
+    F^3`` by fixed-point iteration from ``A1``, and ``c = A2 U / F^2``, ``b = A3 U^2 / F^3``, ``a = A4 U^3 /
+    F^4``. The FOV form: at ``lens``'s focal length with ``w`` 0.5 (where it has a gradient)."""
     fx, fy, cx, cy = lens.pinhole_intrinsics()
     kept = {k: v for k, v in values.items() if k in LensDistortion.keys_of(model)}
     if model == "opencv":
@@ -899,12 +904,13 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
     :data:`LINEAR_STARTS` where they could win as they stand (:func:`_family_start`); another form replaces the
     current one where its robust residual is below :data:`SWITCH_GAIN` of the current's (a form too narrow for
     the real lens). The unfolded forms are simulated in that order of preference and the first that lowers the
-    noise-free SSE against the measured means is kept (one that cannot be simulated passes to the next; two
-    that do not improve end the search). Then the flow is measured again from the kept lens: at least two
-    rounds, more while the flow reaches :data:`REACH_GAIN` further out than the round before, ``rounds`` at
-    most. Returns (profile, params, shown values); raises :class:`~lowcam.errors.NotFitted` with a one-line
-    reason where the flow holds at too few points, every form folds or sees beyond the render, or none brings
-    the model closer to the frames.
+    noise-free SSE against the measured means by :data:`SSE_GAIN` is kept (one that cannot be simulated passes
+    to the next; two that do not improve end the search). Then the flow is measured again from the kept lens:
+    at least two rounds, more while the flow reaches :data:`REACH_GAIN` further out than the round before,
+    ``rounds`` at most. Returns (profile, params, shown values); raises :class:`~lowcam.errors.NotFitted`
+    with a one-line reason where the flow holds at too few points, every form folds or sees beyond the render,
+    or none brings the model closer to the frames by :data:`SSE_GAIN` (the frames already look through the
+    profile's lens).
     """
     from scipy.optimize import least_squares
 
@@ -1038,15 +1044,15 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
             if trial is None:
                 continue
             simulated += 1
-            if sse(trial) < best:
+            if sse(trial) < (1 - SSE_GAIN) * best:
                 values, theta, clean, best, kept = vals, t, trial, sse(trial), True
                 break
             if simulated == 2:
                 break
         if not kept:
             vals, _, residual, _ = order[0]
-            why = (f"no lens form brings the model closer to the frames (the closest, {vals['model']}, lies "
-                   f"{residual:.2f} px off the flow, which reaches {reach:.0%} of the frame's radius)" if simulated
+            why = (f"no lens form brings the model {SSE_GAIN:.1%} closer to the frames (the closest, {vals['model']}, "
+                   f"lies {residual:.2f} px off the flow, which reaches {reach:.0%} of the frame's radius)" if simulated
                    else f"no lens form that follows the flow can be simulated inside the render's {hfov:.1f} deg "
                    f"field")
             break
@@ -1071,7 +1077,8 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
     else:
         text = f"{model}: " + ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
                                         for k in dict.fromkeys(k for k, _ in keys))
-    return p.with_effect(effect, replace=True, **fitted), changed, {"fitted": f"{text} (render field {hfov:.2f} deg kept)"}
+    return (p.with_effect(effect, replace=True, **fitted), changed,
+            {"fitted": f"{text} (render field {hfov:.2f} deg kept)"})
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------
