@@ -4,7 +4,7 @@ Each case warps the bundled scenes' ideal renders with a real lens's mapping com
 reverse ``apply_geometry_distortion``: for every pixel of the distorted frame, where it looks in the undistorted
 one), so the frames show that lens at its widest calibrated setting; the diagnosed profile has a lens of its own
 family with the focal length off and no (or the wrong) distortion, and the render's field of view fixed, as
-captures' renders are. Besides four named lenses, lenses drawn at random (seeded) from the database: compact
+captures' renders are. Besides five named lenses, lenses drawn at random (seeded) from the database: compact
 cameras' wide angles above all, whose strong distortion the flow does not follow to the corners at first.
 """
 import cv2
@@ -166,6 +166,9 @@ DRAWN_CASES = [pytest.param(lens.maker, lens.model, model, id=f"{lens.model[:24]
 
 @pytest.mark.parametrize("maker, name, model", DRAWN_CASES)
 def test_radial_distortion_fits_lenses_drawn_from_the_database(tmp_path, fire_i, maker, name, model):
+    """Each drawn lens within 1.25 of the noise after the fit (the render 90 deg, or wider where the lens sees
+    more). Measured: the fast-tier case (Panasonic DMC-LX3, 24 mm equivalent, from a pinhole FOV) 1.33 before
+    the fit was made robust (Brown-Conrady kept), 1.03 now (ptlens)."""
     lens = next(lens for lens in lensfunpy.Database().lenses if (lens.maker, lens.model) == (maker, name))
     geo = fire_i.geometry
     _, focal_px = lens_mapping(lens, geo.width, geo.height, 0)

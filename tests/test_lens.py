@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens
+from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens, fold_and_shortfall
 
 W, H = 640, 480
 
@@ -76,6 +76,26 @@ def test_opencv_radial_inverse_matches_cv2_and_stops_at_the_peak():
     peak = r[np.argmax(r * (1 + r * r * (k["k1"] + r * r * (k["k2"] + r * r * k["k3"]))))]
     x, y = lens.undistort(np.array([319.5 + 500.0]), np.array([239.5]))  # 500 px out: beyond the lens's reach
     assert x[0] == pytest.approx(peak, abs=1e-3) and y[0] == 0.0
+
+
+def test_fold_and_shortfall_sees_folds_and_a_render_too_narrow_continuously(fire_i):
+    """A lens that rises past the working grid's corner inside a 90 deg render: 0. One whose radius turns back at
+    374 px (the frame's corner is at 400): the corner rays fold. A pinhole of focal 200 px: the render's edge
+    (tan 45 deg) is 200 px out, the edge midpoints 320 px: 1 - 200/320 short. Across the onset of a fold the
+    measure moves by small steps (a least-squares fit can walk it), unlike an inverse that stops converging."""
+    geo = fire_i.geometry
+    edge = np.tan(np.radians(45))
+
+    def measure(f, k1, k2, k3):
+        return fold_and_shortfall(OpenCVLens(W, H, f, f, 319.5, 239.5, k1, k2, k3), geo, edge, edge * H / W)
+
+    assert np.all(measure(487.68, -0.3932, 0.3044, -0.1141) == 0)
+    folded = measure(489.15, -0.4333, 0.442, -0.2445)
+    assert folded[0] > 0.05 and folded[2] == 0  # a corner, and the top edge's midpoint 240 px out
+    pinhole = measure(200.0, 0.0, 0.0, 0.0)
+    assert pinhole[6] == pytest.approx(1 - 200 / 320, abs=1e-9)  # the right edge's midpoint
+    onset = np.array([measure(487.68, -0.3932, 0.3044, k3).max() for k3 in np.linspace(-0.1141, -0.16, 200)])
+    assert onset[0] == 0 and onset[-1] > 0.05 and np.abs(np.diff(onset)).max() < 0.05 * onset[-1]
 
 
 @pytest.mark.parametrize("model, coefficients", [
