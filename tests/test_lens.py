@@ -82,7 +82,8 @@ def test_fold_and_shortfall_sees_folds_and_a_render_too_narrow_continuously(fire
     """A lens that rises past the working grid's corner inside a 90 deg render: 0. One whose radius turns back at
     374 px (the frame's corner is at 400): the corner rays fold. A pinhole of focal 200 px: the render's edge
     (tan 45 deg) is 200 px out, the edge midpoints 320 px: 1 - 200/320 short. Across the onset of a fold the
-    measure moves by small steps (a least-squares fit can walk it), unlike an inverse that stops converging."""
+    measure moves by steps under 1.5 % of its final value (0.6 % measured; 2.9 % with a weight that drops to 0 at
+    once where the radius passes the working grid), so a least-squares fit can walk it."""
     geo = fire_i.geometry
     edge = np.tan(np.radians(45))
 
@@ -95,7 +96,7 @@ def test_fold_and_shortfall_sees_folds_and_a_render_too_narrow_continuously(fire
     pinhole = measure(200.0, 0.0, 0.0, 0.0)
     assert pinhole[6] == pytest.approx(1 - 200 / 320, abs=1e-9)  # the right edge's midpoint
     onset = np.array([measure(487.68, -0.3932, 0.3044, k3).max() for k3 in np.linspace(-0.1141, -0.16, 200)])
-    assert onset[0] == 0 and onset[-1] > 0.05 and np.abs(np.diff(onset)).max() < 0.05 * onset[-1]
+    assert onset[0] == 0 and onset[-1] > 0.05 and np.abs(np.diff(onset)).max() < 0.015 * onset[-1]
 
 
 @pytest.mark.parametrize("model, coefficients", [
