@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens
+from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens, fold_and_shortfall
 
 W, H = 640, 480
 
@@ -58,6 +58,45 @@ def test_opencv_model_matches_cv2_projectpoints():
     x, y = lens.undistort(ref[:, 0, 0], ref[:, 0, 1])
     assert np.abs(np.column_stack([x, y]) - pts[:, :2]).max() < 1e-8
     assert np.abs(und[:, 0] - pts[:, :2]).max() < 1e-5
+
+
+def test_opencv_radial_inverse_matches_cv2_and_stops_at_the_peak():
+    """Without tangential terms the inverse solves the radius alone: cv2.projectPoints' pixels come back to their
+    rays; a pixel beyond the largest radius the lens reaches (its radius turns back at r = 1.22 here) comes back
+    to the ray of that peak, not to a point of the far branch."""
+    k = dict(k1=-0.3932, k2=0.3044, k3=-0.1141)  # a compact's 24 mm wide angle fitted by Brown-Conrady
+    lens = OpenCVLens(W, H, 487.68, 487.68, 319.5, 239.5, **k)
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(-0.95, 0.95, 300), rng.uniform(-0.7, 0.7, 300), np.ones(300)])
+    K = np.array([[487.68, 0, 319.5], [0, 487.68, 239.5], [0, 0, 1]])
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, np.array([k["k1"], k["k2"], 0, 0, k["k3"]]))
+    x, y = lens.undistort(ref[:, 0, 0], ref[:, 0, 1])
+    assert np.abs(np.column_stack([x, y]) - pts[:, :2]).max() < 1e-9
+    r = np.linspace(0, 2, 20001)
+    peak = r[np.argmax(r * (1 + r * r * (k["k1"] + r * r * (k["k2"] + r * r * k["k3"]))))]
+    x, y = lens.undistort(np.array([319.5 + 500.0]), np.array([239.5]))  # 500 px out: beyond the lens's reach
+    assert x[0] == pytest.approx(peak, abs=1e-3) and y[0] == 0.0
+
+
+def test_fold_and_shortfall_sees_folds_and_a_render_too_narrow_continuously(fire_i):
+    """A lens that rises past the working grid's corner inside a 90 deg render: 0. One whose radius turns back at
+    374 px (the frame's corner is at 400): the corner rays fold. A pinhole of focal 200 px: the render's edge
+    (tan 45 deg) is 200 px out, the edge midpoints 320 px: 1 - 200/320 short. Across the onset of a fold the
+    measure moves by steps under 1.5 % of its final value (0.6 % measured; 2.9 % with a weight that drops to 0 at
+    once where the radius passes the working grid), so a least-squares fit can walk it."""
+    geo = fire_i.geometry
+    edge = np.tan(np.radians(45))
+
+    def measure(f, k1, k2, k3):
+        return fold_and_shortfall(OpenCVLens(W, H, f, f, 319.5, 239.5, k1, k2, k3), geo, edge, edge * H / W)
+
+    assert np.all(measure(487.68, -0.3932, 0.3044, -0.1141) == 0)
+    folded = measure(489.15, -0.4333, 0.442, -0.2445)
+    assert folded[0] > 0.05 and folded[2] == 0  # a corner, and the top edge's midpoint 240 px out
+    pinhole = measure(200.0, 0.0, 0.0, 0.0)
+    assert pinhole[6] == pytest.approx(1 - 200 / 320, abs=1e-9)  # the right edge's midpoint
+    onset = np.array([measure(487.68, -0.3932, 0.3044, k3).max() for k3 in np.linspace(-0.1141, -0.16, 200)])
+    assert onset[0] == 0 and onset[-1] > 0.05 and np.abs(np.diff(onset)).max() < 0.015 * onset[-1]
 
 
 @pytest.mark.parametrize("model, coefficients", [

@@ -11,7 +11,9 @@ Models
     ``w`` in radians. Unlike PTAM, the small-radius branches use the continuous limit (PTAM switches to a factor
     of 1, which jumps by ``2 tan(w/2) / w`` at the centre).
 ``opencv``
-    Brown-Conrady as in OpenCV: ``fx_px, fy_px, cx_px, cy_px`` and ``k1, k2, k3, p1, p2``.
+    Brown-Conrady as in OpenCV: ``fx_px, fy_px, cx_px, cy_px`` and ``k1, k2, k3, p1, p2``. Without tangential
+    terms, the inverse solves the radius alone; beyond the peak of ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)``, where
+    the model has no inverse, it gives the peak.
 ``polynomial``, ``division``, ``nuke``, ``brown``
     Blender's motion-tracking camera models (libmv), with the names of ``clip.tracking.camera``: ``focal_length``
     and ``sensor_width`` in mm, ``principal_point`` in Blender's normalised frame coordinates (-1..1, y up),
@@ -23,6 +25,11 @@ Models
     as it is: ``focal_length`` (mm), ``crop_factor`` (the camera's), ``calibration_crop_factor`` and
     ``calibration_aspect_ratio`` (the lens entry's ``cropfactor`` and ``aspect-ratio``), ``lensfun_center`` and
     ``lensfun_k1`` / ``lensfun_k1, lensfun_k2`` / ``lensfun_a, lensfun_b, lensfun_c`` (see :class:`LensfunLens`).
+
+Diagnosis (the ``radial_distortion`` candidate, :func:`fit_radial_distortion`): the lens is fitted to where the
+optical flow says the measured frames look, by robust least squares (Cauchy's loss) with walls against a lens that
+folds over or sees beyond the render before the frame's border, in the profile's form or a wider one (Brown-
+Conrady, FOV, Panorama Tools' ptlens [Dersch]).
 
 Fitting (sec. 4.1): from views of a chessboard or ChArUco board, the poses start from OpenCV's pinhole
 calibration (Zhang's method); intrinsics, distortion and poses are then refined together by Levenberg-Marquardt
@@ -41,12 +48,23 @@ Contents
 - :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
 - :func:`field_needed`: the pinhole half-extents the border of a region of the frame sees through a lens
+- :func:`lens_model_from`: the lens model of a dict of :class:`LensDistortion` parameters, unvalidated (a fit's
+  trial values)
 - :class:`LensDistortion`: warps the pinhole render through the lens into the working grid, 2x2 supersampled (sec.
   5.2 steps 1-2)
 - :data:`FIT_KEYS`: per lens model, the parameters the ``radial_distortion`` candidate fits
-- :data:`SWITCH_MODELS`, :data:`SWITCH_GAIN`: the lens forms the candidate may switch to, and when
+- :func:`range_of`: the ranges of the parameters the candidate fits in a lens model
+- :data:`SSE_GAIN`, :data:`REACH_GAIN`: how much a lens must lower the error to be kept, and how much further out
+  the flow must reach for the candidate to go on with another round
+- :data:`SWITCH_MODELS`, :data:`SWITCH_GAIN`, :data:`LINEAR_STARTS`: the lens forms the candidate may switch to,
+  when, and which start from a linear solve
+- :data:`LENSFUN_FOLD_MARGIN`, :data:`CAUCHY_SCALE_PX`, :data:`FOLD_WEIGHT`, :data:`FOLD_RAYS`: the candidate's
+  robust loss and its walls against folded lenses
+- :func:`fold_and_shortfall`: per ray to the frame's border, how far a lens is from seeing it unfolded inside the
+  render (continuous in the lens's parameters)
 - :func:`fit_radial_distortion`: the candidate: distortion, focal length and centre from the optical flow, the
-  render's field of view held, in the profile's lens form or a wider one
+  render's field of view held, in the profile's lens form or a wider one; :class:`~lowcam.errors.NotFitted` with
+  the reason where none can be fitted
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
 - :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
 
@@ -61,6 +79,9 @@ References
 - [Lensfun] A. Zabolotny et al., lensfun 0.3.4, ``libs/lensfun/modifier.cpp`` (the ``lfModifier`` constructor:
   normalisation and crop factors) and ``libs/lensfun/mod-coord.cpp`` (``ModifyCoord_Dist_Poly3/Poly5/PTLens``),
   https://github.com/lensfun/lensfun (tag v0.3.4).
+- [Dersch] H. Dersch, Panorama Tools (``a, b, c`` radial polynomial, the ``ptlens`` form), and lensfun's
+  ``ModifyCoord_Dist_PTLens``; [Triggs2000] B. Triggs et al., "Bundle Adjustment - A Modern Synthesis", Vision
+  Algorithms: Theory and Practice, LNCS 1883, 298-372, 2000 (robust losses in least squares, sec. 3.3).
 - [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
 """
 from __future__ import annotations
@@ -68,7 +89,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import LowcamError
+from ..errors import LowcamError, NotFitted
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 
@@ -221,6 +242,43 @@ class OpenCVLens(LensModel):
         xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
         yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
         return self.pinhole_distort(xd, yd)
+
+    def undistort(self, u, v):
+        """Without tangential terms, the radius alone: Newton's method on ``r (1 + k1 r^2 + k2 r^4 + k3 r^6) = r_d``
+        from one fixed-point step, ``r = r_d / (1 + k1 r_d^2 + ...)``, each point until its own step is below
+        1e-14; beyond the rising branch's peak, where the model has no inverse, the peak. With tangential terms,
+        the general 2-D solve."""
+        if self.p1 or self.p2:
+            return super().undistort(u, v)
+        xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        if not (self.k1 or self.k2 or self.k3):
+            return xd, yd
+        rd = np.hypot(xd, yd)
+        k1, k2, k3 = self.k1, self.k2, self.k3
+
+        def radial(r2):
+            return 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+
+        peaks = [z.real for z in np.roots([7 * k3, 5 * k2, 3 * k1, 1.0]) if abs(z.imag) < 1e-12 and z.real > 0]
+        r_max = float(np.sqrt(min(peaks))) if peaks else np.inf  # the slope's first zero (found in r^2)
+        rd_max = r_max * radial(r_max ** 2) if peaks else np.inf
+        r = np.full_like(rd, r_max)
+        active = np.flatnonzero(rd < rd_max)
+        target = rd.ravel()[active]
+        guess = radial(target * target)
+        flat = np.clip(target / np.where(guess > 1e-3, guess, 1e-3), 0.0, r_max)
+        for _ in range(50):
+            r2 = flat * flat
+            slope = 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2))
+            step = (flat * radial(r2) - target) / np.where(np.abs(slope) < 1e-12, 1e-12, slope)
+            flat = np.clip(flat - step, 0.0, r_max)
+            r.ravel()[active] = flat
+            moving = np.abs(step) >= 1e-14
+            if not moving.any():
+                break
+            active, flat, target = active[moving], flat[moving], target[moving]
+        g = np.where(rd > 0, r / np.maximum(rd, 1e-300), 1.0)
+        return xd * g, yd * g
 
 
 class BlenderLens(LensModel):
@@ -426,6 +484,26 @@ def field_needed(lens: LensModel, extent) -> tuple[float, float]:
     return float(np.abs(x).max()), float(np.abs(y).max())
 
 
+def lens_model_from(values: dict, width: int, height: int) -> LensModel:
+    """The lens model of ``values`` (:class:`LensDistortion`'s parameters, missing ones at their defaults) for an
+    output frame of ``width`` x ``height`` pixels. The values are not validated (a fit's trial values may fold
+    the lens: :meth:`LensDistortion.check`)."""
+    def get(key):
+        return values.get(key, LensDistortion.params[key].default)
+
+    model = get("model")
+    if model == "fov":
+        return FovLens(width, height, get("fx"), get("fy"), get("cx"), get("cy"), get("w"))
+    if model == "opencv":
+        return OpenCVLens(width, height, *(get(k) for k in _MODEL_KEYS["opencv"]))
+    if model in _LENSFUN_MODELS:
+        return LensfunLens(width, height, model, [get(k) for k in _MODEL_KEYS[model]], get("focal_length"),
+                           get("crop_factor"), get("calibration_crop_factor"), get("calibration_aspect_ratio"),
+                           tuple(get("lensfun_center")))
+    return BlenderLens(width, height, model, get("focal_length"), get("sensor_width"), tuple(get("principal_point")),
+                       get("pixel_aspect"), **{k: get(k) for k in _MODEL_KEYS[model]})
+
+
 class LensDistortion(Effect):
     """Warps the ideal pinhole render through the lens into the working grid (sec. 5.2 steps 1 and 2).
 
@@ -540,18 +618,7 @@ class LensDistortion(Effect):
 
     def model_for(self, width: int, height: int) -> LensModel:
         """The lens model for an output frame of ``width`` x ``height`` pixels."""
-        if self.model == "fov":
-            return FovLens(width, height, self.fx, self.fy, self.cx, self.cy, self.w)
-        if self.model == "opencv":
-            return OpenCVLens(width, height, self.fx_px, self.fy_px, self.cx_px, self.cy_px,
-                              self.k1, self.k2, self.k3, self.p1, self.p2)
-        if self.model in _LENSFUN_MODELS:
-            return LensfunLens(width, height, self.model, [getattr(self, k) for k in _MODEL_KEYS[self.model]],
-                               self.focal_length, self.crop_factor, self.calibration_crop_factor,
-                               self.calibration_aspect_ratio, tuple(self.lensfun_center))
-        coefficients = {k: getattr(self, k) for k in _MODEL_KEYS[self.model]}
-        return BlenderLens(width, height, self.model, self.focal_length, self.sensor_width,
-                           tuple(self.principal_point), self.pixel_aspect, **coefficients)
+        return lens_model_from(self.values(), width, height)
 
     def lens_model(self, geometry) -> LensModel:
         """The lens of the output frame: this model, or a pinhole when the stage is disabled."""
@@ -649,6 +716,14 @@ FIT_KEYS = {
 _TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
 
 
+def range_of(model: str) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges (low, high) of the parameters :data:`FIT_KEYS` fits in lens ``model``, as the profile accepts
+    them (:attr:`LensDistortion.params`)."""
+    specs = [LensDistortion.params[key] for key, _ in FIT_KEYS[model]]
+    return (np.array([-np.inf if s.low is None else s.low for s in specs]),
+            np.array([np.inf if s.high is None else s.high for s in specs]))
+
+
 def _lens_values(values: dict, model: str, theta) -> dict:
     """The lens's parameters with the fitted ones (:data:`FIT_KEYS`) set to ``theta``."""
     out = {k: (list(v) if isinstance(v, list) else v) for k, v in values.items()}
@@ -692,18 +767,89 @@ def _flow_targets(means, clean, lens_model, stride: int = 6):
     return tuple(np.concatenate(c) for c in zip(*out))
 
 
+#: A lens the ``radial_distortion`` candidate simulates is kept only where it lowers the noise-free SSE against the
+#: measured means by this fraction: less is the flow's noise (where the frames already look through the profile's
+#: lens), not worth a candidate.
+SSE_GAIN = 1e-3
+#: After its second round, the ``radial_distortion`` candidate goes on only while the flow reaches this much further
+#: out (a fraction of the frame's half-diagonal) than in the round before: a lens fitted to the flow reaching only
+#: the inner frame, then simulated, lets the next round's flow reach further.
+REACH_GAIN = 0.02
 #: The lens forms the ``radial_distortion`` candidate may switch a profile's lens to when its own cannot follow the
-#: measured geometry: the engine's general forms (Brown-Conrady k1..k3 with the centre, and the FOV model).
-SWITCH_MODELS = ("opencv", "fov")
+#: measured geometry: the engine's general forms (Brown-Conrady k1..k3 with the centre, the FOV model, and
+#: Panorama Tools' quartic radial polynomial as lensfun's ``ptlens``, the form of most of lensfun's database,
+#: whose ``Ru^2`` term Brown-Conrady's odd powers lack).
+SWITCH_MODELS = ("opencv", "fov", "ptlens")
+#: The forms whose start is solved linearly from the flow (:func:`_family_start`); such a start is refined only
+#: where its residual as it stands could make it the chosen form.
+LINEAR_STARTS = ("opencv", "ptlens")
 #: Another lens form replaces the profile's own when its robust residual is below this fraction of the own's.
 SWITCH_GAIN = 0.7
 
 
+#: A lensfun form must stay invertible out to this multiple of the frame's half-diagonal, as a pinhole radius
+#: (:meth:`LensDistortion.check` refuses one that folds sooner: lensfun's ``Ru`` up to 1.25 times the corner's).
+LENSFUN_FOLD_MARGIN = 1.25
+#: The scale of Cauchy's loss on the candidate's flow offsets, px: offsets well above it hardly pull the lens.
+CAUCHY_SCALE_PX = 0.5
+#: Weight of :func:`fold_and_shortfall` in the candidate's residuals: pixels per fraction of a ray's length.
+FOLD_WEIGHT = 1e4
+#: Border points :func:`fold_and_shortfall` casts a ray to: the corners and three more on each edge.
+FOLD_RAYS = 16
+
+
+def fold_and_shortfall(lens: LensModel, geometry, half_x: float, half_y: float, fold_px: float = 0.0) -> np.ndarray:
+    """Per ray from the lens's centre ``(cx, cy)`` to a point of the frame's border (:data:`FOLD_RAYS`: the
+    corners and three more points on each edge): how far ``lens`` is from seeing that point, without folding
+    over, inside a render of pinhole half-extents ``half_x``, ``half_y``; 0 where it does.
+
+    On the ray, camera-plane points whose pinhole image lies a fraction ``t`` of the way to the border point
+    (``t`` up to the render's edge, and up to a pinhole radius of ``fold_px`` pixels if further) are distorted
+    and projected on the ray: ``s(t)`` is the fraction of the way to the border point of the distorted one. The
+    lens folds where ``s`` falls: each fall counts until ``s`` has risen to the border of the working grid (the
+    frame and its margin; its weight falls linearly to 0 over the last 0.05 of ``s``) and, with ``fold_px``,
+    until ``t`` reaches that radius (lensfun's forms: :data:`LENSFUN_FOLD_MARGIN`). It falls short by
+    ``1 - max s`` where ``s`` stays below 1 up to the render's edge. Returns the counted falls plus the
+    shortfall per ray, in fractions of the ray's length: continuous in the lens's parameters, unlike an inverse
+    that stops converging where the lens folds."""
+    fx, fy, cx, cy = lens.pinhole_intrinsics()
+    u0, v0, u1, v1 = geometry.frame_extent
+    t = np.linspace(0.0, 1.0, FOLD_RAYS // 4 + 1)[:-1]
+    n = len(t)
+    du = np.concatenate([u0 + (u1 - u0) * t, np.full(n, u1), u1 - (u1 - u0) * t, np.full(n, u0)]) - cx
+    dv = np.concatenate([np.full(n, v0), v0 + (v1 - v0) * t, np.full(n, v1), v1 - (v1 - v0) * t]) - cy
+    length = np.maximum(np.hypot(du, dv), 1e-6)
+    wu0, wv0, wu1, wv1 = geometry.working_extent
+    with np.errstate(divide="ignore", invalid="ignore"):  # where the ray leaves the working grid
+        past = np.minimum(np.where(du > 0, (wu1 - cx) / du, np.where(du < 0, (wu0 - cx) / du, np.inf)),
+                          np.where(dv > 0, (wv1 - cy) / dv, np.where(dv < 0, (wv0 - cy) / dv, np.inf)))
+    edge = np.minimum(half_x * fx / np.maximum(np.abs(du), 1e-12), half_y * fy / np.maximum(np.abs(dv), 1e-12))
+    span = np.maximum(edge, fold_px / length)
+    t = span[:, None] * np.linspace(0.0, 1.0, 81)[1:]
+    u, v = lens.distort(du[:, None] / fx * t, dv[:, None] / fy * t)
+    s = ((u - cx) * du[:, None] + (v - cy) * dv[:, None]) / (length * length)[:, None]
+    s = np.concatenate([np.zeros((len(s), 1)), np.where(np.isfinite(s), s, -1.0)], axis=1)
+    t = np.concatenate([np.zeros((len(t), 1)), t], axis=1)[:, :-1]  # at the start of each step
+    weight = np.clip((past[:, None] - np.maximum.accumulate(s, axis=1)[:, :-1]) / 0.05, 0.0, 1.0)
+    if fold_px > 0:
+        weight = np.maximum(weight, np.clip((fold_px / length[:, None] - t) / (0.05 * fold_px / length[:, None]),
+                                            0.0, 1.0))
+    fold = (np.maximum(s[:, :-1] - s[:, 1:], 0.0) * weight).sum(axis=1)
+    inside = t <= edge[:, None] + 1e-12
+    return fold + np.maximum(1.0 - np.where(inside, s[:, 1:], -np.inf).max(axis=1), 0.0)
+
+
 def _family_start(values: dict, model: str, lens: LensModel, targets) -> dict:
-    """``values`` with the lens form ``model`` started at ``lens``'s centre: Brown-Conrady's focal length and
-    k1..k3 solved linearly from the ``targets`` (u, v, x, y: pixels and the camera-plane points they see, as
-    ``u - cx = fx x (1 + k1 r^2 + k2 r^4 + k3 r^6)``), the FOV form at ``lens``'s focal length with ``w`` 0.5
-    (where it has a gradient)."""
+    """``values`` with the lens form ``model`` started at ``lens``'s centre, from the ``targets`` (u, v, x, y:
+    pixels and the camera-plane points they see, ``r = hypot(x, y)``).
+
+    Brown-Conrady: the focal length and k1..k3 solved linearly, as ``u - cx = fx x (1 + k1 r^2 + k2 r^4 +
+    k3 r^6)``. Lensfun's ptlens, in the profile's lensfun frame where it has one, else on a frame that is its
+    own calibration sensor (crop factors 1, the frame's aspect ratio; one unit ``U`` px is half its shorter
+    side): ``U Rd = F r (1 - a - b - c) + (F^2 c / U) r^2 + (F^3 b / U^2) r^3 + (F^4 a / U^3) r^4`` with ``Ru =
+    F r / U``, linear in its four coefficients ``A1..A4``; then ``F = A1 + A2 U / F + A3 U^2 / F^2 + A4 U^3 /
+    F^3`` by fixed-point iteration from ``A1``, and ``c = A2 U / F^2``, ``b = A3 U^2 / F^3``, ``a = A4 U^3 /
+    F^4``. The FOV form: at ``lens``'s focal length with ``w`` 0.5 (where it has a gradient)."""
     fx, fy, cx, cy = lens.pinhole_intrinsics()
     kept = {k: v for k, v in values.items() if k in LensDistortion.keys_of(model)}
     if model == "opencv":
@@ -714,45 +860,79 @@ def _family_start(values: dict, model: str, lens: LensModel, targets) -> dict:
                             np.concatenate([u - cx, v - cy]), rcond=None)[0]
         return dict(kept, model=model, fx_px=a[0], fy_px=a[0] * fy / fx, cx_px=cx, cy_px=cy, k1=a[1] / a[0],
                     k2=a[2] / a[0], k3=a[3] / a[0], p1=0.0, p2=0.0)
+    if model == "ptlens":
+        width, height = lens.width, lens.height
+        frame = dict(crop_factor=1.0, calibration_crop_factor=1.0,
+                     calibration_aspect_ratio=max(width, height) / min(width, height))
+        frame.update((k, v) for k, v in kept.items() if k in frame)
+        half = 0.5 * min(width - 1.0, height - 1.0)
+        center = [float(np.clip((cx - 0.5 * (width - 1.0)) / half, -1, 1)),
+                  float(np.clip((cy - 0.5 * (height - 1.0)) / half, -1, 1))]
+        unit_px, u0, v0 = lensfun_frame(width, height, center=center, **frame)
+        u, v, x, y = targets
+        r = np.hypot(x, y)
+        powers = np.stack([np.ones_like(r), r, r * r, r ** 3], axis=1)
+        a = np.linalg.lstsq(np.concatenate([x[:, None] * powers, y[:, None] * powers]),
+                            np.concatenate([u - u0, v - v0]), rcond=None)[0]
+        focal = a[0]  # F = A1 + A2 U / F + A3 U^2 / F^2 + A4 U^3 / F^3 by fixed-point iteration
+        for _ in range(30):
+            focal = a[0] + sum(a[k] * (unit_px / focal) ** k for k in (1, 2, 3))
+        unit_mm = FULL_FRAME_HALF_DIAGONAL_MM / frame["calibration_crop_factor"] / np.sqrt(
+            1.0 + frame["calibration_aspect_ratio"] ** 2)
+        return dict(kept, **frame, model=model, focal_length=focal * unit_mm / unit_px, lensfun_center=center,
+                    lensfun_c=a[1] * unit_px / focal ** 2, lensfun_b=a[2] * unit_px ** 2 / focal ** 3,
+                    lensfun_a=a[3] * unit_px ** 3 / focal ** 4)
     return dict(kept, model=model, fx=fx / lens.width, fy=fy / lens.height, cx=(cx + 0.5) / lens.width,
                 cy=(cy + 0.5) / lens.height, w=0.5)
 
 
-def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
+def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
     """The ``radial_distortion`` candidate: the lens model's distortion coefficients, focal length and centre
     (:data:`FIT_KEYS`) fitted together, with the render's field of view held where the profile has it (the
     captures' ideal renders are given: a lens change must not change what they show).
 
     The geometry is fitted, not the pixels: the optical flow from each measured mean to the clean model says
-    where the measured frames look (:func:`_flow_targets`), and the lens parameters are fitted to those
-    camera-plane points by robust least squares (no simulation per step); then the model is simulated again and
-    the flow measured again (``rounds`` in all). From a pinhole, the focal length, centre and the lowest-order
-    coefficient are fitted first, then all (higher orders fitted at once from zero fold the lens). The forms of
-    :data:`SWITCH_MODELS` are fitted to the same points too (:func:`_family_start`); one replaces the current
-    form where its robust residual is below :data:`SWITCH_GAIN` of the current's (a form too narrow for the
-    real lens); the profile's own form is fitted again from the profile in every round, so a switch made on
-    the first round's flow (near the centre only) can be undone on the next. A round is kept only when it
-    lowers the noise-free SSE against the measured means. Returns (profile, params, shown values) or None when
-    no textured capture shows the geometry or nothing improves.
+    where the measured frames look (:func:`_flow_targets`: output pixels and the camera-plane points they see),
+    and the lens parameters are fitted to those points by least squares on the pixels the lens maps them to,
+    inside the parameters' ranges (no simulation per step). The loss is Cauchy's on the offsets (scale
+    :data:`CAUCHY_SCALE_PX`: a few flow mismatches of tens of pixels must not bend the lens) and quadratic on
+    the walls of :func:`fold_and_shortfall` (the flow rarely reaches the corners at first, and a polynomial
+    fitted inside may turn back, or see beyond the render, before the frame's border). From a pinhole, the
+    focal length, centre and the lowest-order coefficient are fitted first (without the walls: a start only),
+    then all. Each round fits the current form, the profile's own form from the profile (a switch made on the
+    first round's flow, near the centre only, can be undone), the FOV form, and the linear starts of
+    :data:`LINEAR_STARTS` where they could win as they stand (:func:`_family_start`); another form replaces the
+    current one where its robust residual is below :data:`SWITCH_GAIN` of the current's (a form too narrow for
+    the real lens). The unfolded forms are simulated in that order of preference and the first that lowers the
+    noise-free SSE against the measured means by :data:`SSE_GAIN` is kept (one that cannot be simulated passes
+    to the next; two that do not improve end the search). Then the flow is measured again from the kept lens:
+    at least two rounds, more while the flow reaches :data:`REACH_GAIN` further out than the round before,
+    ``rounds`` at most. Returns (profile, params, shown values); raises :class:`~lowcam.errors.NotFitted`
+    with a one-line reason where the flow holds at too few points, every form folds or sees beyond the render,
+    or none brings the model closer to the frames by :data:`SSE_GAIN` (the frames already look through the
+    profile's lens).
     """
     from scipy.optimize import least_squares
 
     p = ctx.profile
     lens = p.effect(effect)
+    if lens is None or lens.model not in FIT_KEYS:
+        raise NotFitted(f"the profile has no lens in a fitted form ({', '.join(FIT_KEYS)})")
     subset = list(ctx.screen_textured)  # the two most textured captures
-    if lens is None or not subset or lens.model not in FIT_KEYS:
-        return None
+    if not subset:
+        raise NotFitted("no capture has the texture to show the lens's geometry")
     geometry = p.geometry
     half_x, _ = lens.render_field_of_view(geometry)
     hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
-    half_render = np.tan(np.radians(hfov) / 2)
+    limit_x = 0.998 * np.tan(np.radians(hfov) / 2)  # a lens must see the frame inside the given render
+    limit_y = limit_x * geometry.height / geometry.width
     values = dict(lens.values(), render_hfov_deg=hfov)
 
     def theta_of(vals):
         return np.array([vals[k] if i is None else vals[k][i] for k, i in FIT_KEYS[vals["model"]]], np.float64)
 
-    def lens_at(vals, t):
-        return LensDistortion(**_lens_values(vals, vals["model"], t)).lens_model(geometry)
+    def lens_at(vals, t):  # unvalidated: a trial may fold the lens (fold_and_shortfall measures how far)
+        return lens_model_from(_lens_values(vals, vals["model"], t), geometry.width, geometry.height)
 
     def simulate(vals, t):
         try:
@@ -763,36 +943,55 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     def sse(images):
         return sum(float(((m - s) ** 2).sum()) for m, s in zip(means, images))
 
-    def fit_form(vals, t, pu, pv, tx, ty, focal):
-        """Robust least squares of the form ``vals["model"]`` from ``t`` to the targets: (theta, residual px)."""
-        def residual(th):
-            try:
-                model_t = lens_at(vals, th)
-                x, y = model_t.undistort(pu, pv)
-                need_x, need_y = field_needed(model_t, geometry.frame_extent)
-            except LowcamError:
-                return np.full(2 * len(pu) + 1, 1e3)
-            # a lens that sees beyond the given render cannot be simulated: a steep wall just inside its edge
-            edge = 0.998 * half_render
-            beyond = max(0.0, need_x - edge, need_y - edge * geometry.height / geometry.width)
-            return np.concatenate([x - tx, y - ty, [1e4 * beyond]]) * focal
+    def spread(r):
+        return 1.4826 * float(np.median(np.abs(r)))
 
-        def solve(start, free):
+    def fit_form(vals, t, pu, pv, tx, ty):
+        """Robust least squares of the form ``vals["model"]`` from ``t`` to the targets, inside the parameters'
+        ranges: (theta, the residual's robust spread in px, whether the lens sees the frame unfolded inside the
+        render)."""
+        fold_px = LENSFUN_FOLD_MARGIN * np.hypot(geometry.width - 1, geometry.height - 1) / 2 \
+            if vals["model"] in _LENSFUN_MODELS else 0.0
+
+        def offsets(th):  # where the lens puts the targets, less where the flow saw them (px)
+            u, v = lens_at(vals, th).distort(tx, ty)
+            r = np.concatenate([u - pu, v - pv])
+            return np.where(np.isfinite(r), r, 1e3)
+
+        def residual(th, walls):
+            if not walls:
+                return offsets(th)
+            return np.concatenate([offsets(th), FOLD_WEIGHT * fold_and_shortfall(lens_at(vals, th), geometry, limit_x,
+                                                                                  limit_y, fold_px)])
+
+        def loss(z, walls):
+            # Cauchy's on the offsets (a few flow mismatches of tens of pixels must not bend the lens), plain
+            # squares on the walls: rho, rho', rho'' of z = (r / CAUCHY_SCALE_PX)^2 (scipy's callable loss)
+            out = np.stack([np.log1p(z), 1 / (1 + z), -1 / (1 + z) ** 2])
+            if walls:
+                out[0, -FOLD_RAYS:], out[1, -FOLD_RAYS:], out[2, -FOLD_RAYS:] = z[-FOLD_RAYS:], 1.0, 0.0
+            return out
+
+        low, high = range_of(vals["model"])
+
+        def solve(start, free, walls):
             def of(sub):
                 full = start.copy()
                 full[free] = sub
                 return full
-            r = least_squares(lambda sub: residual(of(sub)), start[free], loss="soft_l1", f_scale=0.5,
+            r = least_squares(lambda sub: residual(of(sub), walls), start[free], bounds=(low[free], high[free]),
+                              loss=lambda z: loss(z, walls), f_scale=CAUCHY_SCALE_PX,
                               x_scale=np.maximum(1e-2 * np.abs(start[free]), 1e-2), max_nfev=60)
-            return of(r.x), 1.4826 * float(np.median(np.abs(r.fun[:-1])))
+            return of(r.x), r.fun
 
         keys = [key for key, _ in FIT_KEYS[vals["model"]]]
-        start_at = t.copy()
+        start_at = np.clip(t, low, high)
         if vals["model"] == "fov" and abs(t[keys.index("w")]) < 0.05:  # the FOV form is even in w: no gradient
             start_at[keys.index("w")] = 0.5                                # at a pinhole
-        if len(t) > 4 and not np.any(t[3:]):  # from a pinhole: the lowest order first (higher ones fold it)
-            start_at, _ = solve(start_at, np.arange(4))
-        return solve(start_at, np.arange(len(t)))
+        if len(t) > 4 and not np.any(t[3:]):  # from a pinhole: the lowest order first (a start only: higher
+            start_at, _ = solve(start_at, np.arange(4), False)  # orders fitted at once from zero fold the lens)
+        theta_fit, r = solve(start_at, np.arange(len(t)), True)
+        return theta_fit, spread(r[:-FOLD_RAYS]), bool(np.all(r[-FOLD_RAYS:] < 1e-4 * FOLD_WEIGHT))
 
     means = [ctx.means[i].astype(np.float64) for i in subset]
     clean = ctx.clean(p, subset)  # the profile as it is (its maps and prefix are likely cached)
@@ -800,36 +999,72 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     theta = theta_of(values)
     original = values  # the profile's own form restarts from the profile in each round (after a switch, the
                        # next round's flow reaches further out)
-    for _ in range(rounds):
+    corner = np.hypot((geometry.width - 1) / 2, (geometry.height - 1) / 2)
+    why, reached = "no lens form lowers the error", 0.0
+    for done in range(rounds):
         here = lens_at(values, theta)
-        pu, pv, tx, ty = _flow_targets(means, clean, here)
+        targets = _flow_targets(means, clean, here)
+        pu, pv, tx, ty = targets
         if len(pu) < 20 * len(theta):
+            why = (f"the optical flow from the frames to the model holds at only {len(pu)} points "
+                   f"({20 * len(theta)} needed): too little texture, or the frames too far from the model")
             break
-        focal = here.pinhole_intrinsics()[0]  # residuals in about output pixels
-        vals, fitted, own = values, *fit_form(values, theta, pu, pv, tx, ty, focal)
-        for other in (original if m == original["model"] else _family_start(values, m, here, (pu, pv, tx, ty))
-                      for m in dict.fromkeys((original["model"], *SWITCH_MODELS)) if m != values["model"]):
-            if other["model"] == "opencv":  # its linear start's pixel residual first: refine only a promising one
-                try:
-                    u, v = lens_at(other, theta_of(other)).distort(tx, ty)
-                except LowcamError:  # coefficients out of the lens's range: not this form
-                    continue
-                if 1.4826 * float(np.median(np.abs(np.concatenate([u - pu, v - pv])))) >= SWITCH_GAIN * own:
-                    continue
-            other_theta, residual = fit_form(other, theta_of(other), pu, pv, tx, ty, focal)
-            if residual < SWITCH_GAIN * own:
-                vals, fitted, own = other, other_theta, residual
-        trial = simulate(vals, fitted)
-        if trial is None or sse(trial) >= best:
+        reach = np.percentile(np.hypot(pu - (geometry.width - 1) / 2, pv - (geometry.height - 1) / 2), 99) / corner
+        if done >= 2 and reach < reached + REACH_GAIN:  # the flow shows nothing further out than last round's
             break
-        values, theta, clean, best = vals, fitted, trial, sse(trial)
+        reached = reach
+
+        def preference(vals, residual):  # the current form is kept unless another one fits clearly better
+            return residual * (SWITCH_GAIN if vals["model"] == values["model"] else 1.0)
+
+        starts = []
+        for m in dict.fromkeys((values["model"], original["model"], *SWITCH_MODELS)):
+            if m == values["model"]:
+                starts.append((values, theta))
+            elif m == original["model"]:
+                starts.append((original, theta_of(original)))
+            elif m not in LINEAR_STARTS:
+                other = _family_start(values, m, here, targets)
+                starts.append((other, theta_of(other)))
+        forms = [(vals, *fit_form(vals, t, *targets)) for vals, t in starts]  # (values, theta, px, unfolded)
+        for m in LINEAR_STARTS:  # refined only where the start as it stands could be chosen
+            linear = _family_start(values, m, here, targets)
+            u, v = lens_at(linear, np.clip(theta_of(linear), *range_of(m))).distort(tx, ty)
+            if preference(linear, spread(np.concatenate([u - pu, v - pv]))) < min(
+                    (preference(vals, residual) for vals, _, residual, unfolded in forms if unfolded), default=np.inf):
+                forms.append((linear, *fit_form(linear, theta_of(linear), *targets)))
+        order = sorted((f for f in forms if f[3]), key=lambda f: preference(f[0], f[2]))
+        if not order:
+            why = (f"every lens form folds over inside the frame or sees beyond the render's {hfov:.1f} deg field "
+                   f"(the flow reaches {reach:.0%} of the frame's radius)")
+            break
+        kept, simulated = False, 0
+        for vals, t, _, _ in order:  # the preferred first, the next where one cannot be simulated or is worse
+            trial = simulate(vals, t)
+            if trial is None:
+                continue
+            simulated += 1
+            if sse(trial) < (1 - SSE_GAIN) * best:
+                values, theta, clean, best, kept = vals, t, trial, sse(trial), True
+                break
+            if simulated == 2:
+                break
+        if not kept:
+            vals, _, residual, _ = order[0]
+            why = (f"no lens form brings the model {SSE_GAIN:.1%} closer to the frames (the closest, {vals['model']}, "
+                   f"lies {residual:.2f} px off the flow, which reaches {reach:.0%} of the frame's radius)" if simulated
+                   else f"no lens form that follows the flow can be simulated inside the render's {hfov:.1f} deg "
+                   f"field")
+            break
     if best >= start:
-        return None
+        raise NotFitted(why)
     model, keys = values["model"], FIT_KEYS[values["model"]]
     fitted = _lens_values(values, model, theta)
     changed = {k: fitted[k] for k in dict.fromkeys(k for k, _ in keys)}
     if model in _TIED:
         changed[_TIED[model][0]] = fitted[_TIED[model][0]]
+    if model != lens.model:  # a new form: all of its parameters (a lensfun form's frame, Brown-Conrady's p1, p2)
+        changed.update((k, v) for k, v in fitted.items() if k in LensDistortion.keys_of(model))
     changed["render_hfov_deg"] = hfov
 
     def shown(value):
@@ -842,7 +1077,8 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 2):
     else:
         text = f"{model}: " + ", ".join(f"{k} {shown(lens.values()[k])} -> {shown(changed[k])}"
                                         for k in dict.fromkeys(k for k, _ in keys))
-    return p.with_effect(effect, replace=True, **fitted), changed, {"fitted": f"{text} (render field {hfov:.2f} deg kept)"}
+    return (p.with_effect(effect, replace=True, **fitted), changed,
+            {"fitted": f"{text} (render field {hfov:.2f} deg kept)"})
 
 
 # --- calibration (sec. 4.1): damped least squares over the intrinsics and every view's pose -------------------
