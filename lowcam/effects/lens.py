@@ -1126,7 +1126,6 @@ def fit_lens(object_points, image_points, image_size, model: str = "fov", fix_as
     Levenberg-Marquardt on the reprojection error (the paper uses damped Gauss-Newton, sec. 4.1). ``fix_aspect``
     ties fy to fx (square pixels).
     """
-    import cv2
     from scipy.optimize import least_squares
 
     width, height = image_size
