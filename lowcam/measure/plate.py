@@ -441,14 +441,14 @@ def pair_starts(frames: int, count: int) -> list[int]:
     return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
 
 
-def register_footage(footage: Footage, count: int = 12):
+def register_footage(footage: Footage, count: int = 12, cache: dict | None = None):
     """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
     (:func:`pair_starts`), each frame registered, by a homography from tracked corners, with the one of the next
     :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
-    (:func:`lowcam.registration.register_frames`)."""
+    (:func:`lowcam.registration.register_frames`; ``cache``: its consecutive registrations, to share)."""
     from ..registration import register_frames
 
-    return register_frames(footage.frames, pair_starts(len(footage), count))
+    return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
