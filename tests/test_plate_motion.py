@@ -162,9 +162,10 @@ def test_a_jpeg_coded_pan_off_its_grid_says_its_codec_reads_as_noise():
 
 # --- a JPEG-coded pan measured where its coding grid falls back on the same content ----------------------------------
 
-def cropped_shot(photo, step_px=(3, 0), frames=12, quality=70, subsampling=2, seed=0, blur="scipy", law=LAW):
-    """``frames`` frames cropped ``step_px`` (across, down; whole pixels, at most 3) apart from a scikit-image
-    photograph resized to (W + 48) x (H + 48) px (the same scene whatever the pan), blurred 1.2 px across (SciPy's gaussian_filter1d, or OpenCV's GaussianBlur with a
+def cropped_shot(photo, step_px=(3, 0), frames=12, quality=70, subsampling=2, seed=0, blur="scipy", law=LAW,
+                 at_px=(4, 4)):
+    """``frames`` frames cropped ``step_px`` (across, down; whole pixels, at most 3) apart, the first at ``at_px``,
+    from a scikit-image photograph resized to (W + 48) x (H + 48) px (the same scene whatever the pan), blurred 1.2 px across (SciPy's gaussian_filter1d, or OpenCV's GaussianBlur with a
     1 x 9 kernel) before cropping, noise of variance ``law[0] + law[1] v`` (NumPy) and Pillow JPEG at
     ``quality`` (``subsampling`` 2: 4:2:0, 0: 4:4:4). A still shot is ``step_px = (0, 0)``. (T, H, W, 3) uint8."""
     img = np.ascontiguousarray(getattr(data, photo)()[..., :3]).astype(np.float32)
@@ -177,7 +178,7 @@ def cropped_shot(photo, step_px=(3, 0), frames=12, quality=70, subsampling=2, se
     rng = np.random.default_rng(seed)
     out = []
     for k in range(frames):
-        x, y = 4 + k * step_px[0], 4 + k * step_px[1]
+        x, y = at_px[0] + k * step_px[0], at_px[1] + k * step_px[1]
         clean = img[y:y + H, x:x + W]
         noisy = clean + rng.standard_normal(clean.shape) * np.sqrt(law[0] + law[1] * clean)
         out.append(_jpeg(np.clip(np.rint(noisy), 0, 255).astype(np.uint8), quality, subsampling))
@@ -186,10 +187,15 @@ def cropped_shot(photo, step_px=(3, 0), frames=12, quality=70, subsampling=2, se
 
 def _law_gap(pan, still, base):
     """The largest relative difference between the noise laws estimated from ``pan`` and ``still`` (frames), over
-    five levels spanning the middle 80 % of the pan's measured blocks, and the two estimates."""
+    five levels spanning the middle 80 % of the pan's measured blocks, and the two estimates. None where the still
+    shot's registered pairs do not show enough brightness levels (the coder flattened the noise of too many
+    blocks): then the pan's law must not be written either."""
     est = [noise_level_function_from_plate(plate.Footage(f), base, plate.film) for f in (pan, still)]
+    if est[1].measured["method"] != "registered":
+        assert est[0].confidence < plate.MIN_CONFIDENCE and est[1].confidence < plate.MIN_CONFIDENCE, est[0].line()
+        return None, est
     laws = [base.with_effect("noise", **e.params).effect("noise") for e in est]
-    (channel,) = est[0].measured["levels_dn"]
+    channel = next(iter(est[0].measured["levels_dn"]))  # "luma" for JPEG-coded frames
     levels, blocks = est[0].measured["levels_dn"][channel], est[0].measured["blocks"][channel]
     share = np.cumsum(blocks) / np.sum(blocks)
     mus = np.linspace(np.interp(0.1, share, levels), np.interp(0.9, share, levels), 5)
@@ -198,18 +204,17 @@ def _law_gap(pan, still, base):
     return gap, est
 
 
-@pytest.mark.parametrize("quality, subsampling", [(70, 2), (85, 0)])
-def test_a_jpeg_coded_pan_gives_a_still_shots_noise_law(quality, subsampling):
+@pytest.mark.parametrize("photo, quality, subsampling", [("astronaut", 70, 2), ("coffee", 85, 0)])
+def test_a_jpeg_coded_pan_gives_a_still_shots_noise_law(photo, quality, subsampling):
     """The issue's footage: a photograph blurred 1.2 px across, noise variance 0.5 + 0.05 v, Pillow JPEG, 12 frames
-    panning 3 px a frame against 12 still ones. Frames 8 apart (24 px) put the 8 px grid back on the same content;
-    on those pairs' luma the pan's law is the still shot's within 15 % (before: the pan read 1.3-1.7 x the still
-    shot's noise and was reported at confidence 0). The estimate says which pairs it used, and the codec does not
-    lower its confidence."""
-    photo = _photos(1, seed=21 + quality)[0]
+    panning 3 px a frame against 12 still ones framing the pan's middle. Frames 8 apart (24 px) put the 8 px grid
+    back on the same content; on those pairs' luma the pan's law is the still shot's within 15 % (before: the pan
+    read 1.3-1.7 x the still shot's noise and was reported at confidence 0). The estimate says which pairs it used,
+    and the codec does not lower its confidence. (Photographs drawn at random: the slow test below.)"""
     base = _base().with_effect("jpeg", quality=quality, subsampling={2: "4:2:0", 0: "4:4:4"}[subsampling])
-    gap, (pan, still) = _law_gap(cropped_shot(photo, quality=quality, subsampling=subsampling, seed=1),
-                                 cropped_shot(photo, (0, 0), quality=quality, subsampling=subsampling, seed=2), base)
-    assert gap < 0.15, (gap, pan.line(), still.line())
+    still = cropped_shot(photo, (0, 0), quality=quality, subsampling=subsampling, seed=2, at_px=(22, 4))
+    gap, (pan, still) = _law_gap(cropped_shot(photo, quality=quality, subsampling=subsampling, seed=1), still, base)
+    assert gap is not None and gap < 0.15, (gap, pan.line(), still.line())
     assert pan.measured["grid_pairs"] == 4 and "4 frame pairs a whole number of 8 px blocks apart" in pan.reason
     assert "moved by -24, 0 px" in pan.reason and "x a still shot's" not in pan.reason, pan.line()
 
@@ -219,14 +224,17 @@ def test_a_jpeg_coded_pan_gives_a_still_shots_noise_law(quality, subsampling):
 @pytest.mark.parametrize("subsampling", [2, 0])
 def test_jpeg_coded_pans_give_still_shots_noise_laws(quality, subsampling):
     """As above, on three photographs drawn at random, OpenCV's blur, pans across (3 px a frame) and diagonal (3 px
-    across, 1 px down: frames 8 apart lie 24, 8 px apart): pan and still laws within 15 %."""
+    across, 1 px down: frames 8 apart lie 24, 8 px apart), each against a still shot framing the pan's middle:
+    pan and still laws within 15 % (or neither written, where the coder flattened the still shot's noise in too
+    many blocks to measure it)."""
     base = _base().with_effect("jpeg", quality=quality, subsampling={2: "4:2:0", 0: "4:4:4"}[subsampling])
     for k, photo in enumerate(_photos(3, seed=31 + quality + subsampling)):
-        still = cropped_shot(photo, (0, 0), quality=quality, subsampling=subsampling, seed=2 * k, blur="opencv")
         for step in ((3, 0), (3, 1)):
+            still = cropped_shot(photo, (0, 0), quality=quality, subsampling=subsampling, seed=2 * k, blur="opencv",
+                                 at_px=(4 + 6 * step[0], 4 + 6 * step[1]))
             pan = cropped_shot(photo, step, quality=quality, subsampling=subsampling, seed=2 * k + 1, blur="opencv")
             gap, (est, _) = _law_gap(pan, still, base)
-            assert est.measured["grid_pairs"] >= 3 and gap < 0.15, (photo, step, gap, est.line())
+            assert est.measured["grid_pairs"] >= 3 and (gap is None or gap < 0.15), (photo, step, gap, est.line())
 
 
 def test_frames_on_the_coding_grid_are_found_only_where_the_camera_shifts_by_whole_blocks():

@@ -22,7 +22,8 @@ Contents
 - :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`, :data:`NLF_BLOCK_PX`, :data:`HEADLINE_DN`: the brightness bins (DN)
   of the noise level function measured on footage, the quantile of flat-block variances that gives its spatial
   lower envelope, the blocks (px) it is measured in and the levels (DN) it is read at
-- :data:`ROUNDING_FLOOR_DN2`: below this variance a bin shows pixels a codec repeated, not noise
+- :data:`ROUNDING_FLOOR_DN2`, :data:`REPEATED_SHARE`: below this variance (in a bin, or in this share of its
+  blocks) a bin shows pixels a codec repeated or flattened, not noise
 - :func:`noise_level_statistic`: the noise level function (sigma against mean per channel or of the luma, DN) of
   footage: from registered frame pairs (a moving camera, moving objects) or single frames' flat blocks
 - :data:`BIN_SCATTER`: the scatter about a law allowed to every bin of footage besides its standard error
@@ -51,6 +52,8 @@ References
   Fitting for Single-Image Raw-Data", IEEE TIP 17(10), 1737-1754, 2008.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -241,6 +244,11 @@ SPATIAL_QUANTILE = 0.05
 #: Variance (DN^2) of rounding to whole DN: a bin whose noise variance measures below it shows pixels a codec
 #: repeated or flattened (an inter-frame codec's skipped blocks, a vector quantiser's codebook), not noise.
 ROUNDING_FLOOR_DN2 = 1.0 / 12.0
+#: A bin where at least this share of the members' variances lies below :data:`ROUNDING_FLOOR_DN2` is left out
+#: too: a JPEG at a low quality quantises the noise of many flat blocks away entirely and keeps the others', and a
+#: quantile of such a mixture jumps between the two with the noise drawn (on scikit-image's rocket at quality 70,
+#: 25-60 % of the blocks of every bin; two still shots' laws 20 % apart).
+REPEATED_SHARE = 0.25
 #: The scatter allowed to every bin besides its standard error when a law is fitted, as a share of the median
 #: sigma: the bins of footage scatter about any law by more than their block counts say (scene, codec).
 BIN_SCATTER = 0.1
@@ -284,12 +292,13 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
     lift it [Liu2008's lower envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are
     left out. Returns ``{"levels", "sigmas", "counts", "se"}`` (DN, DN, members, the sigma's standard error in DN)
     and ``"repeated"`` (bins left out as below), bins with fewer than ``min_count`` members left out, and bins whose
-    variance lies below :data:`ROUNDING_FLOOR_DN2` (pixels a codec repeated from frame to frame or flattened: the
-    noise is not measurable there, not 0)."""
+    variance lies below :data:`ROUNDING_FLOOR_DN2`, or :data:`REPEATED_SHARE` of whose members' do (pixels a codec
+    repeated from frame to frame or flattened: the noise is not measurable there, not 0)."""
     from scipy.stats import chi2
 
     dof = np.broadcast_to(np.asarray(dof, np.float64), np.shape(mean))
     keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var) & (dof >= 1)
+    flat = var[keep] < ROUNDING_FLOOR_DN2
     mean, var, dof = mean[keep], var[keep] / (chi2.ppf(quantile, dof[keep]) / dof[keep]), dof[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
     order = np.argsort(idx, kind="stable")
@@ -299,7 +308,7 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
         if n >= min_count:
             sel = order[start:start + n]
             v, se = _quantile_se(var[sel], quantile)
-            if v < ROUNDING_FLOOR_DN2:  # unchanged pixels: a codec repeated or flattened them (not measurable)
+            if v < ROUNDING_FLOOR_DN2 or flat[sel].mean() >= REPEATED_SHARE:  # a codec repeated or flattened them
                 out["repeated"] += 1
                 continue
             sigma = float(np.sqrt(v))
@@ -328,7 +337,8 @@ def _read_at(levels, sigmas, at_dn: float):
 def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BLOCK_PX, floor_dn: float = 4.0,
                           saturation_dn: float = 220.0, luma: bool = False) -> dict:
     """The noise level function of footage: sigma (DN) against mean (DN) per channel (``luma``: of the frames'
-    full-range BT.601 luma alone, JPEG's Y, the one channel ``"luma"``).
+    full-range BT.601 luma alone, JPEG's Y, the one channel ``"luma"``; frames or pairs of one channel are taken
+    for the luma already).
 
     ``frames``: a stack (T, H, W, 3) float32 DN, or :class:`lowcam.registration.RegisteredPairs`.
     ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each frame registered with
@@ -346,34 +356,31 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
 
     Returns ``{"method", "levels_dn", "sigma_dn", "blocks", "sigma_se_dn": {channel: [per bin]}, "repeated_bins":
     {channel: bins whose pixels a codec repeated unchanged (below :data:`ROUNDING_FLOOR_DN2`)}, "sigma_at_dn":
-    {"64"|"128"|"192": [r, g, b]}}`` (``sigma_at_dn`` interpolated between bins; None where that level was not
+    {"64"|"128"|"192": [r, g, b] (or [luma])}}`` (``sigma_at_dn`` interpolated between bins; None where that level was not
     measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
     ``compared`` (the share of pixels compared)."""
     from ..registration import RegisteredPairs, register_frames
+    from .jpeg import bt601_luma
 
+    channels = ("luma",) if luma else ("red", "green", "blue")
     if isinstance(frames, RegisteredPairs):
         pairs, method = frames, method or "registered"
         if method != "registered":
             raise ValueError(f"registered pairs are measured by the 'registered' method, not '{method}'")
+        if luma and pairs.diff.shape[-1] == 3:  # (one channel: the luma already)
+            pairs = RegisteredPairs(bt601_luma(pairs.level)[..., None], bt601_luma(pairs.diff)[..., None],
+                                    pairs.registrations, pairs.pairs)
     else:
         x = np.asarray(frames, np.float32)
         if x.ndim == 3:
             x = x[None]
+        if luma and x.shape[-1] == 3:
+            x = bt601_luma(x)[..., None]
         method = method or ("registered" if len(x) >= 2 else "spatial")
         if method == "registered" and len(x) < 2:
             raise ValueError("a registered noise level function needs at least 2 frames")
         if method == "registered":
             pairs = register_frames(x)
-    channels = ("red", "green", "blue")
-    if luma:
-        from .jpeg import bt601_luma
-
-        channels = ("luma",)
-        if method == "registered":
-            pairs = RegisteredPairs(bt601_luma(pairs.level)[..., None], bt601_luma(pairs.diff)[..., None],
-                                    pairs.registrations, pairs.pairs)
-        else:
-            x = bt601_luma(x)[..., None]
     out = {"method": method, "levels_dn": {}, "sigma_dn": {}, "blocks": {}, "sigma_se_dn": {}, "repeated_bins": {}}
     for c, channel in enumerate(channels):
         if method == "registered":
@@ -537,6 +544,21 @@ def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
                     "still shot's)")
 
 
+class _LumaFrames:
+    """A sequence of frames (H, W, 3) read as their BT.601 luma (H, W, 1), one at a time."""
+
+    def __init__(self, frames):
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i) -> np.ndarray:
+        from .jpeg import bt601_luma
+
+        return bt601_luma(self.frames[i])[..., None]
+
+
 def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
@@ -573,14 +595,16 @@ def noise_level_function_from_plate(footage, base, film):
     luma = jpeg is not None and jpeg.enabled
     channels = ("luma",) if luma else ("red", "green", "blue")
     cache: dict = {}
-    pairs = register_footage(footage, PLATE_PAIRS, cache)
+    # JPEG-coded frames are registered and compared on their luma alone: the masks of moving and steep pixels are
+    # then the luma's, not a subsampled chroma's (whose coding error a pan changes where the luma's cancels)
+    shot = replace(footage, frames=_LumaFrames(footage.frames)) if luma else footage
+    pairs = register_footage(shot, PLATE_PAIRS, cache)
     still = [k for k, r in enumerate(pairs.registrations) if r.motion_px < STILL_PX]
     moving = len(still) < MIN_PAIRS
     used = pairs if moving else pairs.select(still)
     on_grid = False
     if luma and moving:
-        grid = register_on_grid(footage.frames, pair_starts(len(footage), PLATE_PAIRS), CODING_GRID_PX,
-                                cache=cache)
+        grid = register_on_grid(shot.frames, pair_starts(len(shot), PLATE_PAIRS), CODING_GRID_PX, cache=cache)
         if len(grid) >= MIN_PAIRS:
             used, on_grid = grid, True
     method = "registered"
