@@ -5,8 +5,8 @@ difference of two frames is then mostly the scene; people walking through a fixe
 Each pair of frames is registered by a homography: Shi-Tomasi corners [Shi1994] of the first frame tracked into
 the second by pyramidal Lucas-Kanade [Bouguet2000], kept where tracking back returns within
 :data:`FORWARD_BACKWARD_PX`, and a homography fitted to them by RANSAC [Fischler1981] (OpenCV). Where the inlier
-tracks scatter about a shift by whole pixels (their median displacement rounded) no more than :data:`STILL_RATIO`
-times they scatter about that homography (median against median), the pair is that shift: the identity for a
+tracks scatter about a shift by whole pixels (none, else their median displacement rounded) no more than
+:data:`STILL_RATIO` times they scatter about that homography (median against median), the pair is that shift: the identity for a
 still pair (a homography would fit the tracker's noise, or a flat scene's aperture-bound tracks), a whole-pixel
 translation for a digital pan or a crop moved over a larger frame (a homography's perspective terms, fitted to the
 tracker's noise, would move the corners by a tenth of a pixel, and the pixels compared would be read off by that
@@ -150,13 +150,14 @@ def register_pair(a: np.ndarray, b: np.ndarray, max_corners: int = 500) -> Regis
     H, _ = cv2.findHomography(src[inl], dst[inl], 0)
     H = H / H[2, 2]
     residual = np.linalg.norm(cv2.perspectiveTransform(src[None], H)[0] - dst, axis=1)
-    shift = np.rint(np.median(dst[inl] - src[inl], axis=0))
-    about_shift = np.linalg.norm(dst - src - shift, axis=1)
-    if np.median(about_shift[inl]) <= STILL_RATIO * np.median(residual[inl]):
-        # the tracks move by whole pixels as far as their scatter tells (none: still): a homography would fit
-        # their noise
-        H = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
-        residual = about_shift
+    for shift in (np.zeros(2), np.rint(np.median(dst[inl] - src[inl], axis=0))):  # still first
+        about_shift = np.linalg.norm(dst - src - shift, axis=1)
+        if np.median(about_shift[inl]) <= STILL_RATIO * np.median(residual[inl]):
+            # the tracks move by whole pixels as far as their scatter tells (none: still): a homography would fit
+            # their noise
+            H = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
+            residual = about_shift
+            break
     rms = float(np.sqrt(np.mean(residual[inl] ** 2)))
     error = max(rms * np.sqrt(8.0 / inl.sum()), MIN_ERROR_PX)
     h, w = ga.shape
