@@ -6,13 +6,13 @@ Each pair of frames is registered by a homography: Shi-Tomasi corners [Shi1994] 
 the second by pyramidal Lucas-Kanade [Bouguet2000], kept where tracking back returns within
 :data:`FORWARD_BACKWARD_PX`, and a homography fitted to them by RANSAC [Fischler1981] (OpenCV). Where the inlier
 tracks scatter about a shift by whole pixels (none, else their median displacement rounded) no more than
-:data:`STILL_RATIO` times they scatter about that homography (median against median), the pair is that shift: the identity for a
-still pair (a homography would fit the tracker's noise, or a flat scene's aperture-bound tracks), a whole-pixel
-translation for a digital pan or a crop moved over a larger frame (a homography's perspective terms, fitted to the
-tracker's noise, would move the corners by a tenth of a pixel, and the pixels compared would be read off by that
-much). A pair with fewer than :data:`MIN_INLIERS` consistent tracks (a flat scene) keeps the identity
-unregistered: only its flat pixels are compared, where a small motion changes nothing. A gyro log would give a
-rotating camera's homography ``K R K^-1`` [Hartley2004], but on the phone-gyro-video clip it predicts the tracked
+:data:`STILL_RATIO` times they scatter about that homography (median against median), the pair is that shift:
+the identity for a still pair (a homography would fit the tracker's noise, or a flat scene's aperture-bound
+tracks), a whole-pixel translation for a digital pan or a crop moved over a larger frame (a homography's
+perspective terms, fitted to the tracker's noise, would move the corners by a tenth of a pixel, and the pixels
+compared would be read off by that much). A pair with fewer than :data:`MIN_INLIERS` consistent tracks (a flat
+scene) keeps the identity unregistered: only its flat pixels are compared, where a small motion changes nothing.
+A gyro log would give a rotating camera's homography ``K R K^-1`` [Hartley2004], but on the phone-gyro-video clip it predicts the tracked
 corners to a median 1.34 px (:mod:`lowcam.motion`), far above the tenth of a pixel the difference needs, and
 footage read with a gyro knows neither its lens's K nor the gyro's axes: the frames register themselves.
 
@@ -318,6 +318,7 @@ def rounding_offset(H: np.ndarray, shape, step: int = 16) -> tuple[float, float]
 
 
 def _frame(frames, i) -> np.ndarray:
+    """Frame ``i`` of ``frames`` as float32 (H, W, C)."""
     f = np.asarray(frames[i], np.float32)
     return f[..., None] if f.ndim == 2 else f
 
@@ -386,8 +387,8 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP, cache: dict | 
 
 def grid_shift(reg: Registration, grid_px: int) -> bool:
     """Whether ``reg`` moves the frame by a whole-pixel shift that is a multiple of ``grid_px`` on both axes, and
-    not 0 (a still pair): a block coder's grid (JPEG's 8 px, placed from the frame's corner) then falls on the
-    same content in both frames."""
+    not 0 (a still pair): a block coder's grid (JPEG's 8 px), placed alike in every frame, then falls on the same
+    content in both frames."""
     H = reg.H
     shift = H[:2, 2]
     return bool(reg.registered and np.allclose(H[:2, :2], np.eye(2)) and np.allclose(H[2], [0, 0, 1])

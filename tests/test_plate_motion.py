@@ -165,9 +165,10 @@ def test_a_jpeg_coded_pan_off_its_grid_says_its_codec_reads_as_noise():
 def cropped_shot(photo, step_px=(3, 0), frames=12, quality=70, subsampling=2, seed=0, blur="scipy", law=LAW,
                  at_px=(4, 4)):
     """``frames`` frames cropped ``step_px`` (across, down; whole pixels, at most 3) apart, the first at ``at_px``,
-    from a scikit-image photograph resized to (W + 48) x (H + 48) px (the same scene whatever the pan), blurred 1.2 px across (SciPy's gaussian_filter1d, or OpenCV's GaussianBlur with a
-    1 x 9 kernel) before cropping, noise of variance ``law[0] + law[1] v`` (NumPy) and Pillow JPEG at
-    ``quality`` (``subsampling`` 2: 4:2:0, 0: 4:4:4). A still shot is ``step_px = (0, 0)``. (T, H, W, 3) uint8."""
+    from a scikit-image photograph resized to (W + 48) x (H + 48) px (the same scene whatever the pan), blurred
+    1.2 px across (SciPy's gaussian_filter1d, or OpenCV's GaussianBlur with a 1 x 9 kernel) before cropping, noise
+    of variance ``law[0] + law[1] v`` (NumPy) and Pillow JPEG at ``quality`` (``subsampling`` 2: 4:2:0, 0:
+    4:4:4). A still shot is ``step_px = (0, 0)``. (T, H, W, 3) uint8."""
     img = np.ascontiguousarray(getattr(data, photo)()[..., :3]).astype(np.float32)
     img = cv2.resize(img, (W + 48, H + 48), interpolation=cv2.INTER_AREA).astype(np.float64)
     if blur == "scipy":

@@ -337,8 +337,8 @@ def _read_at(levels, sigmas, at_dn: float):
 def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BLOCK_PX, floor_dn: float = 4.0,
                           saturation_dn: float = 220.0, luma: bool = False) -> dict:
     """The noise level function of footage: sigma (DN) against mean (DN) per channel (``luma``: of the frames'
-    full-range BT.601 luma alone, JPEG's Y, the one channel ``"luma"``; frames or pairs of one channel are taken
-    for the luma already).
+    full-range BT.601 luma alone, JPEG's Y, the one channel ``"luma"``, a stack registered on it; frames or pairs
+    of one channel are taken for the luma already).
 
     ``frames``: a stack (T, H, W, 3) float32 DN, or :class:`lowcam.registration.RegisteredPairs`.
     ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each frame registered with
@@ -355,9 +355,9 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
     ``floor_dn``-``saturation_dn`` are left out (clipped noise).
 
     Returns ``{"method", "levels_dn", "sigma_dn", "blocks", "sigma_se_dn": {channel: [per bin]}, "repeated_bins":
-    {channel: bins whose pixels a codec repeated unchanged (below :data:`ROUNDING_FLOOR_DN2`)}, "sigma_at_dn":
-    {"64"|"128"|"192": [r, g, b] (or [luma])}}`` (``sigma_at_dn`` interpolated between bins; None where that level was not
-    measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
+    {channel: bins whose pixels a codec repeated or flattened (:data:`REPEATED_SHARE`)}, "sigma_at_dn":
+    {"64"|"128"|"192": [r, g, b] or [luma]}}`` (``sigma_at_dn`` interpolated between bins; None where that level
+    was not measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
     ``compared`` (the share of pixels compared)."""
     from ..registration import RegisteredPairs, register_frames
     from .jpeg import bt601_luma
@@ -538,10 +538,10 @@ def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
     qs = sorted(CODEC_FLICKER)
     ratio = float(np.interp(int(jpeg.quality), qs, [CODEC_FLICKER[q] for q in qs]))
     factor = float(np.clip(1 - (ratio - 1) / 0.5, 0.0, 1.0))
-    return factor, (f"; the camera moves and no two frames (within {GRID_WINDOW} of each other) lie a whole number "
-                    f"of {CODING_GRID_PX} px blocks apart: JPEG's coding error (about quality {int(jpeg.quality)}) "
-                    f"of a moving scene changes from frame to frame and reads as noise (about {ratio:.2f} x a "
-                    "still shot's)")
+    return factor, (f"; the camera moves, and no two frames within {GRID_WINDOW} of each other lie a whole number "
+                    f"of {CODING_GRID_PX} px blocks apart (a camera shifting by whole pixels, neither turning nor "
+                    f"zooming): JPEG's coding error (about quality {int(jpeg.quality)}) of a moving scene changes "
+                    f"from frame to frame and reads as noise (about {ratio:.2f} x a still shot's)")
 
 
 class _LumaFrames:
@@ -565,11 +565,12 @@ def noise_level_function_from_plate(footage, base, film):
     Up to :data:`PLATE_PAIRS` frame pairs spread over the shot are registered
     (:func:`lowcam.measure.plate.register_footage`); where at least :data:`MIN_PAIRS` pairs hold still (no pixel
     moves more than :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes
-    from frame to frame. JPEG-coded frames (the profile's ``jpeg`` effect) are measured on their luma
-    (:func:`noise_level_statistic` with ``luma``): JPEG codes it at full resolution on its own 8 px grid, while
-    its chroma is subsampled and quantised until the noise there is mostly gone, which the channels' own noise
-    would take for a camera with none (the channels then share the luma's law in the base profile's proportions,
-    :func:`channel_proportions`, through the luma's gain, :func:`noise_gain`). A moving JPEG-coded shot is
+    from frame to frame. JPEG-coded frames (the profile's ``jpeg`` effect) are registered and measured on their
+    luma (:func:`noise_level_statistic` with ``luma``): JPEG codes it at full resolution on its own 8 px grid,
+    while it subsamples the chroma and quantises most of the chroma's noise away, so that each channel's own
+    noise would read as little more than the luma's, as if the camera had no colour noise (the channels share the
+    luma's law in the base profile's proportions, :func:`channel_proportions`, through the luma's gain,
+    :func:`noise_gain`). A moving JPEG-coded shot is
     measured on frame pairs a whole number of blocks apart where it has at least :data:`MIN_PAIRS`
     (:func:`lowcam.registration.register_on_grid`, :data:`CODING_GRID_PX`): there the grid falls on the same
     content in both frames and the coding error cancels as in a still shot. :func:`noise_level_statistic`
@@ -578,8 +579,8 @@ def noise_level_function_from_plate(footage, base, film):
     frames stand in if they show more: a lower envelope that texture lifts, so it is reported, never applied. The
     output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
     blur and demosaic do to per-sensel noise) and fitted with the profile's law, its slope at least 0 and its sigma
-    at 0 DN at least the 8-bit rounding's (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a
-    law :meth:`Noise.implausible` flags is not applied.
+    at 0 DN at least the 8-bit rounding's (:data:`ROUNDING_FLOOR_DN2`, the luma's share of it for the luma, through
+    the gain; :func:`fit_plate_law`); a law :meth:`Noise.implausible` flags is not applied.
 
     Confidence, from the measurement's own evidence: ``0.95 (1 - s / 0.25) min(1, levels / 4)``, ``s`` how far
     the fitted sigma may be off (:func:`fit_plate_law`: its standard error from the bins' block counts and
@@ -625,7 +626,7 @@ def noise_level_function_from_plate(footage, base, film):
             "noise_level_function", "noise", measured,
             f"{levels} brightness level{'s' * (levels != 1)} with enough flat blocks (at least {MIN_LEVELS} "
             f"needed to tell the law's intercept from its slope)" + (
-                f"; {repeated} more where the codec repeats pixels unchanged" if repeated else ""))
+                f"; {repeated} more where the codec repeats or flattens pixels" if repeated else ""))
     proportions = channel_proportions(base) if luma else None
     gains = noise_gain(base, method, film, proportions=proportions)
     params = {"law": law}
@@ -650,7 +651,7 @@ def noise_level_function_from_plate(footage, base, film):
         confidence = min(confidence, 0.4)
         where = (f"the registered frame pairs ({used.compared:.0%} of their pixels compared) show {registered_levels} "
                  f"brightness level{'s' * (registered_levels != 1)}" + (
-                     f" ({repeated} more where the codec repeats pixels unchanged from frame to frame)"
+                     f" ({repeated} more where the codec repeats or flattens pixels)"
                      if repeated else "") + f": flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of {of}single "
                  "frames instead (texture lifts them: reported only)")
     else:
@@ -664,7 +665,7 @@ def noise_level_function_from_plate(footage, base, film):
         where = f"{of}{kind}, {stat['compared']:.0%} of their pixels compared"
     if repeated and method == "registered":
         where += (f"; {repeated} brightness bin{'s' * (repeated > 1)} left out where the codec repeats pixels "
-                  "unchanged from frame to frame (no noise to measure there)")
+                  "from frame to frame or flattens them (no noise to measure there)")
     reason = f"{where}, {levels} brightness levels, law within {worst:.0%} of them{note}"
     if luma:
         reason += ("; read on the luma, which JPEG codes at full resolution (it quantises most of the chroma's "

@@ -412,8 +412,8 @@ def _codec(module: str, name: str) -> Callable:
 
 #: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
 #: next, since the noise estimate divides by the gain of the row filters the edges fit
-#: (:func:`lowcam.effects.noise.noise_gain`) and judges the codec's share of a moving shot's noise by the JPEG
-#: quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
+#: (:func:`lowcam.effects.noise.noise_gain`), reads JPEG-coded frames on their luma and judges the codec's share
+#: of a moving shot's noise by the JPEG quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
@@ -531,8 +531,8 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
-_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px",
-                  "overshoot", "gain_at_rho", "pairs",
+_HEADLINE_KEYS = ("method", "frames", "still_pairs", "grid_pairs", "compared", "sigma_at_dn", "edges",
+                  "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
                   "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
 
 
