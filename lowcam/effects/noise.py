@@ -267,10 +267,11 @@ CODING_GRID_PX = 8
 #: How much a pan's registered luma noise reads above a still shot's of the same scene when the frames are
 #: JPEG-coded and no frame pairs lie on the coding grid, by IJG quality: the coding error of a moving scene changes
 #: from frame to frame. Measured with :func:`noise_level_statistic` (``luma``, mean over 64, 128 and 192 DN) on
-#: scikit-image's astronaut, chelsea, coffee, rocket and immunohistochemistry, blurred 1.2 px across, noise
-#: variance 0.5 + 0.05 DN, Pillow 4:2:0, 8 frames cropped 3 px apart against 8 still ones (a sub-pixel pan reads
-#: 0.02-0.2 less: its registration's error leaves out the textured pixels, where the coder keeps more noise).
-CODEC_FLICKER = {95: 1.02, 90: 1.10, 85: 1.17, 80: 1.21, 70: 1.34, 50: 1.65}
+#: scikit-image's astronaut, chelsea, coffee, rocket and immunohistochemistry (rocket's noise not measurable at 70
+#: and below), blurred 1.2 px across, noise variance 0.5 + 0.05 DN, Pillow 4:2:0, 8 frames cropped 3 px apart
+#: against 8 still ones framing the pan's middle (a sub-pixel pan reads 0.04-0.2 less on average, 0.9-1.4 x the
+#: still shot's per scene: its registration's error leaves out textured pixels, where the coder keeps more noise).
+CODEC_FLICKER = {95: 1.01, 90: 1.08, 85: 1.14, 80: 1.18, 70: 1.34, 50: 1.53}
 
 
 def _quantile_se(values: np.ndarray, quantile: float) -> tuple[float, float]:
