@@ -5,11 +5,14 @@ difference of two frames is then mostly the scene; people walking through a fixe
 Each pair of frames is registered by a homography: Shi-Tomasi corners [Shi1994] of the first frame tracked into
 the second by pyramidal Lucas-Kanade [Bouguet2000], kept where tracking back returns within
 :data:`FORWARD_BACKWARD_PX`, and a homography fitted to them by RANSAC [Fischler1981] (OpenCV). Where the inlier
-tracks move no more than :data:`STILL_RATIO` times they scatter about that homography (median against median),
-the pair is still: the identity (a homography would fit the tracker's noise, or a flat scene's aperture-bound
-tracks). A pair with fewer than :data:`MIN_INLIERS` consistent tracks (a flat scene) keeps the identity
-unregistered: only its flat pixels are compared, where a small motion changes nothing. A gyro log would give a
-rotating camera's homography ``K R K^-1`` [Hartley2004], but on the phone-gyro-video clip it predicts the tracked
+tracks scatter about a shift by whole pixels (none, else their median displacement rounded) no more than
+:data:`STILL_RATIO` times they scatter about that homography (median against median), the pair is that shift:
+the identity for a still pair (a homography would fit the tracker's noise, or a flat scene's aperture-bound
+tracks), a whole-pixel translation for a digital pan or a crop moved over a larger frame (a homography's
+perspective terms, fitted to the tracker's noise, would move the corners by a tenth of a pixel, and the pixels
+compared would be read off by that much). A pair with fewer than :data:`MIN_INLIERS` consistent tracks (a flat
+scene) keeps the identity unregistered: only its flat pixels are compared, where a small motion changes nothing.
+A gyro log would give a rotating camera's homography ``K R K^-1`` [Hartley2004], but on the phone-gyro-video clip it predicts the tracked
 corners to a median 1.34 px (:mod:`lowcam.motion`), far above the tenth of a pixel the difference needs, and
 footage read with a gyro knows neither its lens's K nor the gyro's axes: the frames register themselves.
 
@@ -55,6 +58,10 @@ Contents
   how much it varies over the frame
 - :func:`register_frames`: :class:`RegisteredPairs` of frame pairs of a shot, each with the frame (of the next
   few) that nearest-neighbour sampling reads most exactly
+- :data:`GRID_WINDOW`, :data:`GRID_CHAIN_PX`: how many frames ahead a block coder's grid is looked for, and how
+  near a chain of registrations must come to it (px)
+- :func:`grid_shift`: whether a registration is a whole-pixel shift by a multiple of a coder's grid
+- :func:`register_on_grid`: :class:`RegisteredPairs` of frame pairs a multiple of a coder's grid apart
 
 References
 ----------
@@ -78,6 +85,8 @@ RANSAC_PX = 1.0
 STILL_RATIO = 1.5
 GAP_GAIN_PX = 0.05
 PAIR_GAP = 3
+GRID_WINDOW = 24
+GRID_CHAIN_PX = 0.5
 GRADIENT_SIGMA_PX = 0.7
 MASK_SIGMA_PX = 1.5
 MIN_ERROR_PX = 0.03
@@ -141,9 +150,14 @@ def register_pair(a: np.ndarray, b: np.ndarray, max_corners: int = 500) -> Regis
     H, _ = cv2.findHomography(src[inl], dst[inl], 0)
     H = H / H[2, 2]
     residual = np.linalg.norm(cv2.perspectiveTransform(src[None], H)[0] - dst, axis=1)
-    if np.median(np.linalg.norm(dst - src, axis=1)[inl]) <= STILL_RATIO * np.median(residual[inl]):
-        H = np.eye(3)  # the tracks do not move more than they scatter: a homography would fit their noise
-        residual = np.linalg.norm(dst - src, axis=1)
+    for shift in (np.zeros(2), np.rint(np.median(dst[inl] - src[inl], axis=0))):  # still first
+        about_shift = np.linalg.norm(dst - src - shift, axis=1)
+        if np.median(about_shift[inl]) <= STILL_RATIO * np.median(residual[inl]):
+            # the tracks move by whole pixels as far as their scatter tells (none: still): a homography would fit
+            # their noise
+            H = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
+            residual = about_shift
+            break
     rms = float(np.sqrt(np.mean(residual[inl] ** 2)))
     error = max(rms * np.sqrt(8.0 / inl.sum()), MIN_ERROR_PX)
     h, w = ga.shape
@@ -303,7 +317,39 @@ def rounding_offset(H: np.ndarray, shape, step: int = 16) -> tuple[float, float]
     return float(np.linalg.norm(off, axis=1).mean()), float(off.std(axis=0).max())
 
 
-def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredPairs:
+def _frame(frames, i) -> np.ndarray:
+    """Frame ``i`` of ``frames`` as float32 (H, W, C)."""
+    f = np.asarray(frames[i], np.float32)
+    return f[..., None] if f.ndim == 2 else f
+
+
+def _consecutive(frames, cache: dict | None):
+    """``step(i)``: frame ``i`` registered with frame ``i + 1``, each pair once (kept in ``cache``, a dict that
+    callers registering the same frames may share)."""
+    cache = {} if cache is None else cache
+
+    def step(i):
+        if i not in cache:
+            cache[i] = register_pair(_frame(frames, i), _frame(frames, i + 1))
+        return cache[i]
+    return step
+
+
+def _pairs_of(frames, found) -> RegisteredPairs:
+    """:class:`RegisteredPairs` of ``found``, a list of ``(i, j, registration)``."""
+    levels, diffs = [], []
+    for i, j, reg in found:
+        level, diff = registered_difference(_frame(frames, i), _frame(frames, j), reg)
+        levels.append(level)
+        diffs.append(diff)
+    if not levels:
+        empty = np.zeros((0,) + _frame(frames, 0).shape, np.float32)
+        return RegisteredPairs(empty, empty.copy(), [])
+    return RegisteredPairs(np.stack(levels), np.stack(diffs), [r for _, _, r in found],
+                           [(i, j) for i, j, _ in found])
+
+
+def register_frames(frames, starts=None, max_gap: int = PAIR_GAP, cache: dict | None = None) -> RegisteredPairs:
     """:class:`RegisteredPairs` of frames (a stack (T, H, W, C) DN, or any sequence of frames), one pair from
     each of ``starts`` (default: every frame but the last), registered (:func:`register_pair`) and differenced
     (:func:`registered_difference`). Each start is paired with the next frame, or (``max_gap`` > 1) with the
@@ -311,22 +357,12 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredP
     :func:`rounding_offset`, where that is :data:`GAP_GAIN_PX` smaller than the next frame's: a camera panning
     1.37 px a frame is compared across 3 frames (4.11 px), where nearest-neighbour sampling is nearly exact. (Only
     where the motion is about a shift, its offsets much the same over the frame; a rotation's vary anyway.)
-    ``pairs`` of the result lists the frame numbers paired."""
+    ``pairs`` of the result lists the frame numbers paired; ``cache``: consecutive registrations to share
+    (:func:`register_on_grid`)."""
     count = len(frames)
-
-    def frame(i):
-        f = np.asarray(frames[i], np.float32)
-        return f[..., None] if f.ndim == 2 else f
-
     starts = list(range(count - 1)) if starts is None else [i for i in starts if i + 1 < count]
-    consecutive: dict[int, Registration] = {}
-
-    def step(i):
-        if i not in consecutive:
-            consecutive[i] = register_pair(frame(i), frame(i + 1))
-        return consecutive[i]
-
-    levels, diffs, regs, pairs = [], [], [], []
+    step = _consecutive(frames, cache)
+    found = []
     for i in starts:
         reg, j = step(i), i + 1
         shape = np.shape(frames[i])[:2]
@@ -342,15 +378,58 @@ def register_frames(frames, starts=None, max_gap: int = PAIR_GAP) -> RegisteredP
                 if score < best - GAP_GAIN_PX:
                     best, j = score, k
             if j > i + 1:
-                direct = register_pair(frame(i), frame(j))
+                direct = register_pair(_frame(frames, i), _frame(frames, j))
                 reg = direct if direct.registered else reg
                 j = j if direct.registered else i + 1
-        level, diff = registered_difference(frame(i), frame(j), reg)
-        levels.append(level)
-        diffs.append(diff)
-        regs.append(reg)
-        pairs.append((i, j))
-    if not levels:
-        empty = np.zeros((0,) + frame(0).shape, np.float32)
-        return RegisteredPairs(empty, empty.copy(), [])
-    return RegisteredPairs(np.stack(levels), np.stack(diffs), regs, pairs)
+        found.append((i, j, reg))
+    return _pairs_of(frames, found)
+
+
+def grid_shift(reg: Registration, grid_px: int) -> bool:
+    """Whether ``reg`` moves the frame by a whole-pixel shift that is a multiple of ``grid_px`` on both axes, and
+    not 0 (a still pair): a block coder's grid (JPEG's 8 px), placed alike in every frame, then falls on the same
+    content in both frames."""
+    H = reg.H
+    shift = H[:2, 2]
+    return bool(reg.registered and np.allclose(H[:2, :2], np.eye(2)) and np.allclose(H[2], [0, 0, 1])
+                and np.any(shift != 0) and np.all(np.mod(shift, grid_px) == 0))
+
+
+def register_on_grid(frames, starts, grid_px: int = 8, window: int = GRID_WINDOW,
+                     cache: dict | None = None) -> RegisteredPairs:
+    """:class:`RegisteredPairs` of frames (a stack (T, H, W, C) DN, or any sequence of frames) whose camera moved
+    by whole multiples of ``grid_px`` between them (:func:`grid_shift`), at most one pair from each of
+    ``starts``: the first of the next ``window`` frames that does. The consecutive registrations (``cache``,
+    shared with :func:`register_frames`) are chained; where the chain moves the frame's corners and centre within
+    :data:`GRID_CHAIN_PX` of a common multiple of the grid, the two frames are registered directly
+    (:func:`register_pair`, which takes whole-pixel shifts as such) and paired where that registration is such a
+    shift. The chain stops where a registration fails, where the motion stops being a shift (its corners move
+    apart by more than :data:`GRID_CHAIN_PX`: the camera rotates, tilts or zooms, and the grid falls differently
+    on each part of the frame) or where the frames no longer share half their width or height. A JPEG's coding
+    error of a moving scene changes with the grid's place on it; in such pairs it is the same content's on the
+    same grid, and cancels in the difference as a still shot's does."""
+    import cv2
+
+    count = len(frames)
+    step = _consecutive(frames, cache)
+    h, w = _frame(frames, 0).shape[:2]
+    probe = np.float32([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1], [(w - 1) / 2, (h - 1) / 2]])
+    found = []
+    for i in starts:
+        H = np.eye(3)
+        for j in range(i + 1, min(i + window, count - 1) + 1):
+            reg = step(j - 1)
+            if not reg.registered:
+                break
+            H = reg.H @ H
+            move = cv2.perspectiveTransform(probe[None], H)[0] - probe
+            mean = move.mean(axis=0)
+            if np.abs(move - mean).max() > GRID_CHAIN_PX or abs(mean[0]) > w / 2 or abs(mean[1]) > h / 2:
+                break
+            near = grid_px * np.rint(mean / grid_px)
+            if np.any(near != 0) and np.abs(mean - near).max() <= GRID_CHAIN_PX:
+                direct = register_pair(_frame(frames, i), _frame(frames, j))
+                if grid_shift(direct, grid_px):
+                    found.append((i, j, direct))
+                    break
+    return _pairs_of(frames, found)

@@ -599,7 +599,9 @@ def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
         if est.statistic == "noise_level_function" and m.get("levels_dn"):
             def draw(fig, m=m, model=model, est=est):
                 ax = fig.add_subplot(1, 1, 1)
-                for ch, col in zip(channels, colours):
+                for ch, col in zip(channels + ("luma",), colours + ("black",)):  # JPEG-coded footage: its luma
+                    if ch not in m["levels_dn"]:
+                        continue
                     ax.plot(m["levels_dn"][ch], m["sigma_dn"][ch], "o", color=col, ms=4, label=f"footage {ch}")
                     if model.get("levels_dn", {}).get(ch):
                         ax.plot(model["levels_dn"][ch], model["sigma_dn"][ch], "-", color=col, alpha=0.6,

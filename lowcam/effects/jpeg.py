@@ -22,6 +22,7 @@ Contents
   read off the frames
 - :class:`Jpeg`: encodes the final 8-bit frame as JPEG (``quality``, ``chroma_quality``, ``subsampling``, or an
   encoder's own tables) and decodes it again
+- :data:`LUMA_WEIGHTS`, :func:`bt601_luma`: JPEG's luma (full-range BT.601) of RGB frames
 - :data:`PLATE_QUALITIES`: the qualities at which :func:`jpeg_quality_from_plate` calibrates blockiness
 - :func:`block_difference_profile`: mean absolute neighbour difference at each phase of a period (the 8x8 grid)
 - :func:`jpeg_blockiness`: blockiness per axis, the grid's phase and the tile evidence that the grid is there
@@ -470,10 +471,15 @@ _TILE_PX = 64  # tile side (px) of the grid evidence
 _GRID_T = (3.0, 4.5)  # tile t statistic of the grid: none below the first, certain from the second
 
 
-def _luma(frames: np.ndarray) -> np.ndarray:
-    """Full-range BT.601 luma (DN) of a (T, H, W, 3) or (H, W, 3) RGB stack, float32."""
+#: Full-range BT.601 luma weights of red, green and blue (JFIF, ITU-T T.871): JPEG's Y.
+LUMA_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+def bt601_luma(frames: np.ndarray) -> np.ndarray:
+    """Full-range BT.601 luma (DN) of a (..., 3) RGB array (:data:`LUMA_WEIGHTS`), float32 (NaN where a channel
+    is NaN)."""
     f = np.asarray(frames, np.float32)
-    return 0.299 * f[..., 0] + 0.587 * f[..., 1] + 0.114 * f[..., 2]
+    return LUMA_WEIGHTS[0] * f[..., 0] + LUMA_WEIGHTS[1] * f[..., 1] + LUMA_WEIGHTS[2] * f[..., 2]
 
 
 def block_difference_profile(plane: np.ndarray, axis: int, period: int = 8) -> np.ndarray:
@@ -499,7 +505,7 @@ def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -
     ``phase_h`` / ``phase_v`` (``p*``: 7 when blocks start at the frame's corner; ``phases`` fixes them), and per
     axis the tile evidence ``t_h`` / ``t_v``: over 64 px tiles, the mean of the tile's log ratio at ``p*`` over
     its standard error (a t statistic; about 0-3 without a grid)."""
-    y = _luma(frames)
+    y = bt601_luma(frames)
     if y.ndim == 2:
         y = y[None]
     out = {}
@@ -525,7 +531,7 @@ def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -
 
 def _block_step(frames: np.ndarray, phases: tuple[int, int] = (7, 7)) -> dict:
     """``D[p*] - median(D[others])`` (DN) per axis at the grid phases (``block_step_h``, ``block_step_v``)."""
-    y = _luma(frames)
+    y = bt601_luma(frames)
     out = {}
     for k, (axis, name) in enumerate(((-1, "h"), (-2, "v"))):
         prof = block_difference_profile(y, axis)

@@ -22,16 +22,20 @@ Contents
 - :data:`NLF_BIN_DN`, :data:`SPATIAL_QUANTILE`, :data:`NLF_BLOCK_PX`, :data:`HEADLINE_DN`: the brightness bins (DN)
   of the noise level function measured on footage, the quantile of flat-block variances that gives its spatial
   lower envelope, the blocks (px) it is measured in and the levels (DN) it is read at
-- :data:`ROUNDING_FLOOR_DN2`: below this variance a bin shows pixels a codec repeated, not noise
-- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel, DN) of footage: from
-  registered frame pairs (a moving camera, moving objects) or single frames' flat blocks
+- :data:`ROUNDING_FLOOR_DN2`, :data:`REPEATED_SHARE`: below this variance (in a bin, or in this share of its
+  blocks) a bin shows pixels a codec repeated or flattened, not noise
+- :func:`noise_level_statistic`: the noise level function (sigma against mean per channel or of the luma, DN) of
+  footage: from registered frame pairs (a moving camera, moving objects) or single frames' flat blocks
 - :data:`BIN_SCATTER`: the scatter about a law allowed to every bin of footage besides its standard error
 - :func:`fit_plate_law`: ``[a, b]`` of a law fitted to a noise level function, both at least 0, and how far off it
   may be
 - :func:`noise_gain`: how the chain after the noise scales it per channel, as the noise level function sees it
-- :data:`PLATE_PAIRS`, :data:`STILL_PX`: the frame pairs the plate's noise estimate registers, and the motion (px)
-  below which a pair is still
-- :data:`CODEC_FLICKER`: how much more noise a JPEG-coded pan shows than a still shot, by quality (measured)
+- :data:`PLATE_PAIRS`, :data:`STILL_PX`, :data:`MIN_PAIRS`: the frame pairs the plate's noise estimate
+  registers, the motion (px) below which a pair is still, and how many still pairs (or pairs on the coding grid)
+  it needs to use them alone
+- :data:`CODING_GRID_PX`: JPEG's block, the grid a camera moving by its multiples puts back on the same content
+- :data:`CODEC_FLICKER`: how much more luma noise a JPEG-coded pan shows than a still shot, by quality (measured)
+- :func:`channel_proportions`: how a law read on the luma is shared between the channels (the base profile's)
 - :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
 
 References
@@ -48,6 +52,8 @@ References
   Fitting for Single-Image Raw-Data", IEEE TIP 17(10), 1737-1754, 2008.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -238,6 +244,11 @@ SPATIAL_QUANTILE = 0.05
 #: Variance (DN^2) of rounding to whole DN: a bin whose noise variance measures below it shows pixels a codec
 #: repeated or flattened (an inter-frame codec's skipped blocks, a vector quantiser's codebook), not noise.
 ROUNDING_FLOOR_DN2 = 1.0 / 12.0
+#: A bin where at least this share of the members' variances lies below :data:`ROUNDING_FLOOR_DN2` is left out
+#: too: a JPEG at a low quality quantises the noise of many flat blocks away entirely and keeps the others', and a
+#: quantile of such a mixture jumps between the two with the noise drawn (on scikit-image's rocket at quality 70,
+#: 25-60 % of the blocks of every bin; two still shots' laws 20 % apart).
+REPEATED_SHARE = 0.25
 #: The scatter allowed to every bin besides its standard error when a law is fitted, as a share of the median
 #: sigma: the bins of footage scatter about any law by more than their block counts say (scene, codec).
 BIN_SCATTER = 0.1
@@ -249,10 +260,18 @@ HEADLINE_DN = (64, 128, 192)
 PLATE_PAIRS = 12
 #: A pair whose registration moves no pixel by more than this (px) counts as still (no codec flicker).
 STILL_PX = 0.5
-#: How much a pan's registered noise reads above a still shot's of the same scene when the frames are JPEG-coded,
-#: by IJG quality (skimage's astronaut, chelsea and coffee, Pillow 4:2:0, noise variance 0.5 + 0.05 DN, measured
-#: with :func:`noise_level_statistic`): the coding error of a moving scene changes from frame to frame.
-CODEC_FLICKER = {95: 1.05, 90: 1.14, 85: 1.22, 80: 1.28, 70: 1.45, 50: 1.6}
+#: The still frame pairs (or pairs on the coding grid) the plate's noise estimate needs to use them alone.
+MIN_PAIRS = 3
+#: JPEG's block (px): the luma's grid, which a camera moving by whole multiples of it puts back on the same content.
+CODING_GRID_PX = 8
+#: How much a pan's registered luma noise reads above a still shot's of the same scene when the frames are
+#: JPEG-coded and no frame pairs lie on the coding grid, by IJG quality: the coding error of a moving scene changes
+#: from frame to frame. Measured with :func:`noise_level_statistic` (``luma``, mean over 64, 128 and 192 DN) on
+#: scikit-image's astronaut, chelsea, coffee, rocket and immunohistochemistry (rocket's noise not measurable at 70
+#: and below), blurred 1.2 px across, noise variance 0.5 + 0.05 DN, Pillow 4:2:0, 8 frames cropped 3 px apart
+#: against 8 still ones framing the pan's middle (a sub-pixel pan reads 0.04-0.2 less on average, 0.9-1.4 x the
+#: still shot's per scene: its registration's error leaves out textured pixels, where the coder keeps more noise).
+CODEC_FLICKER = {95: 1.01, 90: 1.08, 85: 1.14, 80: 1.18, 70: 1.34, 50: 1.53}
 
 
 def _quantile_se(values: np.ndarray, quantile: float) -> tuple[float, float]:
@@ -274,12 +293,13 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
     lift it [Liu2008's lower envelope]. Means below ``floor_dn`` (noise clipped at 0) or above ``saturation_dn`` are
     left out. Returns ``{"levels", "sigmas", "counts", "se"}`` (DN, DN, members, the sigma's standard error in DN)
     and ``"repeated"`` (bins left out as below), bins with fewer than ``min_count`` members left out, and bins whose
-    variance lies below :data:`ROUNDING_FLOOR_DN2` (pixels a codec repeated from frame to frame or flattened: the
-    noise is not measurable there, not 0)."""
+    variance lies below :data:`ROUNDING_FLOOR_DN2`, or :data:`REPEATED_SHARE` of whose members' do (pixels a codec
+    repeated from frame to frame or flattened: the noise is not measurable there, not 0)."""
     from scipy.stats import chi2
 
     dof = np.broadcast_to(np.asarray(dof, np.float64), np.shape(mean))
     keep = (mean > floor_dn) & (mean < saturation_dn) & np.isfinite(var) & (dof >= 1)
+    flat = var[keep] < ROUNDING_FLOOR_DN2
     mean, var, dof = mean[keep], var[keep] / (chi2.ppf(quantile, dof[keep]) / dof[keep]), dof[keep]
     idx = (mean // NLF_BIN_DN).astype(np.int64)
     order = np.argsort(idx, kind="stable")
@@ -289,7 +309,7 @@ def _binned_nlf(mean: np.ndarray, var: np.ndarray, dof, quantile: float, saturat
         if n >= min_count:
             sel = order[start:start + n]
             v, se = _quantile_se(var[sel], quantile)
-            if v < ROUNDING_FLOOR_DN2:  # unchanged pixels: a codec repeated or flattened them (not measurable)
+            if v < ROUNDING_FLOOR_DN2 or flat[sel].mean() >= REPEATED_SHARE:  # a codec repeated or flattened them
                 out["repeated"] += 1
                 continue
             sigma = float(np.sqrt(v))
@@ -316,8 +336,10 @@ def _read_at(levels, sigmas, at_dn: float):
 
 
 def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BLOCK_PX, floor_dn: float = 4.0,
-                          saturation_dn: float = 220.0) -> dict:
-    """The noise level function of footage: sigma (DN) against mean (DN) per channel.
+                          saturation_dn: float = 220.0, luma: bool = False) -> dict:
+    """The noise level function of footage: sigma (DN) against mean (DN) per channel (``luma``: of the frames'
+    full-range BT.601 luma alone, JPEG's Y, the one channel ``"luma"``, a stack registered on it; frames or pairs
+    of one channel are taken for the luma already).
 
     ``frames``: a stack (T, H, W, 3) float32 DN, or :class:`lowcam.registration.RegisteredPairs`.
     ``method = "registered"`` (the default for pairs or a stack of 2 frames or more): each frame registered with
@@ -334,26 +356,32 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
     ``floor_dn``-``saturation_dn`` are left out (clipped noise).
 
     Returns ``{"method", "levels_dn", "sigma_dn", "blocks", "sigma_se_dn": {channel: [per bin]}, "repeated_bins":
-    {channel: bins whose pixels a codec repeated unchanged (below :data:`ROUNDING_FLOOR_DN2`)}, "sigma_at_dn":
-    {"64"|"128"|"192": [r, g, b]}}`` (``sigma_at_dn`` interpolated between bins; None where that level was not
-    measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
+    {channel: bins whose pixels a codec repeated or flattened (:data:`REPEATED_SHARE`)}, "sigma_at_dn":
+    {"64"|"128"|"192": [r, g, b] or [luma]}}`` (``sigma_at_dn`` interpolated between bins; None where that level
+    was not measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
     ``compared`` (the share of pixels compared)."""
     from ..registration import RegisteredPairs, register_frames
+    from .jpeg import bt601_luma
 
+    channels = ("luma",) if luma else ("red", "green", "blue")
     if isinstance(frames, RegisteredPairs):
         pairs, method = frames, method or "registered"
         if method != "registered":
             raise ValueError(f"registered pairs are measured by the 'registered' method, not '{method}'")
+        if luma and pairs.diff.shape[-1] == 3:  # (one channel: the luma already)
+            pairs = RegisteredPairs(bt601_luma(pairs.level)[..., None], bt601_luma(pairs.diff)[..., None],
+                                    pairs.registrations, pairs.pairs)
     else:
         x = np.asarray(frames, np.float32)
         if x.ndim == 3:
             x = x[None]
+        if luma and x.shape[-1] == 3:
+            x = bt601_luma(x)[..., None]
         method = method or ("registered" if len(x) >= 2 else "spatial")
         if method == "registered" and len(x) < 2:
             raise ValueError("a registered noise level function needs at least 2 frames")
         if method == "registered":
             pairs = register_frames(x)
-    channels = ("red", "green", "blue")
     out = {"method": method, "levels_dn": {}, "sigma_dn": {}, "blocks": {}, "sigma_se_dn": {}, "repeated_bins": {}}
     for c, channel in enumerate(channels):
         if method == "registered":
@@ -439,7 +467,7 @@ def fit_plate_law(levels, sigmas, se, law: str, floor_dn: float = 0.0) -> tuple[
 
 
 def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float = 8.0,
-               frames: int = 4) -> list[float]:
+               frames: int = 4, proportions=None) -> list[float]:
     """How the chain after the noise scales it, per channel, as :func:`noise_level_statistic` measures it.
 
     The profile films a flat grey (``level`` of white) with a constant per-sensel sigma of ``sigma_dn`` and
@@ -447,6 +475,9 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     sharpening (the norm of their kernels), the demosaic's averaging (green's two sensels), colour matrices
     after the noise, chroma subsampling, and (``"spatial"``) the bias of block variances under the noise's
     spatial correlation. Dividing a measured output sigma by it gives the per-sensel law the profile holds.
+    ``proportions`` (red, green, blue): the sensels' sigmas are ``sigma_dn`` times these, and the one gain
+    returned is the luma's (:func:`noise_level_statistic` with ``luma``): a luma sigma divided by it is the
+    sigma that those proportions scale to each channel's.
     A JPEG at the end of the chain is left out: what it does to noise depends on the scene (it flattens the
     noise of flat blocks and keeps much of a textured block's), which a flat grey cannot tell, so the law read
     through this gain is the noise the frames carried into their coding.
@@ -457,8 +488,9 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
         out = np.ones((height, width, 4), np.float32)
         out[..., :3] = level
         return out
-    law = {"law": "variance_linear", "red": [sigma_dn ** 2, 0.0], "green": [sigma_dn ** 2, 0.0],
-           "blue": [sigma_dn ** 2, 0.0]}
+    scale = (1.0, 1.0, 1.0) if proportions is None else proportions
+    law = {"law": "variance_linear", **{ch: [(sigma_dn * k) ** 2, 0.0]
+                                        for ch, k in zip(("red", "green", "blue"), scale)}}
     if profile.effect("jpeg") is not None and profile.effect("jpeg").enabled:
         profile = profile.without("jpeg")
     noisy = profile.with_effect("noise", **law)
@@ -467,111 +499,179 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
     diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
                       for k in range(frames if method != "spatial" else 1)])
-    stat = noise_level_statistic(diffs, method)
-    gains = [float(np.median(stat["sigma_dn"][ch])) / sigma_dn if stat["sigma_dn"][ch] else 0.0
-             for ch in ("red", "green", "blue")]
+    stat = noise_level_statistic(diffs, method, luma=proportions is not None)
+    gains = [float(np.median(sig)) / sigma_dn if sig else 0.0 for sig in stat["sigma_dn"].values()]
     if min(gains) <= 0:
         raise NotFitted(f"{profile.source}: the chain after the noise leaves none of it (a flat grey filmed with "
                         f"{sigma_dn:g} DN of noise per sensel shows none): no law can be read through it")
     return gains
 
 
+def channel_proportions(profile) -> list[float]:
+    """The sigmas of the profile's noise law at 128 DN, red, green and blue, over green's (1, 1, 1 without a law,
+    or where one of them is 0): how a law read on the luma is shared between the channels."""
+    noise = profile.effect("noise") if profile is not None else None
+    if noise is None:
+        return [1.0, 1.0, 1.0]
+    sig = [float(noise.sigma(ch, 128.0)) for ch in ("red", "green", "blue")]
+    return [1.0, 1.0, 1.0] if min(sig) <= 0 else [v / sig[1] for v in sig]
+
+
 def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
     """(confidence factor, note) for the codec's share of a moving shot's registered noise: 1 for a still shot
-    or uncoded frames; for JPEG-coded frames (the profile's ``jpeg`` effect, which the JPEG probe sets before the
-    noise runs, or an 8x8 grid the footage shows at an unmeasured quality) ``1 - (r - 1) / 0.5`` where ``r`` is
-    :data:`CODEC_FLICKER` at that quality (the lowest quality's where unmeasured), clipped to 0..1."""
+    (or frame pairs a whole number of JPEG blocks apart) and for uncoded frames; for JPEG-coded frames (the
+    profile's ``jpeg`` effect, which the JPEG probe sets before the noise runs) ``1 - (r - 1) / 0.5`` where ``r``
+    is :data:`CODEC_FLICKER` at that quality, clipped to 0..1; 0 where the footage shows an 8x8 grid at a quality
+    not measured."""
     if not moving:
         return 1.0, ""
     jpeg = base.effect("jpeg") if base is not None else None
-    if jpeg is not None and jpeg.enabled:
-        quality, how = int(jpeg.quality), f"about quality {int(jpeg.quality)}"
-    else:
+    if jpeg is None or not jpeg.enabled:
         from .jpeg import _GRID_T, jpeg_blockiness
 
         grid = jpeg_blockiness(footage.stack(max_frames=4))
         if min(grid["t_h"], grid["t_v"]) < _GRID_T[0]:
             return 1.0, ""
-        quality, how = min(CODEC_FLICKER), "a quality not measured"
+        return 0.0, ("; the camera moves and the frames show an 8x8 block grid at a quality not measured: a "
+                     "block coder's error of a moving scene changes from frame to frame and reads as noise")
+    from ..registration import GRID_WINDOW
+
     qs = sorted(CODEC_FLICKER)
-    ratio = float(np.interp(quality, qs, [CODEC_FLICKER[q] for q in qs]))
+    ratio = float(np.interp(int(jpeg.quality), qs, [CODEC_FLICKER[q] for q in qs]))
     factor = float(np.clip(1 - (ratio - 1) / 0.5, 0.0, 1.0))
-    return factor, (f"; the camera moves and the frames are JPEG-coded at {how}: the coding error of a moving "
-                    f"scene changes from frame to frame and reads as noise (about {ratio:.2f} x a still shot's)")
+    return factor, (f"; the camera moves, and no two frames within {GRID_WINDOW} of each other lie a whole number "
+                    f"of {CODING_GRID_PX} px blocks apart (a camera shifting by whole pixels, neither turning nor "
+                    f"zooming): JPEG's coding error (about quality {int(jpeg.quality)}) of a moving scene changes "
+                    f"from frame to frame and reads as noise (about {ratio:.2f} x a still shot's)")
+
+
+class _LumaFrames:
+    """A sequence of frames (H, W, 3) read as their BT.601 luma (H, W, 1), one at a time."""
+
+    def __init__(self, frames):
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i) -> np.ndarray:
+        from .jpeg import bt601_luma
+
+        return bt601_luma(self.frames[i])[..., None]
 
 
 def noise_level_function_from_plate(footage, base, film):
     """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
 
     Up to :data:`PLATE_PAIRS` frame pairs spread over the shot are registered
-    (:func:`lowcam.measure.plate.register_footage`); where at least 3 pairs hold still (no pixel moves more than
-    :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes from frame to
-    frame. :func:`noise_level_statistic` measures the registered differences; where they show fewer than
-    :data:`MIN_LEVELS` brightness levels (a shot that cannot be registered, or an inter-frame codec that repeats
-    most pixels) the flattest blocks of single frames stand in if they show more: a lower envelope that texture
-    lifts, so it is reported, never applied. The output-domain noise level function is divided by the base
-    profile's :func:`noise_gain` (what its sharpening, blur and demosaic do to per-sensel noise) and fitted with
-    the profile's law, its slope at least 0 and its sigma at 0 DN at least the 8-bit rounding's
-    (:data:`ROUNDING_FLOOR_DN2`, through the gain; :func:`fit_plate_law`); a law :meth:`Noise.implausible` flags is
-    not applied.
+    (:func:`lowcam.measure.plate.register_footage`); where at least :data:`MIN_PAIRS` pairs hold still (no pixel
+    moves more than :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes
+    from frame to frame. JPEG-coded frames (the profile's ``jpeg`` effect) are registered and measured on their
+    luma (:func:`noise_level_statistic` with ``luma``): JPEG codes it at full resolution on its own 8 px grid,
+    while it subsamples the chroma and quantises most of the chroma's noise away, so that each channel's own
+    noise would read as little more than the luma's, as if the camera had no colour noise (the channels share the
+    luma's law in the base profile's proportions, :func:`channel_proportions`, through the luma's gain,
+    :func:`noise_gain`). A moving JPEG-coded shot is
+    measured on frame pairs a whole number of blocks apart where it has at least :data:`MIN_PAIRS`
+    (:func:`lowcam.registration.register_on_grid`, :data:`CODING_GRID_PX`): there the grid falls on the same
+    content in both frames and the coding error cancels as in a still shot. :func:`noise_level_statistic`
+    measures the registered differences; where they show fewer than :data:`MIN_LEVELS` brightness levels (a shot
+    that cannot be registered, or an inter-frame codec that repeats most pixels) the flattest blocks of single
+    frames stand in if they show more: a lower envelope that texture lifts, so it is reported, never applied. The
+    output-domain noise level function is divided by the base profile's :func:`noise_gain` (what its sharpening,
+    blur and demosaic do to per-sensel noise) and fitted with the profile's law, its slope at least 0 and its sigma
+    at 0 DN at least the 8-bit rounding's (:data:`ROUNDING_FLOOR_DN2`, the luma's share of it for the luma, through
+    the gain; :func:`fit_plate_law`); a law :meth:`Noise.implausible` flags is not applied.
 
     Confidence, from the measurement's own evidence: ``0.95 (1 - s / 0.25) min(1, levels / 4)``, ``s`` how far
     the fitted sigma may be off (:func:`fit_plate_law`: its standard error from the bins' block counts and
-    scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot
-    (:data:`CODEC_FLICKER`). Fewer than :data:`MIN_LEVELS` brightness levels: not measurable. ``base``: the
-    profile being refined; ``film``: as :func:`noise_gain` takes it."""
-    from ..measure.plate import PlateEstimate, register_footage
+    scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot without
+    pairs on its grid (:data:`CODEC_FLICKER`). Fewer than :data:`MIN_LEVELS` brightness levels: not measurable.
+    ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
+    from ..measure.plate import PlateEstimate, pair_starts, register_footage
+    from ..registration import register_on_grid
+    from .jpeg import LUMA_WEIGHTS
 
     law = getattr(base.effect("noise"), "law", "sigma_linear")
-    channels = ("red", "green", "blue")
-    pairs = register_footage(footage, PLATE_PAIRS)
+    jpeg = base.effect("jpeg")
+    luma = jpeg is not None and jpeg.enabled
+    channels = ("luma",) if luma else ("red", "green", "blue")
+    cache: dict = {}
+    # JPEG-coded frames are registered and compared on their luma alone: the masks of moving and steep pixels are
+    # then the luma's, not a subsampled chroma's (whose coding error a pan changes where the luma's cancels)
+    shot = replace(footage, frames=_LumaFrames(footage.frames)) if luma else footage
+    pairs = register_footage(shot, PLATE_PAIRS, cache)
     still = [k for k, r in enumerate(pairs.registrations) if r.motion_px < STILL_PX]
-    moving = len(still) < 3
+    moving = len(still) < MIN_PAIRS
     used = pairs if moving else pairs.select(still)
+    on_grid = False
+    if luma and moving:
+        grid = register_on_grid(shot.frames, pair_starts(len(shot), PLATE_PAIRS), CODING_GRID_PX, cache=cache)
+        if len(grid) >= MIN_PAIRS:
+            used, on_grid = grid, True
     method = "registered"
-    stat = noise_level_statistic(used, method)
+    stat = noise_level_statistic(used, method, luma=luma)
     registered_levels = min(len(stat["levels_dn"][ch]) for ch in channels)
     repeated = max(stat["repeated_bins"].values())
     if registered_levels < MIN_LEVELS:  # single frames' flattest blocks instead
-        spatial = noise_level_statistic(footage.stack(max_frames=6), "spatial")
+        spatial = noise_level_statistic(footage.stack(max_frames=6), "spatial", luma=luma)
         if min(len(spatial["levels_dn"][ch]) for ch in channels) >= MIN_LEVELS:
             method, stat = "spatial", spatial
     measured = {"method": method, "pairs": len(used), "still_pairs": len(still),
-                "compared": round(float(used.compared), 3), "sigma_at_dn": stat["sigma_at_dn"],
-                "levels_dn": stat["levels_dn"], "sigma_dn": stat["sigma_dn"], "blocks": stat["blocks"]}
+                "grid_pairs": len(used) if on_grid else 0, "compared": round(float(used.compared), 3),
+                "sigma_at_dn": stat["sigma_at_dn"], "levels_dn": stat["levels_dn"], "sigma_dn": stat["sigma_dn"],
+                "blocks": stat["blocks"]}
     levels = min(len(stat["levels_dn"][ch]) for ch in channels)
     if levels < MIN_LEVELS:
         return PlateEstimate.not_measurable(
             "noise_level_function", "noise", measured,
             f"{levels} brightness level{'s' * (levels != 1)} with enough flat blocks (at least {MIN_LEVELS} "
             f"needed to tell the law's intercept from its slope)" + (
-                f"; {repeated} more where the codec repeats pixels unchanged" if repeated else ""))
-    gains = noise_gain(base, method, film)
+                f"; {repeated} more where the codec repeats or flattens pixels" if repeated else ""))
+    proportions = channel_proportions(base) if luma else None
+    gains = noise_gain(base, method, film, proportions=proportions)
     params = {"law": law}
     measured["gain"] = gains
     worst = 0.0
     for c, channel in enumerate(channels):
         sig = np.asarray(stat["sigma_dn"][channel]) / gains[c]
         se = np.asarray(stat["sigma_se_dn"][channel]) / gains[c]
-        a, b, rel = fit_plate_law(stat["levels_dn"][channel], sig, se, law, np.sqrt(ROUNDING_FLOOR_DN2) / gains[c])
-        params[channel] = [a, b]
+        floor = np.sqrt(ROUNDING_FLOOR_DN2 * (np.sum(np.square(LUMA_WEIGHTS)) if luma else 1.0)) / gains[c]
+        a, b, rel = fit_plate_law(stat["levels_dn"][channel], sig, se, law, floor)
         worst = max(worst, rel)
-    flicker, note = _codec_flicker(footage, base, moving and method == "registered")
+        if luma:  # each channel in the base profile's proportions (variance: their squares)
+            power = 2 if law == "variance_linear" else 1
+            params.update({ch: [a * k ** power, b * k ** power]
+                           for ch, k in zip(("red", "green", "blue"), proportions)})
+        else:
+            params[channel] = [a, b]
+    flicker, note = _codec_flicker(footage, base, moving and not on_grid and method == "registered")
     confidence = 0.95 * float(np.clip(1 - worst / 0.25, 0, 1)) * min(1.0, levels / 4) * flicker
+    of = "the luma of " if luma else ""
     if method == "spatial":
         confidence = min(confidence, 0.4)
         where = (f"the registered frame pairs ({used.compared:.0%} of their pixels compared) show {registered_levels} "
                  f"brightness level{'s' * (registered_levels != 1)}" + (
-                     f" ({repeated} more where the codec repeats pixels unchanged from frame to frame)"
-                     if repeated else "") + f": flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of single frames "
-                 "instead (texture lifts them: reported only)")
+                     f" ({repeated} more where the codec repeats or flattens pixels)"
+                     if repeated else "") + f": flattest {NLF_BLOCK_PX}x{NLF_BLOCK_PX} blocks of {of}single "
+                 "frames instead (texture lifts them: reported only)")
     else:
-        kind = f"{len(used)} still frame pairs" if not moving else f"{len(used)} registered frame pairs"
-        where = f"{kind}, {stat['compared']:.0%} of their pixels compared"
+        if on_grid:
+            shifts = sorted({tuple(int(v) for v in r.H[:2, 2]) for r in used.registrations})
+            kind = (f"{len(used)} frame pairs a whole number of {CODING_GRID_PX} px blocks apart (moved by "
+                    f"{'; '.join(f'{x}, {y}' for x, y in shifts[:3])} px: JPEG's grid falls on the same content "
+                    "in both frames, so its coding error cancels as in a still shot)")
+        else:
+            kind = f"{len(used)} still frame pairs" if not moving else f"{len(used)} registered frame pairs"
+        where = f"{of}{kind}, {stat['compared']:.0%} of their pixels compared"
     if repeated and method == "registered":
         where += (f"; {repeated} brightness bin{'s' * (repeated > 1)} left out where the codec repeats pixels "
-                  "unchanged from frame to frame (no noise to measure there)")
+                  "from frame to frame or flattens them (no noise to measure there)")
     reason = f"{where}, {levels} brightness levels, law within {worst:.0%} of them{note}"
+    if luma:
+        reason += ("; read on the luma, which JPEG codes at full resolution (it quantises most of the chroma's "
+                   "noise away), and shared in the base profile's proportions red : green : blue = "
+                   f"{' : '.join(f'{k:.2f}' for k in proportions)}")
     bad = Noise(True, "plate", None, **params).implausible()
     if bad:
         confidence = 0.0

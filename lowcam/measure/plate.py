@@ -412,8 +412,8 @@ def _codec(module: str, name: str) -> Callable:
 
 #: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
 #: next, since the noise estimate divides by the gain of the row filters the edges fit
-#: (:func:`lowcam.effects.noise.noise_gain`) and judges the codec's share of a moving shot's noise by the JPEG
-#: quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
+#: (:func:`lowcam.effects.noise.noise_gain`), reads JPEG-coded frames on their luma and judges the codec's share
+#: of a moving shot's noise by the JPEG quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
@@ -441,14 +441,14 @@ def pair_starts(frames: int, count: int) -> list[int]:
     return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
 
 
-def register_footage(footage: Footage, count: int = 12):
+def register_footage(footage: Footage, count: int = 12, cache: dict | None = None):
     """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
     (:func:`pair_starts`), each frame registered, by a homography from tracked corners, with the one of the next
     :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
-    (:func:`lowcam.registration.register_frames`)."""
+    (:func:`lowcam.registration.register_frames`; ``cache``: its consecutive registrations, to share)."""
     from ..registration import register_frames
 
-    return register_frames(footage.frames, pair_starts(len(footage), count))
+    return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
@@ -531,8 +531,8 @@ def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], 
                 est.model = {"not measured": str(e)}
 
 
-_HEADLINE_KEYS = ("method", "frames", "still_pairs", "compared", "sigma_at_dn", "edges", "width_10_90_px",
-                  "overshoot", "gain_at_rho", "pairs",
+_HEADLINE_KEYS = ("method", "frames", "still_pairs", "grid_pairs", "compared", "sigma_at_dn", "edges",
+                  "width_10_90_px", "overshoot", "gain_at_rho", "pairs",
                   "shift_px_total", "median_speed_rad_s", "max_speed_rad_s", "fit_rms")
 
 
