@@ -131,7 +131,9 @@ class Search:
     ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise), or is
     the effect's own fit, a function ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
     (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``).
-    ``captures``: which captures show it (``"all"``, ``"textured"`` or ``"moving"``). ``requires``: an
+    ``captures``: which captures it changes (``"all"``, ``"textured"`` or ``"moving"``): it is fitted on
+    those, and the others keep the profile's frames (a fit may look at fewer: the veiling glare is seen on
+    textured captures' dark areas, yet lifts flat fields too, so it declares ``"all"``). ``requires``: an
     effect the profile must already have (a candidate that changes a parameter). ``replace``: start from the
     effect's defaults rather than the profile's values. ``after``: the effect is placed (or found) right after
     this one in the chain rather than at its ``order`` (:meth:`lowcam.profile.Profile.with_effect`; a blur that

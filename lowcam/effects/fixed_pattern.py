@@ -72,6 +72,33 @@ def offset_evidence(offsets: np.ndarray, noise_var: float = 0.0) -> dict:
             "sparse": bool(out.any()) and pixels <= SPARSE_PIXELS and share >= SPARSE_ENERGY}
 
 
+def wiener_shrink(estimate: np.ndarray, noise_var: np.ndarray) -> np.ndarray:
+    """A fixed per-pixel map estimated with noise, shrunk towards its mean pixel by pixel:
+    ``mean + P / (P + N) (estimate - mean)``, ``N`` each value's noise variance (``noise_var``, same shape) and
+    ``P = var(estimate) - mean(N)`` the pattern's variance (the Wiener filter; an empirical Bayes estimate,
+    James and Stein 1961). A value measured with more noise than the pattern has is trusted less, so the map's
+    expected error on other captures is least. NaN values stay NaN.
+
+    >>> rng = np.random.default_rng(0); pattern = rng.normal(0, 1, 10000)
+    >>> noisy = pattern + rng.normal(0, 1, 10000)
+    >>> shrunk = wiener_shrink(noisy, np.ones(10000))
+    >>> round(float(np.mean((noisy - pattern) ** 2)), 1), round(float(np.mean((shrunk - pattern) ** 2)), 1)
+    (1.0, 0.5)
+    """
+    ok = np.isfinite(estimate) & np.isfinite(noise_var)
+    if ok.sum() < 2:
+        return estimate
+    mean = float(estimate[ok].mean())
+    pattern_var = max(float(estimate[ok].var()) - float(noise_var[ok].mean()), 0.0)
+    return mean + pattern_var / np.maximum(pattern_var + noise_var, 1e-30) * (estimate - mean)
+
+
+def mean_noise_var(ctx) -> np.ndarray:
+    """Per capture and pixel, the variance the frames' noise leaves in their mean, (C, H, W, 3): the frames'
+    unbiased variance over their count (every capture of a per-pixel fit has two frames or more)."""
+    return np.stack([c.frames.astype(np.float32).var(axis=0, ddof=1) / len(c.frames) for c in ctx.mset.captures])
+
+
 def _offsets(ctx):
     """Per-pixel offsets of the measured means from the clean model, one per capture (C, H, W, 3), DN, as
     measured and with NaN where the measurement clips (a bright pixel over a bright area shows its offset only
@@ -97,13 +124,15 @@ def _with_map(ctx, effect: str, values: np.ndarray):
 
 
 def fit_dense_offset(ctx, effect: str):
-    """DSNU's fit: the per-pixel mean offset of the measured means from the clean model (closed form); NotFitted
-    when its energy sits in a few outliers (:func:`offset_evidence`: hot pixels, not a dense map)."""
+    """DSNU's fit: the per-pixel mean offset of the measured means from the clean model (closed form), shrunk
+    towards its mean by :func:`wiener_shrink`; NotFitted when its energy sits in a few outliers
+    (:func:`offset_evidence`: hot pixels, not a dense map)."""
     _, diff, noise_var = _offsets(ctx)
     offset = diff.mean(0)
     ev = offset_evidence(diff, noise_var)
     if ev["sparse"]:
         raise NotFitted(f"the offsets sit in {100 * ev['pixels']:.2f} % of the pixels: hot pixels, not a dense map")
+    offset = wiener_shrink(offset, mean_noise_var(ctx).sum(0) / len(diff) ** 2)
     profile, params = _with_map(ctx, effect, offset)
     shown = {"sigma_dn": float(offset.std()), "tail_percent": 100 * ev["pixels"], "share": 100 * ev["share"]}
     return profile, dict(params, sigma_dn=shown["sigma_dn"]), shown

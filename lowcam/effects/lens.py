@@ -771,6 +771,9 @@ def _flow_targets(means, clean, lens_model, stride: int = 6):
 #: measured means by this fraction: less is the flow's noise (where the frames already look through the profile's
 #: lens), not worth a candidate.
 SSE_GAIN = 1e-3
+#: The ``radial_distortion`` candidate needs the optical flow to hold at this many sample points per fitted
+#: parameter (each gives two offsets, px): fewer, and the frames show too little texture, or lie too far from the model.
+FLOW_POINTS_PER_PARAMETER = 10
 #: After its second round, the ``radial_distortion`` candidate goes on only while the flow reaches this much further
 #: out (a fraction of the frame's half-diagonal) than in the round before: a lens fitted to the flow reaching only
 #: the inner frame, then simulated, lets the next round's flow reach further.
@@ -1005,9 +1008,9 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
         here = lens_at(values, theta)
         targets = _flow_targets(means, clean, here)
         pu, pv, tx, ty = targets
-        if len(pu) < 20 * len(theta):
+        if len(pu) < FLOW_POINTS_PER_PARAMETER * len(theta):
             why = (f"the optical flow from the frames to the model holds at only {len(pu)} points "
-                   f"({20 * len(theta)} needed): too little texture, or the frames too far from the model")
+                   f"({FLOW_POINTS_PER_PARAMETER * len(theta)} needed): too little texture, or the frames too far from the model")
             break
         reach = np.percentile(np.hypot(pu - (geometry.width - 1) / 2, pv - (geometry.height - 1) / 2), 99) / corner
         if done >= 2 and reach < reached + REACH_GAIN:  # the flow shows nothing further out than last round's

@@ -127,8 +127,7 @@ class VeilingGlare(Effect):
                        "captures ({bright_lift_dn:+.1f} in the brightest, {dim_lift_dn:+.1f} in the dimmest); a "
                        "haze of {strength:.3f} of the light spread over {radius_px:.0f} px lifts them "
                        "{haze_lift_dn:.1f} DN",
-                       bounds={"strength": (0.0, 0.5), "radius_px": (5.0, 300.0)}, fit=fit_veiling_glare,
-                       captures="textured"),)
+                       bounds={"strength": (0.0, 0.5), "radius_px": (5.0, 300.0)}, fit=fit_veiling_glare),)
     params = {"strength": Param(0.0, low=0.0, high=1.0), "radius_px": Param(40.0, low=1.0, high=500.0)}
 
     def apply(self, state):

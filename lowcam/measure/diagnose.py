@@ -201,7 +201,7 @@ class Context:
         self.workdir.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()  # candidates are fitted in threads
         if parent is not None:  # the same set: share its inputs, means, capture choices and simulations
-            for name in ("inputs", "cache", "memo", "_lock", "means", "texture"):
+            for name in ("inputs", "cache", "memo", "_lock", "means", "texture", "chroma"):
                 setattr(self, name, getattr(parent, name))
             assumed_noise = assumed_noise or parent.assumed_noise
         else:
@@ -210,6 +210,7 @@ class Context:
             self.cache, self.memo = {}, OrderedDict()
             self.means = [c.mean.astype(np.float32) for c in mset.captures]
             self.texture = [float(inp.ideal[..., :3].std()) for inp in self.inputs]
+            self.chroma = [_chroma(inp.ideal) for inp in self.inputs]
         self._choose_captures()
         first = base or compare(mset, profile, cache=self.cache, inputs=self.inputs, assumed_noise=assumed_noise)
         self.assumed_noise = assumed_noise or [s.sums["variance_map"] if len(s.measured) == 1 else None
@@ -253,6 +254,7 @@ class Context:
                       for i, m in zip(indices, masks)]
         out.means = [self.means[i] for i in indices]
         out.texture = [self.texture[i] for i in indices]
+        out.chroma = [self.chroma[i] for i in indices]
         out.assumed_noise = [self.assumed_noise[i] for i in indices]
         out._choose_captures()
         stats = [self.base.captures[i] if m is None else
@@ -268,14 +270,17 @@ class Context:
         (``[(fitted on, measured on), ...]`` views, each capture measured once, and how they were made).
 
         Up to :data:`LEAVE_ONE_OUT_UP_TO` captures, each is left out in turn; more are dealt alternately into two
-        halves by kind (moving, then texture), so each half holds flat, textured and moving captures alike. When a
-        fold would be fitted on none of the captures the candidate is fitted on, the frames are split into two
-        chequerboards of :data:`TILE_PX` tiles instead (``tiles``: the fit honours masks), else the result is a
-        string saying why nothing can be held out."""
+        halves by kind (moving first, then the most colourful, then the most textured), so each half holds moving,
+        colourful, textured and flat captures alike. When a fold would be fitted on none of the captures the
+        candidate is fitted on, the frames are split into two chequerboards of :data:`TILE_PX` tiles instead
+        (``tiles``: the fit honours masks), else the result is a string saying why nothing can be held out."""
         n = len(self.inputs)
         relevant = set(range(n) if captures == "all" else self.subset(captures))
-        order = sorted(range(n), key=lambda i: (i in self.moving_ones, self.texture[i], i))
-        held = [[i] for i in order] if n <= LEAVE_ONE_OUT_UP_TO else [order[0::2], order[1::2]]
+        if n <= LEAVE_ONE_OUT_UP_TO:  # the first fold, which screens, leaves out the least telling capture
+            held = [[i] for i in sorted(range(n), key=lambda i: (i in self.moving_ones, self.texture[i], i))]
+        else:
+            order = sorted(range(n), key=lambda i: (i not in self.moving_ones, -self.chroma[i], -self.texture[i], i))
+            held = [order[0::2], order[1::2]]
         if len(held) > 1 and all(relevant - set(h) for h in held) and len(relevant) > 1:
             key = "captures"
             if key not in self._folds:
@@ -411,11 +416,7 @@ class Context:
         """True when some capture's ideal render holds colour (its chroma, each opaque pixel's channels about their
         mean, varies by at least :data:`SCENE_CHROMA`): a sensor's colour weights are determined by the data only
         then (a grey chart shows every set of weights summing to 1 alike)."""
-        for inp in self.inputs:
-            rgb = inp.ideal[..., :3][inp.ideal[..., 3] > 0.5]
-            if rgb.size and float((rgb - rgb.mean(axis=1, keepdims=True)).std()) >= SCENE_CHROMA:
-                return True
-        return False
+        return max(self.chroma, default=0.0) >= SCENE_CHROMA
 
     def subset(self, captures: str):
         """The captures (indices, or None for all) a search with ``captures`` fits on."""
@@ -424,6 +425,13 @@ class Context:
     def screening_subset(self, captures: str):
         """Fewer captures for screening: the two most textured, or :attr:`quick`."""
         return {"all": self.quick, "textured": self.screen_textured, "moving": self.moving_ones}[captures]
+
+
+def _chroma(ideal: np.ndarray) -> float:
+    """How much colour an ideal render (H, W, 4) holds: the spread of its opaque pixels' channels about their
+    mean (0 for a grey scene)."""
+    rgb = ideal[..., :3][ideal[..., 3] > 0.5]
+    return float((rgb - rgb.mean(axis=1, keepdims=True)).std()) if rgb.size else 0.0
 
 
 def _opaque_output(ideal: np.ndarray, shape) -> np.ndarray:
@@ -683,11 +691,14 @@ def _pixel_maps(ctx):
 
 
 def fit_pixel_gain(ctx, effect):
-    """PRNU: per-pixel least-squares gain of the measured means against the clean model."""
-    from ..effects.fixed_pattern import _with_map
+    """PRNU: per-pixel least-squares gain of the measured means against the clean model, ``g = sum((m - s) s) /
+    sum(s^2)`` over the captures, shrunk towards its mean by :func:`~lowcam.effects.fixed_pattern.wiener_shrink`
+    with each gain's noise variance ``sum(s^2 v) / sum(s^2)^2`` (``v``: the means' noise variance)."""
+    from ..effects.fixed_pattern import _with_map, mean_noise_var, wiener_shrink
 
     s, m = _pixel_maps(ctx)
-    gain = ((m - s) * s).sum(0) / np.maximum((s * s).sum(0), 1e-6)
+    weight = np.maximum((s * s).sum(0), 1e-6)
+    gain = wiener_shrink(((m - s) * s).sum(0) / weight, (s * s * mean_noise_var(ctx)).sum(0) / weight ** 2)
     profile, params = _with_map(ctx, effect, gain)
     return profile, dict(params, sigma=float(gain.std())), {"sigma": float(gain.std())}
 
@@ -908,6 +919,19 @@ def _held_out(ctx, trial) -> tuple[float, dict] | None:
     return ctx.families_with_mean(num, float(ctx._noise.sum()))
 
 
+def _in_sample(ctx, trial) -> tuple[float, dict]:
+    """(error, families) in sample: each fit measured on the captures it was fitted to, carried to the whole set."""
+    num = base = 0.0
+    for k, g in [(k, x[2]) for k, x in enumerate(trial.used())] + [(None, trial.main)]:
+        p = trial.profile_for(k)
+        if g is not None and p is not None:
+            idx = list(range(len(g.ctx.inputs))) if g.subset is None else g.subset
+            num += float(g.ctx.mean_sums(p, idx)[0].sum())
+            base += float(_base_sums(g.ctx)[0][idx].sum())
+    return ctx.families_with_mean(_carried(ctx, num, base) if base else float(_base_sums(ctx)[0].sum()),
+                                  float(ctx._noise.sum()))
+
+
 def _half_estimate(ctx, profile) -> tuple[float, dict]:
     """:meth:`Context.estimate` of a profile nothing was fitted for, on the half of the captures every candidate
     is screened on (carried to the whole set, as :func:`_held_out`), or on every capture of a small set."""
@@ -1047,14 +1071,7 @@ def _candidate(ctx, trial, base_error) -> Candidate | None:
     if implausible:
         trial.reason = "the fit is not a real camera's: " + "; ".join(implausible)
         return None
-    num = base = 0.0  # in sample: each fit on the captures it was fitted to, carried to the whole set
-    for k, g in [(k, x[2]) for k, x in enumerate(trial.used())] + [(None, trial.main)]:
-        p = trial.profile_for(k)
-        if g is not None and p is not None:
-            idx = list(range(len(g.ctx.inputs))) if g.subset is None else g.subset
-            num += float(g.ctx.mean_sums(p, idx)[0].sum())
-            base += float(_base_sums(g.ctx)[0][idx].sum())
-    error, families = ctx.families_with_mean(_carried(ctx, num, base), float(ctx._noise.sum()))
+    error, families = _in_sample(ctx, trial)
     c = Candidate(trial.name, error, {k: (float(v) if isinstance(v, (np.floating, float)) else v)
                                       for k, v in params.items()}, evidence, profile, f.search.per_pixel, n,
                   families, validation=trial.validation(), base_error=base_error, flags=flags)
@@ -1108,7 +1125,8 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
 
     1. Every candidate is screened on the first fold (:meth:`Context.folds`): fitted coarsely on one half of the
        captures and measured on the other.
-    2. The :data:`FITTED` best by held-out error (within :data:`REFINE_WITHIN` of the best) are fitted on every
+    2. The :data:`FITTED` best by held-out error (within :data:`REFINE_WITHIN` of the best), and every fit that
+       screens coarsely on purpose (``refines``) whose error in sample is within that, are fitted on every
        fold to convergence, so that every capture is measured with a fit that did not see it (leaving one capture
        out, every fold is screened already).
     3. Every candidate's errors are estimated, in sample and held out; the finalists' fitted numbers get their
@@ -1151,6 +1169,10 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         errors = sorted((h[0], t.name) for t in trials if (h := held.get(t.name)) is not None)
         top = errors[0][0] if errors else np.inf
         finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
+        # a fit whose screening is coarse on purpose (``refines``) is refined when its error in sample could win
+        finalists += [t for t in trials if t.folds and t not in finalists and t.folds[0][2] is not None
+                      and getattr(t.folds[0][2]._fit(), "refines", False) and t.folds[0][2].fitted() is not None
+                      and _in_sample(ctx, t)[0] <= REFINE_WITHIN * top]
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:
             t.every = True
