@@ -14,6 +14,8 @@ Contents
 - :func:`offset_evidence`: where a fixed offset's energy sits: a few outliers (hot pixels) or a dense map (DSNU)
 - :func:`fit_dense_offset`: DSNU's diagnosis fit: the mean offset map, refused when its energy is in a few pixels
 - :func:`fit_hot_pixels`: hot pixels' diagnosis fit: the outliers of the offset map, refused when the map is dense
+- :func:`wiener_shrink`: a per-pixel map shrunk by its Wiener factor (signal variance over signal plus noise)
+- :func:`mean_noise_var`: per capture and pixel, the noise variance left in the frames' mean (DN^2)
 - :class:`RowNoise`: temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``)
 
 References
