@@ -10,8 +10,8 @@ Contents
 
 Modules: :mod:`.properties` (scene settings), :mod:`.operators`, :mod:`.panels`, :mod:`.handlers` (render
 handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera motion), :mod:`.render` and
-:mod:`.commands` (command line), :mod:`.sample` (the sample scene), :mod:`.compat` (what differs between Blender
-4.2 LTS and 5.2).
+:mod:`.commands` (command line), :mod:`.sample` (the sample scene). What differs between Blender 4.2 LTS and 5.2 is
+the root's ``blender_compat``, below both ``addon/`` and ``nodes/``.
 """
 
 

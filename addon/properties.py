@@ -11,7 +11,7 @@ Contents
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .compat import path_options
+from ..blender_compat import path_options
 
 
 def _profile_items(self, context):
