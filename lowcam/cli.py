@@ -32,15 +32,40 @@ Contents
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
+import tempfile
 import time
 import warnings
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
 
+from . import calibrate as cal
+from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
+from .calibrate import CALIBRATIONS
+from .chart import write_chart
+from .dng import profile_from_dng
+from .effects import effect_class
+from .effects.noise import FRAME_RANGE, SEED_RANGE
 from .errors import LowcamError
+from .io import (atomic_write_bytes, check_image_output, check_output, check_output_folder, make_output_folder,
+                 read_plate, read_render, write_image, write_png)
+from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
+from .measure.compare import compare
+from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, explain, save_candidate_profile
+from .measure.plate import PLATE_PROBES, read_footage
+from .measure.plate_compare import compare_plate, write_plate_report
+from .measure.report import history_figure, read_history, record_history, write_compare_report
+from .measure.sets import load_set
+from .measure.synth import parse_change, synthesise
+from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
+from .passes import needed_passes, read_render_and_passes
+from .pipeline import run
+from .profile import find_profile, list_profiles, load_profile
+from .sample import sample_plate, sample_render
 
 
 class Parser(argparse.ArgumentParser):
@@ -65,15 +90,11 @@ def bounded_int(low: int, high: int, what: str = "an integer"):
 
 def seed(text: str) -> int:
     """An argparse type: a noise seed, 0 <= seed < 2**64 (every bit counts: no two seeds alias)."""
-    from .effects.noise import SEED_RANGE
-
     return bounded_int(SEED_RANGE[0], SEED_RANGE[1] - 1, "an integer seed")(text)
 
 
 def frame_number(text: str) -> int:
     """An argparse type: a frame number in [-2**31, 2**31)."""
-    from .effects.noise import FRAME_RANGE
-
     return bounded_int(FRAME_RANGE[0], FRAME_RANGE[1] - 1, "an integer frame number")(text)
 
 
@@ -103,8 +124,6 @@ def input_files(args, *outputs: str) -> list[str]:
 
 
 def _load_inputs(args, profile):
-    from .io import read_plate, read_render
-
     render = read_render(args.render, args.layer)
     plate = None
     if args.plate:
@@ -147,11 +166,6 @@ def _pass_options(p, fps: bool) -> None:
 
 
 def cmd_apply(args) -> int:
-    from .io import check_image_output, read_plate, write_image
-    from .passes import needed_passes, read_render_and_passes
-    from .pipeline import run
-    from .profile import load_profile
-
     check_image_output(args.output, input_files(args, "output"))
     profile = load_profile(args.profile)
     for name, values in _pass_effects(args):
@@ -171,8 +185,6 @@ def cmd_apply(args) -> int:
 
 def save_stages(stages, folder: Path) -> list[Path]:
     """Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)."""
-    from .io import make_output_folder, write_png
-
     make_output_folder(folder)
     paths = []
     for name, img in stages.items():
@@ -183,11 +195,6 @@ def save_stages(stages, folder: Path) -> list[Path]:
 
 
 def cmd_stages(args) -> int:
-    from .io import check_output_folder
-    from .pipeline import run
-    from .profile import load_profile
-    from .sample import sample_plate, sample_render
-
     check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     if args.render:
@@ -202,8 +209,6 @@ def cmd_stages(args) -> int:
 
 
 def cmd_profiles(args) -> int:
-    from .profile import list_profiles, load_profile
-
     if args.name:
         p = load_profile(args.name)
         print(f"{p.name}: {p.camera.name} ({p.source})")
@@ -227,10 +232,6 @@ def cmd_profiles(args) -> int:
 
 
 def cmd_batch(args) -> int:
-    from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
-    from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
-    from .profile import load_profile
-
     frames = parse_frames(args.frames)
     shot_inputs = [args.profile, args.motion, args.gyro]
     check_shot_outputs(args.output, args.renders, args.plates, frames, [f for f in shot_inputs if f])
@@ -260,9 +261,6 @@ def cmd_batch(args) -> int:
 
 
 def cmd_chart(args) -> int:
-    from .calibrate.chart import write_chart
-    from .io import check_output
-
     if Path(args.output).suffix.lower() not in (".pdf", ".png"):
         raise LowcamError(f"{args.output}: the chart is written as .pdf or .png")
     check_output(args.output)
@@ -276,10 +274,6 @@ def cmd_chart(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from . import calibrate as cal
-    from .io import check_output, check_output_folder
-    from .profile import load_profile
-
     if args.what == "list":
         for name, effects in cal.calibration_listing().items():
             c = cal.CALIBRATIONS.get(name)
@@ -314,8 +308,6 @@ def cmd_calibrate(args) -> int:
 
 def _check_report_outputs(args) -> None:
     """Check the ``--json`` file and the ``--report`` folder of compare and diagnose before any work."""
-    from .io import check_output, check_output_folder
-
     if args.json:
         check_output(args.json, input_files(args, "json", "output"), "--json")
     if args.report:
@@ -345,9 +337,6 @@ def _end_progress_lines() -> None:
 
 def _compare_plate_only(args, profile) -> int:
     """``lowcam compare --plate-only FOOTAGE``: the plate probes' statistics, profile against footage."""
-    from .measure.plate import PLATE_PROBES, read_footage
-    from .measure.plate_compare import compare_plate, write_plate_report
-
     probes = PLATE_PROBES
     if args.probes:
         names = [n.strip() for n in args.probes.split(",") if n.strip()]
@@ -366,10 +355,6 @@ def _compare_plate_only(args, profile) -> int:
     for name, why in cmp.skipped.items():
         print(f"  {name}: skipped ({why})")
     if args.json:
-        import json
-
-        from .io import atomic_write_bytes
-
         doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
                "where": cmp.where, "skipped": cmp.skipped, "statistics": [s.as_dict() for s in cmp.statistics]}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
@@ -380,11 +365,6 @@ def _compare_plate_only(args, profile) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .measure.compare import compare
-    from .measure.report import read_history, record_history, write_compare_report
-    from .measure.sets import load_set
-    from .profile import load_profile
-
     if (args.set is None) == (args.plate_only is None):
         raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
     if args.probes and not args.plate_only:
@@ -401,10 +381,6 @@ def cmd_compare(args) -> int:
     print(f"{mset.path}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
           ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()))
     if args.json:
-        import json
-
-        from .io import atomic_write_bytes
-
         doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
                "where": cmp.where}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
@@ -415,16 +391,6 @@ def cmd_compare(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    import json
-
-    from .io import atomic_write_bytes, check_output
-    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, save_candidate_profile
-    from .measure.report import write_compare_report
-    from .measure.sets import load_set
-    from .profile import load_profile
-
-    from .effects import effect_class
-
     _check_report_outputs(args)
     if (args.add_best or args.until_explained) and not args.output:
         raise LowcamError(f"{'--add-best' if args.add_best else '--until-explained'} needs -o NEW.toml")
@@ -469,13 +435,6 @@ def cmd_diagnose(args) -> int:
 
 def _explain(args, mset, profile) -> int:
     """``diagnose --until-explained``: add and refit until explained; every step's profile and the history."""
-    import json
-    import tempfile
-
-    from .io import atomic_write_bytes, check_output_folder, make_output_folder
-    from .measure.diagnose import explain, save_candidate_profile
-    from .measure.report import history_figure
-
     out = Path(args.output)
     steps_dir = out.parent / f"{out.stem}-steps"
     check_output_folder(steps_dir, "-o (its steps folder)")
@@ -505,8 +464,6 @@ def _explain(args, mset, profile) -> int:
     print(f"{saved}: the profile after {len(steps) - 1} added effect(s); each step's profile and {figure.name} "
           f"in {steps_dir}")
     if args.report:
-        from .measure.report import write_compare_report
-
         page = write_compare_report(final.diagnosis.comparison, args.report,
                                     f"{profile.name} made to explain {mset.path}", history,
                                     extra={"steps": doc})
@@ -515,10 +472,6 @@ def _explain(args, mset, profile) -> int:
 
 
 def cmd_synth(args) -> int:
-    from .io import check_output_folder
-    from .measure.synth import parse_change, synthesise
-    from .profile import load_profile
-
     check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     folder = synthesise(profile, args.output, [parse_change(a) for a in args.add or []], args.remove or [],
@@ -532,10 +485,6 @@ def cmd_synth(args) -> int:
 # --- profile from-dng (issue 15, part 2) ------------------------------------------------------------------------
 def cmd_profile_from_lensfun(args) -> int:
     """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
-    from .io import check_output
-    from .lensdb import profile_from_lensfun, require_lensfunpy
-    from .profile import find_profile, load_profile
-
     out = Path(check_output(args.output, [str(find_profile(args.base))]))
     if out.suffix.lower() != ".toml":
         raise LowcamError(f"{out}: a profile is written as .toml")
@@ -562,8 +511,6 @@ def cmd_profile_from_lensfun(args) -> int:
 def cmd_profile_search(args) -> int:
     """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
     crop factor | calibrations); none is a one-line error with the nearest names."""
-    from .lensdb import lens_entries, nearest_names, search_lenses
-
     text = " ".join(args.text)
     found = search_lenses(text)
     if not found:
@@ -576,9 +523,6 @@ def cmd_profile_search(args) -> int:
 
 
 def cmd_profile_from_dng(args) -> int:
-    from .dng import profile_from_dng
-    from .profile import load_profile
-
     if Path(args.output).resolve() == Path(args.dng).resolve():
         raise LowcamError(f"{args.output}: -o would replace the DNG it reads")
     profile, notes = profile_from_dng(args.dng, load_profile(args.base))
@@ -597,8 +541,6 @@ def add_plugin_commands(sub) -> None:
     """Commands other packages add through the ``lowcam.commands`` entry-point group: each entry is a function
     that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``, ``motion`` and
     ``node-asset``; see ``addon/commands.py``). The engine knows none of them by name."""
-    from importlib.metadata import entry_points
-
     for entry in entry_points(group="lowcam.commands"):
         try:
             add = entry.load()
@@ -682,7 +624,6 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
         q.set_defaults(func=cmd_calibrate)
 
-    from .calibrate import CALIBRATIONS
 
     for name, calibrator in CALIBRATIONS.items():
         q = csub.add_parser(name, aliases=list(calibrator.aliases), help=calibrator.help)
