@@ -57,7 +57,7 @@ BLENDER_LAYERS = (
 LAZY = {
     "OpenEXR": "never loaded beside an older libOpenEXRCore (Debian's Blender): lowcam.io then reads in a child",
     "PIL": "optional (pillow is no dependency): lowcam.footage's GIFs",
-    "dask": "optional extra 'farm': lowcam batch --farm",
+    "dask": "optional extra 'farm': lowcam batch --workers / --scheduler",
     "distributed": "optional extra 'farm'",
     "lensfunpy": "optional extra 'lensfun': lowcam profile from-lensfun",
     "matplotlib": "heavy (1-2 s to import) and not in the Blender extension: report figures, the chart's PDF",
