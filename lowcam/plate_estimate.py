@@ -10,6 +10,7 @@ Contents
 --------
 - :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
   (or that the footage cannot show it: not measurable)
+- :func:`format_value`: an estimate's value as a line or a table shows it
 - :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
 - :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
   start with the best of the next few frames
@@ -58,18 +59,19 @@ class PlateEstimate:
         """One line for the terminal: what was found, how sure, whether it went into the profile."""
         if not self.measurable:
             return f"{self.statistic} ({self.effect}): not measurable ({self.reason}); not applied"
-        what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
+        what = ", ".join(f"{k} = {format_value(v)}" for k, v in self.params.items()) or "reported only"
         state = "applied" if self.applied else "not applied"
         return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
 
 
-def _fmt(v) -> str:
+def format_value(v) -> str:
+    """An estimate's value as a line shows it: floats to 4 significant digits, None as "not measurable"."""
     if v is None:
         return "not measurable"
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+        return "[" + ", ".join(format_value(x) for x in v) + "]"
     return str(v)
 
 

@@ -75,6 +75,7 @@ from ..errors import LowcamError
 from ..geometry import grid_points
 from ..io import make_output_folder, write_png
 from ..measure import plate
+from ..plate_estimate import format_value
 from ..profile import load_profile
 from ..reports import figure, image, numbers_block, write_page
 from ..schema import read_toml
@@ -696,7 +697,7 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
             if isinstance(v, dict):
                 out += flat(v, f"{prefix}{k}.")
             else:
-                out.append(f"{prefix}{k} = {plate._fmt(v)}")
+                out.append(f"{prefix}{k} = {format_value(v)}")
         return "; ".join(out) if not prefix else out
 
     table = [{"statistic": e.statistic, "effect": e.effect,

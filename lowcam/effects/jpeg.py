@@ -327,10 +327,10 @@ def fit_jpeg(ctx, effect):
     of the clean frame (quantisation of noisy coefficients shrinks them less), and a noise-free fit picks too
     low a quality. When JPEG is the chain's last stage, the model's noisy frames are simulated once without it
     and each trial only codes them again (the frames :func:`lowcam.measure.compare.compare` makes); otherwise
-    each trial re-simulates the chain (``ctx.simulate``: the effects do not run the pipeline themselves). Every subsampling is tried on a coarse quality grid; for the best, the
-    quality is refined, then the chroma quality on its own (an encoder's tables rarely have the standard
-    luma/chroma balance), then the quality again. While diagnosis screens (``ctx.screening``), only the coarse
-    grid at 4:2:0.
+    each trial re-simulates the chain (``ctx.simulate``: the effects do not run the pipeline themselves). Every
+    subsampling is tried on a coarse quality grid; for the best, the quality is refined, then the chroma quality
+    on its own (an encoder's tables rarely have the standard luma/chroma balance), then the quality again. While
+    diagnosis screens (``ctx.screening``), only the coarse grid at 4:2:0.
     """
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick  # a few captures: the flattest and the most textured
