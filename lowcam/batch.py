@@ -103,9 +103,13 @@ class Shot:
     effects: tuple = ()            # (name, ((key, value), ...)) effects added to the profile, e.g. object motion
     fps: float = 24.0              # the frame rate the renders' Vector pass was made at
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
+    plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
 
     def load_profile(self):
-        """The shot's profile with its added ``effects`` (cached per process)."""
+        """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
+        from .effects import trust_plugins
+
+        trust_plugins(*self.plugins)
         return _profile(self.profile, self.effects)
 
     def output_path(self, frame: int) -> Path:
