@@ -7,6 +7,7 @@ Contents
 --------
 - :class:`LowcamError`: bad input or configuration: a missing or corrupt file, a wrong size, an unknown key
 - :class:`ProfileError`: a profile that does not validate: unknown key, wrong type, value out of range
+- :class:`DiskFull`: an output could not be written for want of space (or quota): a job stops there
 - :class:`UntrustedPlugin`: a profile names a plug-in effect of a module the user has not trusted
 - :class:`NotFitted`: a fit that cannot be made from the data at hand, with the one-line reason why
 """
@@ -18,6 +19,11 @@ class LowcamError(Exception):
 
 class ProfileError(LowcamError):
     """A profile that does not validate: unknown key, wrong type, value out of range."""
+
+
+class DiskFull(LowcamError):
+    """An output could not be written for want of space, quota or file size (ENOSPC, EDQUOT, EFBIG): every later
+    frame would fail the same way, so a job stops at the first such write and says how to resume."""
 
 
 class UntrustedPlugin(ProfileError):

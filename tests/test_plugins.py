@@ -76,7 +76,8 @@ def gravity(tmp_path):
 
 def lowcam_cli(folder: Path, *argv, env=None):
     environ = {k: v for k, v in os.environ.items() if k != "LOWCAM_PLUGINS"}
-    environ.update(PYTHONPATH=str(folder / "code"), LOWCAM_PROFILE_PATH=str(folder / "profiles"), **(env or {}))
+    path = os.pathsep.join(p for p in (str(folder / "code"), os.environ.get("PYTHONPATH", "")) if p)
+    environ.update(PYTHONPATH=path, LOWCAM_PROFILE_PATH=str(folder / "profiles"), **(env or {}))
     return subprocess.run([sys.executable, "-m", "lowcam.cli", *map(str, argv)], capture_output=True, text=True,
                           env=environ, cwd=folder, timeout=120)
 
@@ -189,7 +190,7 @@ def test_blender_preference_trusts_only_while_the_blend_may_run_scripts(gravity,
     blend = gravity / "with_script.blend"
     auto_run = bpy.context.preferences.filepaths.use_scripts_auto_execute
     try:
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)   # the preferences stay
         addons = bpy.context.preferences.addons
         entry = addons.get(preferences.ADDON_MODULE) or addons.new()   # the add-on as enabled in Preferences
         entry.module = preferences.ADDON_MODULE
@@ -219,6 +220,6 @@ def test_blender_preference_trusts_only_while_the_blend_may_run_scripts(gravity,
         addons = bpy.context.preferences.addons
         if addons.get(preferences.ADDON_MODULE) is not None:
             addons.remove(addons[preferences.ADDON_MODULE])
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         sys.modules.pop("gravity_fx", None)
         lowcam.effects.PLUGINS.pop("gravity_fx:Veil", None)
