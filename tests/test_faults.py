@@ -1,4 +1,4 @@
-"""Faults during a shot: a disk that fills up, a worker killed mid-write.
+"""Faults during a shot: a disk that fills up, a worker killed mid-write, footage whose video data is damaged.
 
 The full disk is a real one: a tmpfs of a few hundred kB mounted for the test (we run as root); where mounting is not
 allowed, a file-size limit (``RLIMIT_FSIZE``) on the batch process makes its writes fail the same way (EFBIG).
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import fuzz_corpus as corpus
-from lowcam.errors import DiskFull
+from lowcam.errors import DiskFull, LowcamError
 
 
 @contextlib.contextmanager
@@ -137,3 +137,38 @@ def test_a_worker_killed_mid_shot_loses_no_frame_and_leaves_no_temporary(tmp_pat
     assert proc.returncode == 0, err
     assert sorted(p.name for p in out.glob("*.png")) == [f"{f:04d}.png" for f in range(1, frames + 1)]
     assert not stale.exists() and not list(out.glob(".lowcam-*")), list(out.iterdir())
+
+
+# --- damaged video --------------------------------------------------------------------------------------------------
+
+def _video(path: Path, frames: int = 30) -> bytes:
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur((rng.random((240, 320, 3)) * 255).astype(np.uint8), (0, 0), 3)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+    for i in range(frames):
+        writer.write(np.roll(base, 3 * i, axis=1))
+    writer.release()
+    return path.read_bytes()
+
+
+def test_an_mp4_with_damaged_frames_is_refused_not_measured(tmp_path, capfd):
+    from lowcam.cli import main
+    from lowcam.measure.plate import read_footage
+
+    data = _video(tmp_path / "clip.mp4")
+    assert len(read_footage(tmp_path / "clip.mp4")) == 30          # the intact clip is read whole
+    damaged = bytearray(data)
+    middle = len(data) // 2
+    damaged[middle:middle + 3000] = np.random.default_rng(1).integers(0, 256, 3000, dtype=np.uint8).tobytes()
+    (tmp_path / "damaged.mp4").write_bytes(bytes(damaged))
+    cap = cv2.VideoCapture(str(tmp_path / "damaged.mp4"))
+    assert cap.read()[0]                                             # what OpenCV alone would measure
+    cap.release()
+    with pytest.raises(LowcamError, match=r"damaged\.mp4: damaged video data \(.*of 30 frames decoded\); damaged "
+                                          r"footage is not measured"):
+        read_footage(tmp_path / "damaged.mp4")
+    capfd.readouterr()
+    report = tmp_path / "c.json"
+    assert main(["compare", "--plate-only", str(tmp_path / "damaged.mp4"), "--json", str(report)]) == 2
+    err = capfd.readouterr().err
+    assert len(_lines(err)) == 1 and "damaged video data" in err and not report.exists()

@@ -109,3 +109,57 @@ def test_ctrl_c_during_a_render_is_one_line_and_status_130(tmp_path):
     assert 1 <= len(written) < frames
     assert all(cv2.imread(str(p)).shape == (480, 640, 3) for p in written)   # whole composites only
     assert not list(out.glob(".*.part")) and list(scratch.iterdir()) == []   # no temporaries, no scratch renders
+
+
+def _footage_copy(folder: Path, frames=(99, 100)) -> Path:
+    source = next(p for p in [DATA, *DATA.iterdir()] if (p / "framestamp.txt").is_file())
+    (folder / "reshape").mkdir(parents=True)
+    for name in ("framestamp.txt", "gyro.txt", "gyro_dump.txt"):
+        shutil.copy(source / name, folder / name)
+    for n in frames:
+        shutil.copy(source / "reshape" / f"RE_frame-{n}.jpg", folder / "reshape" / f"RE_frame-{n}.jpg")
+    return folder
+
+
+@pytest.mark.skipif(DATA is None, reason="the phone-gyro-video data set is not beside the repository")
+@pytest.mark.parametrize("damage", ["truncated", "smaller"])
+def test_demo_footage_refuses_a_damaged_frame_by_name_and_leaves_no_folder(tmp_path, damage):
+    clip = _footage_copy(tmp_path / "clip")
+    frame = clip / "reshape" / "RE_frame-100.jpg"
+    if damage == "truncated":
+        frame.write_bytes(frame.read_bytes()[:20000])
+    else:
+        cv2.imwrite(str(frame), cv2.resize(cv2.imread(str(frame)), (640, 480)))
+    r = subprocess.run([sys.executable, "-m", "lowcam.cli", "demo", "--footage", str(clip), "--footage-frames", "2",
+                        "-o", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert lines[0].startswith(f"lowcam demo: error: {frame}: ")
+    assert ("truncated" in lines[0]) if damage == "truncated" else ("640x480" in lines[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip"]   # no output folder, half-made or not
+
+
+@pytest.mark.slow   # the plate estimate before the renders takes a minute on a busy 2-core machine
+@pytest.mark.timeout(600)
+@pytest.mark.skipif(DATA is None, reason="the phone-gyro-video data set is not beside the repository")
+def test_ctrl_c_during_the_footage_demo_render_leaves_no_folder(tmp_path):
+    clip = _footage_copy(tmp_path / "clip")
+    proc = subprocess.Popen([sys.executable, "-m", "lowcam.cli", "demo", "--footage", str(clip), "--footage-frames",
+                             "2", "-o", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        for line in proc.stdout:   # into the renders
+            if line.startswith("[3/5]"):
+                time.sleep(1.0)
+                os.killpg(proc.pid, signal.SIGINT)
+                break
+        _, err = proc.communicate(timeout=120)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert proc.returncode == 130 and "Traceback" not in err and "ReferenceError" not in err, err[-2000:]
+    assert [line for line in err.splitlines() if line.strip()][-1] == "lowcam demo: interrupted"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip"]
