@@ -17,7 +17,11 @@ Contents
 """
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from lowcam.cli import bounded_int, seed, vector3
@@ -100,11 +104,41 @@ def _footage_demo(args) -> int:
                               f"as --footage DIR")
         folder = found[0]
     find_footage(folder)   # before the output folder is made: a missing data set writes nothing
-    out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
-    result = _side("addon.footage").run_footage_demo(folder, out, args.profile, frames=args.footage_frames,
-                                                     seed=args.seed)
-    print(f"{result['png']}: plain composite (left) next to the camera (right); the clip: {result['gif']}")
+    out = Path(check_output_folder(args.output, force=args.force)).resolve()
+    footage = _side("addon.footage")
+    # a failure or Ctrl-C (during a render too) leaves no half-made folder
+    with _built_beside(out) as building, _side("addon.render").interruptible():
+        result = footage.run_footage_demo(folder, make_output_folder(building), args.profile,
+                                          frames=args.footage_frames, seed=args.seed)
+    print(f"{out / result['png'].name}: plain composite (left) next to the camera (right); the clip: "
+          f"{out / result['gif'].name}")
     return 0
+
+
+@contextmanager
+def _built_beside(out: Path):
+    """A new folder beside ``out`` to build an output in: moved into ``out`` when the block ends, removed (with
+    everything in it) when it fails or is interrupted, so ``out`` never holds a half-made output."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.lowcam-building-", dir=out.parent))
+    try:
+        yield building
+        _move_into(building, out)
+    finally:
+        shutil.rmtree(building, ignore_errors=True)
+
+
+def _move_into(built: Path, out: Path) -> None:
+    """Move everything in ``built`` into ``out`` (renamed whole when ``out`` does not exist), file by file."""
+    if not out.exists():
+        os.replace(built, out)
+        return
+    for item in built.iterdir():
+        target = out / item.name
+        if item.is_dir() and target.is_dir():
+            _move_into(item, target)
+        else:
+            os.replace(item, target)
 
 
 def cmd_render(args) -> int:
