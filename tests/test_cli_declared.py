@@ -353,3 +353,14 @@ def test_a_board_not_found_names_the_set_and_the_frames(tmp_path, capsys):
     assert len(errors) == 1 and "Traceback" not in err, err
     for name in (str(toml), "capture board", "f001.png", "not found"):
         assert name in errors[0], errors[0]
+
+
+def test_a_batch_output_frame_that_is_a_link_to_the_gyro_log(tmp_path, capsys):
+    """The ``#`` pattern's existing frames are outputs too: frame 2 of ``out/####.png`` links to the gyro log."""
+    gyro = tmp_path / "gyro.csv"
+    gyro.write_text("t,wx,wy,wz\n0,0,0,0\n1,0,0,0\n")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "0002.png").symlink_to(gyro)
+    refused(capsys, ["batch", "--renders", tmp_path / "r" / "####.exr", "--frames", "1-3", "--gyro", gyro,
+                     "--fps", "24", "--exposure-s", "0.01", "-o", tmp_path / "out" / "####.png"],
+            ("-o", "--gyro", gyro), [gyro])
