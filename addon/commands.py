@@ -2,7 +2,9 @@
 
 They live on the Blender side and reach the ``lowcam`` command through the ``lowcam.commands`` entry point
 (pyproject.toml), so the engine imports nothing of ``addon/`` or ``nodes/``. Importing this module imports no bpy;
-each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs.
+each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs. Every
+option declares what it reads, writes or takes (:mod:`lowcam.arguments`), so ``lowcam``'s error boundary refuses
+an output that is an input (the .blend, a profile) before Blender starts.
 ``lowcam demo --synthetic`` needs no Blender: the engine alone on a generated render.
 
 Contents
@@ -17,10 +19,15 @@ Contents
 """
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
-from lowcam.cli import bounded_int, seed, vector3
+from lowcam.arguments import Reads, Writes, angular_velocity, bounded_int, seed
+from lowcam.cli import FRAMES, PROFILE
 
 
 def _side(name: str):
@@ -100,11 +107,41 @@ def _footage_demo(args) -> int:
                               f"as --footage DIR")
         folder = found[0]
     find_footage(folder)   # before the output folder is made: a missing data set writes nothing
-    out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
-    result = _side("addon.footage").run_footage_demo(folder, out, args.profile, frames=args.footage_frames,
-                                                     seed=args.seed)
-    print(f"{result['png']}: plain composite (left) next to the camera (right); the clip: {result['gif']}")
+    out = Path(check_output_folder(args.output, force=args.force)).resolve()
+    footage = _side("addon.footage")
+    # a failure or Ctrl-C (during a render too) leaves no half-made folder
+    with _built_beside(out) as building, _side("addon.render").interruptible():
+        result = footage.run_footage_demo(folder, make_output_folder(building), args.profile,
+                                          frames=args.footage_frames, seed=args.seed)
+    print(f"{out / result['png'].name}: plain composite (left) next to the camera (right); the clip: "
+          f"{out / result['gif'].name}")
     return 0
+
+
+@contextmanager
+def _built_beside(out: Path):
+    """A new folder beside ``out`` to build an output in: moved into ``out`` when the block ends, removed (with
+    everything in it) when it fails or is interrupted, so ``out`` never holds a half-made output."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.lowcam-building-", dir=out.parent))
+    try:
+        yield building
+        _move_into(building, out)
+    finally:
+        shutil.rmtree(building, ignore_errors=True)
+
+
+def _move_into(built: Path, out: Path) -> None:
+    """Move everything in ``built`` into ``out`` (renamed whole when ``out`` does not exist), file by file."""
+    if not out.exists():
+        os.replace(built, out)
+        return
+    for item in built.iterdir():
+        target = out / item.name
+        if item.is_dir() and target.is_dir():
+            _move_into(item, target)
+        else:
+            os.replace(item, target)
 
 
 def cmd_render(args) -> int:
@@ -128,7 +165,7 @@ def cmd_motion(args) -> int:
 
     if not args.output.lower().endswith(".json"):
         raise LowcamError(f"{args.output}: the motion is written as a .json file")
-    check_output(args.output, [args.blend])
+    check_output(args.output)
     path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
     print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
     return 0
@@ -149,39 +186,40 @@ def cmd_node_asset(args) -> int:
 def add_commands(sub) -> None:
     """Add the Blender-driving sub-commands to the ``lowcam`` parser (the ``lowcam.commands`` entry point)."""
     p = sub.add_parser("demo", help="the main job on the bundled sample scene")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("-o", "--output", default="demo-output",
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("-o", "--output", type=Writes("folder"), default="demo-output",
                    help="folder for the results, new, empty or Lowcam's (default demo-output)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
-    p.add_argument("--angular-velocity", type=vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
+    p.add_argument("--angular-velocity", type=angular_velocity, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
                    help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--render-width", type=bounded_int(64, 8192), default=800, help="width of the sample render (px)")
     p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
-    p.add_argument("--footage", nargs="?", const="", metavar="DIR",
+    p.add_argument("--footage", type=Reads("folder"), nargs="?", const="", metavar="DIR",
                    help="real phone footage as the plate, its gyro driving the camera (default: "
                         "../shared/data/phone-gyro-video beside the repository)")
     p.add_argument("--footage-frames", type=bounded_int(2, 103), default=24, help="with --footage: frames (from 99)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
-    p.add_argument("blend", help="the .blend file (its scene's Lowcam settings are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
+    p.add_argument("blend", type=Reads("file"), help="the .blend file (its scene's Lowcam settings are used)")
+    p.add_argument("--frames", type=FRAMES, required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", type=Writes("pattern"),
+                   help="folder or #### pattern for the composites (default: the scene's)")
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
-    p.add_argument("blend", help="the .blend file (its Lowcam motion source and exposure are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", required=True, help="the motion.json to write")
+    p.add_argument("blend", type=Reads("file"), help="the .blend file (its Lowcam motion source and exposure are used)")
+    p.add_argument("--frames", type=FRAMES, required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", type=Writes("file", (".json",)), required=True, help="the motion.json to write")
     p.set_defaults(func=cmd_motion)
 
     p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
-    p.add_argument("-o", "--output", required=True, help="the .blend to write")
-    p.add_argument("--profile", default="fire-i")
+    p.add_argument("-o", "--output", type=Writes("file", (".blend",)), required=True, help="the .blend to write")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
     p.add_argument("--render-width", type=bounded_int(64, 16384), default=1600,
                    help="width of the renders it will take (px)")
-    p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+    p.add_argument("--angular-velocity", type=angular_velocity, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                    help="camera rotation baked into the maps (rad/s, camera frame)")
     p.set_defaults(func=cmd_node_asset)

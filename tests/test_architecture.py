@@ -31,14 +31,14 @@ ROOT = ENGINE.parent  # the repository: also the Blender extension's package (lo
 LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
                  "lowcam.io", "lowcam.registration", "lowcam.reports", "lowcam.captures", "lowcam.motion",
-                 "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate")),
+                 "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",
                   "lowcam.batch")),
     ("measure", ("lowcam.measure.*", "lowcam.footage")),
     ("calibrate", ("lowcam.calibrate", "lowcam.calibrate.*")),
-    ("cli", ("lowcam.cli",)),
+    ("cli", ("lowcam.cli", "lowcam.boundary")),
 )
 
 #: The Blender side's layers, bottom to top, above the whole engine: what differs between Blender versions, the
@@ -289,6 +289,7 @@ class Haze(Effect):
 def haze(tmp_path, monkeypatch):
     (tmp_path / "user_haze.py").write_text(PLUGIN)
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "user_haze")  # the user's consent
     yield "user_haze:Haze"
     sys.modules.pop("user_haze", None)
     lowcam.effects.PLUGINS.pop("user_haze:Haze", None)
