@@ -2,7 +2,9 @@
 
 They live on the Blender side and reach the ``lowcam`` command through the ``lowcam.commands`` entry point
 (pyproject.toml), so the engine imports nothing of ``addon/`` or ``nodes/``. Importing this module imports no bpy;
-each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs.
+each command loads the extension (the repository root as the package ``lowcam_blender``) when it runs. Every
+option declares what it reads, writes or takes (:mod:`lowcam.arguments`), so ``lowcam``'s error boundary refuses
+an output that is an input (the .blend, a profile) before Blender starts.
 ``lowcam demo --synthetic`` needs no Blender: the engine alone on a generated render.
 
 Contents
@@ -20,7 +22,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from lowcam.cli import bounded_int, seed, vector3
+from lowcam.arguments import Reads, Writes, angular_velocity, bounded_int, seed
+from lowcam.cli import FRAMES, PROFILE
 
 
 def _side(name: str):
@@ -128,7 +131,7 @@ def cmd_motion(args) -> int:
 
     if not args.output.lower().endswith(".json"):
         raise LowcamError(f"{args.output}: the motion is written as a .json file")
-    check_output(args.output, [args.blend])
+    check_output(args.output)
     path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
     print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
     return 0
@@ -149,39 +152,40 @@ def cmd_node_asset(args) -> int:
 def add_commands(sub) -> None:
     """Add the Blender-driving sub-commands to the ``lowcam`` parser (the ``lowcam.commands`` entry point)."""
     p = sub.add_parser("demo", help="the main job on the bundled sample scene")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("-o", "--output", default="demo-output",
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("-o", "--output", type=Writes("folder"), default="demo-output",
                    help="folder for the results, new, empty or Lowcam's (default demo-output)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
-    p.add_argument("--angular-velocity", type=vector3, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
+    p.add_argument("--angular-velocity", type=angular_velocity, default=(0.05, 0.6, 0.1), metavar="WX,WY,WZ",
                    help="with --synthetic: the camera's rotation (the sample scene's camera pans by itself)")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--render-width", type=bounded_int(64, 8192), default=800, help="width of the sample render (px)")
     p.add_argument("--synthetic", action="store_true", help="skip Blender: the engine on a generated render")
-    p.add_argument("--footage", nargs="?", const="", metavar="DIR",
+    p.add_argument("--footage", type=Reads("folder"), nargs="?", const="", metavar="DIR",
                    help="real phone footage as the plate, its gyro driving the camera (default: "
                         "../shared/data/phone-gyro-video beside the repository)")
     p.add_argument("--footage-frames", type=bounded_int(2, 103), default=24, help="with --footage: frames (from 99)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("render", help="render frames of a .blend with Blender (bpy) and write degraded composites")
-    p.add_argument("blend", help="the .blend file (its scene's Lowcam settings are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", help="folder or #### pattern for the composites (default: the scene's)")
+    p.add_argument("blend", type=Reads("file"), help="the .blend file (its scene's Lowcam settings are used)")
+    p.add_argument("--frames", type=FRAMES, required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", type=Writes("pattern"),
+                   help="folder or #### pattern for the composites (default: the scene's)")
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
-    p.add_argument("blend", help="the .blend file (its Lowcam motion source and exposure are used)")
-    p.add_argument("--frames", required=True, help="frames: 1-10, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", required=True, help="the motion.json to write")
+    p.add_argument("blend", type=Reads("file"), help="the .blend file (its Lowcam motion source and exposure are used)")
+    p.add_argument("--frames", type=FRAMES, required=True, help="frames: 1-10, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", type=Writes("file", (".json",)), required=True, help="the motion.json to write")
     p.set_defaults(func=cmd_motion)
 
     p = sub.add_parser("node-asset", help="write the compositor node group as an asset .blend")
-    p.add_argument("-o", "--output", required=True, help="the .blend to write")
-    p.add_argument("--profile", default="fire-i")
+    p.add_argument("-o", "--output", type=Writes("file", (".blend",)), required=True, help="the .blend to write")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
     p.add_argument("--render-width", type=bounded_int(64, 16384), default=1600,
                    help="width of the renders it will take (px)")
-    p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+    p.add_argument("--angular-velocity", type=angular_velocity, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                    help="camera rotation baked into the maps (rad/s, camera frame)")
     p.set_defaults(func=cmd_node_asset)

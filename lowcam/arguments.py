@@ -10,8 +10,9 @@ in the message; argparse then names the option (``argument --fps: 0 is out of ra
 Kinds of file a command reads (:data:`READ_KINDS`): ``file`` (one file), ``folder`` (a folder of inputs),
 ``glob`` (a file name or glob pattern), ``footage`` (a video file, a folder of frames or a glob of frames),
 ``profile`` (a profile name, resolved on the search path, or a TOML file), ``set`` (a measurement-set folder: the
-files its ``set.toml`` names), ``files`` (one of several file names or globs given with ``nargs``), ``pattern``
-(a frame pattern, ``#`` for the frame digits, or one video file). Kinds written (:data:`WRITE_KINDS`): ``file``,
+files its ``set.toml`` names), ``files`` (one of several file names, globs or folders of frames given with ``nargs``),
+``pattern`` (a frame pattern, ``#`` for the frame digits, or one video file), ``manifest`` (a calibration
+manifest: the files and the profile it names). Kinds written (:data:`WRITE_KINDS`): ``file``,
 ``folder`` (a whole output written into it), ``pattern`` (a ``#`` frame pattern, or a folder for one).
 
 Contents
@@ -38,7 +39,7 @@ import argparse
 import math
 
 #: The kinds of input :class:`Reads` knows (see the module's docstring).
-READ_KINDS = ("file", "folder", "glob", "footage", "profile", "set", "files", "pattern")
+READ_KINDS = ("file", "folder", "glob", "footage", "profile", "set", "files", "pattern", "manifest")
 #: The kinds of output :class:`Writes` knows.
 WRITE_KINDS = ("file", "folder", "pattern")
 
@@ -58,9 +59,9 @@ class Reads:
     def __call__(self, text) -> str:
         text = str(text)
         if text == "":
-            raise argparse.ArgumentTypeError(f"an empty {self.kind} name")
+            raise argparse.ArgumentTypeError("an empty path")
         if "\0" in text:
-            raise argparse.ArgumentTypeError(f"a {self.kind} name with a NUL character")
+            raise argparse.ArgumentTypeError("a path with a NUL character")
         return text
 
     def __repr__(self) -> str:

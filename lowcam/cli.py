@@ -1,17 +1,17 @@
 """The ``lowcam`` command line. Every user-facing problem is one line on stderr and exit status 2; ``--debug``
 shows its traceback.
 
+Every option declares what it is (:mod:`lowcam.arguments`: the files it reads or writes, a number's range), so
+:func:`main` refuses an output that is one of the command's inputs before any work (:mod:`lowcam.boundary`).
+
 Other packages add commands through the ``lowcam.commands`` entry-point group: the Blender side adds ``demo``,
 ``render``, ``motion`` and ``node-asset`` (``addon/commands.py``); the engine knows none of them by name.
 
 Contents
 --------
 - :class:`Parser`: an argument parser whose errors are one line
-- :func:`bounded_int`: argparse type: an integer in [low, high]
-- :func:`seed`: argparse type: a noise seed, 0 <= seed < 2**64
-- :func:`frame_number`: argparse type: a frame number in [-2**31, 2**31)
-- :func:`vector3`: argparse type for an angular velocity ``wx,wy,wz`` (rad/s)
-- :func:`input_files`: the files named by the arguments (and a measurement set's files), which no output may replace
+- :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`: declared
+  arguments several commands share; :data:`IMAGE_SUFFIXES`: the images Lowcam writes
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
@@ -40,7 +40,27 @@ from pathlib import Path
 
 import numpy as np
 
+from .arguments import Number, Reads, Text, Writes, angular_velocity, bounded_int, defocus, frame_number, seed
 from .errors import LowcamError
+
+#: Declared ranges shared by several commands.
+FPS = Number(0, 1000, low_open=True, what="frames per second")
+EXPOSURE_S = Number(0, 10, low_open=True, what="exposure time in s")
+METRES_PER_UNIT = Number(0, 1e5, low_open=True, what="metres per scene unit")
+PROFILE = Reads("profile")
+LAYER = Text(what="view layer")
+#: The image files Lowcam writes (``lowcam.io.IMAGE_SUFFIXES``, not imported here: it loads OpenCV).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
+
+
+def _check_frames(spec: str) -> None:
+    from .batch import parse_frames
+
+    parse_frames(spec)
+
+
+#: A frame list, ``1-240``, ``1-10,15``, ``1-240x2`` (:func:`lowcam.batch.parse_frames`).
+FRAMES = Text(what="frames", check=_check_frames)
 
 
 class Parser(argparse.ArgumentParser):
@@ -48,58 +68,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def bounded_int(low: int, high: int, what: str = "an integer"):
-    """An argparse type: an integer in [low, high]."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{value} is out of range [{low}, {high}]")
-        return value
-    return parse
-
-
-def seed(text: str) -> int:
-    """An argparse type: a noise seed, 0 <= seed < 2**64 (every bit counts: no two seeds alias)."""
-    from .effects.noise import SEED_RANGE
-
-    return bounded_int(SEED_RANGE[0], SEED_RANGE[1] - 1, "an integer seed")(text)
-
-
-def frame_number(text: str) -> int:
-    """An argparse type: a frame number in [-2**31, 2**31)."""
-    from .effects.noise import FRAME_RANGE
-
-    return bounded_int(FRAME_RANGE[0], FRAME_RANGE[1] - 1, "an integer frame number")(text)
-
-
-def vector3(text: str) -> tuple[float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected wx,wy,wz in rad/s, got {text!r}") from None
-    if len(values) != 3 or not all(np.isfinite(values)):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers wx,wy,wz in rad/s, got {text!r}")
-    return values
-
-
-def input_files(args, *outputs: str) -> list[str]:
-    """Every argument that names an existing file, and every file in a folder argument (a measurement set),
-    except the ``outputs`` options: the files an output must not replace."""
-    out = []
-    for key, value in vars(args).items():
-        if key in outputs or not isinstance(value, str) or not value:
-            continue
-        path = Path(value)
-        if path.is_file():
-            out.append(value)
-        elif path.is_dir() and (path / "set.toml").is_file():
-            out.extend(str(p) for p in path.rglob("*") if p.is_file())
-    return out
 
 
 def _load_inputs(args, profile):
@@ -123,26 +91,16 @@ def _pass_effects(args) -> tuple:
     return tuple(effects)
 
 
-def _defocus(text: str) -> tuple[float, float]:
-    try:
-        focus, aperture = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected FOCUS_M,APERTURE_MM, got {text!r}") from None
-    if not (np.isfinite(focus) and np.isfinite(aperture) and focus > 0 and aperture >= 0):
-        raise argparse.ArgumentTypeError(f"expected a focus distance > 0 m and an aperture >= 0 mm, got {text!r}")
-    return focus, aperture
-
-
 def _pass_options(p, fps: bool) -> None:
     """``--object-motion``, ``--defocus`` and the units of the render passes they read (apply and batch)."""
     p.add_argument("--object-motion", action="store_true",
                    help="blur moving objects along the render's Vector pass (a Blender multilayer EXR)")
-    p.add_argument("--defocus", type=_defocus, metavar="FOCUS_M,APERTURE_MM",
+    p.add_argument("--defocus", type=defocus, metavar="FOCUS_M,APERTURE_MM",
                    help="defocus from the render's Depth (Z) pass: focus distance (m), aperture diameter (mm)")
     if fps:
-        p.add_argument("--fps", type=float, default=24.0,
+        p.add_argument("--fps", type=FPS, default=24.0,
                        help="frame rate of the render's Vector pass (pixels per frame; default 24)")
-    p.add_argument("--metres-per-unit", type=float, default=1.0,
+    p.add_argument("--metres-per-unit", type=METRES_PER_UNIT, default=1.0,
                    help="the Depth pass's unit in metres (Blender's Unit Scale; default 1)")
 
 
@@ -152,7 +110,7 @@ def cmd_apply(args) -> int:
     from .pipeline import run
     from .profile import load_profile
 
-    check_image_output(args.output, input_files(args, "output"))
+    check_image_output(args.output)
     profile = load_profile(args.profile)
     for name, values in _pass_effects(args):
         profile = profile.with_effect(name, **dict(values))
@@ -232,8 +190,7 @@ def cmd_batch(args) -> int:
     from .profile import load_profile
 
     frames = parse_frames(args.frames)
-    shot_inputs = [args.profile, args.motion, args.gyro]
-    check_shot_outputs(args.output, args.renders, args.plates, frames, [f for f in shot_inputs if f])
+    check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
     motion, require = {}, False
     if args.motion:
@@ -286,10 +243,10 @@ def cmd_calibrate(args) -> int:
             about = (c.help + (f" (also: {', '.join(c.aliases)})" if c.aliases else "")) if c else "no such calibration"
             print(f"{name:22s} {', '.join(effects) or '-':24s} {about}")
         return 0
-    out = Path(check_output(args.output, input_files(args, "output", "profile")))
+    out = Path(check_output(args.output))
     if out.suffix.lower() != ".toml":
         raise LowcamError(f"{out}: a profile is written as .toml")
-    plots = Path(args.plots) if args.plots else out.parent / f"{out.stem}-plots"
+    plots = Path(args.plots) if args.plots else _default_plots(out)
     check_output_folder(plots, "--plots")
     if args.report:
         check_output_folder(args.report, "--report")
@@ -312,12 +269,38 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _default_plots(output) -> Path:
+    """``calibrate``'s plots folder without ``--plots``: ``<output>-plots`` beside the profile."""
+    return Path(output).parent / f"{Path(output).stem}-plots"
+
+
+def _calibrate_also_writes(args):
+    from .boundary import Named
+
+    if args.plots or not args.output:
+        return []
+    return [Named(str(_default_plots(args.output)), "-o (its plots folder)", "plots", "folder")]
+
+
+def _steps_folder(output) -> Path:
+    """``diagnose --until-explained``'s folder of step profiles beside ``-o``."""
+    return Path(output).parent / f"{Path(output).stem}-steps"
+
+
+def _diagnose_also_writes(args):
+    from .boundary import Named
+
+    if not (args.until_explained and args.output):
+        return []
+    return [Named(str(_steps_folder(args.output)), "-o (its steps folder)", "steps", "folder")]
+
+
 def _check_report_outputs(args) -> None:
     """Check the ``--json`` file and the ``--report`` folder of compare and diagnose before any work."""
     from .io import check_output, check_output_folder
 
     if args.json:
-        check_output(args.json, input_files(args, "json", "output"), "--json")
+        check_output(args.json, option="--json")
     if args.report:
         check_output_folder(args.report, "--report")
 
@@ -429,7 +412,7 @@ def cmd_diagnose(args) -> int:
     if (args.add_best or args.until_explained) and not args.output:
         raise LowcamError(f"{'--add-best' if args.add_best else '--until-explained'} needs -o NEW.toml")
     if args.output:
-        check_output(args.output, input_files(args, "output", "json") + [args.json])
+        check_output(args.output)
     profile = load_profile(args.profile)
     for plugin in args.plugin:
         effect_class(plugin, "--plugin")
@@ -477,7 +460,7 @@ def _explain(args, mset, profile) -> int:
     from .measure.report import history_figure
 
     out = Path(args.output)
-    steps_dir = out.parent / f"{out.stem}-steps"
+    steps_dir = _steps_folder(out)
     check_output_folder(steps_dir, "-o (its steps folder)")
     with tempfile.TemporaryDirectory(prefix="lowcam-explain-") as work:
         steps = explain(mset, profile, work, args.max_steps, progress=_progress_line)
@@ -534,9 +517,9 @@ def cmd_profile_from_lensfun(args) -> int:
     """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
     from .io import check_output
     from .lensdb import profile_from_lensfun, require_lensfunpy
-    from .profile import find_profile, load_profile
+    from .profile import load_profile
 
-    out = Path(check_output(args.output, [str(find_profile(args.base))]))
+    out = Path(check_output(args.output))
     if out.suffix.lower() != ".toml":
         raise LowcamError(f"{out}: a profile is written as .toml")
     if (args.camera_maker is None) != (args.camera_model is None):
@@ -577,10 +560,10 @@ def cmd_profile_search(args) -> int:
 
 def cmd_profile_from_dng(args) -> int:
     from .dng import profile_from_dng
+    from .io import check_output
     from .profile import load_profile
 
-    if Path(args.output).resolve() == Path(args.dng).resolve():
-        raise LowcamError(f"{args.output}: -o would replace the DNG it reads")
+    check_output(args.output)
     profile, notes = profile_from_dng(args.dng, load_profile(args.base))
     for note in notes:
         print(f"note: {note}")
@@ -619,54 +602,59 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     def frame_options(p, render_required=True):
-        p.add_argument("--profile", default="fire-i", help="profile name or TOML path (default fire-i)")
-        p.add_argument("--render", required=render_required, help="premultiplied RGBA render (EXR or PNG)")
-        p.add_argument("--layer", help="the view layer to take from a multilayer EXR with several")
-        p.add_argument("--plate", help="the video frame (PNG/JPEG) at the camera's size")
-        p.add_argument("--angular-velocity", type=vector3, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
+        p.add_argument("--profile", type=PROFILE, default="fire-i", help="profile name or TOML path (default fire-i)")
+        p.add_argument("--render", type=Reads("file"), required=render_required,
+                       help="premultiplied RGBA render (EXR or PNG)")
+        p.add_argument("--layer", type=LAYER, help="the view layer to take from a multilayer EXR with several")
+        p.add_argument("--plate", type=Reads("file"), help="the video frame (PNG/JPEG) at the camera's size")
+        p.add_argument("--angular-velocity", type=angular_velocity, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                        help="camera rotation in rad/s, camera frame: x right, y down, z forward")
-        p.add_argument("--exposure-s", type=float, default=None, help="exposure time (s); default: the profile's")
+        p.add_argument("--exposure-s", type=EXPOSURE_S, default=None, help="exposure time (s); default: the profile's")
         p.add_argument("--seed", type=seed, default=0, help="noise seed, 0 <= seed < 2^64")
         p.add_argument("--frame", type=frame_number, default=0, help="frame number (noise differs per frame)")
 
     p = sub.add_parser("apply", help="simulate the camera on one render")
     frame_options(p)
     _pass_options(p, fps=True)
-    p.add_argument("-o", "--output", required=True, help="output frame: .png, .jpg or .exr (code values / 255)")
+    p.add_argument("-o", "--output", type=Writes("file", IMAGE_SUFFIXES), required=True,
+                   help="output frame: .png, .jpg or .exr (code values / 255)")
     p.set_defaults(func=cmd_apply)
 
     p = sub.add_parser("stages", help="write every stage's intermediate output as an image")
     frame_options(p, render_required=False)
-    p.add_argument("-o", "--output", required=True, help="folder for the stage images (new, empty or Lowcam's)")
+    p.add_argument("-o", "--output", type=Writes("folder"), required=True,
+                   help="folder for the stage images (new, empty or Lowcam's)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.set_defaults(func=cmd_stages)
 
     p = sub.add_parser("batch", help="run the camera over a shot (frame sequence), resumable, optionally on Dask")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("--renders", required=True, help="render pattern, '#' for frame digits: renders/####.exr")
-    p.add_argument("--layer", help="the view layer to take from multilayer EXRs with several")
-    p.add_argument("--plates", help="plate pattern (plate/####.png) or one video file")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("--renders", type=Reads("pattern"), required=True, help="render pattern, '#' for frame digits: renders/####.exr")
+    p.add_argument("--layer", type=LAYER, help="the view layer to take from multilayer EXRs with several")
+    p.add_argument("--plates", type=Reads("pattern"), help="plate pattern (plate/####.png) or one video file")
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
-    p.add_argument("--motion", help="motion.json: per-frame angular velocity and exposure")
-    p.add_argument("--gyro", help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
-    p.add_argument("--fps", type=float, help="frame rate, for --gyro and the renders' Vector pass (default 24)")
-    p.add_argument("--exposure-s", type=float, help="exposure time, for --gyro")
-    p.add_argument("--gyro-t0", type=float, default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
+    p.add_argument("--motion", type=Reads("file"), help="motion.json: per-frame angular velocity and exposure")
+    p.add_argument("--gyro", type=Reads("file"), help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
+    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro and the renders' Vector pass (default 24)")
+    p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
+    p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
     p.add_argument("--gyro-first-frame", type=frame_number, default=1)
-    p.add_argument("--frames", required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", required=True, help="output pattern: out/####.png")
+    p.add_argument("--frames", type=FRAMES, required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
+    p.add_argument("-o", "--output", type=Writes("pattern", IMAGE_SUFFIXES), required=True,
+                   help="output pattern: out/####.png")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--force", action="store_true", help="redo frames whose output exists")
     p.add_argument("--workers", type=bounded_int(0, 1024), default=0,
                    help="run on a Dask LocalCluster of N processes")
-    p.add_argument("--scheduler", help="run on an existing Dask cluster: tcp://host:port")
+    p.add_argument("--scheduler", type=Text(what="tcp://HOST:PORT"), help="run on an existing Dask cluster: tcp://host:port")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _pass_options(p, fps=False)
     p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("chart", help="write the printable calibration chart and its layout")
-    p.add_argument("-o", "--output", required=True, help="chart.pdf or chart.png")
+    p.add_argument("-o", "--output", type=Writes("file", (".pdf", ".png")), required=True,
+                   help="chart.pdf or chart.png")
     p.add_argument("--dpi", type=bounded_int(72, 1200), default=300)
     p.add_argument("--size", choices=("a4", "a3"), default="a4")
     p.set_defaults(func=cmd_chart)
@@ -675,12 +663,13 @@ def build_parser() -> argparse.ArgumentParser:
     csub = p.add_subparsers(dest="what", required=True)
 
     def common(q):
-        q.add_argument("-o", "--output", required=True, help="profile TOML to write (textures go beside it)")
-        q.add_argument("--profile", "--base",
+        q.add_argument("-o", "--output", type=Writes("file", (".toml",), replaces=("profile",)), required=True,
+                       help="profile TOML to write (textures go beside it)")
+        q.add_argument("--profile", "--base", type=PROFILE,
                        help="profile to start from (default: the output if it exists, else fire-i)")
-        q.add_argument("--report", help="folder for an HTML report with every plot and number")
-        q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
-        q.set_defaults(func=cmd_calibrate)
+        q.add_argument("--report", type=Writes("folder"), help="folder for an HTML report with every plot and number")
+        q.add_argument("--plots", type=Writes("folder"), help="folder for the plots (default: <output>-plots beside the profile)")
+        q.set_defaults(func=cmd_calibrate, also_writes=_calibrate_also_writes)
 
     from .calibrate import CALIBRATIONS
 
@@ -690,51 +679,53 @@ def build_parser() -> argparse.ArgumentParser:
         common(q)
         q.set_defaults(calibration=name)
     q = csub.add_parser("all", help="every calibration a manifest lists, into one profile")
-    q.add_argument("manifest")
+    q.add_argument("manifest", type=Reads("manifest"), help="the calibration manifest (TOML)")
     common(q)
     q = csub.add_parser("list", help="every calibration and the effects it fits")
     q.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("compare", help="the model against measured frames: error, where it fails, probes")
-    p.add_argument("set", nargs="?", help="measurement-set folder (with set.toml)")
-    p.add_argument("--plate-only", metavar="FOOTAGE",
+    p.add_argument("set", nargs="?", type=Reads("set"), help="measurement-set folder (with set.toml)")
+    p.add_argument("--plate-only", type=Reads("footage"), metavar="FOOTAGE",
                    help="no chart, no ideal: compare the plate probes' statistics of this video, folder or glob "
                         "of frames with the profile filming similar content")
-    p.add_argument("--probes", help="with --plate-only: comma-separated plate probes to compare (default: all)")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("--report", help="folder for the HTML report and its pictures")
-    p.add_argument("--json", help="write the numbers as JSON")
+    p.add_argument("--probes", type=Text(what="PROBE,..."), help="with --plate-only: comma-separated plate probes to compare (default: all)")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("--report", type=Writes("folder"), help="folder for the HTML report and its pictures")
+    p.add_argument("--json", type=Writes("file"), help="write the numbers as JSON")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("diagnose", help="rank the effects the profile may lack, fitted to the measurements")
-    p.add_argument("set")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("--json", required=True, help="the ranked candidates as JSON")
-    p.add_argument("--report", help="folder for an HTML report")
-    p.add_argument("--only", help="comma-separated candidates to try (default: all)")
-    p.add_argument("--plugin", action="append", default=[], metavar="MODULE:CLASS",
+    p.add_argument("set", type=Reads("set"), help="measurement-set folder (with set.toml)")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("--json", type=Writes("file"), required=True, help="the ranked candidates as JSON")
+    p.add_argument("--report", type=Writes("folder"), help="folder for an HTML report")
+    p.add_argument("--only", type=Text(what="CANDIDATE,..."), help="comma-separated candidates to try (default: all)")
+    p.add_argument("--plugin", type=Text(what="MODULE:CLASS"), action="append", default=[], metavar="MODULE:CLASS",
                    help="also try this plug-in effect's declared searches (repeatable)")
     p.add_argument("--add-best", action="store_true", help="write the profile with the best candidate added")
     p.add_argument("--until-explained", action="store_true",
                    help="add the best candidate and refit, step by step, until the error reaches the noise floor "
                         "or no candidate helps; writes each step's profile and the error history beside -o")
     p.add_argument("--max-steps", type=bounded_int(1, 20), default=6, help="effects --until-explained may add")
-    p.add_argument("-o", "--output", help="profile to write with --add-best or --until-explained")
-    p.set_defaults(func=cmd_diagnose)
+    p.add_argument("-o", "--output", type=Writes("file"), help="profile to write with --add-best or --until-explained")
+    p.set_defaults(func=cmd_diagnose, also_writes=_diagnose_also_writes)
 
     p = sub.add_parser("synth", help="make a measurement set from bundled scenes, with hidden effects")
-    p.add_argument("--profile", default="fire-i")
-    p.add_argument("--add", action="append", metavar="EFFECT[:k=v,...]", help="hide an effect (or change one)")
-    p.add_argument("--remove", action="append", metavar="EFFECT", help="switch one of the profile's effects off")
+    p.add_argument("--profile", type=PROFILE, default="fire-i")
+    p.add_argument("--add", type=Text(what="EFFECT[:k=v,...]"), action="append", metavar="EFFECT[:k=v,...]",
+                   help="hide an effect (or change one)")
+    p.add_argument("--remove", type=Text(what="EFFECT"), action="append", metavar="EFFECT", help="switch one of the profile's effects off")
     p.add_argument("--frames", type=bounded_int(1, 1000), default=5)
     p.add_argument("--width", type=bounded_int(64, 8192), default=640, help="render width of the ideal scenes")
     p.add_argument("--seed", type=seed, default=7)
-    p.add_argument("-o", "--output", required=True, help="folder for the set (new, empty or Lowcam's)")
+    p.add_argument("-o", "--output", type=Writes("folder"), required=True,
+                   help="folder for the set (new, empty or Lowcam's)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("profiles", help="list the profiles; with a name, where each of its numbers came from")
-    p.add_argument("name", nargs="?", help="a profile name or file: show its provenance, effect by effect")
+    p.add_argument("name", nargs="?", type=PROFILE, help="a profile name or file: show its provenance, effect by effect")
     p.set_defaults(func=cmd_profiles)
 
     # --- lowcam profile: profiles from outside data (issue 15): a lens database, DNG metadata ---
@@ -744,26 +735,33 @@ def build_parser() -> argparse.ArgumentParser:
     # profile from-lensfun / profile search (lowcam.lensdb)
     q = psub.add_parser("from-lensfun", help="a lens of the lensfun database (distortion, TCA, vignetting) on a "
                         "base profile (needs pip install lowcam[lensfun])")
-    q.add_argument("--maker", required=True, help="lens maker, as 'lowcam profile search' lists it")
-    q.add_argument("--model", required=True, help="lens model (or a unique part of it)")
-    q.add_argument("--focal-mm", type=float, required=True, help="focal length (mm) within the lens's range")
-    q.add_argument("--aperture", type=float, default=None, help="f-number for the vignetting (default: widest)")
-    q.add_argument("--distance-m", type=float, default=1000.0, help="focus distance (m) for the vignetting")
-    q.add_argument("--camera-maker", default=None, help="the camera, for its crop factor (with --camera-model)")
-    q.add_argument("--camera-model", default=None)
-    q.add_argument("--crop-factor", type=float, default=None,
+    q.add_argument("--maker", type=Text(what="lens maker"), required=True,
+                   help="lens maker, as 'lowcam profile search' lists it")
+    q.add_argument("--model", type=Text(what="lens model"), required=True,
+                   help="lens model (or a unique part of it)")
+    q.add_argument("--focal-mm", type=Number(0, 5000, low_open=True, what="focal length in mm"), required=True,
+                   help="focal length (mm) within the lens's range")
+    q.add_argument("--aperture", type=Number(0.5, 64, what="f-number"), default=None,
+                   help="f-number for the vignetting, 0.5 to 64 (default: widest)")
+    q.add_argument("--distance-m", type=Number(0.01, 1e6, what="focus distance in m"), default=1000.0,
+                   help="focus distance (m) for the vignetting, 0.01 to 1e6")
+    q.add_argument("--camera-maker", type=Text(what="camera maker"), default=None,
+                   help="the camera, for its crop factor (with --camera-model)")
+    q.add_argument("--camera-model", type=Text(what="camera model"), default=None)
+    q.add_argument("--crop-factor", type=Number(0.1, 100, what="crop factor"), default=None,
                    help="the camera's crop factor (default: the one the lens was calibrated on)")
-    q.add_argument("--base", required=True, help="profile for everything else (name or file)")
-    q.add_argument("--name", default=None, help="the new camera's name (default: the base's)")
-    q.add_argument("-o", "--output", required=True, help="the new profile (.toml)")
+    q.add_argument("--base", type=PROFILE, required=True, help="profile for everything else (name or file)")
+    q.add_argument("--name", type=Text(what="camera name"), default=None,
+                   help="the new camera's name (default: the base's)")
+    q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="the new profile (.toml)")
     q.set_defaults(func=cmd_profile_from_lensfun)
     q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
-    q.add_argument("text", nargs="+")
+    q.add_argument("text", nargs="+", type=Text(what="TEXT"), help="words of the lens's maker and model")
     q.set_defaults(func=cmd_profile_search)
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
-    q.add_argument("dng", help="a DNG file (a phone's or camera's raw)")
-    q.add_argument("--base", default="fire-i", help="profile whose frame, optics and processing are kept")
-    q.add_argument("-o", "--output", required=True, help="profile TOML to write")
+    q.add_argument("dng", type=Reads("file"), help="a DNG file (a phone's or camera's raw)")
+    q.add_argument("--base", type=PROFILE, default="fire-i", help="profile whose frame, optics and processing are kept")
+    q.add_argument("-o", "--output", type=Writes("file"), required=True, help="profile TOML to write")
     q.set_defaults(func=cmd_profile_from_dng)
     for q in psub.choices.values():
         q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
@@ -775,26 +773,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """The entry point. A :class:`~lowcam.errors.LowcamError`, an operating-system error (a full disk, a folder
+    """The entry point: the one error boundary of every command. Before the command runs, the files it reads and
+    writes (declared by its arguments, :mod:`lowcam.arguments`) are checked: an output that is one of its inputs
+    is refused (:func:`lowcam.boundary.check_declared_files`). A :class:`~lowcam.errors.LowcamError`, an operating-system error (a full disk, a folder
     that cannot be written) or running out of memory is one line on stderr and exit status 2; Ctrl-C is one line
     and 130. Anything else is a bug and keeps its traceback. ``--debug`` (or ``LOWCAM_DEBUG=1``) shows the
     traceback of every error; without it, library warnings stay off the terminal."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)   # a value out of its declared range is refused here, naming the option
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     debug = args.debug or os.environ.get("LOWCAM_DEBUG", "") not in ("", "0")
     with warnings.catch_warnings():
         if not debug:
             warnings.simplefilter("ignore")
+        from .boundary import check_declared_files, command_name
+
+        command = command_name(parser, args)
         try:
+            check_declared_files(parser, args)   # no output is an input, before any work
             return args.func(args)
         except (LowcamError, OSError, MemoryError) as e:
             _end_progress_lines()
             if debug:
                 raise
-            print(f"lowcam {args.command}: error: {_one_line(e)}", file=sys.stderr)
+            print(f"{command}: error: {_one_line(e)}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             _end_progress_lines()
-            print(f"lowcam {args.command}: interrupted", file=sys.stderr)
+            print(f"{command}: interrupted", file=sys.stderr)
             return 130
 
 

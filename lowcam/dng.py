@@ -145,6 +145,33 @@ def _rationals(values, path, name, count):
     raise DngError(f"{path}: {name} has {len(values)} values, expected {count}")
 
 
+def _finite(values, path, name):
+    """``values`` (an array or None), refused unless every one is finite."""
+    if values is not None and not np.all(np.isfinite(values)):
+        raise DngError(f"{path}: {name} has a value that is not a finite number ({np.asarray(values).tolist()})")
+    return values
+
+
+def _matrix(values, path, name):
+    """A 3x3 tag (ColorMatrix, ForwardMatrix, CameraCalibration) as a matrix: finite, not all zero, invertible
+    (a condition number below 1e10), each refused in one line naming the file and the tag."""
+    if values is None:
+        return None
+    m = _finite(values, path, name).reshape(3, 3)
+    if not np.any(m):
+        raise DngError(f"{path}: {name} is all zero")
+    if not np.linalg.cond(m) < 1e10:
+        raise DngError(f"{path}: {name} is singular (no colour can be recovered through it)")
+    return m
+
+
+def _invertible(m, path, what) -> np.ndarray:
+    """``m`` checked invertible and finite before it is solved with: one line naming the file otherwise."""
+    if not (np.all(np.isfinite(m)) and np.linalg.cond(m) < 1e10):
+        raise DngError(f"{path}: {what} is singular")
+    return m
+
+
 def read_dng(path) -> DngSensor:
     """The sensor tags of a DNG file, read with tifffile: colour tags from IFD0, levels and CFA from the raw image
     (the SubIFD whose NewSubfileType is 0, else IFD0). A file that is not a DNG, or has no ColorMatrix1, is a
@@ -179,32 +206,39 @@ def _sensor(path, tags0, rtags) -> DngSensor:
         v = _values(rtags, name)
         return v if v is not None else _values(tags0, name)
 
+    def matrix(name):
+        return _matrix(_rationals(_values(tags0, name), path, name, 9), path, name)
+
     cms = []
     for k in (1, 2):
-        m = _rationals(_values(tags0, f"ColorMatrix{k}"), path, f"ColorMatrix{k}", 9)
+        m = matrix(f"ColorMatrix{k}")
         if m is not None:
             ill = _values(tags0, f"CalibrationIlluminant{k}")
-            cms.append((int(ill[0]) if ill else 21 if k == 2 else 17, m.reshape(3, 3)))
+            cms.append((int(ill[0]) if ill else 21 if k == 2 else 17, m))
     if not cms:
         raise DngError(f"{path}: no ColorMatrix1 tag: the DNG does not say how the camera sees colour")
-    fms = [m.reshape(3, 3) for k in range(1, len(cms) + 1)
-           if (m := _rationals(_values(tags0, f"ForwardMatrix{k}"), path, f"ForwardMatrix{k}", 9)) is not None]
+    fms = [m for k in range(1, len(cms) + 1) if (m := matrix(f"ForwardMatrix{k}")) is not None]
     if len(fms) != len(cms):
         fms = []
-    ccs = [m.reshape(3, 3) for k in range(1, len(cms) + 1)
-           if (m := _rationals(_values(tags0, f"CameraCalibration{k}"), path, f"CameraCalibration{k}", 9))
-           is not None]
+    ccs = [m for k in range(1, len(cms) + 1) if (m := matrix(f"CameraCalibration{k}")) is not None]
     if len(ccs) != len(cms):
         ccs = []
-    ab = _rationals(_values(tags0, "AnalogBalance"), path, "AnalogBalance", 3)
-    neutral = _rationals(_values(tags0, "AsShotNeutral"), path, "AsShotNeutral", 3)
+    ab = _finite(_rationals(_values(tags0, "AnalogBalance"), path, "AnalogBalance", 3), path, "AnalogBalance")
+    if ab is not None and np.any(ab <= 0):
+        raise DngError(f"{path}: AnalogBalance {ab.tolist()} must be positive (a zero gain is singular)")
+    neutral = _finite(_rationals(_values(tags0, "AsShotNeutral"), path, "AsShotNeutral", 3), path, "AsShotNeutral")
     if neutral is not None and np.any(neutral <= 0):
         raise DngError(f"{path}: AsShotNeutral {neutral.tolist()} must be positive")
-    wxy = _rationals(_values(tags0, "AsShotWhiteXY"), path, "AsShotWhiteXY", 2)
+    wxy = _finite(_rationals(_values(tags0, "AsShotWhiteXY"), path, "AsShotWhiteXY", 2), path, "AsShotWhiteXY")
+    if wxy is not None and not (wxy[0] > 0 and wxy[1] > 0 and wxy[0] + wxy[1] < 1):
+        raise DngError(f"{path}: AsShotWhiteXY ({wxy[0]:g}, {wxy[1]:g}) is no chromaticity (x > 0, y > 0, "
+                       f"x + y < 1)")
 
     bits = get("BitsPerSample")
     white = get("WhiteLevel")
-    white_level = float(min(white)) if white else float(2 ** int(bits[0]) - 1 if bits else 65535)
+    white_level = float(min(white)) if white else float(2 ** min(int(bits[0]), 32) - 1 if bits else 65535)
+    if not math.isfinite(white_level) or white_level <= 0:
+        raise DngError(f"{path}: WhiteLevel {white_level:g} must be a finite number above 0")
     black = get("BlackLevel")
     if black is None:
         black_level = 0.0
@@ -212,6 +246,9 @@ def _sensor(path, tags0, rtags) -> DngSensor:
         tag = rtags.get("BlackLevel") or tags0.get("BlackLevel")
         vals = _rationals(black, path, "BlackLevel", len(black) // 2) if tag.dtype in (5, 10) else \
             np.asarray(black, np.float64)
+        _finite(vals, path, "BlackLevel")
+        if np.any(vals < 0):
+            raise DngError(f"{path}: BlackLevel {np.asarray(vals).tolist()} must be >= 0")
         black_level = float(np.mean(vals))
     if not white_level > black_level:
         raise DngError(f"{path}: WhiteLevel {white_level:g} is not above BlackLevel {black_level:g}")
@@ -250,6 +287,8 @@ def xy_to_cct(xy) -> float:
     """Correlated colour temperature (K) of chromaticity ``xy``, McCamy's cubic [McCamy] (within 2 K of
     Robertson's method from 2856 to 6504 K)."""
     x, y = xy
+    if y == 0.1858:  # the cubic's pole, far from any white: take the nearest value that has one
+        y = 0.1858 + 1e-9
     n = (x - 0.3320) / (0.1858 - y)
     return float(449.0 * n ** 3 + 3525.0 * n ** 2 + 6823.3 * n + 5520.33)
 
@@ -275,6 +314,8 @@ def _weight(sensor: DngSensor, xy) -> float:
     if t1 == t2:
         return 1.0
     t = xy_to_cct(xy)
+    if not (math.isfinite(t) and t > 0):  # far outside the cubic's range: the nearer end of the two illuminants
+        return 1.0 if t1 < t2 else 0.0
     g = (1.0 / t - 1.0 / t2) / (1.0 / t1 - 1.0 / t2)
     return float(np.clip(g, 0.0, 1.0))
 
@@ -303,7 +344,11 @@ def as_shot_white(sensor: DngSensor) -> tuple[tuple[float, float], str]:
         return D65_XY, "no AsShotNeutral: D65 assumed"
     xy = D50_XY
     for _ in range(50):
-        xyz = np.linalg.solve(_xyz_to_camera(sensor, xy), sensor.as_shot_neutral)
+        m = _invertible(_xyz_to_camera(sensor, xy), sensor.path, "the colour matrix at the as-shot white")
+        xyz = np.linalg.solve(m, sensor.as_shot_neutral)
+        if not (xyz.sum() > 0 and xyz[1] > 0 and np.all(np.isfinite(xyz))):
+            raise DngError(f"{sensor.path}: AsShotNeutral {sensor.as_shot_neutral.tolist()} is no colour the "
+                           f"ColorMatrix can see as white (XYZ {xyz.round(4).tolist()})")
         new = (xyz[0] / xyz.sum(), xyz[1] / xyz.sum())
         if abs(new[0] - xy[0]) + abs(new[1] - xy[1]) < 1e-9:
             break
@@ -315,14 +360,14 @@ def colour_matrices(sensor: DngSensor) -> dict:
     """The sensor's crosstalk ``K`` and the processor's colour correction ``C`` (module docstring), rows summing
     to 1, with the as-shot white ``xy``, the camera ``neutral`` (raw response to white) and the ``route`` of C
     ("ForwardMatrix" or "inverse ColorMatrix")."""
+    path = sensor.path
     xy, _ = as_shot_white(sensor)
-    m = _xyz_to_camera(sensor, xy)
+    m = _invertible(_xyz_to_camera(sensor, xy), path, "the colour matrix at the as-shot white")
     xyz_w = _xyz(xy)
     n = m @ xyz_w
     if np.any(n <= 0):
-        raise DngError(f"{sensor.path}: the colour matrix gives a non-positive response to white {n.round(4)}")
-    k = np.diag(1.0 / n) @ m @ bradford(D65_XY, xy) @ SRGB_TO_XYZ
-    k = k / k.sum(axis=1, keepdims=True)
+        raise DngError(f"{path}: the colour matrix gives a non-positive response to white {n.round(4)}")
+    k = _rows_to_one(np.diag(1.0 / n) @ m @ bradford(D65_XY, xy) @ SRGB_TO_XYZ, path, "the sensor's crosstalk")
     if sensor.forward_matrices:
         fm = _mix(sensor.forward_matrices, _weight(sensor, xy))
         abcc = np.eye(3)
@@ -330,15 +375,31 @@ def colour_matrices(sensor: DngSensor) -> dict:
             abcc = _mix(sensor.camera_calibration, _weight(sensor, xy))
         if sensor.analog_balance is not None:
             abcc = np.diag(sensor.analog_balance) @ abcc
+        _invertible(abcc, path, "AnalogBalance times CameraCalibration")
         n_ref = np.linalg.solve(abcc, n)
+        if not np.all(n_ref > 0):
+            raise DngError(f"{path}: AnalogBalance and CameraCalibration give a non-positive reference neutral "
+                           f"{n_ref.round(4).tolist()}")
         cam_to_xyz = fm @ np.diag(1.0 / n_ref) @ np.linalg.inv(abcc) @ np.diag(n)
         c = np.linalg.inv(SRGB_TO_XYZ) @ bradford(D50_XY, D65_XY) @ cam_to_xyz
         route = "ForwardMatrix"
     else:
-        c = np.linalg.inv(k)
+        c = np.linalg.inv(_invertible(k, path, "the sensor's crosstalk (ColorMatrix at the as-shot white)"))
         route = "inverse ColorMatrix"
-    c = c / c.sum(axis=1, keepdims=True)
+    c = _rows_to_one(c, path, f"the colour correction ({route})")
     return {"crosstalk": k, "colour_correction": c, "white_xy": xy, "neutral": n / n.max(), "route": route}
+
+
+def _rows_to_one(m, path, what) -> np.ndarray:
+    """``m`` with each row divided by its sum (white stays white); a row summing to zero, or a value that is not
+    finite, is one line naming the file."""
+    sums = m.sum(axis=1, keepdims=True)
+    if not (np.all(np.isfinite(m)) and np.all(np.abs(sums) > 1e-6)):
+        raise DngError(f"{path}: {what} maps white to black or to no number (row sums {sums.ravel().round(6)})")
+    out = m / sums
+    if not np.all(np.isfinite(out)):
+        raise DngError(f"{path}: {what} is not finite")
+    return out
 
 
 def noise_laws(sensor: DngSensor) -> dict[str, list[float]] | None:
@@ -365,6 +426,12 @@ def noise_laws(sensor: DngSensor) -> dict[str, list[float]] | None:
     return out
 
 
+def _reason(error: Exception, source: str) -> str:
+    """A profile error's message without the file name it starts with (the DNG is named already)."""
+    text = str(error)
+    return text[len(source) + 2:] if text.startswith(f"{source}: ") else text
+
+
 def profile_from_dng(path, base):
     """The base profile (a :class:`~lowcam.profile.Profile`) with the DNG's sensor put in: the noise law, the
     colour matrices, the raw bit depth and the Bayer pattern, each with a ``[provenance]`` entry. Returns
@@ -385,7 +452,11 @@ def profile_from_dng(path, base):
         cam_note = f"bayer_pattern {sensor.bayer_pattern} from {name} CFAPattern; " + cam_note
     else:
         notes.append(f"{name}: no CFAPattern (not a CFA raw): Bayer pattern kept from {base.name}")
-    out.camera = type(out.camera)(out.source, None, **values)
+    src = str(path)  # what the DNG gives is checked as the DNG's: an error names it, not the base profile
+    try:
+        out.camera = type(out.camera)(src, None, **values)
+    except LowcamError as e:
+        raise DngError(f"{path}: the levels or CFA give a camera Lowcam cannot hold ({_reason(e, src)})") from None
     prov["camera"] = cam_note
 
     laws = noise_laws(sensor)
@@ -394,9 +465,10 @@ def profile_from_dng(path, base):
                      "`lowcam calibrate plate`")
     else:
         try:
-            out = out.with_effect("noise", law="variance_linear", **laws)
+            out = out.with_effect("noise", source=src, law="variance_linear", **laws)
         except LowcamError as e:
-            raise DngError(f"{path}: NoiseProfile gives a noise law Lowcam cannot hold ({e})") from None
+            raise DngError(f"{path}: NoiseProfile gives a noise law Lowcam cannot hold ({_reason(e, src)})") \
+                from None
         pairs = " ".join(f"({s:.4g}, {o:.4g})" for s, o in sensor.noise_profile)
         gains = "" if sensor.as_shot_neutral is None else \
             f", white-balance gains 1/g from AsShotNeutral {np.round(sensor.as_shot_neutral, 4).tolist()}"
@@ -404,13 +476,23 @@ def profile_from_dng(path, base):
                          f"a = 255^2 O / g^2, b = 255 S / g DN{gains} (lowcam.dng)")
 
     colour = colour_matrices(sensor)
-    out = out.with_effect("crosstalk", matrix=np.round(colour["crosstalk"], 6).tolist(), extra_mixing=0.0)
+    try:
+        out = out.with_effect("crosstalk", source=src, matrix=np.round(colour["crosstalk"], 6).tolist(),
+                              extra_mixing=0.0)
+    except LowcamError as e:
+        raise DngError(f"{path}: the colour matrices give a crosstalk Lowcam cannot hold ({_reason(e, src)})") \
+            from None
     ills = ", ".join(f"ColorMatrix{k + 1} ({ILLUMINANT_TEMPERATURE_K.get(ill, 0):.0f} K)"
                      for k, (ill, _) in enumerate(sensor.colour_matrices))
     prov["crosstalk"] = (f"{name} {ills} at the as-shot white xy ({colour['white_xy'][0]:.4f}, "
                          f"{colour['white_xy'][1]:.4f}), on linear sRGB primaries, white-balanced (lowcam.dng)")
     if out.effect("saturation") is not None:
-        out = out.with_effect("saturation", colour_correction=np.round(colour["colour_correction"], 6).tolist())
+        try:
+            out = out.with_effect("saturation", source=src,
+                                  colour_correction=np.round(colour["colour_correction"], 6).tolist())
+        except LowcamError as e:
+            raise DngError(f"{path}: the colour matrices give a colour correction Lowcam cannot hold "
+                           f"({_reason(e, src)})") from None
         prov["saturation.colour_correction"] = (f"{name} {colour['route']} to linear sRGB (D65), "
                                                 f"white-balanced (lowcam.dng)")
     else:
@@ -419,7 +501,7 @@ def profile_from_dng(path, base):
     raw = out.effect("raw_blend")
     if raw is not None:
         bits = max(1, min(16, math.ceil(math.log2(sensor.white_level + 1))))
-        out = out.with_effect("raw_blend", bits=bits)
+        out = out.with_effect("raw_blend", source=src, bits=bits)
         prov["raw_blend.bits"] = f"{name} WhiteLevel {sensor.white_level:g}: {bits} bits"
     from .profile import check_provenance
 

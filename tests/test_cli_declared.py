@@ -84,3 +84,54 @@ def test_declared_walks_sub_commands_of_sub_commands():
     assert found[(("top", "inner"), "fps")].high == 1000
     assert ("top", "in") not in {path for path, _ in found}  # an alias once
     assert undeclared(parser) == ["top inner --free"]
+
+
+# --- every option of every command declares itself ------------------------------------------------------------------
+
+def test_every_option_that_takes_a_value_declares_what_it_is():
+    """Blender-side commands (addon/commands.py, through the entry point) and calibrate's sub-commands included."""
+    from lowcam.cli import build_parser
+
+    parser = build_parser()
+    assert undeclared(parser) == []
+    paths = {path for path, _, _ in declared(parser)}
+    for command in (("demo",), ("render",), ("motion",), ("node-asset",), ("calibrate", "plate"),
+                    ("calibrate", "all"), ("profile", "from-dng"), ("compare",)):
+        assert command in paths, command
+    by = {(path, a.option_strings[0] if a.option_strings else a.dest): d for path, a, d in declared(parser)}
+    # every command that writes declares it, and the reads that matter are declared by kind
+    assert by[(("compare",), "--json")].role == "writes"
+    assert by[(("compare",), "set")].kind == "set" and by[(("compare",), "--plate-only")].kind == "footage"
+    assert by[(("diagnose",), "--profile")].kind == "profile"
+    assert by[(("render",), "blend")].kind == "file" and by[(("render",), "-o")].kind == "pattern"
+    assert by[(("calibrate", "plate"), "footage")].kind == "files"
+    assert by[(("calibrate", "all"), "manifest")].kind == "manifest"
+    # physical ranges
+    assert by[(("calibrate", "plate"), "--fps")].range == "(0, 1000]"
+    assert by[(("calibrate", "plate"), "--min-confidence")].range == "[0, 1]"
+    assert by[(("profile", "from-lensfun"), "--aperture")].range == "[0.5, 64]"
+    assert by[(("profile", "from-lensfun"), "--distance-m")].low > 0
+
+
+def test_every_numeric_option_is_bounded_and_every_command_that_writes_declares_it():
+    from lowcam.cli import build_parser
+
+    writes = set()
+    for path, action, decl in declared(build_parser()):
+        if decl is None:
+            continue
+        if decl.role == "number":
+            assert decl.low is not None and decl.high is not None, (path, action.dest)
+        if decl.role == "writes":
+            writes.add(path)
+    for command in (("apply",), ("stages",), ("batch",), ("chart",), ("compare",), ("diagnose",), ("synth",),
+                    ("profile", "from-dng"), ("profile", "from-lensfun"), ("calibrate", "lens"), ("demo",),
+                    ("render",), ("motion",), ("node-asset",)):
+        assert command in writes, command
+
+
+def test_the_image_suffixes_the_cli_declares_are_the_ones_lowcam_writes():
+    from lowcam.cli import IMAGE_SUFFIXES
+    from lowcam.io import IMAGE_SUFFIXES as WRITTEN
+
+    assert tuple(IMAGE_SUFFIXES) == tuple(WRITTEN)

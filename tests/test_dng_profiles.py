@@ -265,3 +265,80 @@ def test_levels_and_cfa_are_read_from_the_raw_subifd(tmp_path):
     assert profile.effect("raw_blend").bits == 14  # WhiteLevel 16383 in the SubIFD, not IFD0's 8 bits
     assert "BlackLevel 512" in profile.provenance["camera"]
     assert profile.effect("noise").red == pytest.approx([255 ** 2 * 3e-6 / 0.25, 255 * 2e-4 / 0.5], rel=1e-6)
+
+
+# --- degenerate tags: one line naming the DNG and the tag, never a numpy error, never the base profile -------------
+
+def srationals(m):
+    return tuple(v for x in np.ravel(m) for v in (int(round(x * 10000)), 10000))
+
+
+#: A rank-2 matrix: its third row is the first plus the second.
+SINGULAR = [[0.6, 0.3, 0.1], [0.2, 0.7, 0.1], [0.8, 1.0, 0.2]]
+
+
+def tiff_dng(path, tags: dict):
+    """A DNG laid out by tifffile with ``tags`` ({code: (TIFF type, count, values)}, None to leave a tag out)
+    over a valid base: tifffile writes any type for any tag, so a matrix can be DOUBLEs holding NaN or inf."""
+    import tifffile
+
+    base = {50706: (1, 4, (1, 4, 0, 0)), 50721: (10, 9, srationals(CM_D65)), 50778: (3, 1, 21),
+            50728: (5, 3, (1, 2, 1, 1, 5, 8)), 51041: (12, 2, (2e-4, 3e-6)), 33421: (3, 2, (2, 2)),
+            33422: (1, 4, bytes([0, 1, 1, 2])), 50714: (3, 1, 64), 50717: (3, 1, 1023)}
+    base.update(tags)
+    extra = [(code, t, n, v, True) for code, spec in base.items() if spec is not None for t, n, v in [spec]]
+    tifffile.imwrite(path, np.zeros((16, 16), np.uint16), photometric=32803, extratags=extra)
+    return path
+
+
+NAN_ROW = tuple([float("nan")] + [0.5] * 8)
+
+
+@pytest.mark.parametrize("tags, said", [
+    pytest.param({50721: (10, 9, srationals(SINGULAR))}, "ColorMatrix1 is singular", id="cm1-singular"),
+    pytest.param({50722: (10, 9, srationals(SINGULAR)), 50779: (3, 1, 17)}, "ColorMatrix2 is singular",
+                 id="cm2-singular"),
+    pytest.param({50721: (10, 9, srationals(np.zeros((3, 3))))}, "ColorMatrix1 is all zero", id="cm1-zero"),
+    pytest.param({50721: (12, 9, tuple([float("inf")] + [0.5] * 8))}, "ColorMatrix1", id="cm1-inf"),
+    pytest.param({50721: (12, 9, NAN_ROW)}, "ColorMatrix1", id="cm1-nan"),
+    pytest.param({50727: (5, 3, (0, 1, 1, 1, 1, 1))}, "AnalogBalance", id="analog-balance-zero"),
+    pytest.param({50729: (5, 2, (3127, 10000, 0, 1)), 50728: None}, "AsShotWhiteXY", id="white-xy-y0"),
+    pytest.param({50729: (12, 2, (0.3127, float("nan"))), 50728: None}, "AsShotWhiteXY", id="white-xy-nan"),
+    pytest.param({50964: (10, 9, srationals(np.zeros((3, 3))))}, "ForwardMatrix1 is all zero", id="fm-zero"),
+    pytest.param({50964: (10, 9, srationals(SINGULAR))}, "ForwardMatrix1 is singular", id="fm-singular"),
+    pytest.param({50714: (12, 1, (float("-inf"),))}, "BlackLevel", id="black-minus-inf"),
+    pytest.param({50714: (12, 1, (float("nan"),))}, "BlackLevel", id="black-nan"),
+    # finite tags whose colour correction no camera has: named as the DNG's, not the bundled base's
+    pytest.param({50721: (12, 9, (0.6, 0.3, 0.1, 0.6, 0.4, 0.1, 0.0, 0.1, 0.9))}, "colour correction",
+                 id="derived-correction-out-of-range"),
+    pytest.param({50721: (12, 9, (0.6, 0.3, 0.1, 0.6, 0.301, 0.1, 0.0, 0.1, 0.9))}, "crosstalk",
+                 id="derived-crosstalk-out-of-range"),
+])
+def test_degenerate_dng_tags_are_one_line_naming_the_dng_and_the_tag(tmp_path, tags, said):
+    path = tiff_dng(tmp_path / "cam.dng", tags)
+    before = path.read_bytes()
+    r = run_cli("profile", "from-dng", path, "--base", "fire-i", "-o", tmp_path / "o.toml")
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(path) in lines[0] and said in lines[0], lines[0]
+    assert "fire-i" not in lines[0]  # the error is in the DNG, not in the bundled base profile
+    assert not (tmp_path / "o.toml").exists() and path.read_bytes() == before
+
+
+def test_the_valid_tiff_dng_gives_a_profile(tmp_path):
+    """The base the degenerate cases change is itself a good DNG: each refusal above is its tag's doing."""
+    profile, _ = profile_from_dng(tiff_dng(tmp_path / "cam.dng", {}), load_profile("fire-i"))
+    k, _ = hand_crosstalk(CM_D65, (0.5, 1.0, 0.625))
+    assert np.abs(np.asarray(profile.effect("crosstalk").matrix) - k).max() < 2e-3
+    assert profile.camera.bayer_pattern == "RGGB"
+
+
+def test_the_output_may_not_be_the_base_profile(tmp_path, dng):
+    """``--base mycam.toml -o mycam.toml`` would replace the base with a profile derived from it."""
+    base = tmp_path / "mycam.toml"
+    base.write_bytes((ROOT / "profiles" / "fire-i.toml").read_bytes())
+    before = base.read_bytes()
+    r = run_cli("profile", "from-dng", dng, "--base", base, "-o", base)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "--base" in r.stderr and str(base) in r.stderr and "Traceback" not in r.stderr
+    assert base.read_bytes() == before

@@ -49,6 +49,7 @@ References
 """
 from __future__ import annotations
 
+import argparse
 import html
 import shutil
 import tempfile
@@ -60,6 +61,7 @@ import numpy as np
 
 from ..captures import (chart_patch_colours, detect_target, expand_paths, load_frames, parse_target,  # noqa: F401
                         read_patches_csv, refuse_saturated, srgb_to_linear)
+from ..arguments import Number
 from ..errors import LowcamError
 from ..reports import figure, image, numbers_block, write_page
 
@@ -782,8 +784,9 @@ class Option:
     """One input of a calibration: a key of its manifest section and an argument of its ``lowcam calibrate``
     sub-command (``--key``, or a positional argument).
 
-    ``kind``: ``"frames"`` (file names or glob patterns; at least one if ``required``), ``"path"`` (one file), or a
-    type such as ``str`` or ``float``. In a manifest, frames and paths are relative to the manifest and a key left
+    ``kind``: ``"frames"`` (file names or glob patterns; at least one if ``required``), ``"path"`` (one file),
+    ``str``, or a declared number (:class:`lowcam.arguments.Number`: its range holds on the command line and in a
+    manifest alike). In a manifest, frames and paths are relative to the manifest and a key left
     out takes ``default`` (an error if it has none and is ``required``); on the command line a ``required`` option
     must be given.
     """
@@ -797,15 +800,22 @@ class Option:
     help: str | None = None
 
     def add_argument(self, parser) -> None:
+        from ..arguments import Reads, Text
+
         if self.kind == "frames":
             nargs = "+" if self.required else "*"
             if self.positional:
-                parser.add_argument(self.key, nargs=nargs, help=self.help)
+                parser.add_argument(self.key, nargs=nargs, type=Reads("files"), help=self.help)
             else:
-                parser.add_argument(self.flag, dest=self.key, nargs=nargs, required=self.required, help=self.help)
+                parser.add_argument(self.flag, dest=self.key, nargs=nargs, type=Reads("files"),
+                                    required=self.required, help=self.help)
             return
         kw = {"help": self.help, "choices": self.choices}
-        if self.kind not in ("path", str):
+        if self.kind == "path":
+            kw["type"] = Reads("file")
+        elif self.kind is str:
+            kw["type"] = Text(self.choices, what=self.key)
+        else:
             kw["type"] = self.kind
         if self.positional:
             parser.add_argument(self.key, **kw)
@@ -855,6 +865,8 @@ class Option:
             return self.kind(value)
         except (TypeError, ValueError):
             raise LowcamError(f"{where}: '{self.key}' must be a {self.kind.__name__}, got {value!r}") from None
+        except argparse.ArgumentTypeError as e:  # a declared number out of its range
+            raise LowcamError(f"{where}: '{self.key}': {e}") from None
 
 
 @dataclass(frozen=True)
@@ -933,6 +945,8 @@ def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
 
 
 _FRAMES = Option("frames", "frames", required=True, positional=True)
+#: A camera setting (sharpness, saturation: 0-255 on the cameras modelled; 0 is no setting to measure from).
+_SETTING = Number(0, 255, low_open=True, what="a camera setting")
 
 #: Every calibration by name, in the order a manifest runs them.
 CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
@@ -957,22 +971,24 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
                lambda o, base, plots: calibrate_blur(o["frames"], plots)),
     Calibrator("sharpening", calibrate_sharpening, "sharpening filter from captures at sharpness 0 and at a setting",
                (Option("soft", "frames", required=True), Option("sharp", "frames", required=True),
-                Option("sharpness", float, 80.0, required=True, help="the camera setting of the --sharp captures")),
+                Option("sharpness", _SETTING, 80.0, required=True, help="the camera setting of the --sharp captures")),
                lambda o, base, plots: calibrate_sharpening(o["soft"], o["sharp"], o["sharpness"], plots)),
     Calibrator("colour", calibrate_colour, "crosstalk from the chart's colour patches (or a table of patch colours)",
                (Option("frames", "frames", positional=True, help="frames showing the whole chart"),
                 Option("chart", "path", help="the chart's layout JSON (written by lowcam chart)"),
                 Option("patches", "path",
                        help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b"),
-                Option("saturation", float, 65.0, help="the camera's saturation setting")),
+                Option("saturation", _SETTING, 65.0, help="the camera's saturation setting")),
                _run_colour),
     Calibrator("plate", calibrate_plate, "a profile from the footage itself (no chart, no ideal): noise, edges, "
                "vignetting, gyro motion",
                (Option("footage", "frames", required=True, positional=True,
                        help="a video file, a folder of frames, or frame names or patterns"),
                 Option("gyro", "path", help="gyro log: rows 'wx wy wz t' (framestamp.txt beside it) or a gyro CSV"),
-                Option("fps", float, help="frames/s (default: the video's, else 30)"),
-                Option("min_confidence", float, 0.5, help="estimates below this are reported, not applied")),
+                Option("fps", Number(0, 1000, low_open=True, what="frames per second"),
+                       help="frames/s, 0 to 1000 (default: the video's, else 30)"),
+                Option("min_confidence", Number(0, 1, what="a confidence"), 0.5,
+                       help="estimates below this confidence (0 to 1) are reported, not applied")),
                lambda o, base, plots: calibrate_plate(o["footage"], base, o["gyro"], o["fps"], o["min_confidence"],
                                                       plots)),
 )}
