@@ -251,17 +251,25 @@ def cmd_calibrate(args) -> int:
     if args.report:
         check_output_folder(args.report, "--report")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
-    if args.what == "all":
-        base_from_manifest, results = cal.run_manifest(args.manifest, plots)
-        if not args.profile:
-            base = base_from_manifest
-    else:
-        results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
-    for r in results:
-        print(r.summary)
-        for note in r.notes + (r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []):
-            print(f"  {note}")
-    saved = cal.apply_to_profile(base, results, out).save(out)
+    new_plots = not plots.exists()
+    try:
+        if args.what == "all":
+            base_from_manifest, results = cal.run_manifest(args.manifest, plots)
+            if not args.profile:
+                base = base_from_manifest
+        else:
+            results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
+        for r in results:
+            print(r.summary)
+            for note in r.notes + (r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []):
+                print(f"  {note}")
+        saved = cal.apply_to_profile(base, results, out).save(out)
+    except BaseException:  # a refused fit (or Ctrl-C) leaves no plots folder of a profile never written
+        if new_plots:
+            import shutil
+
+            shutil.rmtree(plots, ignore_errors=True)
+        raise
     figures = [f for r in results for f in r.figures]
     print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
     if args.report:

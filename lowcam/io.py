@@ -328,13 +328,21 @@ def read_exr(path) -> dict[str, np.ndarray]:
         return _read_exr_in_child(path)
     import OpenEXR
 
-    try:
-        with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
-            parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
-                     for part in f.parts]
-    except Exception as e:  # OpenEXR raises bare RuntimeErrors for corrupt files
-        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})") from None
+    # OpenEXR raises bare RuntimeErrors for some corrupt files; of others (a truncated one) its C core only
+    # complains on file descriptors 1 and 2 and hands back no channels: that complaint is the reason, kept off the
+    # terminal
+    with quiet_stderr(stdout=True) as said:
+        try:
+            with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
+                parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
+                         for part in f.parts]
+        except Exception as e:
+            parts, reason = None, (str(e).splitlines()[0] if str(e) else type(e).__name__)
+    complaint = sorted(said["text"].strip().splitlines(), key=lambda line: "EXR_ERR" not in line)
+    if parts is None or (complaint and not any(channels for _, channels in parts)):
+        if complaint:
+            reason = complaint[0].removeprefix(f"{path}: ").strip()
+        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})")
     channels: dict[str, np.ndarray] = {}
     for part_name, part_channels in parts:
         twice = sorted(set(channels) & set(part_channels))
