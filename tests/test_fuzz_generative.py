@@ -130,7 +130,8 @@ class Value:
     the parser must take it). ``at_parse``: refused by parsing alone (checked without a run for Blender-side
     commands in the fast tier). ``costly``: slow tier only. ``process``: run as a process (an endless device).
     ``names``: what else the refusal may name. ``target``: the value names an output that a successful run may
-    (re)write. ``in_process``: no process can be given it (a NUL character)."""
+    (re)write. ``in_process``: no process can be given it (a NUL character). ``needs_file``: made from the
+    option's valid input file (a profile given by name is given as its file for it)."""
 
     label: str
     make: Callable
@@ -141,6 +142,7 @@ class Value:
     names: tuple[str, ...] = ()
     target: bool = False
     in_process: bool = False
+    needs_file: bool = False
 
     def __repr__(self) -> str:
         return self.label
@@ -346,19 +348,12 @@ def _suffix(ex: Example, default: str = ".dat") -> str:
 
 
 def _with_valid(ex: Example, replace_first: Callable[[Path], str]) -> list[str]:
-    """The option's valid value with its first file-naming item replaced by ``replace_first(valid_file)``."""
-    f = ex.valid_file()
-    assert f is not None, f"{ex.option}: the baseline gives it no valid file"
+    """The option's valid value with its first item replaced by ``replace_first(path)``: the folder it names, or
+    its first file."""
     items = ex.valid()
+    f = Path(items[0]) if items and Path(items[0]).is_dir() else ex.valid_file()
+    assert f is not None, f"{ex.option}: the baseline gives it no valid file"
     return [replace_first(f)] + items[1:]
-
-
-def _copy_as(ex: Example, name: str, data: bytes) -> Callable[[Path], str]:
-    def make(f: Path) -> str:
-        p = ex.path(name + f.suffix)
-        p.write_bytes(data)
-        return str(p)
-    return make
 
 
 def _content(label: str, data: Callable[[bytes, Path], bytes], expect=REFUSE) -> Value:
@@ -369,7 +364,7 @@ def _content(label: str, data: Callable[[bytes, Path], bytes], expect=REFUSE) ->
             p.write_bytes(data(f.read_bytes(), f))
             return str(p)
         return _replace_in_value(ex, write)
-    return Value(label, make, expect)
+    return Value(label, make, expect, needs_file=True)
 
 
 def _replace_in_value(ex: Example, write: Callable[[Path], str]) -> list[str]:
@@ -460,13 +455,17 @@ def common_path_values(ex_suffix: str = "") -> list[Value]:
         fixed("empty path", "", at_parse=True),
         NUL,
         Value("symlink to the valid input", lambda ex: _with_valid(
-            ex, lambda f: _symlink(ex.path("link" + f.suffix), f)) if ex.valid_file() else [], EITHER),
+            ex, lambda f: _symlink(ex.path("link" + f.suffix), f)), EITHER, needs_file=True),
         Value("a name with spaces and accents", lambda ex: _with_valid(
-            ex, lambda f: str(shutil.copyfile(f, ex.path("my caf\u00e9 " + f.name)))) if ex.valid_file() else [],
-              EITHER),
+            ex, lambda f: _copy(f, ex.path("my caf\u00e9 " + f.name))), EITHER, needs_file=True),
         Value("/dev/zero", lambda ex: ["/dev/zero"], process=True, costly=True),
         Value("/dev/urandom", lambda ex: ["/dev/urandom"], process=True, costly=True),
     ]
+
+
+def _copy(src: Path, dst: Path) -> str:
+    (shutil.copytree if src.is_dir() else shutil.copyfile)(src, dst)
+    return str(dst)
 
 
 def _symlink(link: Path, target: Path) -> str:
@@ -944,10 +943,11 @@ class Runner:
         ex.args = {k: _fill(v, ex) for k, v in base.args.items()}
         if isinstance(option.decl, Writes) and not ex.valid():
             ex.args[option.action.dest] = [str(ex.out / option.action.dest)]
-        if isinstance(option.decl, Reads) and option.decl.kind == "profile" and value.label.split()[0] in (
-                "empty", "truncated", "another", "valid", "garbage", "flipped"):
+        if isinstance(option.decl, Reads) and option.decl.kind == "profile" and value.needs_file:
             _profile_file(ex)
         made = value.make(ex)
+        if made == [] and option.action.nargs not in ("*", "?"):
+            reject()  # the value does not apply here (nothing of its kind in this baseline)
         args = dict(ex.args)
         args[option.action.dest] = made
         return ex, assemble(option.command, args)

@@ -548,7 +548,10 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
     camera's mean patch colours (DN) at saturation setting ``saturation``; ``source`` names them in messages."""
     from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
 
-    if not np.isfinite(saturation) or saturation <= 0:
+    from ..effects.saturation import saturation_matrix
+
+    # at 0 the saturation matrix is singular; within a hair of 0 dividing it out amplifies rounding a trillionfold
+    if not np.isfinite(saturation) or saturation <= 0 or np.linalg.cond(saturation_matrix(saturation)) > 1e6:
         raise LowcamError(f"--saturation {saturation:g}: the patches' saturation setting must be above 0 (at 0 the "
                           f"camera's output is grey and its crosstalk cannot be recovered)")
     ideal_rgb, measured_rgb = np.asarray(ideal_rgb, np.float64), np.asarray(measured_rgb, np.float64)
