@@ -22,8 +22,10 @@ Contents
 from __future__ import annotations
 
 import argparse
+import functools
 import glob
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -143,34 +145,57 @@ def _profile_file(name: str) -> list[str]:
         return []
 
 
-def _frame_list(args) -> list[int] | None:
+def _frame_set(args) -> frozenset[int] | None:
+    spec = getattr(args, "frames", None)
+    return _frames_of(spec) if isinstance(spec, str) else None
+
+
+@functools.lru_cache(maxsize=4)
+def _frames_of(spec: str) -> frozenset[int] | None:
     from .batch import parse_frames
 
-    spec = getattr(args, "frames", None)
-    if not isinstance(spec, str):
-        return None
     try:
-        return parse_frames(spec)
+        return frozenset(parse_frames(spec))
     except LowcamError:
         return None
 
 
+#: The frame number of a pattern: its last run of ``#``, or a ``%d`` (``%04d``).
+_FRAME_FIELD = re.compile(r"#+(?!.*#)|%0?\d*d")
+
+
 def _pattern_paths(pattern: str, args, folder_default: bool) -> list[str]:
-    """A ``#`` (or ``%d``) pattern filled in for each of ``args.frames``; without one, the pattern itself (a
-    video), or with ``folder_default`` the folder's ``####.png`` (``render -o FOLDER``)."""
+    """The files that exist of a ``#`` (or ``%d``) pattern filled in for each of ``args.frames`` (only a file that
+    is there can be the same file as another); without a frame field, the pattern itself (a video), or with
+    ``folder_default`` the folder's ``####.png`` (``render -o FOLDER``). The folder is listed once, not each of a
+    shot's frames looked up."""
     from .batch import expand_pattern
 
     if "#" not in pattern and "%" not in pattern:
         if not folder_default:
             return [pattern]
         pattern = str(Path(pattern) / "####.png")
-    frames = _frame_list(args)
+    fields = list(_FRAME_FIELD.finditer(pattern))
+    if not fields:
+        return []
+    m = fields[-1]
+    head, tail = pattern[:m.start()], pattern[m.end():]
+    there = glob.glob(glob.escape(head) + "*" + glob.escape(tail))
+    frames = _frame_set(args) if there else None
     if frames is None:
         return []
-    try:
-        return [expand_pattern(pattern, f) for f in frames]
-    except LowcamError:
-        return []
+    number = re.compile(re.escape(head) + r"(-?\d+)" + re.escape(tail) + r"\Z")
+    out = []
+    for path in there:
+        found = number.match(path)
+        if found is None or int(found.group(1)) not in frames:
+            continue
+        try:
+            if expand_pattern(pattern, int(found.group(1))) == path:
+                out.append(path)
+        except LowcamError:
+            return []
+    return sorted(out)
 
 
 def read_files(action: argparse.Action, value, args) -> list[Named]:
@@ -211,17 +236,28 @@ def written_paths(action: argparse.Action, value, args) -> list[Named]:
     return [Named(value, option, action.dest, kind)]
 
 
+@functools.lru_cache(maxsize=4096)
+def _real_folder(folder: str) -> str:
+    return os.path.realpath(folder or ".")
+
+
+def _real(path: str) -> str:
+    """The real path of ``path``, its folder resolved once for many files (a pattern's frames share one)."""
+    head, tail = os.path.split(path)
+    return os.path.join(_real_folder(head), tail) if tail not in ("", ".", "..") else os.path.realpath(path)
+
+
 def _identity(path: str):
     """The file ``path`` is: (device, inode) of what it points to, or its real path if it is not there."""
     try:
         st = os.stat(path)
         return ("inode", st.st_dev, st.st_ino)
     except (OSError, ValueError):
-        return ("path", os.path.realpath(path))
+        return ("path", _real(path))
 
 
 def _inside(path: str, folder: str) -> bool:
-    real, top = os.path.realpath(path), os.path.realpath(folder)
+    real, top = _real(path), _real_folder(folder)
     return real != top and real.startswith(top.rstrip(os.sep) + os.sep)
 
 
@@ -231,6 +267,7 @@ def check_declared_files(parser: argparse.ArgumentParser, args: argparse.Namespa
     :class:`~lowcam.arguments.Writes` argument and from ``args.also_writes(args)`` (outputs a command derives,
     such as a chart's layout beside it); inputs from every :class:`~lowcam.arguments.Reads` argument. A written
     argument's ``replaces`` names inputs it may replace on purpose (``calibrate -o`` updating ``--profile``)."""
+    _real_folder.cache_clear()  # folders may have changed since the last command of this process
     reads: list[Named] = []
     writes: list[tuple[Named, tuple[str, ...]]] = []
     for action in chosen_actions(parser, args):

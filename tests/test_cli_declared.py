@@ -2,6 +2,7 @@
 the range of every number. The one error boundary in ``lowcam.cli.main`` refuses an output that is an input, and
 parsing refuses numbers out of their range, each as one line naming the option or file, exit 2."""
 import argparse
+import json
 import math
 
 import pytest
@@ -135,3 +136,231 @@ def test_the_image_suffixes_the_cli_declares_are_the_ones_lowcam_writes():
     from lowcam.io import IMAGE_SUFFIXES as WRITTEN
 
     assert tuple(IMAGE_SUFFIXES) == tuple(WRITTEN)
+
+
+# --- the error boundary: no output is an input ----------------------------------------------------------------------
+
+import os  # noqa: E402
+import shutil  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from lowcam.cli import main  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def refused(capsys, argv, names=(), unchanged=()):
+    """Run ``lowcam argv``: exit 2, one line on stderr naming each of ``names``, no traceback, and each file of
+    ``unchanged`` byte for byte as it was. Returns the line."""
+    before = {Path(p): Path(p).read_bytes() for p in unchanged}
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    for name in names:
+        assert str(name) in lines[0], (name, lines[0])
+    for path, data in before.items():
+        assert path.read_bytes() == data, f"{path} changed"
+    return lines[0]
+
+
+def frames(folder: Path, n: int = 4, size=(640, 480)) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(1)
+    out = []
+    for i in range(n):
+        out.append(folder / f"f{i + 1:03d}.png")
+        cv2.imwrite(str(out[-1]), rng.integers(0, 255, (size[1], size[0], 3), np.uint8))
+    return out
+
+
+@pytest.fixture
+def mycam(tmp_path, monkeypatch):
+    """A profile ``mycam`` on the search path (a copy of fire-i), found by name."""
+    folder = tmp_path / "profiles"
+    folder.mkdir()
+    path = folder / "mycam.toml"
+    shutil.copy(ROOT / "profiles" / "fire-i.toml", path)
+    monkeypatch.setenv("LOWCAM_PROFILE_PATH", str(folder))
+    return path
+
+
+def test_plate_only_json_onto_a_footage_frame(tmp_path, capsys):
+    f = frames(tmp_path / "footage")
+    refused(capsys, ["compare", "--plate-only", tmp_path / "footage", "--json", f[0]], ("--json", f[0]), f)
+    refused(capsys, ["compare", "--plate-only", tmp_path / "footage" / "f*.png", "--json", f[2]], ("--json",), f)
+
+
+def test_links_to_an_input_are_the_input(tmp_path, capsys):
+    f = frames(tmp_path / "footage")
+    (tmp_path / "soft.json").symlink_to(f[1])
+    os.link(f[2], tmp_path / "hard.json")
+    for link, frame in (("soft.json", f[1]), ("hard.json", f[2])):
+        refused(capsys, ["compare", "--plate-only", tmp_path / "footage", "--json", tmp_path / link],
+                ("--json", frame), f)
+
+
+def outside_set(tmp_path) -> tuple[Path, list[Path], Path]:
+    """A set whose set.toml names frames and an ideal outside its folder."""
+    f = frames(tmp_path / "outside")
+    ideal = tmp_path / "outside" / "ideal.exr"
+    ideal.write_bytes(b"an ideal render")
+    (tmp_path / "set").mkdir()
+    (tmp_path / "set" / "set.toml").write_text('[[capture]]\nname = "a"\nframes = "../outside/f*.png"\n'
+                                               'ideal = "../outside/ideal.exr"\n')
+    return tmp_path / "set", f, ideal
+
+
+def test_compare_and_diagnose_json_onto_what_set_toml_names_outside_the_set(tmp_path, capsys):
+    mset, f, ideal = outside_set(tmp_path)
+    kept = f + [ideal, mset / "set.toml"]
+    refused(capsys, ["compare", mset, "--json", f[0]], ("--json", f[0]), kept)
+    refused(capsys, ["compare", mset, "--json", ideal], ("--json", ideal), kept)
+    refused(capsys, ["diagnose", mset, "--json", ideal], ("--json", ideal), kept)
+    refused(capsys, ["diagnose", mset, "--json", mset / "set.toml"], ("--json", "set.toml"), kept)
+    refused(capsys, ["diagnose", mset, "--json", tmp_path / "d.json", "--add-best", "-o", f[1]], ("-o", f[1]), kept)
+
+
+def test_outputs_onto_a_profile_given_by_name(tmp_path, capsys, mycam):
+    mset, f, ideal = outside_set(tmp_path)
+    refused(capsys, ["diagnose", mset, "--json", tmp_path / "d.json", "--add-best", "-o", mycam, "--profile", "mycam"],
+            ("-o", "--profile", mycam), [mycam])
+    refused(capsys, ["compare", mset, "--json", mycam, "--profile", "mycam"], ("--json", "--profile"), [mycam])
+    dng = tmp_path / "cam.dng"
+    dng.write_bytes(b"a DNG")
+    refused(capsys, ["profile", "from-dng", dng, "--base", "mycam", "-o", mycam], ("--base", mycam), [mycam, dng])
+    refused(capsys, ["profile", "from-dng", dng, "--base", mycam, "-o", mycam], ("--base", mycam), [mycam, dng])
+    refused(capsys, ["profile", "from-dng", dng, "-o", dng], ("-o", dng), [dng])
+
+
+def test_two_outputs_that_are_one_file(tmp_path, capsys):
+    mset, f, _ = outside_set(tmp_path)
+    line = refused(capsys, ["diagnose", mset, "--json", tmp_path / "d.toml", "--add-best", "-o", tmp_path / "d.toml"],
+                   ("--json", "-o"))
+    assert "same file" in line and not (tmp_path / "d.toml").exists()
+
+
+def test_an_output_folder_that_holds_an_input(tmp_path, capsys):
+    render = tmp_path / "out" / "render.exr"
+    render.parent.mkdir()
+    render.write_bytes(b"a render")
+    refused(capsys, ["stages", "--render", render, "-o", tmp_path / "out", "--force"], ("-o", render), [render])
+
+
+def test_render_and_motion_outputs_onto_the_blend(tmp_path, capsys):
+    """A ``#`` pattern is filled in for each frame: frame 1 of ``s####.blend`` is the .blend itself."""
+    blend = tmp_path / "s0001.blend"
+    blend.write_bytes(b"BLENDER a scene")
+    refused(capsys, ["render", blend, "--frames", "1-3", "-o", tmp_path / "s####.blend"], ("-o", blend), [blend])
+    refused(capsys, ["motion", blend, "--frames", "1", "-o", blend], ("-o", blend), [blend])
+
+
+def test_calibrate_may_update_its_own_profile_but_not_overwrite_a_frame(tmp_path, capsys, mycam):
+    """``calibrate -o mycam.toml --profile mycam`` updates the profile on purpose (the default when -o exists)."""
+    from lowcam.boundary import check_declared_files
+    from lowcam.cli import build_parser
+
+    parser = build_parser()
+    f = frames(tmp_path / "flat")
+    args = parser.parse_args(["calibrate", "vignetting", str(tmp_path / "flat" / "f*.png"), "--profile", "mycam",
+                              "-o", str(mycam)])
+    check_declared_files(parser, args)  # allowed
+    refused(capsys, ["calibrate", "vignetting", tmp_path / "flat" / "f*.png", "-o", f[3]], ("-o", f[3]), f)
+    refused(capsys, ["calibrate", "vignetting", *f, "-o", tmp_path / "v.toml", "--report", tmp_path / "flat"],
+            ("--report", "flat"), f)
+
+
+def test_a_manifest_names_its_inputs_and_its_numbers_are_declared(tmp_path, capsys):
+    f = frames(tmp_path / "flat")
+    manifest = tmp_path / "manifest.toml"
+    manifest.write_text('[vignetting]\nframes = ["flat/f*.png"]\n')
+    refused(capsys, ["calibrate", "all", manifest, "-o", f[0]], ("-o", f[0]), f + [manifest])
+    manifest.write_text('[plate]\nfootage = ["flat/f*.png"]\nfps = 0\n')
+    line = refused(capsys, ["calibrate", "all", manifest, "-o", tmp_path / "o.toml"], ("manifest.toml", "fps"))
+    assert "(0, 1000]" in line and not (tmp_path / "o.toml").exists()
+
+
+# --- numbers out of their declared range: refused while parsing, naming the option ---------------------------------
+
+LENSFUN = ["profile", "from-lensfun", "--maker", "Canon", "--model", "EF 50mm", "--focal-mm", "50", "--base", "fire-i"]
+
+
+@pytest.mark.parametrize("argv, option", [
+    (LENSFUN + ["--aperture", "nan"], "--aperture"),
+    (LENSFUN + ["--aperture", "inf"], "--aperture"),
+    (LENSFUN + ["--aperture", "1e9"], "--aperture"),
+    (LENSFUN + ["--aperture", "0"], "--aperture"),
+    (LENSFUN + ["--distance-m", "nan"], "--distance-m"),
+    (LENSFUN + ["--distance-m", "1e-9"], "--distance-m"),
+    (LENSFUN + ["--distance-m", "-1"], "--distance-m"),
+    (LENSFUN + ["--focal-mm", "0"], "--focal-mm"),
+    (LENSFUN + ["--crop-factor", "inf"], "--crop-factor"),
+    (["calibrate", "plate", "FOOTAGE", "--fps", "0"], "--fps"),
+    (["calibrate", "plate", "FOOTAGE", "--fps", "-30"], "--fps"),
+    (["calibrate", "plate", "FOOTAGE", "--fps", "nan"], "--fps"),
+    (["calibrate", "plate", "FOOTAGE", "--min-confidence", "-1"], "--min-confidence"),
+    (["calibrate", "plate", "FOOTAGE", "--min-confidence", "1.5"], "--min-confidence"),
+    (["calibrate", "sharpening", "--soft", "FOOTAGE", "--sharp", "FOOTAGE", "--sharpness", "inf"], "--sharpness"),
+    (["apply", "--render", "FOOTAGE", "--fps", "0"], "--fps"),
+    (["apply", "--render", "FOOTAGE", "--exposure-s", "0"], "--exposure-s"),
+    (["apply", "--render", "FOOTAGE", "--metres-per-unit", "-1"], "--metres-per-unit"),
+    (["apply", "--render", "FOOTAGE", "--angular-velocity", "1e9,0,0"], "--angular-velocity"),
+    (["apply", "--render", "FOOTAGE", "--defocus", "0,1"], "--defocus"),
+    (["batch", "--renders", "r/####.exr", "--frames", "1", "--gyro-t0", "inf"], "--gyro-t0"),
+    (["batch", "--renders", "r/####.exr", "--frames", "1-x"], "--frames"),
+    (["diagnose", "FOOTAGE", "--json", "d.json", "--max-steps", "0"], "--max-steps"),
+    (["synth", "--width", "1e9"], "--width"),
+])
+def test_numbers_out_of_range_are_refused_naming_the_option(tmp_path, capsys, argv, option):
+    f = frames(tmp_path / "footage", 2, (64, 48))
+    argv = [str(tmp_path / "footage") if a == "FOOTAGE" else a for a in argv]
+    out = tmp_path / "o.toml"
+    line = refused(capsys, argv + ["-o", str(out)], (option,), f)
+    assert "error:" in line and not out.exists()
+
+
+# --- the same command works the second time; errors name the file they are about -----------------------------------
+
+def test_compare_into_the_set_folder_works_the_second_time(tmp_path, capsys):
+    """Lowcam's own earlier output in the set's folder is no input: set.toml names the inputs."""
+    mset = tmp_path / "set"
+    assert main(["synth", "--frames", "1", "--width", "64", "-o", str(mset)]) == 0
+    toml = (mset / "set.toml").read_text()
+    (mset / "set.toml").write_text(toml[:toml.index("[[capture]]", 1)])  # one capture: the chart
+    inputs = {p: p.read_bytes() for p in mset.rglob("*") if p.is_file()}
+    for run in range(2):
+        capsys.readouterr()
+        code = main(["compare", str(mset), "--json", str(mset / "c.json"), "--report", str(mset / "report")])
+        assert code == 0, (run, capsys.readouterr().err)
+        assert json.loads((mset / "c.json").read_text())["error"] > 0
+    assert all(p.read_bytes() == data for p, data in inputs.items() if p.name != "history.json")
+
+
+def test_a_board_not_found_names_the_set_and_the_frames(tmp_path, capsys):
+    f = frames(tmp_path / "set" / "grey")
+    for p in f:
+        cv2.imwrite(str(p), np.full((480, 640, 3), 128, np.uint8))
+    toml = tmp_path / "set" / "set.toml"
+    toml.write_text('[[capture]]\nname = "board"\nframes = "grey/f*.png"\ntarget = "checkerboard:9x6:0.025"\n')
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path / "set")]) == 2
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "Traceback" not in err, err
+    for name in (str(toml), "capture board", "f001.png", "not found"):
+        assert name in errors[0], errors[0]
+
+
+def test_a_batch_output_frame_that_is_a_link_to_the_gyro_log(tmp_path, capsys):
+    """The ``#`` pattern's existing frames are outputs too: frame 2 of ``out/####.png`` links to the gyro log."""
+    gyro = tmp_path / "gyro.csv"
+    gyro.write_text("t,wx,wy,wz\n0,0,0,0\n1,0,0,0\n")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "0002.png").symlink_to(gyro)
+    refused(capsys, ["batch", "--renders", tmp_path / "r" / "####.exr", "--frames", "1-3", "--gyro", gyro,
+                     "--fps", "24", "--exposure-s", "0.01", "-o", tmp_path / "out" / "####.png"],
+            ("-o", "--gyro", gyro), [gyro])

@@ -277,7 +277,7 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
     for i in chosen:
         cap = mset.captures[i]
         if cap.frames.shape[1:3] != (profile.camera.height, profile.camera.width):
-            raise LowcamError(f"capture {cap.name}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
+            raise LowcamError(f"{cap.where}: frames are {cap.frames.shape[2]}x{cap.frames.shape[1]}, the "
                               f"profile delivers {profile.camera.width}x{profile.camera.height}")
 
     def one(i):

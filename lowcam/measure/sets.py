@@ -51,10 +51,19 @@ class Capture:
     angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     exposure_s: float | None = None
     frame_names: list[str] = field(default_factory=list)
+    source: str = ""  # the set.toml that lists it ("" for a capture made in code)
 
     @property
     def mean(self) -> np.ndarray:
         return self.frames.astype(np.float64).mean(axis=0)
+
+    @property
+    def where(self) -> str:
+        """The capture in messages: its set file and name, and its frames (``set.toml: capture board (frames
+        f-000.png ... f-004.png)``)."""
+        names = [Path(n).name for n in self.frame_names]
+        frames = "" if not names else f" (frames {names[0]}" + (f" ... {names[-1]})" if len(names) > 1 else ")")
+        return (f"{self.source}: " if self.source else "") + f"capture {self.name}{frames}"
 
 
 @dataclass
@@ -111,7 +120,7 @@ def load_set(folder, profile=None) -> MeasurementSet:
             raise LowcamError(f"{names[0]}: the frames are {frames.shape[2]}x{frames.shape[1]}, the profile's camera "
                               f"delivers {profile.camera.width}x{profile.camera.height}")
         cap = Capture(name, frames, target=target, angular_velocity=tuple(w), exposure_s=exposure_s,
-                      frame_names=names)
+                      frame_names=names, source=str(toml_path))
         if "ideal" in files:
             cap.ideal = read_render(files["ideal"])
         if "plate" in files:

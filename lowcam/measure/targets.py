@@ -487,16 +487,16 @@ def board_pose(profile, capture):
 
     spec = parse_target(capture.target)
     if spec[0] != "checkerboard":
-        raise LowcamError(f"capture {capture.name}: only checkerboard targets can be rendered so far")
+        raise LowcamError(f"{capture.where}: only checkerboard targets can be rendered so far")
     u8 = np.clip(np.rint(capture.mean), 0, 255).astype(np.uint8)
     found = detect_target(u8, spec)
     if found is None:
-        raise LowcamError(f"capture {capture.name}: {capture.target} not found in the mean of its frames")
+        raise LowcamError(f"{capture.where}: {capture.target} not found in the mean of its frames")
     obj, img = found
     x, y = profile.lens.undistort(img[:, 0], img[:, 1])
     ok, rvec, tvec = cv2.solvePnP(obj, np.column_stack([x, y]), np.eye(3), None)
     if not ok:
-        raise LowcamError(f"capture {capture.name}: the board's pose could not be estimated")
+        raise LowcamError(f"{capture.where}: the board's pose could not be estimated")
     return spec, rvec.ravel(), tvec.ravel(), u8
 
 
@@ -534,7 +534,7 @@ def fit_target(profile, capture):
         fitted = fit_board_nuisances(profile, capture.mean, rvec, tvec, spec[1], spec[2], simulated=sim,
                                      previous=fitted)
     except LowcamError as e:
-        raise LowcamError(f"capture {capture.name}: {e}") from None
+        raise LowcamError(f"{capture.where}: {e}") from None
     return spec, rvec, tvec, fitted
 
 
