@@ -49,7 +49,8 @@ class Baseline:
     ``may_change``: Lowcam's own state inside an input (relative to the example) that a successful run rewrites;
     ``companions``: dest -> the arguments that option needs (``None`` removes one); ``caps``: dest -> the
     largest value a run may take here (larger valid values are only parsed: 1024 Dask workers on 2 cores);
-    ``slow_options``: options whose accepted values make the run slow (the fast tier runs only their refusals)."""
+    ``option_costs``: dest -> about how long a run takes with that option (``diagnose --only`` runs every
+    candidate), where it differs from ``cost_s``."""
 
     args: dict
     inputs: tuple[str, ...] = ()
@@ -59,7 +60,11 @@ class Baseline:
     may_change: tuple[str, ...] = ()
     companions: dict = field(default_factory=dict)
     caps: dict = field(default_factory=dict)
-    slow_options: tuple[str, ...] = ()
+    option_costs: dict = field(default_factory=dict)
+
+    def cost(self, dest: str) -> float:
+        """About how long (s) a whole run takes here when option ``dest`` is given."""
+        return self.option_costs.get(dest, self.cost_s)
 
 
 # --- the inputs ----------------------------------------------------------------------------------------------------
@@ -351,8 +356,9 @@ def needs_bpy() -> str:
 P = "fuzzcam"
 
 
-def _calibrate(frames: list[str], inputs: tuple[str, ...], cost_s: float, **args) -> Baseline:
-    return Baseline({"frames": frames, "output": ["{out}/cam.toml"], **args}, inputs, cost_s)
+def _calibrate(frames: list[str], inputs: tuple[str, ...], cost_s: float, option_costs=None, **args) -> Baseline:
+    return Baseline({"frames": frames, "output": ["{out}/cam.toml"], **args}, inputs, cost_s,
+                    option_costs=option_costs or {})
 
 
 _FLAT = ["{in}/flat/f00.png", "{in}/flat/f01.png"]
@@ -378,7 +384,7 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
         caps={"workers": 0}),
     ("chart",): Baseline({"output": ["{out}/chart.png"], "dpi": ["72"]}, (), 0.2, caps={"dpi": 150}),
     ("calibrate", "lens"): _calibrate(["{in}/lens/f00.png", "{in}/lens/f01.png", "{in}/lens/f02.png",
-                                       "{in}/lens/f03.png"], ("lens",), 2.0, model=["fov"]),
+                                       "{in}/lens/f03.png"], ("lens",), 2.0, {"model": 15.0}, model=["fov"]),
     ("calibrate", "vignetting"): _calibrate(_FLAT, ("flat",), 1.2),
     ("calibrate", "chromatic_aberration"): _calibrate(["{in}/ca/f00.png"], ("ca",), 4.0),
     ("calibrate", "noise"): _calibrate(["{in}/static/f*.png"], ("static",), 1.5),
@@ -399,7 +405,7 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
     ("calibrate", "list"): Baseline({}, (), 0.1),
     ("compare",): Baseline(
         {"set": ["{in}/set"], "profile": [P], "json": ["{out}/compare.json"]}, ("set", "footage"), 0.4,
-        may_change=("in/set/.lowcam/history.json",), slow_options=("plate_only", "probes"),
+        may_change=("in/set/.lowcam/history.json",), option_costs={"plate_only": 4.0, "probes": 4.0},
         companions={"plate_only": {"set": None, "plate_only": ["{in}/footage"]}, "probes": {"set": None, "plate_only": ["{in}/footage"]}}),
     ("diagnose",): Baseline(
         {"set": ["{in}/set"], "profile": [P], "json": ["{out}/diagnose.json"], "only": ["vignetting"]}, ("set",),
@@ -407,7 +413,8 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
         companions={"output": {"add_best": True}, "add_best": {"output": ["{out}/best.toml"]},
                     "until_explained": {"output": ["{out}/explained.toml"], "max_steps": ["1"]},
                     "max_steps": {"until_explained": True, "output": ["{out}/explained.toml"]}},
-        caps={"max_steps": 1}, slow_options=("only", "until_explained", "max_steps", "add_best", "output")),
+        caps={"max_steps": 1}, option_costs={"only": 20.0, "until_explained": 25.0, "max_steps": 25.0,
+                                             "add_best": 1.5, "output": 1.5}),
     ("synth",): Baseline({"profile": [P], "frames": ["1"], "width": ["64"], "output": ["{out}/set"]}, (), 1.5,
                          caps={"frames": 2, "width": 128}),
     ("profiles",): Baseline({}, (), 0.1, companions={"name": {"name": [P]}}),
@@ -423,14 +430,14 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
         {"profile": [P], "synthetic": True, "render_width": ["64"], "output": ["{out}/demo"]}, (), 1.2,
         companions={"footage": {"synthetic": None, "footage_frames": ["2"], "footage": ["{in}/phone-footage"]},
                     "footage_frames": {"synthetic": None, "footage": ["{in}/phone-footage"]}},
-        caps={"render_width": 256, "footage_frames": 2}),
+        caps={"render_width": 256, "footage_frames": 2}, option_costs={"footage": 150.0, "footage_frames": 150.0}),
     ("render",): Baseline(
-        {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/####.png"]}, ("scene.blend",), 30.0,
+        {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/####.png"]}, ("scene.blend",), 6.0,
         bpy=True),
     ("motion",): Baseline(
-        {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/motion.json"]}, ("scene.blend",), 10.0,
+        {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/motion.json"]}, ("scene.blend",), 3.5,
         bpy=True),
-    ("node-asset",): Baseline({"output": ["{out}/asset.blend"], "render_width": ["64"], "profile": [P]}, (), 20.0,
+    ("node-asset",): Baseline({"output": ["{out}/asset.blend"], "render_width": ["64"], "profile": [P]}, (), 10.0,
                               bpy=True, caps={"render_width": 256}),
 }
 
