@@ -10,6 +10,7 @@ Contents
 - :func:`check_output`: check before any work that an output file can be written and is none of the inputs
 - :func:`check_image_output`: :func:`check_output` for an image, its suffix one of :data:`IMAGE_SUFFIXES`
 - :func:`check_output_folder`: check before any work that a folder may receive a whole output
+- :func:`output_folder`: check and make an output folder for a block of work; an error removes what it made
 - :func:`make_output_folder`: create an output folder and mark it as Lowcam's
 - :data:`FOLDER_MARKER`: the file that marks a folder Lowcam wrote
 - :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
@@ -37,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import socket
 import sys
 import tempfile
@@ -212,6 +214,21 @@ def check_output_folder(folder, option: str = "-o", force: bool = False) -> Path
                               f"choose a new or empty folder for {option}")
     _check_writable_folder(folder, folder)
     return folder
+
+
+@contextlib.contextmanager
+def output_folder(folder, option: str = "-o", force: bool = False):
+    """:func:`check_output_folder`, then :func:`make_output_folder` for a block of work: a refusal or an error
+    inside the block removes the folders it made, so no half-made output is left."""
+    folder = check_output_folder(folder, option, force)
+    new = next((p for p in reversed([folder, *folder.parents]) if not p.exists()), None)  # the topmost to be made
+    made = make_output_folder(folder)
+    try:
+        yield made
+    except BaseException:
+        if new is not None:
+            shutil.rmtree(new, ignore_errors=True)
+        raise
 
 
 def make_output_folder(folder) -> Path:

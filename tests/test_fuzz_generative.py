@@ -132,9 +132,8 @@ class Value:
     option or file), ``either`` (exit 0, or a refusal naming it) or ``parse`` (valid but too costly to run here:
     the parser must take it). ``at_parse``: refused by parsing alone (checked without a run for Blender-side
     commands in the fast tier). ``costly``: slow tier only. ``process``: run as a process (an endless device).
-    ``names``: what else the refusal may name. ``target``: the value names an output that a successful run may
-    (re)write. ``in_process``: no process can be given it (a NUL character). ``needs_file``: made from the
-    option's valid input file (a profile given by name is given as its file for it)."""
+    ``in_process``: no process can be given it (a NUL character). ``needs_file``: made from the option's valid
+    input file (a profile given by name is given as its file for it)."""
 
     label: str
     make: Callable
@@ -142,8 +141,6 @@ class Value:
     at_parse: bool = False
     costly: bool = False
     process: bool = False
-    names: tuple[str, ...] = ()
-    target: bool = False
     in_process: bool = False
     needs_file: bool = False
 
@@ -160,12 +157,14 @@ def fixed(label: str, values, expect=REFUSE, **kw) -> Value:
 @dataclass
 class Example:
     """One run's folder: ``in/`` (copies of the baseline's inputs), ``out/`` (the baseline's outputs), ``fuzz/``
-    (what the value makes). ``args``: the baseline's arguments with ``{in}``/``{out}`` filled in."""
+    (what the value makes). ``args``: the baseline's arguments with ``{in}``/``{out}`` filled in; ``made``: the
+    fuzzed option's value."""
 
     folder: Path
     option: Option
     baseline: fb.Baseline
     args: dict = field(default_factory=dict)
+    made: list = field(default_factory=list)
 
     @property
     def inp(self) -> Path:
@@ -419,7 +418,7 @@ _TEXT_SUFFIXES = {".toml", ".json", ".csv", ".txt"}
 def _other_format(data: bytes, f: Path) -> bytes:
     """Bytes of another format than ``f``'s: a PNG for text files, TOML for binary ones."""
     if f.suffix.lower() in _TEXT_SUFFIXES:
-        return (fb.ROOT / "lowcam" / "data").glob("*.png").__next__().read_bytes()[:4096]
+        return next((fb.ROOT / "lowcam" / "data").glob("*.png")).read_bytes()[:4096]
     return (fb.ROOT / "profiles" / "fire-i.toml").read_bytes()
 
 
@@ -448,7 +447,7 @@ def _extreme(data: bytes, f: Path) -> bytes:
     return data + bytes(1 << 20)
 
 
-def common_path_values(ex_suffix: str = "") -> list[Value]:
+def common_path_values() -> list[Value]:
     """Path values that name nothing usable, for any input."""
     return [
         Value("missing", lambda ex: [str(ex.path("missing" + _suffix(ex)))]),
@@ -638,11 +637,7 @@ def reads_strategy(decl: Reads) -> st.SearchStrategy | None:
              "profile": profile_values(), "manifest": manifest_values()}
     if decl.kind not in kinds:
         return None
-    values = common_path_values() + kinds[decl.kind]
-    if decl.kind not in ("folder", "set", "footage", "pattern"):
-        values += content_values()
-        return st.one_of(st.sampled_from(values), content_strategy())
-    return st.one_of(st.sampled_from(values + content_values()), content_strategy())
+    return st.one_of(st.sampled_from(common_path_values() + kinds[decl.kind] + content_values()), content_strategy())
 
 
 # --- outputs --------------------------------------------------------------------------------------------------------
@@ -678,7 +673,7 @@ def writes_values(decl: Writes) -> list[Value]:
         p = ex.path("a-folder" + (suffix if decl.kind == "file" else ""))
         p.mkdir()
         (p / "keep.txt").write_text("mine\n")
-        return [str(p if decl.kind != "pattern" else p / name)] if decl.kind != "pattern" else [str(p)]
+        return [str(p)]
 
     def parent_is_a_file(ex):
         f = ex.path("plain.txt")
@@ -709,23 +704,22 @@ def writes_values(decl: Writes) -> list[Value]:
     values = [
         Value("the command's input", onto_input("as typed")),
         Value("a symlink to an input", onto_input("symlink")),
-        Value("a FIFO", lambda ex: [_fifo(ex, "pipe" + suffix)], EITHER, target=True),
+        Value("a FIFO", lambda ex: [_fifo(ex, "pipe" + suffix)], EITHER),
         Value("a parent that is a file", parent_is_a_file),
         fixed("a folder nobody can write", f"/proc/lowcam-fuzz/{name}"),
-        Value("new nested folders", nested, EITHER, target=True),
+        Value("new nested folders", nested, EITHER),
         fixed("empty path", "", at_parse=True),
         NUL,
     ]
     if decl.kind == "file":
         values += [Value("a hard link to an input", onto_input("hard link")),
                    Value("an existing folder", existing_folder),
-                   Value("an existing file of one's own", own_file, EITHER, target=True),
+                   Value("an existing file of one's own", own_file, EITHER),
                    Value("a trailing slash", lambda ex: [str(ex.path("new")) + "/"]),
                    Value("another output of the command", another_output)]
         for s in decl.suffixes[:1]:
             values += [Value("a wrong suffix", lambda ex: [str(ex.path("result.wrong"))]),
-                       Value("an upper-case suffix", lambda ex, s=s: [str(ex.path("result" + s.upper()))], EITHER,
-                             target=True)]
+                       Value("an upper-case suffix", lambda ex, s=s: [str(ex.path("result" + s.upper()))], EITHER)]
     elif decl.kind == "folder":
         def lowcam_folder(ex):
             p = ex.path("earlier")
@@ -739,12 +733,12 @@ def writes_values(decl: Writes) -> list[Value]:
             return [str(p)]
 
         values += [Value("an existing folder Lowcam did not make", existing_folder),
-                   Value("an existing empty folder", empty, EITHER, target=True),
-                   Value("a folder Lowcam made before", lowcam_folder, EITHER, target=True),
+                   Value("an existing empty folder", empty, EITHER),
+                   Value("a folder Lowcam made before", lowcam_folder, EITHER),
                    Value("a file, not a folder", lambda ex: [_plain_file(ex)]),
                    Value("the folder of the inputs", lambda ex: [str(ex.inp)])]
     else:
-        values += [Value("a pattern without #", lambda ex: [str(ex.path("one.png"))], EITHER, target=True),
+        values += [Value("a pattern without #", lambda ex: [str(ex.path("one.png"))], EITHER),
                    Value("the inputs' own pattern", inputs_pattern)]
     return values
 
@@ -961,6 +955,7 @@ class Runner:
         made = value.make(ex)
         if made == [] and option.action.nargs not in ("*", "?"):
             reject()  # the value does not apply here (nothing of its kind in this baseline)
+        ex.made = made if isinstance(made, list) else []
         args = dict(ex.args)
         args[option.action.dest] = made
         return ex, assemble(option.command, args)
@@ -971,7 +966,7 @@ class Runner:
         ex, argv = self.prepare(option, value, parse_only)
         shown = f"lowcam {' '.join(argv)}"
         if parse_only:
-            self._check_parse(option, value, argv, capfd, shown)
+            self._check_parse(ex, value, argv, capfd, shown)
             self._done(ex)
             return
         before = tree_state(ex.folder)
@@ -998,7 +993,9 @@ class Runner:
         assert _repo_profiles_state() == self.repo_profiles, f"{shown}: the repository's profiles/ changed"
         self._done(ex)
 
-    def _check_parse(self, option, value, argv, capfd, shown):
+    def _check_parse(self, ex: Example, value: Value, argv: list[str], capfd, shown: str) -> None:
+        """A value only parsed: a valid one is taken, a bad one refused in one line naming the option."""
+        option = ex.option
         capfd.readouterr()
         try:
             build_parser().parse_args(argv)
@@ -1011,7 +1008,7 @@ class Runner:
             return
         lines = _lines(err)
         assert code == 2 and len(lines) == 1, f"{shown}: exit {code}, stderr:\n{err}"
-        assert _names_it(lines[0], option, value, argv), f"{shown}: the refusal names neither option nor value: " \
+        assert _names_it(lines[0], option, ex.made), f"{shown}: the refusal names neither option nor value: " \
                                                           f"{lines[0]!r}"
 
     def _done(self, ex: Example) -> None:
@@ -1027,18 +1024,14 @@ def _log(option: Option, value: Value, rc: int, err: str, seconds: float) -> Non
             f.write(f"{option}\t{value.label[:60]!r}\t{value.expect}\t{rc}\t{seconds:.2f}\t{last}\n")
 
 
-def _names_it(line: str, option: Option, value: Value, argv: list[str], also=()) -> bool:
-    """Whether the refusal ``line`` names the option, the value (as given, or its file's name) or ``also``."""
-    names = set(option.action.option_strings) | {option.action.dest, option.action.metavar or option.action.dest}
-    names |= set(value.names) | set(also)
-    made = [a.partition("=")[2] if a.startswith("--") and "=" in a else a for a in argv]
+def _names_it(line: str, option: Option, made: list[str], also=()) -> bool:
+    """Whether the refusal ``line`` names the option, its value ``made`` (as given, its file's name, a link's
+    target) or one of ``also``."""
+    names = set(option.action.option_strings) | {option.action.metavar or option.action.dest} | set(also)
     for text in made:
-        if text and (("/" in text) or text in line):
-            names.add(text)
-            names.add(Path(text).name)
-            if os.path.islink(text):
-                names.add(os.path.realpath(text))
-                names.add(Path(os.path.realpath(text)).name)
+        names |= {text, Path(text).name}
+        if os.path.islink(text):
+            names |= {os.path.realpath(text), Path(os.path.realpath(text)).name}
     names.discard("")
     return any(n in line for n in names)
 
@@ -1061,11 +1054,11 @@ def check_contract(ex: Example, value: Value, argv: list[str], rc: int, out: str
         lines = [ln for ln in lines if not PROGRESS.match(ln)] if lines and PROGRESS.match(lines[0]) else lines
         assert len(lines) == 1, f"{shown}: {len(lines)} lines on stderr, expected 1:\n" + "\n".join(lines[:8])
         strict = value.expect == REFUSE and not isinstance(option.decl, Writes)
-        assert _names_it(lines[0], option, value, argv, () if strict else names), \
+        assert _names_it(lines[0], option, ex.made, () if strict else names), \
             f"{shown}: the refusal names neither the option nor the file: {lines[0]!r}"
     elif rc and rc == ex.baseline.partial_rc:
         assert len(lines) <= 3, f"{shown}: exit {rc} with {len(lines)} lines:\n" + "\n".join(lines[:8])
-        assert any(_names_it(ln, option, value, argv, names) for ln in lines), \
+        assert any(_names_it(ln, option, ex.made, names) for ln in lines), \
             f"{shown}: no line names the option or the file:\n" + "\n".join(lines)
     else:
         errors = [ln for ln in lines if "error:" in ln]

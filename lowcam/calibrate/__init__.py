@@ -546,7 +546,7 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
                      source: str = "colour calibration") -> Calibration:
     """Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255), ``measured_rgb`` the
     camera's mean patch colours (DN) at saturation setting ``saturation``; ``source`` names them in messages."""
-    from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
+    from ..effects.crosstalk import colour_matrix_problems, crosstalk_from_colour_matrix, fit_colour_matrix
 
     from ..effects.saturation import saturation_matrix
 
@@ -566,6 +566,10 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
     total = fit_colour_matrix(ideal_rgb, measured_rgb)
     crosstalk = crosstalk_from_colour_matrix(total, saturation)
     _require_finite(source, "the crosstalk", colour_matrix=total, crosstalk=crosstalk)
+    problems = colour_matrix_problems(crosstalk, "the crosstalk")
+    if problems:  # the patches are fine (checked above): the setting divided out is not the one they were taken at
+        raise LowcamError(f"{source}: with --saturation {saturation:g} divided out, {problems[0]}, which no camera "
+                          f"has; give the saturation setting the patches were captured at")
     figures = []
     if plot_dir:
         def draw(fig):
