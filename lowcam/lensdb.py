@@ -275,8 +275,7 @@ def lens_setting(entry: LensEntry, focal_mm: float, aperture: float | None = Non
     lens = entry.lens
     lo, hi = entry.focal_range
     if lo and not lo * 0.999 <= focal_mm <= hi * 1.001:
-        raise LowcamError(f"{entry.name}: focal length {focal_mm:g} mm is outside the lens's range "
-                          f"{lo:g}-{hi:g} mm")
+        raise LowcamError(f"--focal-mm {focal_mm:g}: outside the lens's range {lo:g}-{hi:g} mm ({entry.name})")
     widest = _f32(lens.min_aperture or 0.0)
     if aperture is None:
         aperture = widest or 2.8

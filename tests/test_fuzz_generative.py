@@ -1029,7 +1029,7 @@ def _names_it(line: str, option: Option, made: list[str], also=()) -> bool:
     target) or one of ``also``."""
     names = set(option.action.option_strings) | {option.action.metavar or option.action.dest} | set(also)
     for text in made:
-        names |= {text, Path(text).name}
+        names |= {text, Path(text).name} | ({str(Path(text).parent)} if "#" in text else set())  # a pattern's folder
         if os.path.islink(text):
             names |= {os.path.realpath(text), Path(os.path.realpath(text)).name}
     names.discard("")

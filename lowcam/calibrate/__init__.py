@@ -471,7 +471,7 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     camera sharpens: the free 101-tap filter for the plot, and the 7-tap model fitted to the images themselves
     (the free filter is poorly determined at frequencies the scene and the sensor's blur leave empty).
     """
-    from ..effects.sharpening import fit_row_filter, fit_sharpening_to_images, frequency_response
+    from ..effects.sharpening import Sharpening, fit_row_filter, fit_sharpening_to_images, frequency_response
 
     if not np.isfinite(sharpness) or sharpness <= 0:
         raise LowcamError(f"--sharpness {sharpness:g}: the sharp captures' setting must be above 0 (the soft "
@@ -521,6 +521,11 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
             ax.legend(fontsize=7)
         figures.append(figure(Path(plot_dir) / "sharpening.png", draw, (10, 4)))
     gain = a / sharpness
+    most = Sharpening.params["gain_per_unit"].high
+    if gain > most:  # the captures are fine: the setting they are said to be at is not
+        raise LowcamError(f"--sharpness {sharpness:g}: the sharp captures ({sharp_source}) sharpen by a = {a:.3f}, "
+                          f"{gain:.3g} per unit of setting, beyond the {most:g} of a camera; give the setting they "
+                          f"were captured at")
     return Calibration("sharpening", f"sharpening: a = {a:.3f}, sigma = {sigma:.3f} sensels at sharpness "
                                      f"{sharpness:g} (gain per unit {gain:.4f})",
                        {"sharpening": {"sharpness": sharpness, "gain_per_unit": gain, "sigma": sigma}},
