@@ -8,7 +8,7 @@ Contents
 - :func:`register`: register the settings, operators, panels, render handlers and compositor nodes
 - :func:`unregister`: unregister them, in reverse order
 
-Modules: :mod:`.properties` (scene settings), :mod:`.operators`, :mod:`.panels`, :mod:`.handlers` (render
+Modules: :mod:`.properties` (scene settings), :mod:`.preferences` (trusted plug-ins), :mod:`.operators`, :mod:`.panels`, :mod:`.handlers` (render
 handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera motion), :mod:`.render` and
 :mod:`.commands` (command line), :mod:`.sample` (the sample scene), :mod:`.compat` (what differs between Blender
 4.2 LTS and 5.2).
@@ -16,10 +16,10 @@ handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera motio
 
 
 def _modules():
-    from . import handlers, operators, panels, properties
+    from . import handlers, operators, panels, preferences, properties
     from ..nodes import custom  # the extension's root package holds addon/ and nodes/
 
-    return properties, operators, panels, handlers, custom
+    return properties, operators, panels, handlers, custom, preferences
 
 
 def _bundled_profiles():
@@ -37,9 +37,10 @@ def register():
     import bpy
 
     _bundled_profiles()
-    properties, operators, panels, handlers, custom = _modules()
-    for cls in properties.classes + operators.classes + panels.classes:
+    properties, operators, panels, handlers, custom, preferences = _modules()
+    for cls in preferences.classes + properties.classes + operators.classes + panels.classes:
         bpy.utils.register_class(cls)
+    preferences.register()
     properties.register()
     handlers.register()
     custom.register()
@@ -48,9 +49,10 @@ def register():
 def unregister():
     import bpy
 
-    properties, operators, panels, handlers, custom = _modules()
+    properties, operators, panels, handlers, custom, preferences = _modules()
     custom.unregister()
     handlers.unregister()
     properties.unregister()
-    for cls in reversed(properties.classes + operators.classes + panels.classes):
+    preferences.unregister()
+    for cls in reversed(preferences.classes + properties.classes + operators.classes + panels.classes):
         bpy.utils.unregister_class(cls)

@@ -19,7 +19,11 @@ Contents
 """
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from lowcam.arguments import Reads, Writes, angular_velocity, bounded_int, seed
@@ -99,7 +103,7 @@ def _footage_demo(args) -> int:
     """``lowcam demo --footage [DIR]``: :func:`addon.footage.run_footage_demo` on the phone clip."""
     from lowcam.errors import LowcamError
     from lowcam.footage import find_footage
-    from lowcam.io import output_folder
+    from lowcam.io import check_output_folder, make_output_folder
 
     folder = args.footage
     if not folder:
@@ -110,11 +114,41 @@ def _footage_demo(args) -> int:
                               f"as --footage DIR")
         folder = found[0]
     find_footage(folder)   # before the output folder is made: a missing data set writes nothing
-    with output_folder(args.output, force=args.force) as out:  # a clip refused late leaves no half-made folder
-        result = _side("addon.footage").run_footage_demo(folder, out.resolve(), args.profile,
-                                                         frames=args.footage_frames, seed=args.seed)
-    print(f"{result['png']}: plain composite (left) next to the camera (right); the clip: {result['gif']}")
+    out = Path(check_output_folder(args.output, force=args.force)).resolve()
+    footage = _side("addon.footage")
+    # a failure or Ctrl-C (during a render too) leaves no half-made folder
+    with _built_beside(out) as building, _side("addon.render").interruptible():
+        result = footage.run_footage_demo(folder, make_output_folder(building), args.profile,
+                                          frames=args.footage_frames, seed=args.seed)
+    print(f"{out / result['png'].name}: plain composite (left) next to the camera (right); the clip: "
+          f"{out / result['gif'].name}")
     return 0
+
+
+@contextmanager
+def _built_beside(out: Path):
+    """A new folder beside ``out`` to build an output in: moved into ``out`` when the block ends, removed (with
+    everything in it) when it fails or is interrupted, so ``out`` never holds a half-made output."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.lowcam-building-", dir=out.parent))
+    try:
+        yield building
+        _move_into(building, out)
+    finally:
+        shutil.rmtree(building, ignore_errors=True)
+
+
+def _move_into(built: Path, out: Path) -> None:
+    """Move everything in ``built`` into ``out`` (renamed whole when ``out`` does not exist), file by file."""
+    if not out.exists():
+        os.replace(built, out)
+        return
+    for item in built.iterdir():
+        target = out / item.name
+        if item.is_dir() and target.is_dir():
+            _move_into(item, target)
+        else:
+            os.replace(item, target)
 
 
 def cmd_render(args) -> int:

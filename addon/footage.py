@@ -24,6 +24,8 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from .render import render_still
+
 #: Lowcam's world axes (the first frame's camera: x right, y down, z forward) to Blender's (x right, y forward, z up).
 WORLD_FROM_LOWCAM = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 #: Frames of the clip the plate estimate looks at (evenly spread; the estimate costs about 5 s a frame on 2 cores).
@@ -104,10 +106,7 @@ def render_footage(rotations, folder, hfov_deg: float, width: int, height: int, 
         camera.matrix_world = Matrix([[*m[0], 0.0], [*m[1], 0.0], [*m[2], 0.0], [0.0, 0.0, 0.0, 1.0]])
         path = folder / f"{i:04d}.exr"
         scene.render.filepath = str(path)
-        from lowcam.io import quiet_stderr
-
-        with quiet_stderr(stdout=True):
-            bpy.ops.render.render(write_still=True)
+        render_still(scene, f"footage frame {i}")   # Ctrl-C during it ends the demo (render.interruptible)
         out.append(path)
         if progress:
             progress(i)
@@ -122,8 +121,9 @@ def _small(frame: np.ndarray, scale: float) -> np.ndarray:
 
 def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, first: int = 99,
                      render_width: int = 640, samples: int = 8, seed: int = 0) -> dict:
-    """The whole demo (see the module docstring); returns the paths written and the figures shown."""
-    from lowcam.footage import camera_rotations, footage_profile, frame_motion, read_footage_clip, write_gif
+    """The whole demo (see the module docstring); returns the paths written and the figures shown. Under
+    :func:`addon.render.interruptible`, Ctrl-C during a render ends it."""
+    from lowcam.footage import camera_rotations, frame_motion, read_footage_clip, write_gif
     from lowcam.io import read_plate, read_render, write_png
     from lowcam.pipeline import plain_composite, render_camera, simulate
     from lowcam.sample import side_by_side

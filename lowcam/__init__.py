@@ -18,6 +18,7 @@ Contents
 - :class:`Profile`: a validated camera profile: the frame and its ordered chain of effects
 - :func:`load_profile`: load a profile by bundled name (``"fire-i"``) or path
 - :func:`list_profiles`: (name, path) of every profile on the search path
+- :func:`trust_plugins`: trust plug-in modules, so that profiles may name their effects (``"my_effects:Haze"``)
 - :func:`read_render`: a render as premultiplied linear RGBA float32 (H, W, 4)
 - :func:`read_plate`: the video frame as uint8, checked against the camera's frame size
 - :func:`write_image`: write by extension: ``.exr`` float RGBA, anything else PNG
@@ -30,6 +31,7 @@ References
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 """
+from .effects import trust_plugins
 from .errors import LowcamError, ProfileError
 from .io import read_plate, read_render, write_image, write_png
 from .pipeline import Result, render_camera, render_field_of_view, run, simulate
@@ -38,4 +40,5 @@ from .profile import Profile, list_profiles, load_profile
 __version__ = "0.1.0"
 
 __all__ = ["LowcamError", "ProfileError", "Profile", "Result", "list_profiles", "load_profile", "read_plate",
-           "read_render", "render_camera", "render_field_of_view", "run", "simulate", "write_image", "write_png"]
+           "read_render", "render_camera", "render_field_of_view", "run", "simulate", "trust_plugins", "write_image",
+           "write_png"]

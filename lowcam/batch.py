@@ -6,7 +6,9 @@ with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``; the vide
 the add-on's Movie Clip plates), not once per frame.
 
 Every output is written atomically, so a frame file that exists is complete; a rerun skips those frames unless
-``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish. Noise is
+``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish; a full disk
+(or quota) stops the shot at the first write that fails, and the temporaries of killed workers are removed when
+the shot ends. Noise is
 seeded per frame, so a serial run, a Dask run and a run split into chunks give the same bytes.
 
 Contents
@@ -23,6 +25,7 @@ Contents
 - :func:`close_videos`: release the video files :func:`read_video_frame` keeps open
 - :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
 - :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
+- :func:`full_disk_stop`: the one line that ends a shot at its first write to a full disk, with how to resume
 - :data:`QUIET_LOGGERS`: the loggers of Dask and the libraries under it, kept to critical messages
 - :func:`local_cluster`: a Dask LocalCluster of single-threaded processes on loopback
 - :func:`summary`: one line on a finished shot
@@ -37,7 +40,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import LowcamError
+from .errors import DiskFull, LowcamError
 from .motion import FrameMotion
 
 VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
@@ -103,9 +106,13 @@ class Shot:
     effects: tuple = ()            # (name, ((key, value), ...)) effects added to the profile, e.g. object motion
     fps: float = 24.0              # the frame rate the renders' Vector pass was made at
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
+    plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
 
     def load_profile(self):
-        """The shot's profile with its added ``effects`` (cached per process)."""
+        """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
+        from .effects import trust_plugins
+
+        trust_plugins(*self.plugins)
         return _profile(self.profile, self.effects)
 
     def output_path(self, frame: int) -> Path:
@@ -216,7 +223,8 @@ def _read_plate(shot: Shot, frame: int, profile):
 
 
 def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
-    """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead."""
+    """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead. A full disk
+    (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot."""
     from .io import write_image
     from .passes import needed_passes, read_render_and_passes
     from .pipeline import simulate
@@ -237,6 +245,8 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
         image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame,
                          passes)
         write_image(out, image)
+    except DiskFull:
+        raise  # every later frame would fail alike: the shot stops (run_shot)
     except LowcamError as e:
         return FrameResult(frame, "failed", " ".join(str(e).splitlines()), time.perf_counter() - t)  # one line
     return FrameResult(frame, "written", "", time.perf_counter() - t)
@@ -278,9 +288,14 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
         read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
         raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")
-    for folder in {shot.output_path(f).parent for f in frames}:
-        if folder.is_dir():  # temporaries that killed runs left; a live run's stay
-            remove_stale_temporaries(folder)
+    folders = {shot.output_path(f).parent for f in frames}
+
+    def remove_temporaries_of_the_dead():  # killed runs' and killed workers'; a live run's stay
+        for folder in folders:
+            if folder.is_dir():
+                remove_stale_temporaries(folder)
+
+    remove_temporaries_of_the_dead()
     results: list[FrameResult] = []
     bar = _progress(len(frames), quiet)
     try:
@@ -295,12 +310,28 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
                            for f in frames]
                 from dask.distributed import as_completed
 
-                for future in as_completed(futures):
-                    results.append(future.result())
-                    bar.update()
+                try:
+                    for future in as_completed(futures):
+                        results.append(future.result())
+                        bar.update()
+                except DiskFull:
+                    client.cancel(futures)  # frames not started are not tried
+                    raise
+    except DiskFull as e:
+        raise full_disk_stop(e, shot, frames, sum(r.status == "written" for r in results)) from None
     finally:
         bar.close()
+        remove_temporaries_of_the_dead()  # a worker killed mid-write left its temporary
     return sorted(results, key=lambda r: r.frame)
+
+
+def full_disk_stop(error: DiskFull, shot: Shot, frames: list[int], written: int) -> DiskFull:
+    """The one line that ends a shot at its first write to a full disk: the failed write, the frames written by
+    this run and in all, and how to resume (the same command again: finished frames are skipped)."""
+    done = sum(shot.output_path(f).exists() for f in frames)
+    return DiskFull(f"{error}; the shot stopped there: {written} frame{'s' * (written != 1)} written by this run, "
+                    f"{done} of {len(frames)} done in all; free some space and run the same command again to "
+                    "resume (finished frames are skipped)")
 
 
 #: Dask's loggers, and those of the libraries under it, kept to critical messages in Lowcam's processes.

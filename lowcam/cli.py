@@ -167,6 +167,7 @@ def cmd_stages(args) -> int:
 
 
 def cmd_profiles(args) -> int:
+    from .errors import UntrustedPlugin
     from .profile import list_profiles, load_profile
 
     if args.name:
@@ -185,6 +186,8 @@ def cmd_profiles(args) -> int:
             stated = sum(1 for e in p.effects if p.provenance_of(e.name))
             desc = (f"{p.camera.name}: {p.camera.width}x{p.camera.height}, {len(p.effects)} effects, "
                     f"provenance stated for {stated}")
+        except UntrustedPlugin as e:  # nothing was imported
+            desc = f"NEEDS PLUG-IN {e.effect_type}: {e.how_to_allow}"
         except LowcamError as e:
             desc = f"INVALID: {e}"
         print(f"{name:12s} {desc}  ({path})")
@@ -193,6 +196,7 @@ def cmd_profiles(args) -> int:
 
 def cmd_batch(args) -> int:
     from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
+    from .effects import trusted_modules
     from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
     from .profile import load_profile
 
@@ -210,7 +214,7 @@ def cmd_batch(args) -> int:
         require = True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
-                _pass_effects(args), args.fps or 24.0, args.metres_per_unit)
+                _pass_effects(args), args.fps or 24.0, args.metres_per_unit, tuple(sorted(trusted_modules())))
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -429,8 +433,9 @@ def cmd_diagnose(args) -> int:
     if args.output:
         check_output(args.output)
     profile = load_profile(args.profile)
-    for plugin in args.plugin:
-        effect_class(plugin, "--plugin")
+    for plugin in args.plugin:  # a bare MODULE only trusts it (main)
+        if ":" in plugin:
+            effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
     known = candidates()
     only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
@@ -615,6 +620,10 @@ def _unavailable(name: str, problem: Exception) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="lowcam", description="Simulate a low-cost camera on CG renders (Klein & Murray 2010).")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error (for a bug report)")
+    parser.add_argument("--plugin", type=Text(what="MODULE"), action="append", dest="plugins", default=[],
+                        metavar="MODULE",
+                        help="trust this plug-in module: profiles may name its effects ('MODULE:Class'); "
+                             "repeatable; LOWCAM_PLUGINS lists more (no other module is ever imported)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     def frame_options(p, render_required=True):
@@ -717,8 +726,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Writes("file"), required=True, help="the ranked candidates as JSON")
     p.add_argument("--report", type=Writes("folder"), help="folder for an HTML report")
     p.add_argument("--only", type=Text(what="CANDIDATE,..."), help="comma-separated candidates to try (default: all)")
-    p.add_argument("--plugin", type=Text(what="MODULE:CLASS"), action="append", default=[], metavar="MODULE:CLASS",
-                   help="also try this plug-in effect's declared searches (repeatable)")
+    p.add_argument("--plugin", type=Text(what="MODULE[:CLASS]"), action="append", default=[],
+                   metavar="MODULE[:CLASS]",
+                   help="trust this plug-in module and also try the effect's declared searches (repeatable)")
     p.add_argument("--add-best", action="store_true", help="write the profile with the best candidate added")
     p.add_argument("--until-explained", action="store_true",
                    help="add the best candidate and refit, step by step, until the error reaches the noise floor "
@@ -785,6 +795,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_plugin_commands(sub)
     for command in set(sub.choices.values()):  # lowcam apply --debug as well as lowcam --debug apply
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+        if "--plugin" not in command._option_string_actions:  # lowcam apply --plugin M too (diagnose has its own)
+            command.add_argument("--plugin", type=Text(what="MODULE"), action="append", dest="plugins_after",
+                                 default=argparse.SUPPRESS, metavar="MODULE", help=argparse.SUPPRESS)
     return parser
 
 
@@ -808,6 +821,7 @@ def main(argv=None) -> int:
 
         command = command_name(parser, args)
         try:
+            _trust_plugins(args)
             check_declared_files(parser, args)   # no output is an input, before any work
             return args.func(args)
         except (LowcamError, OSError, MemoryError) as e:
@@ -820,6 +834,16 @@ def main(argv=None) -> int:
             _end_progress_lines()
             print(f"{command}: interrupted", file=sys.stderr)
             return 130
+
+
+def _trust_plugins(args) -> None:
+    """Trust the modules ``--plugin`` names (before or after the command; ``diagnose --plugin MODULE:CLASS`` too)."""
+    from .effects import trust_plugins
+
+    named = list(args.plugins) + list(getattr(args, "plugins_after", []))
+    if args.command == "diagnose":
+        named += [p.partition(":")[0] for p in args.plugin]
+    trust_plugins(*named, option="--plugin")
 
 
 def _one_line(error: BaseException) -> str:

@@ -29,10 +29,10 @@ import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .io import read_plate
 from .motion import (PHONE_GYRO_TIME_OFFSET_S, PHONE_GYRO_TO_CAMERA, average_rate, integrate_rotation,
                      read_exposure_log, read_framestamps, read_phone_gyro_log)
 
@@ -76,7 +76,8 @@ def find_footage(path) -> Path:
 def read_footage_clip(path, first: int = 99, count: int = 24, axes=PHONE_GYRO_TO_CAMERA,
                       time_offset_s: float = PHONE_GYRO_TIME_OFFSET_S) -> FootageClip:
     """``count`` frames of a phone-gyro-video folder from frame ``first`` on (``reshape/RE_frame-N.jpg`` is frame
-    N, line N of framestamp.txt), with its gyro mapped to the camera frame by ``axes``."""
+    N, line N of framestamp.txt), with its gyro mapped to the camera frame by ``axes``. A frame that is missing,
+    damaged or not 800x600 is a one-line error naming it."""
     folder = find_footage(path)
     stamps = read_framestamps(folder / "framestamp.txt")
     exposure = read_exposure_log(folder / "gyro_dump.txt")
@@ -88,6 +89,8 @@ def read_footage_clip(path, first: int = 99, count: int = 24, axes=PHONE_GYRO_TO
             raise LowcamError(f"{f}: no such frame (the clip asks for frames {first}-{first + count - 1})")
         if n > len(stamps) or n not in exposure:
             raise LowcamError(f"{folder}: frame {n} has no frame stamp or exposure")
+    for f in frames:   # every frame decodes whole, at the clip's size, before any work
+        read_plate(f, FootageClip.width, FootageClip.height)
     starts = np.array([stamps[n - 1] for n in numbers]) + time_offset_s
     return FootageClip(folder, frames, numbers, starts, np.array([exposure[n] for n in numbers]), gyro)
 
@@ -144,7 +147,7 @@ def plate_profile(base, clip: FootageClip, frames: int | None = None):
 
     n = len(clip.frames) if frames is None else min(len(clip.frames), frames)
     pick = np.unique(np.linspace(0, len(clip.frames) - 1, n).round().astype(int))
-    stack = np.stack([cv2.cvtColor(cv2.imread(str(clip.frames[i])), cv2.COLOR_BGR2RGB) for i in pick])
+    stack = np.stack([read_plate(clip.frames[i], clip.width, clip.height) for i in pick])
     return estimate_profile(Footage(stack, 30.0, str(clip.folder)), footage_profile(base, clip))
 
 

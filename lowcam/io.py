@@ -15,6 +15,7 @@ Contents
 - :data:`FOLDER_MARKER`: the file that marks a folder Lowcam wrote
 - :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
 - :func:`remove_stale_temporaries`: remove the temporaries of killed runs, never a live run's or a user's file
+- :data:`FULL_ERRNOS`: the OS errors of a full disk, a quota or a file-size limit (:class:`~lowcam.errors.DiskFull`)
 - :func:`quiet_stderr`: keep C libraries' messages off the terminal for a while
 - :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
@@ -36,6 +37,7 @@ Contents
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import shutil
@@ -48,7 +50,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import LowcamError
+from .errors import DiskFull, LowcamError
 from .parallel import row_strips, thread_map
 from .window import nonzero_window
 
@@ -80,16 +82,27 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+#: The OS errors of a full disk, an exhausted quota or a file-size limit: every later write would fail alike, so
+#: they are a :class:`~lowcam.errors.DiskFull` (a shot stops there), not a bad frame.
+FULL_ERRNOS = frozenset(code for code in (errno.ENOSPC, getattr(errno, "EDQUOT", None), errno.EFBIG) if code)
+
+
+def _cannot_write(path, e: OSError) -> LowcamError:
+    kind = DiskFull if e.errno in FULL_ERRNOS else LowcamError
+    return kind(f"{path}: cannot write ({e.strerror or e})")
+
+
 def _write_through_temporary(path, write) -> Path:
     """Call ``write(temporary_path)``, fsync it, rename it over ``path`` and fsync the folder. An OS error is a
-    one-line :class:`LowcamError` naming ``path``; the temporary never survives a failure."""
+    one-line :class:`LowcamError` naming ``path`` (:class:`~lowcam.errors.DiskFull` for :data:`FULL_ERRNOS`); the
+    temporary never survives a failure."""
     path = Path(path)
     check_output(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=_part_prefix(), suffix=f".{path.name[:100]}.part", dir=path.parent)
     except OSError as e:
-        raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
+        raise _cannot_write(path, e) from None
     try:
         os.close(fd)
         write(tmp)
@@ -100,7 +113,7 @@ def _write_through_temporary(path, write) -> Path:
         _fsync_folder(path.parent)
     except OSError as e:
         Path(tmp).unlink(missing_ok=True)
-        raise LowcamError(f"{path}: cannot write ({e.strerror or e})") from None
+        raise _cannot_write(path, e) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -590,7 +603,18 @@ def write_exr(path, rgba: np.ndarray) -> Path:
     if name is None:
         raise LowcamError(f"{path}: an OpenEXR image must be (H, W, 3) or (H, W, 4), got {pixels.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    return _write_through_temporary(path, lambda tmp: OpenEXR.File(header, {name: pixels}).write(tmp))
+
+    def write(tmp):
+        try:
+            OpenEXR.File(header, {name: pixels}).write(tmp)
+        except RuntimeError as e:  # OpenEXR names the OS error in its message only
+            message = str(e)
+            code = next((c for c in (*FULL_ERRNOS, errno.EACCES, errno.EROFS, errno.EIO)
+                         if os.strerror(c) in message), errno.EIO)
+            raise OSError(code, os.strerror(code) if os.strerror(code) in message else message.splitlines()[0],
+                          tmp) from None
+
+    return _write_through_temporary(path, write)
 
 
 #: Output formats by file suffix.

@@ -3,8 +3,8 @@
 #   bash scripts/test.sh            the fast tier (minutes): everything not marked slow or blender
 #   bash scripts/test.sh --all      every tier: fast, blender (real bpy 5.0; as root the real Blender 4.3 binary and
 #                                   bpy 5.2) and slow, then the Blender tier under bpy 4.2 LTS and 4.5 LTS
-#                                   (scripts/test-blenders.sh bpy42 bpy45; not when pytest arguments follow): what
-#                                   CI runs
+#                                   (scripts/test-blenders.sh bpy42 bpy45); the slow tier runs beside the others,
+#                                   one lane per core: what CI runs. With pytest arguments: pytest over every tier
 #   bash scripts/test.sh --tier X   one tier by marker expression, e.g. --tier blender
 # Further arguments go to pytest (a file, -k, -x ...).
 set -euo pipefail
@@ -15,9 +15,22 @@ case "${1:-}" in
   --all)
     shift
     rc=0
-    .venv/bin/python -m pytest "$@" || rc=$?
-    if [ $# -eq 0 ]; then bash scripts/test-blenders.sh bpy42 bpy45 || rc=$((rc ? rc : 1)); fi
-    exit "$rc" ;;
+    if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest "$@"; fi
+    # Two lanes, one per core: the slow tier's diagnoses (pure engine, one thread mostly) beside the fast and
+    # Blender tiers and the older Blenders; each lane has its own temporary folder, the slow lane's log follows.
+    slow_log=$(mktemp /tmp/lowcam-slow-tier.XXXXXX.log)
+    slow_tmp=$(mktemp -d /tmp/lowcam-slow-tier.XXXXXX)
+    .venv/bin/python -m pytest -m "slow and not blender" -p no:cacheprovider --basetemp "$slow_tmp" \
+      >"$slow_log" 2>&1 &
+    slow_pid=$!
+    .venv/bin/python -m pytest -m "not slow or blender" || rc=$?
+    bash scripts/test-blenders.sh bpy42 bpy45 || rc=$((rc ? rc : 1))
+    slow_rc=0
+    wait "$slow_pid" || slow_rc=$?
+    echo "=== the slow tier (run beside the above) ==="
+    cat "$slow_log"
+    rm -rf "$slow_log" "$slow_tmp"
+    exit $((rc ? rc : slow_rc)) ;;
   --tier) tier=(-m "${2:?--tier needs a marker expression}"); shift 2 ;;
 esac
 exec .venv/bin/python -m pytest "${tier[@]}" "$@"

@@ -97,6 +97,7 @@ class Haze(Effect):
 def haze(tmp_path, monkeypatch):
     (tmp_path / "user_haze.py").write_text(PLUGIN)
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "user_haze")  # the user's consent
     yield "user_haze:Haze"
     sys.modules.pop("user_haze", None)
     lowcam.effects.PLUGINS.pop("user_haze:Haze", None)

@@ -212,6 +212,7 @@ def test_a_user_plugin_effect_can_be_hidden_and_added(tmp_path, monkeypatch):
         "    def apply(self, state):\n"
         "        state.rgb[..., 0] *= self.red_gain\n")
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "lens_tint")  # the user's consent
     fire_i = lowcam.load_profile("fire-i")
     tinted = fire_i.with_effect("lens_tint:Tint", red_gain=1.15)
     assert tinted.effects[-1].name == "tint"

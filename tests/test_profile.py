@@ -75,6 +75,7 @@ def test_a_user_effect_from_their_own_module_runs_in_the_chain(tmp_path, monkeyp
                 state.bayer += self.veil_dn * state.bayer_alpha
     '''))
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "my_effects")  # the user's consent
     path = _variant(tmp_path, '[[effect]]\ntype = "horizontal_blur"',
                     '[[effect]]\ntype = "my_effects:Haze"\nveil_dn = 40.0\n\n[[effect]]\ntype = "horizontal_blur"')
     p = lowcam.load_profile(path)

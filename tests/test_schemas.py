@@ -144,7 +144,8 @@ def _variant(tmp_path, old, new, name="variant.toml"):
     ('texture = "fire-i/vignetting.png"', "texture = 5", ["'texture' must be a string"]),
     ('texture = "fire-i/vignetting.png"', f'texture = "{"a" * 5000}"', ["'texture' names a file that does not"]),
 ])
-def test_bad_profiles_are_one_line_profile_errors(tmp_path, old, new, names):
+def test_bad_profiles_are_one_line_profile_errors(tmp_path, monkeypatch, old, new, names):
+    monkeypatch.setenv("LOWCAM_PLUGINS", "json,no_such_module_xyz")  # trusted: the class check is what is tested
     path = _variant(tmp_path, old, new)
     message = refused(lambda: lowcam.load_profile(path), *names, error=ProfileError)
     assert message.startswith(str(path))
@@ -159,6 +160,7 @@ def test_a_camera_that_is_not_a_table_is_refused(tmp_path):
 def test_a_plugin_that_fails_on_import_is_a_profile_error(tmp_path, monkeypatch):
     (tmp_path / "broken_plugin_xyz.py").write_text("raise RuntimeError('boom')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "broken_plugin_xyz")
     path = _variant(tmp_path, 'type = "half_sampling"', 'type = "broken_plugin_xyz:Haze"')
     refused(lambda: lowcam.load_profile(path), path, "fails on import", "RuntimeError: boom", error=ProfileError)
 

@@ -5,10 +5,22 @@ Each effect declares itself (:class:`Effect`): its place in the chain (``order``
 chain order, the node stages, the diagnosis candidates and the calibration listing are derived from these
 declarations (:func:`known_effects`), for bundled effects and plug-ins (``"module:Class"``) alike.
 
+Plug-ins run code, and profiles travel with shots, profile packs and .blend files, so a plug-in module is imported
+only when the user trusts it: ``lowcam --plugin MODULE``, ``LOWCAM_PLUGINS=MODULE[,MODULE...]``,
+:func:`trust_plugins` from Python, or the Blender add-on's Trusted Plug-ins preference. A profile naming an
+effect of any other module is refused (:class:`~lowcam.errors.UntrustedPlugin`) before anything is imported, so
+listing or validating a profile never runs a plug-in's code.
+
 Contents
 --------
 - :data:`EFFECTS`: every bundled effect class by its profile ``type``
 - :data:`PLUGINS`: plug-in effects loaded so far in this process (``"module:Class"`` -> class)
+- :data:`PLUGINS_ENV`: the environment variable that lists trusted plug-in modules (``LOWCAM_PLUGINS``)
+- :data:`TRUSTED`: plug-in modules trusted in this process (``--plugin``, :func:`trust_plugins`)
+- :data:`TRUST_PROVIDERS`: functions that name more trusted modules when asked (the Blender add-on's preference)
+- :func:`trust_plugins`: trust plug-in modules: profiles may then name their effects
+- :func:`trusted_modules`: every module trusted now: :data:`TRUSTED`, ``$LOWCAM_PLUGINS`` and the providers'
+- :func:`plugin_trusted`: whether a module, or a package holding it, is trusted
 - :func:`known_effects`: every effect class known in this process, bundled and plug-in, in chain order
 - :func:`canonical_order`: the names of :func:`known_effects` in the order they stand in a complete chain
 - :func:`effect_class`: the class for a profile ``type``: a bundled name or ``"package.module:ClassName"``
@@ -49,9 +61,11 @@ References
 from __future__ import annotations
 
 import importlib
+import os
+import re
 
 from .. import schema
-from ..errors import ProfileError
+from ..errors import LowcamError, ProfileError, UntrustedPlugin
 from .base import Effect, NodeStage, Param, ParamSet, Search
 from .bayer import BayerSampling, Demosaic
 from .blur import HorizontalBlur, SpatialBlur, VerticalBlur
@@ -92,6 +106,52 @@ EFFECTS: dict[str, type[Effect]] = {
 #: Plug-in effects loaded so far in this process (``"module:Class"`` -> class).
 PLUGINS: dict[str, type[Effect]] = {}
 
+#: The environment variable that lists trusted plug-in modules, separated by commas or ``os.pathsep``.
+PLUGINS_ENV = "LOWCAM_PLUGINS"
+#: Plug-in modules trusted in this process (``lowcam --plugin``, :func:`trust_plugins`).
+TRUSTED: set[str] = set()
+#: Functions that return more trusted module names each time they are asked (the Blender add-on's preference,
+#: which holds only while the open .blend may run scripts).
+TRUST_PROVIDERS: list = []
+
+_MODULE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+
+
+def _module_names(names, where: str) -> set[str]:
+    out = set()
+    for name in names:
+        name = name.strip()
+        if name and not _MODULE_NAME.fullmatch(name):
+            raise LowcamError(f"{where} {schema.shown(name)}: not a Python module name (e.g. my_effects or "
+                              "studio.effects)")
+        if name:
+            out.add(name)
+    return out
+
+
+def trust_plugins(*modules: str, option: str = "plug-in") -> None:
+    """Trust plug-in ``modules`` (``"my_effects"``, ``"studio.effects"``; a package trusts its submodules): profiles
+    may then name their effects (``"my_effects:Haze"``), and the module is imported when one does. A name that is
+    no module name is a :class:`~lowcam.errors.LowcamError` naming ``option``."""
+    TRUSTED.update(_module_names(modules, option))
+
+
+def trusted_modules() -> set[str]:
+    """Every module trusted now: :data:`TRUSTED`, ``$LOWCAM_PLUGINS`` (commas or ``os.pathsep`` between names) and
+    what each of :data:`TRUST_PROVIDERS` names."""
+    env = re.split(rf"[,{re.escape(os.pathsep)}]", os.environ.get(PLUGINS_ENV, ""))
+    out = TRUSTED | _module_names(env, PLUGINS_ENV)
+    for provider in TRUST_PROVIDERS:
+        out |= set(provider())
+    return out
+
+
+def plugin_trusted(module_name: str) -> bool:
+    """Whether ``module_name``, or a package that holds it, is trusted (:func:`trusted_modules`)."""
+    parts = module_name.split(".")
+    trusted = trusted_modules()
+    return any(".".join(parts[:k]) in trusted for k in range(1, len(parts) + 1))
+
 
 def known_effects() -> list[type[Effect]]:
     """Every effect class known in this process, bundled and plug-in, in chain order (``Effect.order``; those
@@ -121,11 +181,16 @@ def effect_class(type_name: str, source: str = "<python>") -> type[Effect]:
         module_name, _, class_name = type_name.partition(":")
         if not (all(p.isidentifier() for p in module_name.split(".")) and class_name.isidentifier()):
             raise ProfileError(f"{source}: effect type {schema.shown(type_name)} is not 'package.module:ClassName'")
+        if not plugin_trusted(module_name):  # checked before any import: an untrusted module's code never runs
+            raise UntrustedPlugin(source, type_name, module_name)
         try:
             cls = getattr(importlib.import_module(module_name), class_name)
         except (ImportError, AttributeError) as e:
             raise ProfileError(f"{source}: effect type {schema.shown(type_name)} cannot be loaded: "
                                f"{_first_line(e)}") from None
+        except SystemExit as e:  # a module that ends the process on import must not end the command
+            raise ProfileError(f"{source}: effect type {schema.shown(type_name)} exits on import "
+                               f"(sys.exit({e.code!r}))") from None
         except Exception as e:  # the plug-in's own module fails on import
             raise ProfileError(f"{source}: effect type {schema.shown(type_name)} fails on import: "
                                f"{type(e).__name__}: {_first_line(e)}") from None
@@ -142,5 +207,6 @@ def _first_line(e: Exception) -> str:
     return (str(e).splitlines() or [""])[0]
 
 
-__all__ = ["EFFECTS", "PLUGINS", "Effect", "NodeStage", "Param", "ParamSet", "Search", "canonical_order",
-           "effect_class", "known_effects"] + [c.__name__ for c in EFFECTS.values()]
+__all__ = ["EFFECTS", "PLUGINS", "PLUGINS_ENV", "TRUSTED", "TRUST_PROVIDERS", "Effect", "NodeStage", "Param",
+           "ParamSet", "Search", "canonical_order", "effect_class", "known_effects", "plugin_trusted",
+           "trust_plugins", "trusted_modules"] + [c.__name__ for c in EFFECTS.values()]

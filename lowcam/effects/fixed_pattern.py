@@ -29,6 +29,8 @@ References
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..errors import NotFitted
@@ -145,7 +147,8 @@ def fit_hot_pixels(ctx, effect: str):
     in every capture that can show them; their mean offset per channel. NotFitted when there are none, or when
     the map is dense (the outliers are many, or hold little of the offset energy: DSNU)."""
     clipped, diff, noise_var = _offsets(ctx)
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():  # pixels clipped in every capture: NaN -> 0, not a warning
+        warnings.simplefilter("ignore", RuntimeWarning)
         offset = np.nan_to_num(np.nanmean(clipped, axis=0))
         low = np.nan_to_num(np.nanmin(clipped, axis=0))  # bright in every capture that can show it
     ev = offset_evidence(diff, noise_var)

@@ -52,6 +52,7 @@ References
 """
 from __future__ import annotations
 
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,7 +125,7 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
     """Read a shot: a video file (OpenCV's VideoCapture), a folder of frames (PNG/JPEG/TIFF, in natural name
     order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro` or a gyro CSV,
     :func:`lowcam.motion.read_gyro_csv`). Every problem is one line naming the file: missing, unreadable, too few
-    frames, mismatched sizes."""
+    frames, mismatched sizes, video data the decoder reports damaged (it would conceal it with grey blocks)."""
     from ..captures import load_frames
 
     p = Path(path)
@@ -158,21 +159,35 @@ def _read_video(path: Path, max_frames: int):
     if not cap.isOpened():
         raise LowcamError(f"{path}: cannot be read as a video")
     rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)   # what the container says it holds
     frames = []
-    try:
-        while len(frames) < max_frames:
-            ok, bgr = cap.read()
-            if not ok:
-                break
-            if frames and bgr.shape != frames[0].shape:
-                raise LowcamError(f"{path}: frame {len(frames)} is {bgr.shape[1]}x{bgr.shape[0]}, the first is "
-                                  f"{frames[0].shape[1]}x{frames[0].shape[0]}: mismatched sizes")
-            frames.append(bgr[..., ::-1].copy())
-    finally:
-        cap.release()
+    with quiet_stderr() as decoder:   # FFmpeg conceals damage (grey blocks) and says so on stderr, from any thread
+        try:
+            while len(frames) < max_frames:
+                ok, bgr = cap.read()
+                if not ok:
+                    break
+                if frames and bgr.shape != frames[0].shape:
+                    raise LowcamError(f"{path}: frame {len(frames)} is {bgr.shape[1]}x{bgr.shape[0]}, the first is "
+                                      f"{frames[0].shape[1]}x{frames[0].shape[0]}: mismatched sizes")
+                frames.append(bgr[..., ::-1].copy())
+        finally:
+            cap.release()
+    complaint = next((line for line in decoder["text"].splitlines() if _VIDEO_DAMAGE.search(line)), None)
+    if complaint:
+        raise LowcamError(f"{path}: damaged video data ({complaint.strip()}; {len(frames)} of {count} frames "
+                          "decoded); damaged footage is not measured")
     if not frames:
         raise LowcamError(f"{path}: no frame could be decoded")
+    if len(frames) < min(count, max_frames) - 1:   # the count may be an estimate (off by one) in some containers
+        # the decoder stopped without complaint: what it gave is whole (Cinepak's tree.avi gives 68 of 444)
+        print(f"note: {path}: only the first {len(frames)} of the {count} frames its header lists could be decoded; "
+              "measuring those", file=sys.stderr)
     return np.stack(frames), (rate if 0 < rate < 1000 else None)
+
+
+#: What FFmpeg's decoders say of damaged video data they conceal.
+_VIDEO_DAMAGE = re.compile(r"damaged|corrupt|conceal|error|invalid|missing|truncat", re.IGNORECASE)
 
 
 def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
