@@ -181,7 +181,8 @@ def _dng(path: Path) -> None:
                        Tag.SamplesPerPixel: 1, Tag.BitsPerSample: 16, Tag.CFARepeatPatternDim: [2, 2],
                        Tag.PhotometricInterpretation: PhotometricInterpretation.Color_Filter_Array,
                        Tag.CFAPattern: CFAPattern.RGGB, Tag.BlackLevel: 64, Tag.WhiteLevel: 1023, Tag.Make: "Fuzz",
-                       Tag.Model: "Cam", Tag.ColorMatrix1: matrix, Tag.CalibrationIlluminant1: CalibrationIlluminant.D65,
+                       Tag.Model: "Cam", Tag.ColorMatrix1: matrix,
+                       Tag.CalibrationIlluminant1: CalibrationIlluminant.D65,
                        Tag.AsShotNeutral: [[1, 2], [1, 1], [5, 8]],
                        Tag.NoiseProfile: [2e-4, 3e-6, 1e-4, 2e-6, 3e-4, 4e-6]}.items():
         tags.set(tag, value)
@@ -395,8 +396,8 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
          "output": ["{out}/cam.toml"]}, ("sharpening",), 2.0),
     ("calibrate", "colour"): Baseline(
         {"frames": [], "patches": ["{in}/patches.csv"], "output": ["{out}/cam.toml"]}, ("patches.csv", "chart"), 0.4,
-        companions={"frames": {"patches": None, "chart": ["{in}/chart/chart.json"], "frames": ["{in}/chart/chart.png"]},
-                    "chart": {"patches": None, "frames": ["{in}/chart/chart.png"], "chart": ["{in}/chart/chart.json"]}}),
+        companions={dest: {"patches": None, "frames": ["{in}/chart/chart.png"], "chart": ["{in}/chart/chart.json"]}
+                    for dest in ("frames", "chart")}),
     ("calibrate", "plate"): Baseline(
         {"footage": ["{in}/footage"], "output": ["{out}/cam.toml"]}, ("footage", "gyro.csv"), 6.0,
         companions={"gyro": {"gyro": ["{in}/gyro.csv"], "fps": ["30"]}}),
@@ -406,7 +407,7 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
     ("compare",): Baseline(
         {"set": ["{in}/set"], "profile": [P], "json": ["{out}/compare.json"]}, ("set", "footage"), 0.4,
         may_change=("in/set/.lowcam/history.json",), option_costs={"plate_only": 4.0, "probes": 4.0},
-        companions={"plate_only": {"set": None, "plate_only": ["{in}/footage"]}, "probes": {"set": None, "plate_only": ["{in}/footage"]}}),
+        companions={dest: {"set": None, "plate_only": ["{in}/footage"]} for dest in ("plate_only", "probes")}),
     ("diagnose",): Baseline(
         {"set": ["{in}/set"], "profile": [P], "json": ["{out}/diagnose.json"], "only": ["vignetting"]}, ("set",),
         0.6, may_change=("in/set/.lowcam/history.json",),

@@ -36,13 +36,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import hashlib
 import math
 import os
 import re
 import resource
 import shutil
-import stat
 import threading
 import time
 from dataclasses import dataclass, field
@@ -56,7 +54,7 @@ from hypothesis import strategies as st
 import fuzz_baselines as fb
 from lowcam.arguments import Number, Numbers, Reads, Text, Writes, declared
 from lowcam.cli import build_parser
-from test_fuzz_cli import run_in_process, run_subprocess, traceback_summary
+from test_fuzz_cli import run_in_process, run_subprocess, snapshot, traceback_summary
 
 PARSER = build_parser()
 #: accepted values of a command whose whole run costs more than this (s) are left to the slow tier
@@ -498,27 +496,12 @@ def content_strategy() -> st.SearchStrategy:
 
 def folder_values() -> list[Value]:
     """Values for an input that is a folder (a set, footage, a folder of frames)."""
-    def file_instead(ex):
-        p = ex.path("not-a-folder.txt")
-        p.write_text("a file\n")
-        return [str(p)]
-
-    def empty_folder(ex):
-        p = ex.path("empty")
-        p.mkdir()
-        return [str(p)]
-
-    def foreign(ex):
-        p = ex.path("holiday")
-        p.mkdir()
-        (p / "notes.txt").write_text("mine\n")
-        return [str(p)]
-
     def trailing_slash(ex):
         return [ex.valid()[0].rstrip("/") + "/"] + ex.valid()[1:]
 
-    return [Value("a file, not a folder", file_instead), Value("an empty folder", empty_folder),
-            Value("a folder of other files", foreign),
+    return [Value("a file, not a folder", lambda ex: [_plain_file(ex)]),
+            Value("an empty folder", lambda ex: [_folder(ex, "empty")]),
+            Value("a folder of other files", lambda ex: [_folder(ex, "holiday", {"notes.txt": "mine\n"})]),
             Value("the valid folder with a trailing slash", trailing_slash, EITHER)]
 
 
@@ -670,15 +653,10 @@ def writes_values(decl: Writes) -> list[Value]:
         return make
 
     def existing_folder(ex):
-        p = ex.path("a-folder" + (suffix if decl.kind == "file" else ""))
-        p.mkdir()
-        (p / "keep.txt").write_text("mine\n")
-        return [str(p)]
+        return [_folder(ex, "a-folder" + (suffix if decl.kind == "file" else ""), {"keep.txt": "mine\n"})]
 
     def parent_is_a_file(ex):
-        f = ex.path("plain.txt")
-        f.write_text("a file\n")
-        return [str(f / name)]
+        return [str(Path(_plain_file(ex)) / name)]
 
     def nested(ex):
         return [str(ex.path("new") / "nested" / "folders" / name)]
@@ -721,20 +699,10 @@ def writes_values(decl: Writes) -> list[Value]:
             values += [Value("a wrong suffix", lambda ex: [str(ex.path("result.wrong"))]),
                        Value("an upper-case suffix", lambda ex, s=s: [str(ex.path("result" + s.upper()))], EITHER)]
     elif decl.kind == "folder":
-        def lowcam_folder(ex):
-            p = ex.path("earlier")
-            p.mkdir()
-            (p / ".lowcam-output").write_text("")
-            return [str(p)]
-
-        def empty(ex):
-            p = ex.path("empty")
-            p.mkdir()
-            return [str(p)]
-
         values += [Value("an existing folder Lowcam did not make", existing_folder),
-                   Value("an existing empty folder", empty, EITHER),
-                   Value("a folder Lowcam made before", lowcam_folder, EITHER),
+                   Value("an existing empty folder", lambda ex: [_folder(ex, "empty")], EITHER),
+                   Value("a folder Lowcam made before", lambda ex: [_folder(ex, "earlier", {".lowcam-output": ""})],
+                         EITHER),
                    Value("a file, not a folder", lambda ex: [_plain_file(ex)]),
                    Value("the folder of the inputs", lambda ex: [str(ex.inp)])]
     else:
@@ -747,6 +715,15 @@ def _plain_file(ex: Example) -> str:
     f = ex.path("plain.txt")
     f.write_text("a file\n")
     return str(f)
+
+
+def _folder(ex: Example, name: str, files: dict | None = None) -> str:
+    """A folder ``fuzz/name`` holding ``files`` (name -> text)."""
+    p = ex.path(name)
+    p.mkdir()
+    for file, text in (files or {}).items():
+        (p / file).write_text(text)
+    return str(p)
 
 
 def writes_strategy(decl: Writes) -> st.SearchStrategy:
@@ -839,24 +816,17 @@ def assemble(command: tuple[str, ...], args: dict) -> list[str]:
 
 
 def tree_state(root: Path) -> dict[Path, str]:
-    """Every path under ``root``: files by content hash, folders, links by target, anything else by type. Never
-    opens a special file."""
-    out = {}
+    """Every path under ``root``: files by content hash and special files by type (``test_fuzz_cli.snapshot``),
+    and every folder and link (by its target), so that a half-made empty folder shows. Never opens a special
+    file."""
+    out = snapshot(root)
     for dirpath, dirnames, filenames in os.walk(root):
         for name in dirnames + filenames:
             p = Path(dirpath) / name
-            try:
-                st_ = os.lstat(p)
-            except FileNotFoundError:
-                continue
-            if stat.S_ISLNK(st_.st_mode):
+            if p.is_symlink():
                 out[p] = f"link {os.readlink(p)}"
-            elif stat.S_ISDIR(st_.st_mode):
+            elif name in dirnames:
                 out[p] = "dir"
-            elif stat.S_ISREG(st_.st_mode):
-                out[p] = hashlib.sha256(p.read_bytes()).hexdigest()
-            else:
-                out[p] = f"type {stat.S_IFMT(st_.st_mode):o}"
     return out
 
 
