@@ -40,15 +40,22 @@ def _side(name: str):
 def cmd_demo(args) -> int:
     """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
     and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
-    from lowcam.io import check_output_folder, make_output_folder, read_image, read_plate, write_png
-    from lowcam.pipeline import plain_composite
+    from lowcam.io import output_folder
     from lowcam.profile import load_profile
-    from lowcam.sample import side_by_side
 
     if args.footage is not None:
         return _footage_demo(args)
     profile = load_profile(args.profile)
-    out = make_output_folder(check_output_folder(args.output, force=args.force)).resolve()
+    with output_folder(args.output, force=args.force) as out:  # a failed demo leaves no half-made folder
+        return _sample_demo(args, profile, out.resolve())
+
+
+def _sample_demo(args, profile, out: Path) -> int:
+    """``lowcam demo`` (``--synthetic`` or with Blender) into the folder ``out``, made for it."""
+    from lowcam.io import read_image, read_plate, write_png
+    from lowcam.pipeline import plain_composite
+    from lowcam.sample import side_by_side
+
     steps = ["building the sample scene", "rendering with Cycles and simulating the camera", "writing the composites"]
     say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
     say(0)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
 from .errors import LowcamError
 
@@ -89,6 +90,8 @@ class Writes:
             raise argparse.ArgumentTypeError(f"an empty output {'folder' if self.kind == 'folder' else 'path'}")
         if "\0" in text:
             raise argparse.ArgumentTypeError("an output path with a NUL character")
+        if self.kind == "file" and text.endswith(("/", os.sep)):  # Path() would drop the slash: a file "new"
+            raise argparse.ArgumentTypeError(f"{text}: ends with '/', a folder; give the file's name")
         return text
 
     def __repr__(self) -> str:

@@ -237,7 +237,7 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     except DiskFull:
         raise  # every later frame would fail alike: the shot stops (run_shot)
     except LowcamError as e:
-        return FrameResult(frame, "failed", str(e), time.perf_counter() - t)
+        return FrameResult(frame, "failed", " ".join(str(e).splitlines()), time.perf_counter() - t)  # one line
     return FrameResult(frame, "written", "", time.perf_counter() - t)
 
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -89,6 +90,13 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def _get_values(self, action, arg_strings):
+        # argparse drops a lone "--" given as an option's value (--maker=--) and hands on [], unconverted and
+        # unchecked: it is the value "--"
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            return self._get_value(action, "--")
+        return super()._get_values(action, arg_strings)
 
 
 def _load_inputs(args, profile):
@@ -247,17 +255,23 @@ def cmd_calibrate(args) -> int:
     if args.report:
         check_output_folder(args.report, "--report")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
-    if args.what == "all":
-        base_from_manifest, results = cal.run_manifest(args.manifest, plots)
-        if not args.profile:
-            base = base_from_manifest
-    else:
-        results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
-    for r in results:
-        print(r.summary)
-        for note in r.notes + (r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []):
-            print(f"  {note}")
-    saved = cal.apply_to_profile(base, results, out).save(out)
+    new_plots = not plots.exists()
+    try:
+        if args.what == "all":
+            base_from_manifest, results = cal.run_manifest(args.manifest, plots)
+            if not args.profile:
+                base = base_from_manifest
+        else:
+            results = [cal.CALIBRATIONS[args.calibration].from_args(args, base, plots)]
+        for r in results:
+            print(r.summary)
+            for note in r.notes + (r.numbers.get("skipped", []) if isinstance(r.numbers, dict) else []):
+                print(f"  {note}")
+        saved = cal.apply_to_profile(base, results, out).save(out)
+    except BaseException:  # a refused fit (or Ctrl-C) leaves no plots folder of a profile never written
+        if new_plots:
+            shutil.rmtree(plots, ignore_errors=True)
+        raise
     figures = [f for r in results for f in r.figures]
     print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
     if args.report:
@@ -391,6 +405,8 @@ def cmd_diagnose(args) -> int:
         return _explain(args, mset, profile)
     d = diagnose(mset, profile, only, progress=_progress_line)
     _end_progress_lines()
+    if args.add_best and d.best is None:  # refused before anything is written
+        raise LowcamError(f"{mset.path}: no candidate could be fitted to this set; --add-best has none to add")
     doc = d.as_json()
     atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     print(f"{mset.path}: {d.summary()} ({d.seconds:.1f} s)")
@@ -407,8 +423,6 @@ def cmd_diagnose(args) -> int:
                                            "measured": doc["measured"]})
         print(f"{page}: report")
     if args.add_best:
-        if d.best is None:
-            raise LowcamError("no candidate could be fitted to this set")
         saved = save_candidate_profile(d.best, args.output)
         added = [c.effect for c in d.added] + [d.best.effect]
         print(f"{saved}: {profile.name} with {' and '.join(dict.fromkeys(added))} added")
@@ -505,7 +519,8 @@ def cmd_profile_search(args) -> int:
 
 
 def cmd_profile_from_dng(args) -> int:
-    check_output(args.output)
+    if Path(check_output(args.output)).suffix.lower() != ".toml":
+        raise LowcamError(f"{args.output}: a profile is written as .toml")
     profile, notes = profile_from_dng(args.dng, load_profile(args.base))
     for note in notes:
         print(f"note: {note}")
@@ -705,7 +720,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
     q.add_argument("dng", type=Reads("file"), help="a DNG file (a phone's or camera's raw)")
     q.add_argument("--base", type=PROFILE, default="fire-i", help="profile whose frame, optics and processing are kept")
-    q.add_argument("-o", "--output", type=Writes("file"), required=True, help="profile TOML to write")
+    q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="profile TOML to write")
     q.set_defaults(func=cmd_profile_from_dng)
     for q in psub.choices.values():
         q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)

@@ -10,6 +10,7 @@ Contents
 - :func:`check_output`: check before any work that an output file can be written and is none of the inputs
 - :func:`check_image_output`: :func:`check_output` for an image, its suffix one of :data:`IMAGE_SUFFIXES`
 - :func:`check_output_folder`: check before any work that a folder may receive a whole output
+- :func:`output_folder`: check and make an output folder for a block of work; an error removes what it made
 - :func:`make_output_folder`: create an output folder and mark it as Lowcam's
 - :data:`FOLDER_MARKER`: the file that marks a folder Lowcam wrote
 - :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
@@ -39,6 +40,7 @@ import contextlib
 import errno
 import os
 import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -228,6 +230,21 @@ def check_output_folder(folder, option: str = "-o", force: bool = False) -> Path
     return folder
 
 
+@contextlib.contextmanager
+def output_folder(folder, option: str = "-o", force: bool = False):
+    """:func:`check_output_folder`, then :func:`make_output_folder` for a block of work: a refusal or an error
+    inside the block removes the folders it made, so no half-made output is left."""
+    folder = check_output_folder(folder, option, force)
+    new = next((p for p in reversed([folder, *folder.parents]) if not p.exists()), None)  # the topmost to be made
+    made = make_output_folder(folder)
+    try:
+        yield made
+    except BaseException:
+        if new is not None:
+            shutil.rmtree(new, ignore_errors=True)
+        raise
+
+
 def make_output_folder(folder) -> Path:
     """Create ``folder`` (checked by :func:`check_output_folder`) and mark it as Lowcam's."""
     folder = Path(folder)
@@ -340,13 +357,21 @@ def read_exr(path) -> dict[str, np.ndarray]:
         return _read_exr_in_child(path)
     import OpenEXR
 
-    try:
-        with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
-            parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
-                     for part in f.parts]
-    except Exception as e:  # OpenEXR raises bare RuntimeErrors for corrupt files
-        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})") from None
+    # OpenEXR raises bare RuntimeErrors for some corrupt files; of others (a truncated one) its C core only
+    # complains on file descriptors 1 and 2 and hands back no channels: that complaint is the reason, kept off the
+    # terminal
+    with quiet_stderr(stdout=True) as said:
+        try:
+            with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
+                parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
+                         for part in f.parts]
+        except Exception as e:
+            parts, reason = None, (str(e).splitlines()[0] if str(e) else type(e).__name__)
+    complaint = sorted(said["text"].strip().splitlines(), key=lambda line: "EXR_ERR" not in line)
+    if parts is None or (complaint and not any(channels for _, channels in parts)):
+        if complaint:
+            reason = complaint[0].removeprefix(f"{path}: ").strip()
+        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})")
     channels: dict[str, np.ndarray] = {}
     for part_name, part_channels in parts:
         twice = sorted(set(channels) & set(part_channels))

@@ -154,8 +154,8 @@ def find_lens(maker: str, model: str, crop_factor: float | None = None) -> LensE
         else:
             makers = sorted({e.maker for e in entries})
             near = "makers " + nearest_names(maker, makers)
-        raise LowcamError(f"lens '{maker}' '{model}' is not in the lensfun database; nearest: {near} "
-                          "(lowcam profile search TEXT lists lenses)")
+        raise LowcamError(f"--maker '{maker}' --model '{model}': the lens is not in the lensfun database; nearest: "
+                          f"{near} (lowcam profile search TEXT lists lenses)")
     if crop_factor is not None:
         exact.sort(key=lambda e: abs(e.crop_factor - crop_factor))
     return exact[0]
@@ -172,7 +172,8 @@ def camera_crop_factor(maker: str, model: str) -> tuple[float, str]:
                    c.model.lower().removeprefix(mk).strip())]
     if not cameras:
         names = sorted({f"{c.maker} {c.model}" for c in _database().cameras})
-        raise LowcamError(f"camera '{maker} {model}' is not in the lensfun database; nearest: "
+        raise LowcamError(f"--camera-maker '{maker}' --camera-model '{model}': the camera is not in the lensfun "
+                          f"database; nearest: "
                           f"{nearest_names(f'{maker} {model}', names)}")
     return _f32(cameras[0].crop_factor), f"{cameras[0].maker} {cameras[0].model}"
 
@@ -273,8 +274,7 @@ def lens_setting(entry: LensEntry, focal_mm: float, aperture: float | None = Non
     lens = entry.lens
     lo, hi = entry.focal_range
     if lo and not lo * 0.999 <= focal_mm <= hi * 1.001:
-        raise LowcamError(f"{entry.name}: focal length {focal_mm:g} mm is outside the lens's range "
-                          f"{lo:g}-{hi:g} mm")
+        raise LowcamError(f"--focal-mm {focal_mm:g}: outside the lens's range {lo:g}-{hi:g} mm ({entry.name})")
     widest = _f32(lens.min_aperture or 0.0)
     if aperture is None:
         aperture = widest or 2.8

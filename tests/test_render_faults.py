@@ -75,7 +75,7 @@ def test_render_refuses_a_blend_without_camera_or_plates_and_an_output_that_is_t
     shot = tiny_scene(tmp_path / "shot0001.blend")
     before = shot.read_bytes()
     line = refused(capfd, ["render", str(shot), "--frames", "1", "-o", str(tmp_path / "shot####.blend")])
-    assert "the output is the input" in line and str(shot) in line and shot.read_bytes() == before
+    assert "-o would replace" in line and str(shot) in line and shot.read_bytes() == before
 
 
 @pytest.mark.timeout(300)

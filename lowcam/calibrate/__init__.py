@@ -71,7 +71,8 @@ from ..effects.chromatic_aberration import fit_chromatic_aberration, write_ca_gr
 from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
 from ..effects.lens import fit_lens
 from ..effects.noise import MIN_LEVELS, brightness_levels, fit_noise
-from ..effects.sharpening import fit_row_filter, fit_sharpening_to_images, frequency_response
+from ..effects.saturation import colour_matrix_problems, saturation_matrix
+from ..effects.sharpening import Sharpening, fit_row_filter, fit_sharpening_to_images, frequency_response
 from ..effects.vignetting import fit_vignetting
 from ..errors import LowcamError
 from ..geometry import grid_points
@@ -511,6 +512,11 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
             ax.legend(fontsize=7)
         figures.append(figure(Path(plot_dir) / "sharpening.png", draw, (10, 4)))
     gain = a / sharpness
+    most = Sharpening.params["gain_per_unit"].high
+    if gain > most:  # the captures are fine: the setting they are said to be at is not
+        raise LowcamError(f"--sharpness {sharpness:g}: the sharp captures ({sharp_source}) sharpen by a = {a:.3f}, "
+                          f"{gain:.3g} per unit of setting, beyond the {most:g} of a camera; give the setting they "
+                          f"were captured at")
     return Calibration("sharpening", f"sharpening: a = {a:.3f}, sigma = {sigma:.3f} sensels at sharpness "
                                      f"{sharpness:g} (gain per unit {gain:.4f})",
                        {"sharpening": {"sharpness": sharpness, "gain_per_unit": gain, "sigma": sigma}},
@@ -536,7 +542,8 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
                      source: str = "colour calibration") -> Calibration:
     """Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255), ``measured_rgb`` the
     camera's mean patch colours (DN) at saturation setting ``saturation``; ``source`` names them in messages."""
-    if not np.isfinite(saturation) or saturation <= 0:
+    # at 0 the saturation matrix is singular; within a hair of 0 dividing it out amplifies rounding a trillionfold
+    if not np.isfinite(saturation) or saturation <= 0 or np.linalg.cond(saturation_matrix(saturation)) > 1e6:
         raise LowcamError(f"--saturation {saturation:g}: the patches' saturation setting must be above 0 (at 0 the "
                           f"camera's output is grey and its crosstalk cannot be recovered)")
     ideal_rgb, measured_rgb = np.asarray(ideal_rgb, np.float64), np.asarray(measured_rgb, np.float64)
@@ -551,6 +558,10 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
     total = fit_colour_matrix(ideal_rgb, measured_rgb)
     crosstalk = crosstalk_from_colour_matrix(total, saturation)
     _require_finite(source, "the crosstalk", colour_matrix=total, crosstalk=crosstalk)
+    problems = colour_matrix_problems(crosstalk, "the crosstalk")
+    if problems:  # the patches are fine (checked above): the setting divided out is not the one they were taken at
+        raise LowcamError(f"{source}: with --saturation {saturation:g} divided out, {problems[0]}, which no camera "
+                          f"has; give the saturation setting the patches were captured at")
     figures = []
     if plot_dir:
         def draw(fig):
