@@ -9,17 +9,18 @@ Contents
 - :func:`unregister`: unregister them, in reverse order
 
 Modules: :mod:`.properties` (scene settings), :mod:`.operators`, :mod:`.panels`, :mod:`.handlers` (render
-handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera motion), :mod:`.render` and
-:mod:`.commands` (command line), :mod:`.sample` (the sample scene), :mod:`.compat` (what differs between Blender
-4.2 LTS and 5.2).
+handlers), :mod:`.match` (the Match loop: estimate, compare, diagnose, add, undo), :mod:`.jobs` (``lowcam``
+commands in a child process, polled by a timer), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera
+motion), :mod:`.render` and :mod:`.commands` (command line), :mod:`.sample` (the sample scene), :mod:`.compat`
+(what differs between Blender 4.2 LTS and 5.2).
 """
 
 
 def _modules():
-    from . import handlers, operators, panels, properties
+    from . import handlers, match, operators, panels, properties
     from ..nodes import custom  # the extension's root package holds addon/ and nodes/
 
-    return properties, operators, panels, handlers, custom
+    return properties, operators, match, panels, handlers, custom
 
 
 def _bundled_profiles():
@@ -37,10 +38,11 @@ def register():
     import bpy
 
     _bundled_profiles()
-    properties, operators, panels, handlers, custom = _modules()
-    for cls in properties.classes + operators.classes + panels.classes:
+    properties, operators, match, panels, handlers, custom = _modules()
+    for cls in properties.classes + operators.classes + match.classes + panels.classes:
         bpy.utils.register_class(cls)
     properties.register()
+    match.register()
     handlers.register()
     custom.register()
 
@@ -48,9 +50,10 @@ def register():
 def unregister():
     import bpy
 
-    properties, operators, panels, handlers, custom = _modules()
+    properties, operators, match, panels, handlers, custom = _modules()
     custom.unregister()
     handlers.unregister()
+    match.unregister()
     properties.unregister()
-    for cls in reversed(properties.classes + operators.classes + panels.classes):
+    for cls in reversed(properties.classes + operators.classes + match.classes + panels.classes):
         bpy.utils.unregister_class(cls)

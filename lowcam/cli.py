@@ -293,6 +293,8 @@ def cmd_calibrate(args) -> int:
     check_output_folder(plots, "--plots")
     if args.report:
         check_output_folder(args.report, "--report")
+    if args.json:
+        check_output(args.json, input_files(args, "json", "output") + [out], "--json")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
     if args.what == "all":
         base_from_manifest, results = cal.run_manifest(args.manifest, plots)
@@ -309,6 +311,14 @@ def cmd_calibrate(args) -> int:
     print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
     if args.report:
         print(f"{cal.write_report(results, args.report)}: report")
+    if args.json:
+        import json
+
+        from .io import atomic_write_bytes
+
+        doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
+                                                        "provenance": r.provenance} for r in results]}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=str).encode())
     return 0
 
 
@@ -680,6 +690,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="profile to start from (default: the output if it exists, else fire-i)")
         q.add_argument("--report", help="folder for an HTML report with every plot and number")
         q.add_argument("--plots", help="folder for the plots (default: <output>-plots beside the profile)")
+        q.add_argument("--json", help="write the profile's path and each calibration's summary as JSON")
         q.set_defaults(func=cmd_calibrate)
 
     from .calibrate import CALIBRATIONS
