@@ -428,7 +428,7 @@ def cmd_diagnose(args) -> int:
     import json
 
     from .io import atomic_write_bytes, check_output
-    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, save_candidate_profile
+    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, removal_candidates, save_candidate_profile
     from .measure.report import write_compare_report
     from .measure.sets import load_set
     from .profile import load_profile
@@ -444,7 +444,7 @@ def cmd_diagnose(args) -> int:
     for plugin in args.plugin:
         effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
-    known = candidates()
+    known = [*candidates(), *removal_candidates(profile)]       # without_EFFECT too: a row the Match panel adds
     only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
     for name in only or []:
         if name not in known:

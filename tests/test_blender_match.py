@@ -199,6 +199,34 @@ def test_without_a_measurement_set_compare_looks_at_the_plate_alone(scene, measu
     assert bpy.data.images["Lowcam Residual Map"].filepath.endswith("plate_probes.png")
 
 
+HEADLESS_SCRIPT = r'''
+import json, sys, bpy
+from lowcam_blender import submodule
+submodule("addon.match")                      # registers the add-on, as Blender does when it is enabled
+bpy.ops.wm.open_mainfile(filepath=sys.argv[1])
+m = bpy.context.scene.lowcam_match
+bpy.ops.lowcam.match_compare()                # background: waits for its job
+print(json.dumps({"error": m.error, "verdict": m.verdict, "where": m.where, "profile": m.versions[0].profile}))
+'''
+
+
+def test_a_headless_script_runs_the_operators_like_the_command_line(scene, measured, tmp_path):
+    """A separate process, as ``blender -b shot.blend --python loop.py`` would be: the set named relative to the
+    .blend (``//``), the operator waits for its job, and the panel's numbers are the command line's."""
+    (tmp_path / "set").symlink_to(measured, target_is_directory=True)
+    scene.lowcam_match.measurement_set = "//set"
+    bpy.ops.wm.save_mainfile()
+    r = subprocess.run([sys.executable, "-c", HEADLESS_SCRIPT, str(tmp_path / "shot.blend")], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    panel = json.loads(r.stdout.strip().splitlines()[-1])
+    cli = json.loads((tmp_path / "shot-match" / "compare-fire-i.json").read_text())
+    _cli("compare", measured, "--profile", "fire-i", "--json", tmp_path / "cli.json")
+    assert json.loads((tmp_path / "cli.json").read_text())["error"] == cli["error"]
+    assert panel["error"] == pytest.approx(cli["error"], rel=1e-6) and panel["verdict"] == cli["verdict"]
+    assert panel["where"] and panel["profile"] == "fire-i"
+
+
 def test_an_unsaved_file_writes_its_profiles_to_a_temporary_folder():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     folder = match.profile_folder()
