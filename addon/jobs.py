@@ -225,8 +225,14 @@ def poll() -> bool:
     return False
 
 
+_shown: list = [None]       # the progress line on show: the panels redraw only when it changes
+
+
 def _redraw(text: str | None) -> None:
-    """The panels and the status bar show ``text`` (None clears the status bar)."""
+    """The panels and the status bar show ``text`` (None clears the status bar); nothing when it is on show."""
+    if text == _shown[0]:
+        return
+    _shown[0] = text
     wm = getattr(bpy.context, "window_manager", None)
     for window in getattr(wm, "windows", ()):
         workspace = getattr(window, "workspace", None)

@@ -236,16 +236,15 @@ def _show_comparison(m, doc: dict) -> None:
 
 
 def _load_image(name: str, path: Path, show: bool = False):
-    """``path`` as the Blender image ``name`` (reloaded when it exists); ``show``: in every Image Editor."""
+    """``path`` as the Blender image ``name`` (a new image each time, so that its panel preview is new too);
+    ``show``: in every Image Editor."""
     if not path.is_file():
         return None
-    image = bpy.data.images.get(name)
-    if image is None:
-        image = bpy.data.images.load(str(path))
-        image.name = name
-    else:
-        image.filepath = str(path)
-        image.reload()
+    old = bpy.data.images.get(name)
+    if old is not None:
+        bpy.data.images.remove(old)
+    image = bpy.data.images.load(str(path))
+    image.name = name
     try:
         image.preview_ensure()
     except (AttributeError, RuntimeError):
@@ -302,7 +301,7 @@ def _job(scene, title: str, steps, outputs, on_done) -> jobs.Job:
             scene.lowcam_match.progress = ""
             scene.lowcam_match.job_error = job.error
         print(f"lowcam: {job.title}: {job.error}", file=sys.stderr, flush=True)
-        if not getattr(job, "waited", False):   # a waiting operator reports the error itself
+        if job.state == "failed" and not getattr(job, "waited", False):   # a waiting operator reports it itself
             try:
                 bpy.ops.lowcam.match_report(message=f"{job.title}: {job.error}")
             except RuntimeError:

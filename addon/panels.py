@@ -131,31 +131,34 @@ def draw_match(layout, scene) -> None:
         row.label(text=job.progress, icon="SORTTIME")
         row.operator("lowcam.match_cancel", icon="CANCEL")
     if m.job_error:
-        box = layout.box()
-        for line in textwrap.wrap(m.job_error, 70) or [""]:
-            box.label(text=line, icon="ERROR" if line == textwrap.wrap(m.job_error, 70)[0] else "BLANK1")
+        col = layout.box().column(align=True)
+        for k, line in enumerate(textwrap.wrap(m.job_error, 70)):
+            col.label(text=line, icon="ERROR" if k == 0 else "BLANK1")
     if m.error >= 0:
         box = layout.box()
-        box.label(text=f"Error {m.error:.3f} (noise 1.0, explained below 1.1): {m.verdict}")
+        col = box.column(align=True)
+        col.label(text=f"Error {m.error:.3f} (noise 1.0, explained below 1.1): {m.verdict}")
         if m.families:
-            box.label(text=m.families)
+            col.label(text=m.families)
         for line in m.where.split("; ") if m.where else ():
-            box.label(text=f"where: {line}")
+            col.label(text=f"where: {line}")
         if m.report:
             row = box.row(align=True)
             row.label(text=m.report)
             row.operator("lowcam.match_open_report", text="", icon="URL")
         _image(box, "Lowcam Residual Map")
     if m.summary:
+        col = layout.column(align=True)
         for line in textwrap.wrap(m.summary, 70):
-            layout.label(text=line)
+            col.label(text=line)
     if len(m.candidates):
         layout.label(text="Candidates: effect, error after, held out")
         layout.template_list("LOWCAM_UL_candidates", "", m, "candidates", m, "candidate_index", rows=3)
         if 0 <= m.candidate_index < len(m.candidates):
             c = m.candidates[m.candidate_index]
+            col = layout.column(align=True)
             for line in textwrap.wrap(c.evidence + (f" [{c.flags}]" if c.flags else ""), 70):
-                layout.label(text=line)
+                col.label(text=line)
         row = layout.row(align=True)
         row.operator("lowcam.match_add", text="Add Best").index = -1
         row.operator("lowcam.match_until_explained")
