@@ -261,6 +261,8 @@ def cmd_calibrate(args) -> int:
     check_output_folder(plots, "--plots")
     if args.report:
         check_output_folder(args.report, "--report")
+    if args.json:
+        check_output(args.json, [out], "--json")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
     new_plots = not plots.exists()
     try:
@@ -285,6 +287,14 @@ def cmd_calibrate(args) -> int:
     print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
     if args.report:
         print(f"{cal.write_report(results, args.report)}: report")
+    if args.json:
+        import json
+
+        from .io import atomic_write_bytes
+
+        doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
+                                                        "provenance": r.provenance} for r in results]}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=str).encode())
     return 0
 
 
@@ -420,7 +430,7 @@ def cmd_diagnose(args) -> int:
     import json
 
     from .io import atomic_write_bytes, check_output
-    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, save_candidate_profile
+    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, removal_candidates, save_candidate_profile
     from .measure.report import write_compare_report
     from .measure.sets import load_set
     from .profile import load_profile
@@ -437,7 +447,7 @@ def cmd_diagnose(args) -> int:
         if ":" in plugin:
             effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
-    known = candidates()
+    known = [*candidates(), *removal_candidates(profile)]       # without_EFFECT too: a row the Match panel adds
     only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
     for name in only or []:
         if name not in known:
@@ -694,6 +704,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="profile to start from (default: the output if it exists, else fire-i)")
         q.add_argument("--report", type=Writes("folder"), help="folder for an HTML report with every plot and number")
         q.add_argument("--plots", type=Writes("folder"), help="folder for the plots (default: <output>-plots beside the profile)")
+        q.add_argument("--json", type=Writes("file"),
+                       help="write the profile's path and each calibration's summary as JSON")
         q.set_defaults(func=cmd_calibrate, also_writes=_calibrate_also_writes)
 
     from .calibrate import CALIBRATIONS
