@@ -9,17 +9,19 @@ Contents
 - :func:`unregister`: unregister them, in reverse order
 
 Modules: :mod:`.properties` (scene settings), :mod:`.preferences` (trusted plug-ins), :mod:`.operators`,
-:mod:`.panels`, :mod:`.handlers` (render handlers), :mod:`.frames` (scene to engine inputs), :mod:`.motion` (camera
-motion), :mod:`.render` and :mod:`.commands` (command line), :mod:`.sample` (the sample scene). What differs between
-Blender 4.2 LTS and 5.2 is the root's ``blender_compat``, below both ``addon/`` and ``nodes/``.
+:mod:`.panels`, :mod:`.handlers` (render handlers), :mod:`.match` (the Match loop: estimate, compare, diagnose, add,
+undo), :mod:`.jobs` (``lowcam`` commands in a child process, polled by a timer), :mod:`.frames` (scene to engine
+inputs), :mod:`.motion` (camera motion), :mod:`.render` and :mod:`.commands` (command line), :mod:`.sample` (the
+sample scene). What differs between Blender 4.2 LTS and 5.2 is the root's ``blender_compat``, below both ``addon/``
+and ``nodes/``.
 """
 
 
 def _modules():
-    from . import handlers, operators, panels, preferences, properties
+    from . import handlers, match, operators, panels, preferences, properties
     from ..nodes import custom  # the extension's root package holds addon/ and nodes/
 
-    return properties, operators, panels, handlers, custom, preferences
+    return properties, operators, match, panels, handlers, custom, preferences
 
 
 def _bundled_profiles():
@@ -37,11 +39,12 @@ def register():
     import bpy
 
     _bundled_profiles()
-    properties, operators, panels, handlers, custom, preferences = _modules()
-    for cls in preferences.classes + properties.classes + operators.classes + panels.classes:
+    properties, operators, match, panels, handlers, custom, preferences = _modules()
+    for cls in preferences.classes + properties.classes + operators.classes + match.classes + panels.classes:
         bpy.utils.register_class(cls)
     preferences.register()
     properties.register()
+    match.register()
     handlers.register()
     custom.register()
 
@@ -49,10 +52,12 @@ def register():
 def unregister():
     import bpy
 
-    properties, operators, panels, handlers, custom, preferences = _modules()
+    properties, operators, match, panels, handlers, custom, preferences = _modules()
     custom.unregister()
     handlers.unregister()
+    match.unregister()
     properties.unregister()
     preferences.unregister()
-    for cls in reversed(preferences.classes + properties.classes + operators.classes + panels.classes):
+    for cls in reversed(preferences.classes + properties.classes + operators.classes + match.classes
+                        + panels.classes):
         bpy.utils.unregister_class(cls)

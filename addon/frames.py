@@ -33,6 +33,7 @@ from lowcam.motion import FrameMotion
 from lowcam.scene import OVERLAY_LAYER
 
 from ..blender_compat import set_multilayer_exr
+from .properties import profile_ref
 
 #: Blender tracking-camera models -> lowcam's BlenderLens models and their coefficient names.
 CLIP_LENS_KEYS = {
@@ -53,7 +54,7 @@ def scene_profile(scene):
     from lowcam.profile import load_profile
 
     s = settings(scene)
-    profile = load_profile(s.profile).with_controls(s.sharpness, s.saturation)
+    profile = load_profile(profile_ref(s)).with_controls(s.sharpness, s.saturation)
     if s.use_clip_lens:
         if s.plate_clip is None:
             raise LowcamError("Clip Lens is on but no Movie Clip is chosen as the plate")

@@ -97,7 +97,7 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             tree.nodes.new("CompositorNodeRLayers")
         out = compat.compositor_output(tree)
         node = tree.nodes.new("LowcamCameraNode")
-        node.profile = scene.lowcam.profile
+        node.use_scene_profile = True               # it follows the scene's Profile or Profile File
         tree.links.new(layers.outputs["Image"], node.inputs["Image"])
         s = scene.lowcam
         if s.plate_source == "CLIP" and s.plate_clip is not None:

@@ -2,7 +2,9 @@
 
 Contents
 --------
-- :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``)
+- :func:`profile_ref`: the profile the settings choose: the Profile File when one is given, else the menu's name
+- :func:`follow_profile`: rebuild the compositor's camera nodes that follow the scene's profile
+- :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``); ``profile_ref()`` as above
 - :data:`classes`: the property classes, for registration
 - :func:`register`: add ``scene.lowcam`` to every scene
 - :func:`unregister`: remove it
@@ -21,24 +23,56 @@ def _profile_items(self, context):
     return items or [("fire-i", "fire-i", "bundled")]
 
 
+def profile_ref(settings) -> str:
+    """The profile ``settings`` (``scene.lowcam``) choose, as ``load_profile`` takes it: the Profile File (a .toml
+    anywhere, made absolute) when one is given, else the Profile menu's name (bundled or on the search path)."""
+    return bpy.path.abspath(settings.profile_file) if settings.profile_file else settings.profile
+
+
+def follow_profile(scene) -> None:
+    """Rebuild the "Lowcam Camera" nodes of ``scene``'s compositor that follow the scene's profile."""
+    from ..blender_compat import compositor_tree
+
+    tree = compositor_tree(scene, create=False)
+    for node in getattr(tree, "nodes", ()):
+        if getattr(node, "use_scene_profile", False):
+            node.on_profile(bpy.context)
+
+
 def _load_profile_defaults(self, context):
-    """When the profile changes, show its own sharpness, saturation and exposure."""
+    """When the profile changes, show its own sharpness, saturation and exposure; the camera nodes that follow
+    the scene rebuild."""
     from lowcam.errors import LowcamError
     from lowcam.profile import load_profile
 
     try:
-        controls = load_profile(self.profile).controls()
+        controls = load_profile(profile_ref(self)).controls()
     except LowcamError:
         return
     for key, value in controls.items():
         setattr(self, key, value)
+    scene = self.id_data
+    if isinstance(scene, bpy.types.Scene):
+        follow_profile(scene)
+
+
+def _menu_profile(self, context):
+    """A name picked from the menu replaces the Profile File."""
+    if self.profile_file:
+        self.profile_file = ""     # its update loads the defaults
+    else:
+        _load_profile_defaults(self, context)
 
 
 class LowcamSettings(bpy.types.PropertyGroup):
     enabled: BoolProperty(name="Simulate Camera", default=False,
                           description="Write a degraded composite of every rendered frame (render handler)")
-    profile: EnumProperty(name="Profile", items=_profile_items, update=_load_profile_defaults,
+    profile: EnumProperty(name="Profile", items=_profile_items, update=_menu_profile,
                           description="Camera profile (bundled, or in $LOWCAM_PROFILE_PATH)")
+    profile_file: StringProperty(name="Profile File", subtype="FILE_PATH", options=path_options(),
+                                 update=_load_profile_defaults,
+                                 description="A profile .toml anywhere; when given, it is used instead of the "
+                                             "Profile menu's name")
     sharpness: FloatProperty(name="Sharpness", default=80.0, min=0.0, max=255.0,
                              description="The camera's sharpness setting (sec. 4.4.3)")
     saturation: FloatProperty(name="Saturation", default=90.0, min=0.0, max=255.0,
@@ -80,6 +114,11 @@ class LowcamSettings(bpy.types.PropertyGroup):
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
                            options=path_options(),
                            description="Degraded composites; #### is the frame number")
+
+    def profile_ref(self) -> str:
+        """:func:`profile_ref` of these settings (the compositor's camera node asks the scene's settings so, without
+        importing the add-on: ``nodes/`` stands below ``addon/``)."""
+        return profile_ref(self)
 
 
 classes = (LowcamSettings,)

@@ -57,7 +57,8 @@ from .io import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_o
                  make_output_folder, read_plate, read_render, write_image, write_png)
 from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
 from .measure.compare import compare
-from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, explain, save_candidate_profile
+from .measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,
+                               save_candidate_profile)
 from .measure.plate import PLATE_PROBES, read_footage
 from .measure.plate_compare import compare_plate, write_plate_report
 from .measure.report import history_figure, read_history, record_history, write_compare_report
@@ -254,6 +255,8 @@ def cmd_calibrate(args) -> int:
     check_output_folder(plots, "--plots")
     if args.report:
         check_output_folder(args.report, "--report")
+    if args.json:
+        check_output(args.json, [out], "--json")
     base = load_profile(args.profile or (out if out.is_file() else "fire-i"))
     new_plots = not plots.exists()
     try:
@@ -276,6 +279,10 @@ def cmd_calibrate(args) -> int:
     print(f"{saved}: profile written" + (f"; plots in {plots}" if figures else ""))
     if args.report:
         print(f"{cal.write_report(results, args.report)}: report")
+    if args.json:
+        doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
+                                                        "provenance": r.provenance} for r in results]}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=str).encode())
     return 0
 
 
@@ -396,7 +403,7 @@ def cmd_diagnose(args) -> int:
         if ":" in plugin:
             effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
-    known = candidates()
+    known = [*candidates(), *removal_candidates(profile)]       # without_EFFECT too: a row the Match panel adds
     only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
     for name in only or []:
         if name not in known:
@@ -628,6 +635,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="profile to start from (default: the output if it exists, else fire-i)")
         q.add_argument("--report", type=Writes("folder"), help="folder for an HTML report with every plot and number")
         q.add_argument("--plots", type=Writes("folder"), help="folder for the plots (default: <output>-plots beside the profile)")
+        q.add_argument("--json", type=Writes("file"),
+                       help="write the profile's path and each calibration's summary as JSON")
         q.set_defaults(func=cmd_calibrate, also_writes=_calibrate_also_writes)
 
 

@@ -168,28 +168,55 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
     effect = ""
     mirrored = ("sharpness", "saturation", "exposure_s", "angular_velocity")
     profile: EnumProperty(name="Profile", items=_profile_items, update=lambda self, c: self.on_profile(c))
+    profile_file: StringProperty(name="Profile File", subtype="FILE_PATH", update=lambda self, c: self.on_profile(c),
+                                 description="A profile .toml anywhere; when given, it replaces the menu's name")
+    use_scene_profile: BoolProperty(name="Scene's Profile", default=False, update=lambda self, c: self.on_profile(c),
+                                    description="Simulate the profile the scene's Lowcam settings choose (its "
+                                                "Profile or Profile File), and rebuild when it changes")
     sharpness: FloatProperty(name="Sharpness", default=80.0, min=0.0, max=255.0, update=_rebuild)
     saturation: FloatProperty(name="Saturation", default=90.0, min=0.0, max=255.0, update=_rebuild)
     exposure_s: FloatProperty(name="Exposure (s)", default=0.033, min=0.0, max=10.0, update=_rebuild)
     angular_velocity: FloatVectorProperty(name="Angular Velocity (rad/s)", size=3, update=_rebuild,
                                           description="Camera rotation rate (x right, y down, z forward)")
 
+    def draw_buttons(self, context, layout):
+        layout.prop(self, "use_scene_profile")
+        if not self.use_scene_profile:
+            layout.prop(self, "profile")
+            layout.prop(self, "profile_file", text="File")
+        for key in self.mirrored:
+            layout.prop(self, key)
+
+    def profile_source(self, context=None) -> str:
+        """The profile the node simulates: the scene's (Scene's Profile: its settings' ``profile_ref()``), its Profile
+        File, or its menu's name."""
+        scene = getattr(context or bpy.context, "scene", None)
+        if self.use_scene_profile and scene is not None:
+            return scene.lowcam.profile_ref()
+        return bpy.path.abspath(self.profile_file) if self.profile_file else self.profile
+
     def on_profile(self, context):
         self.load_profile_values()
         self.rebuild(context)
 
     def load_profile_values(self):
+        from lowcam.errors import LowcamError
         from lowcam.profile import load_profile
 
+        try:
+            controls = load_profile(self.profile_source()).controls()
+        except LowcamError as e:
+            print(f"lowcam: {self.name}: {e}")
+            return
         self["_loading"] = True
-        for key, value in load_profile(self.profile).controls().items():
+        for key, value in controls.items():
             setattr(self, key, value)
         self["_loading"] = False
 
     def build(self, context):
         from lowcam.profile import load_profile
 
-        profile = load_profile(self.profile).with_controls(self.sharpness, self.saturation)
+        profile = load_profile(self.profile_source(context)).with_controls(self.sharpness, self.saturation)
         camera = bake(profile, _render_shape(context, profile), tuple(self.angular_velocity), self.exposure_s)
         return build_camera_group(camera, name=self.group_name())
 

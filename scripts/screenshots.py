@@ -1,15 +1,17 @@
 """The UI, seen: screenshots of the add-on in Debian trixie's Blender 4.3 under Xvfb, written to docs/.
 
-    python scripts/screenshots.py [OUT_DIR]        (as root; default docs/)
+    python scripts/screenshots.py [OUT_DIR] [--match-only]       (as root; default docs/)
 
 It builds the linux-x64 extension zip, installs it into a fresh user folder inside the trixie root
 (``scripts/trixie-blender.sh`` builds the root once), builds the sample scene with the installed add-on, and runs
 ``scripts/screenshots_blender.py`` in the real binary under ``xvfb-run`` twice per shot: with the add-on and with it
 disabled. Each picture is cropped with OpenCV to what the add-on adds (the panel, the nodes, the menu) and written
-as ``lowcam-panel.png``, ``lowcam-compositor.png``, ``lowcam-group.png`` and ``lowcam-add-menu.png``.
+as ``lowcam-panel.png``, ``lowcam-compositor.png``, ``lowcam-group.png`` and ``lowcam-add-menu.png``. Then the
+Match loop runs in the same Blender on a measurement set with a hidden tone curve (:func:`match_pictures`):
+``lowcam-match-before.png``, ``lowcam-match-diagnosed.png`` and ``lowcam-match-added.png``.
 
-The helpers here (:class:`Trixie`, :func:`build_zip`, :func:`install`, :func:`build_scene`, :func:`take`) are also
-what ``tests/test_blender_binary.py`` drives the root with.
+The helpers here (:class:`Trixie`, :func:`build_zip`, :func:`install`, :func:`build_scene`, :func:`take`,
+:func:`match_pictures`) are also what ``tests/test_blender_binary.py`` drives the root with.
 """
 from __future__ import annotations
 
@@ -31,6 +33,13 @@ GEOMETRY = {"panel": (720, 1500), "compositor": (1600, 1000), "menu": (1600, 100
 DOCS = {"panel": "lowcam-panel.png", "compositor": "lowcam-compositor.png", "group": "lowcam-group.png",
         "menu": "lowcam-add-menu.png"}
 TIMES: dict[str, float] = {}
+#: The Match loop's pictures -> the docs/ file name; its X screen (the Properties editor with the Match panel alone).
+MATCH_DOCS = {"match-before": "lowcam-match-before.png", "match-diagnosed": "lowcam-match-diagnosed.png",
+              "match-added": "lowcam-match-added.png"}
+MATCH_GEOMETRY = (760, 1500)
+#: The root's bpy 5.2 venv: SciPy, scikit-image, Matplotlib and tqdm for the loop's ``lowcam`` commands, which the
+#: extension zip does not carry (it bundles OpenCV, OpenEXR and tomli-w); put on Blender's PYTHONPATH for them.
+LOOP_PACKAGES = "/opt/bpy52/lib/python3.13/site-packages"
 
 
 class Unavailable(Exception):
@@ -135,16 +144,20 @@ def build_scene(trixie: Trixie, work: Path, user: str, render_width: int = 400) 
     return blend
 
 
-def take(trixie: Trixie, work: Path, user: str, blend: Path, shot: str, addon: bool = True) -> dict[str, Path]:
-    """Run ``shot`` in the real binary under Xvfb; returns {picture name: PNG path here}."""
+def take(trixie: Trixie, work: Path, user: str, blend: Path, shot: str, addon: bool = True, extra=(),
+         env: dict | None = None, timeout: int = 300) -> dict[str, Path]:
+    """Run ``shot`` in the real binary under Xvfb (``extra`` arguments after it, ``env`` added to Blender's);
+    returns {picture name: PNG path here}."""
     out = work / f"shots-{shot}-{'on' if addon else 'off'}"
     script = work / "screenshots_blender.py"
     shutil.copy2(REPO / "scripts" / "screenshots_blender.py", script)
-    w, h = GEOMETRY[shot]
-    args = ["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "blender", "-p", "0", "0", str(w), str(h),
-            trixie.inside(blend), "--python", trixie.inside(script), "--", trixie.inside(out), shot]
+    w, h = MATCH_GEOMETRY if shot == "match" else GEOMETRY[shot]
+    system_env = ["--python-use-system-env"] if env and "PYTHONPATH" in env else []   # else Blender ignores it
+    args = ["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "blender", "-p", "0", "0", str(w), str(h), *system_env,
+            trixie.inside(blend), "--python", trixie.inside(script), "--", trixie.inside(out), shot, *extra]
     t0 = time.monotonic()
-    r = trixie.run(*args, *([] if addon else ["--no-addon"]), env={"BLENDER_USER_RESOURCES": user}, timeout=300)
+    r = trixie.run(*args, *([] if addon else ["--no-addon"]), env={"BLENDER_USER_RESOURCES": user, **(env or {})},
+                   timeout=timeout)
     TIMES[f"shot_{shot}_{'on' if addon else 'off'}_s"] = time.monotonic() - t0
     if (out / "error.txt").exists():
         raise RuntimeError(f"screenshot {shot}: {(out / 'error.txt').read_text()}")
@@ -152,6 +165,21 @@ def take(trixie: Trixie, work: Path, user: str, blend: Path, shot: str, addon: b
     if not pictures:
         raise RuntimeError(f"screenshot {shot} wrote nothing:\n{r.stdout[-3000:]}{r.stderr[-3000:]}")
     return pictures
+
+
+def match_pictures(trixie: Trixie, work: Path, user: str, blend: Path) -> tuple[dict[str, Path], dict]:
+    """The Match loop run in the real binary under Xvfb on a measurement set with a hidden tone curve (made here
+    by ``lowcam synth``): ({picture name: PNG path here}, the numbers of ``match.json``)."""
+    import json
+
+    folder = work / "match-set"
+    t0 = time.monotonic()
+    subprocess.run([sys.executable, "-m", "lowcam.cli", "synth", "--add", "tone_curve:gamma=2.0", "--frames", "2",
+                    "--width", "64", "-o", str(folder), "--force"], check=True, capture_output=True, timeout=600)
+    TIMES["match_set_s"] = time.monotonic() - t0
+    pictures = take(trixie, work, user, blend, "match", extra=[trixie.inside(folder)],
+                    env={"PYTHONPATH": LOOP_PACKAGES}, timeout=900)
+    return pictures, json.loads((work / "shots-match-on" / "match.json").read_text())
 
 
 def changed_box(with_addon: np.ndarray, without: np.ndarray, threshold: int = 24):
@@ -182,6 +210,8 @@ def crop_for_docs(name: str, with_addon: np.ndarray, without: np.ndarray, margin
     if name == "panel":
         box = changed_box(with_addon, without)
         crop = with_addon[:min(h, box[3] + margin)]
+    elif name.startswith("match"):              # the Match panel alone: the window's top to the panel's end
+        crop = with_addon[:min(h, content_box(with_addon)[3] + margin)]
     else:
         x0, y0, x1, y1 = content_box(with_addon)
         crop = with_addon[max(0, y0 - margin):min(h, y1 + margin), max(0, x0 - margin):min(w, x1 + margin)]
@@ -208,7 +238,10 @@ def make_all(trixie: Trixie, work: Path, zip_path: Path) -> dict[str, tuple[np.n
 def main(argv=None) -> int:
     import cv2
 
-    out = Path((argv or sys.argv[1:] or [REPO / "docs"])[0])
+    args = list(sys.argv[1:] if argv is None else argv)
+    match_only = "--match-only" in args             # only the Match loop's pictures
+    args = [a for a in args if a != "--match-only"]
+    out = Path((args or [REPO / "docs"])[0])
     trixie = Trixie()
     try:
         print(trixie.setup())
@@ -218,8 +251,20 @@ def main(argv=None) -> int:
     work, _ = trixie.workdir()
     try:
         zip_path = build_zip(work / "dist")
-        for name, (on, off) in make_all(trixie, work, zip_path).items():
-            path = out / DOCS[name]
+        if match_only:
+            pictures = {}
+            user = install(trixie, work, zip_path)
+            blend = build_scene(trixie, work, user)
+        else:
+            pictures = make_all(trixie, work, zip_path)
+            user, blend = trixie.inside(work / "user"), work / "scene" / "sample_scene.blend"
+        match, numbers = match_pictures(trixie, work, user, blend)
+        print(f"match: {numbers}")
+        for name, path in match.items():
+            image = cv2.imread(str(path))
+            pictures[name] = (image, image)
+        for name, (on, off) in pictures.items():
+            path = out / {**DOCS, **MATCH_DOCS}[name]
             ok, data = cv2.imencode(".png", crop_for_docs(name, on, off), [cv2.IMWRITE_PNG_COMPRESSION, 9])
             tmp = path.with_suffix(".png.part")
             tmp.write_bytes(data.tobytes())

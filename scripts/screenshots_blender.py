@@ -4,7 +4,9 @@
 
 SHOT is ``panel`` (Output Properties with the Lowcam Camera panel: the Properties editor fills the window),
 ``compositor`` (the compositor with a Lowcam Camera node, then inside its group: ``compositor.png`` and
-``group.png``) or ``menu`` (the compositor's Add > Lowcam menu open). ``--no-addon`` disables the installed add-on
+``group.png``), ``menu`` (the compositor's Add > Lowcam menu open) or ``match`` (the Match loop run on the
+measurement set named after SHOT: ``match-before.png``, ``match-diagnosed.png``, ``match-added.png`` and
+``match.json``). ``--no-addon`` disables the installed add-on
 first, so the same steps show the same window without it. Writes OUT_DIR/<name>.png with Blender's own
 ImageMagick's ``import`` (or ``screen.screenshot``) and then quits; a step that fails is written to OUT_DIR/error.txt.
 
@@ -64,13 +66,19 @@ def shoot(name):
             bpy.ops.screen.screenshot(filepath=str(path), check_existing=False)
 
 
-def panel_steps():
+def output_properties():
+    """Steps that make Output Properties fill the window; returns its area."""
     area = biggest_area()
     area.type = "PROPERTIES"
     yield 0.3
     area = full_screen(area)
     area.spaces.active.context = "OUTPUT"
     yield 1.0
+    return area
+
+
+def panel_steps():
+    yield from output_properties()
     shoot("panel")
 
 
@@ -135,7 +143,59 @@ def menu_steps():
     shoot("menu")
 
 
-STEPS = {"panel": panel_steps, "compositor": compositor_steps, "menu": menu_steps}
+def match_steps():
+    """The Match loop run in this Blender: the Match panel alone in Output Properties (the tab's other panels are
+    unregistered for the pictures) before, after Compare and Diagnose (the list filled) and after Add Best (the
+    history plot). A probe timer every 0.05 s measures how long Blender's main thread is held while the jobs run;
+    the numbers go to OUT_DIR/match.json. ARGS: OUT_DIR match SET_DIR."""
+    import importlib
+    import json
+    import time
+
+    jobs = importlib.import_module(f"{MODULE}.addon.jobs")
+    scene = bpy.context.scene
+    m = scene.lowcam_match
+    m.measurement_set, m.only = ARGS[2], "tone_curve,vignetting"
+    others = [c for c in bpy.types.Panel.__subclasses__() if getattr(c, "bl_space_type", "") == "PROPERTIES"
+              and getattr(c, "bl_context", "") == "output" and c.__name__ != "LOWCAM_PT_match_output"]
+    for cls in sorted(others, key=lambda c: not getattr(c, "bl_parent_id", "")):   # sub-panels first
+        if getattr(cls, "is_registered", False):
+            bpy.utils.unregister_class(cls)
+    area = yield from output_properties()
+    shoot("match-before")
+    gaps, last = [], [time.perf_counter()]
+
+    def probe():
+        now = time.perf_counter()
+        gaps.append((now - last[0], name, now - t0))    # the gap, the step, when in the step (s)
+        last[0] = now
+        return 0.05
+
+    numbers = {}
+    for name, op in (("compare", "match_compare"), ("diagnose", "match_diagnose"), ("add", "match_add")):
+        with override(area):
+            getattr(bpy.ops.lowcam, op)()              # with a window the operator returns at once
+        t0 = time.perf_counter()
+        last[0] = t0
+        bpy.app.timers.register(probe, first_interval=0.05)
+        while jobs.current() is not None:
+            yield 0.25
+        bpy.app.timers.unregister(probe)
+        if m.job_error:
+            raise RuntimeError(f"{name}: {m.job_error}")
+        numbers[name] = {"error": m.error, "seconds": time.perf_counter() - t0}
+        if name == "diagnose":
+            numbers["candidates"] = [c.effect for c in m.candidates]
+            yield 1.5                                  # the residual map's preview is drawn
+            shoot("match-diagnosed")
+    yield 2.0                                          # the history plot's preview is drawn
+    shoot("match-added")
+    numbers.update(versions=[[v.label, v.error] for v in m.versions], probe_calls=len(gaps),
+                   longest_gap_s=max(g for g, _, _ in gaps), longest_gaps=sorted(gaps, reverse=True)[:6])
+    (OUT / "match.json").write_text(json.dumps(numbers, indent=1))
+
+
+STEPS = {"panel": panel_steps, "compositor": compositor_steps, "menu": menu_steps, "match": match_steps}
 
 
 def main():

@@ -7,6 +7,7 @@ edges have no analytic model independent of the camera chain that shapes them.
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -291,8 +292,12 @@ def test_calibrate_plate_command(tmp_path):
     base = tmp_path / "base.toml"
     _profile().save(base)
     out = tmp_path / "mycam.toml"
-    r = _cli("calibrate", "plate", folder, "--base", base, "-o", out, "--report", tmp_path / "report")
+    r = _cli("calibrate", "plate", folder, "--base", base, "-o", out, "--report", tmp_path / "report",
+             "--json", tmp_path / "plate.json")
     assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "plate.json").read_text())
+    assert doc["profile"] == str(out.resolve()) and doc["calibrations"][0]["what"] == "plate"
+    assert doc["calibrations"][0]["summary"] in r.stdout and "noise.red" in doc["calibrations"][0]["provenance"]
     assert "too little texture to estimate sharpening" in r.stdout
     written = out.read_text()
     assert '"noise.red" = "estimated from the plate' in written and "sharpening.sharpness" not in written
