@@ -53,18 +53,15 @@ def draw_settings(layout, scene):
     row.operator("lowcam.apply")
 
 
-class LOWCAM_PT_output(bpy.types.Panel):
-    bl_label = "Lowcam Camera"
+class _OutputProperties:
+    """Where a panel sits: Output Properties."""
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
     bl_context = "output"
 
-    def draw(self, context):
-        draw_settings(self.layout, context.scene)
 
-
-class LOWCAM_PT_compositor(bpy.types.Panel):
-    bl_label = "Lowcam Camera"
+class _CompositorSidebar:
+    """Where a panel sits: the compositor's sidebar, Lowcam tab."""
     bl_space_type = "NODE_EDITOR"
     bl_region_type = "UI"
     bl_category = "Lowcam"
@@ -72,6 +69,17 @@ class LOWCAM_PT_compositor(bpy.types.Panel):
     @classmethod
     def poll(cls, context):
         return getattr(context.space_data, "tree_type", "") == "CompositorNodeTree"
+
+
+class LOWCAM_PT_output(_OutputProperties, bpy.types.Panel):
+    bl_label = "Lowcam Camera"
+
+    def draw(self, context):
+        draw_settings(self.layout, context.scene)
+
+
+class LOWCAM_PT_compositor(_CompositorSidebar, bpy.types.Panel):
+    bl_label = "Lowcam Camera"
 
     def draw(self, context):
         draw_settings(self.layout, context.scene)
@@ -169,25 +177,15 @@ def draw_match(layout, scene) -> None:
         _image(layout, "Lowcam Error History")
 
 
-class LOWCAM_PT_match_output(bpy.types.Panel):
+class LOWCAM_PT_match_output(_OutputProperties, bpy.types.Panel):
     bl_label = "Lowcam Match"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "output"
 
     def draw(self, context):
         draw_match(self.layout, context.scene)
 
 
-class LOWCAM_PT_match_compositor(bpy.types.Panel):
+class LOWCAM_PT_match_compositor(_CompositorSidebar, bpy.types.Panel):
     bl_label = "Lowcam Match"
-    bl_space_type = "NODE_EDITOR"
-    bl_region_type = "UI"
-    bl_category = "Lowcam"
-
-    @classmethod
-    def poll(cls, context):
-        return getattr(context.space_data, "tree_type", "") == "CompositorNodeTree"
 
     def draw(self, context):
         draw_match(self.layout, context.scene)

@@ -328,7 +328,8 @@ def edge_profile_from_plate(footage, base, film):
     never sharper than the camera makes them, but may be softer (defocus, the scene itself): on real footage the
     blur is an upper bound. Fewer than :data:`MIN_EDGES` edges in either orientation: too little texture, not
     measurable. Confidence: ``0.9 min(1, edges / 100)``, halved where the fitted profile misses the measured one
-    by 0.03 of the step or more (root mean square). ``base``: the profile
+    by 0.03 of the step or more (root mean square), and halved again when the sharpness ends at its range's
+    upper end (:class:`Sharpening`'s 255). ``base``: the profile
     being refined; ``film(profile, make_ideal)``: its frame of an ideal (:func:`lowcam.measure.plate.film`)."""
     from scipy.optimize import least_squares
 
@@ -364,14 +365,18 @@ def edge_profile_from_plate(footage, base, film):
         mx = model(aa, p[0], p[1])[0]
         return np.ones_like(tx) if mx is None else mx - tx
 
-    start = np.clip(start, [0.0, 0.05, 0.0], [3.0, 3.0, 8.0])
-    sol = least_squares(residual, start[1:], bounds=([0.0, 0.0], [4.0, 10.0]), diff_step=0.05,
+    a_max = Sharpening.params["sharpness"].high * gain  # the setting's own range bounds the gain
+    start = np.clip(start, [0.0, 0.05, 0.0], [3.0, 3.0, 0.8 * a_max])
+    sol = least_squares(residual, start[1:], bounds=([0.0, 0.0], [4.0, a_max]), diff_step=0.05,
                         x_scale=[0.3, 1.0], max_nfev=12)
     sol.x = np.concatenate([[aa], sol.x])
     rms = float(np.sqrt(np.mean(sol.fun ** 2)))
     params = {keys[1]: float(sol.x[1]), keys[2]: float(sol.x[2] / gain)}
     stat["fit_rms"] = rms
     stat["sharpening_a"] = float(sol.x[2])
-    confidence = 0.9 * min(1.0, min(nx, ny) / 100) * (1.0 if rms < 0.03 else 0.5)
+    at_bound = sol.x[2] >= 0.99 * a_max
+    confidence = 0.9 * min(1.0, min(nx, ny) / 100) * (1.0 if rms < 0.03 else 0.5) * (0.5 if at_bound else 1.0)
     return PlateEstimate("edge_profile", "sharpening", stat, params, round(confidence, 3),
-                         f"{nx} near-vertical and {ny} near-horizontal edges, profile fit rms {rms:.3f}")
+                         f"{nx} near-vertical and {ny} near-horizontal edges, profile fit rms {rms:.3f}"
+                         + (f"; the sharpness is at its range's end ({params[keys[2]]:.0f}): the edges may be "
+                            "sharper than this camera model can make them" if at_bound else ""))
