@@ -12,7 +12,8 @@ Modules: :mod:`.properties` (scene settings), :mod:`.preferences` (trusted plug-
 :mod:`.panels`, :mod:`.handlers` (render handlers), :mod:`.match` (the Match loop: estimate, compare, diagnose, add,
 undo), :mod:`.jobs` (``lowcam`` commands in a child process, polled by a timer), :mod:`.frames` (scene to engine
 inputs), :mod:`.motion` (camera motion), :mod:`.render` and :mod:`.commands` (command line), :mod:`.sample` (the
-sample scene), :mod:`.compat` (what differs between Blender 4.2 LTS and 5.2).
+sample scene). What differs between Blender 4.2 LTS and 5.2 is the root's ``blender_compat``, below both ``addon/``
+and ``nodes/``.
 """
 
 

@@ -32,7 +32,7 @@ from lowcam.errors import LowcamError
 from lowcam.motion import FrameMotion
 from lowcam.scene import OVERLAY_LAYER
 
-from .compat import set_multilayer_exr
+from ..blender_compat import set_multilayer_exr
 from .properties import profile_ref
 
 #: Blender tracking-camera models -> lowcam's BlenderLens models and their coefficient names.

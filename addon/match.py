@@ -50,7 +50,7 @@ from bpy.props import BoolProperty, CollectionProperty, FloatProperty, IntProper
 from lowcam.errors import LowcamError
 
 from . import jobs
-from .compat import path_options
+from ..blender_compat import path_options
 from .properties import profile_ref
 
 #: Image names the loop's pictures get in Blender.

@@ -17,7 +17,8 @@ import bpy
 
 from lowcam.errors import LowcamError
 
-from . import compat, frames
+from .. import blender_compat as compat
+from . import frames
 
 
 class LOWCAM_OT_setup_scene(bpy.types.Operator):

@@ -4,7 +4,7 @@ Contents
 --------
 - :func:`profile_ref`: the profile the settings choose: the Profile File when one is given, else the menu's name
 - :func:`follow_profile`: rebuild the compositor's camera nodes that follow the scene's profile
-- :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``)
+- :class:`LowcamSettings`: the scene's Lowcam settings (``scene.lowcam``); ``profile_ref()`` as above
 - :data:`classes`: the property classes, for registration
 - :func:`register`: add ``scene.lowcam`` to every scene
 - :func:`unregister`: remove it
@@ -13,7 +13,7 @@ Contents
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .compat import path_options
+from ..blender_compat import path_options
 
 
 def _profile_items(self, context):
@@ -31,7 +31,7 @@ def profile_ref(settings) -> str:
 
 def follow_profile(scene) -> None:
     """Rebuild the "Lowcam Camera" nodes of ``scene``'s compositor that follow the scene's profile."""
-    from .compat import compositor_tree
+    from ..blender_compat import compositor_tree
 
     tree = compositor_tree(scene, create=False)
     for node in getattr(tree, "nodes", ()):
@@ -114,6 +114,11 @@ class LowcamSettings(bpy.types.PropertyGroup):
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
                            options=path_options(),
                            description="Degraded composites; #### is the frame number")
+
+    def profile_ref(self) -> str:
+        """:func:`profile_ref` of these settings (the compositor's camera node asks the scene's settings so, without
+        importing the add-on: ``nodes/`` stands below ``addon/``)."""
+        return profile_ref(self)
 
 
 classes = (LowcamSettings,)

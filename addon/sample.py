@@ -42,7 +42,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     from lowcam.io import write_png
     from lowcam.sample import film, plate_seed, sample_photograph
 
-    from .compat import action_fcurves
+    from ..blender_compat import action_fcurves
     from .frames import motion, scene_profile, setup_scene
 
     folder = Path(folder).resolve()

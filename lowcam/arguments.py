@@ -39,6 +39,8 @@ import argparse
 import math
 import os
 
+from .errors import LowcamError
+
 #: The kinds of input :class:`Reads` knows (see the module's docstring).
 READ_KINDS = ("file", "folder", "glob", "footage", "profile", "set", "files", "pattern", "manifest")
 #: The kinds of output :class:`Writes` knows.
@@ -199,8 +201,6 @@ class Text:
         self.__name__ = what or "text"
 
     def __call__(self, text) -> str:
-        from .errors import LowcamError
-
         text = str(text)
         if "\0" in text:
             raise argparse.ArgumentTypeError("text with a NUL character")

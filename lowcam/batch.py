@@ -33,6 +33,7 @@ Contents
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import signal
@@ -40,8 +41,16 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
+
+from .effects import trust_plugins
+from .effects.noise import FRAME_RANGE
 from .errors import DiskFull, LowcamError
+from .io import check_image_output, check_plate, quiet_stderr, read_plate, remove_stale_temporaries, write_image
 from .motion import FrameMotion
+from .passes import needed_passes, read_render_and_passes
+from .pipeline import simulate
+from .profile import load_profile
 
 VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
 
@@ -67,8 +76,6 @@ MAX_FRAMES = 2_000_000
 def parse_frames(spec: str) -> list[int]:
     """``"1-240"``, ``"1-10,15,20-30"``, ``"1-240x2"`` (every second frame) -> sorted frame numbers, at most
     :data:`MAX_FRAMES` of them, each a valid frame number (:data:`lowcam.effects.noise.FRAME_RANGE`)."""
-    from .effects.noise import FRAME_RANGE
-
     frames: set[int] = set()
     count = 0
     for part in spec.split(","):
@@ -110,8 +117,6 @@ class Shot:
 
     def load_profile(self):
         """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
-        from .effects import trust_plugins
-
         trust_plugins(*self.plugins)
         return _profile(self.profile, self.effects)
 
@@ -131,8 +136,6 @@ _PROFILES: dict = {}
 
 
 def _profile(name: str, effects: tuple = ()):
-    from .profile import load_profile
-
     if (name, effects) not in _PROFILES:
         profile = load_profile(name)
         for effect, values in effects:
@@ -145,15 +148,11 @@ class _OpenVideo:
     """An open video file and the index of the frame its next read returns."""
 
     def __init__(self, path: str):
-        import cv2
-
         self.capture = cv2.VideoCapture(path)
         self.next_index = 0
         self.count = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT)) if self.capture.isOpened() else 0
 
     def read(self, index: int):
-        import cv2
-
         if index != self.next_index:      # sequential frames (a shot rendered in order) need no seek
             self.capture.set(cv2.CAP_PROP_POS_FRAMES, index)
         ok, img = self.capture.read()
@@ -192,10 +191,6 @@ def read_video_frame(path: str, index: int):
     """Frame ``index`` (0-based) of a video file as uint8 RGB. The file is opened once per process and kept open
     (keyed by path, modification time and size), so a shot's frames are read in sequence without reopening or
     seeking."""
-    import cv2
-
-    from .io import quiet_stderr
-
     if not Path(path).is_file():
         raise LowcamError(f"{path}: no such file")
     with quiet_stderr():  # FFmpeg's messages stay off the terminal
@@ -213,8 +208,6 @@ def _is_video(plates: str | None) -> bool:
 
 
 def _read_plate(shot: Shot, frame: int, profile):
-    from .io import check_plate, read_plate
-
     c = profile.camera
     if _is_video(shot.plates):
         img = read_video_frame(shot.plates, frame - shot.video_first_frame)
@@ -225,10 +218,6 @@ def _read_plate(shot: Shot, frame: int, profile):
 def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead. A full disk
     (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot."""
-    from .io import write_image
-    from .passes import needed_passes, read_render_and_passes
-    from .pipeline import simulate
-
     t = time.perf_counter()
     out = shot.output_path(frame)
     if out.exists() and not force:
@@ -255,8 +244,6 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
 def check_shot_outputs(output: str, renders: str, plates: str | None, frames: list[int], inputs=()) -> None:
     """Check, before any frame is made, that every output path of the shot can be written and that none is a
     render, a plate or one of ``inputs`` (the profile, the motion file)."""
-    from .io import check_image_output
-
     check_image_output(expand_pattern(output, frames[0]), inputs)
     video = plates if _is_video(plates) else None
     for option, pattern in (("--renders", renders), ("--plates", None if video else plates)):
@@ -281,8 +268,6 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
              quiet: bool = False) -> list[FrameResult]:
     """Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers`` processes,
     or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
-    from .io import remove_stale_temporaries
-
     shot.load_profile()  # a bad profile fails here, once, before any frame
     if _is_video(shot.plates):
         read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
@@ -342,8 +327,6 @@ QUIET_LOGGERS = ("distributed", "tornado", "tornado.application", "asyncio")
 def _dask_client(workers: int, scheduler: str | None):
     """A Dask client: on the cluster at ``scheduler``, or on a local cluster of ``workers`` processes that ignore
     Ctrl-C (the parent shuts them down), with Dask's own logging kept to errors that matter."""
-    import logging
-
     from dask.distributed import Client
 
     for name in [*QUIET_LOGGERS, *logging.root.manager.loggerDict]:  # Dask set some itself
@@ -395,8 +378,6 @@ def local_cluster(workers: int):
 
 
 def _one_opencv_thread():
-    import cv2
-
     cv2.setNumThreads(1)
 
 

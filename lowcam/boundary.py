@@ -29,7 +29,11 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from .batch import expand_pattern, parse_frames
+from .calibrate import CALIBRATIONS
 from .errors import LowcamError
+from .profile import find_profile
+from .schema import read_toml
 
 #: Image files a folder of frames is read for (a folder's other files are no input).
 FRAME_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr"}
@@ -85,8 +89,6 @@ def _frames_in(folder: Path) -> list[str]:
 
 
 def _toml(path: Path) -> dict:
-    from .schema import read_toml
-
     try:
         return read_toml(path)
     except LowcamError:
@@ -115,8 +117,6 @@ def _set_files(value: str) -> list[str]:
 
 def _manifest_files(value: str) -> list[tuple[str, str]]:
     """(path, dest) of a calibration manifest and every file it names; its ``profile`` counts as ``--profile``."""
-    from .calibrate import CALIBRATIONS
-
     path = Path(value)
     doc = _toml(path)
     out = [(str(path), "manifest")]
@@ -137,8 +137,6 @@ def _manifest_files(value: str) -> list[tuple[str, str]]:
 
 
 def _profile_file(name: str) -> list[str]:
-    from .profile import find_profile
-
     try:
         return [str(find_profile(name))]
     except LowcamError:
@@ -152,8 +150,6 @@ def _frame_set(args) -> frozenset[int] | None:
 
 @functools.lru_cache(maxsize=4)
 def _frames_of(spec: str) -> frozenset[int] | None:
-    from .batch import parse_frames
-
     try:
         return frozenset(parse_frames(spec))
     except LowcamError:
@@ -169,8 +165,6 @@ def _pattern_paths(pattern: str, args, folder_default: bool) -> list[str]:
     is there can be the same file as another); without a frame field, the pattern itself (a video), or with
     ``folder_default`` the folder's ``####.png`` (``render -o FOLDER``). The folder is listed once, not each of a
     shot's frames looked up."""
-    from .batch import expand_pattern
-
     if "#" not in pattern and "%" not in pattern:
         if not folder_default:
             return [pattern]

@@ -16,7 +16,7 @@ Capture input and output:
 Targets:
 
 - :data:`DICTIONARY`: the ArUco dictionary of the chart's ChArUco board
-- :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.calibrate.chart`); sizes in metres
+- :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.chart`); sizes in metres
 - :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description
 - :func:`detect_target`: the target's object points (metres) and image points (pixels) in one frame, or None
 - :func:`read_chart_layout`: the chart layout JSON's board and patches, every value checked
@@ -37,6 +37,7 @@ import numpy as np
 
 from . import schema
 from .errors import LowcamError
+from .io import read_image
 
 #: The ArUco dictionary of the chart's ChArUco board.
 DICTIONARY = "DICT_5X5_100"
@@ -57,8 +58,6 @@ def expand_paths(patterns) -> list[Path]:
 
 def load_frames(patterns, min_frames: int = 1, what: str = "calibration") -> tuple[list[np.ndarray], list[str]]:
     """Read capture frames (PNG/JPEG, RGB uint8); every problem names the frame."""
-    from .io import read_image
-
     paths = expand_paths(patterns)
     if len(paths) < min_frames:
         raise LowcamError(f"{what}: {len(paths)} frame(s) given, at least {min_frames} needed")

@@ -11,7 +11,7 @@ Contents
 --------
 - :class:`Parser`: an argument parser whose errors are one line
 - :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`: declared
-  arguments several commands share; :data:`IMAGE_SUFFIXES`: the images Lowcam writes
+  arguments several commands share; :data:`IMAGE_SUFFIXES`: the images Lowcam writes (:mod:`lowcam.io`'s)
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
@@ -32,16 +32,43 @@ Contents
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import shutil
 import sys
+import tempfile
 import time
 import warnings
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
 
+from . import calibrate as cal
 from .arguments import Number, Reads, Text, Writes, angular_velocity, bounded_int, defocus, frame_number, seed
-from .errors import LowcamError
+from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
+from .boundary import Named, check_declared_files, command_name
+from .calibrate import CALIBRATIONS
+from .chart import write_chart
+from .dng import profile_from_dng
+from .effects import effect_class, trust_plugins, trusted_modules
+from .errors import LowcamError, UntrustedPlugin
+from .io import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_output, check_output_folder,
+                 make_output_folder, read_plate, read_render, write_image, write_png)
+from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
+from .measure.compare import compare
+from .measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,
+                               save_candidate_profile)
+from .measure.plate import PLATE_PROBES, read_footage
+from .measure.plate_compare import compare_plate, write_plate_report
+from .measure.report import history_figure, read_history, record_history, write_compare_report
+from .measure.sets import load_set
+from .measure.synth import parse_change, synthesise
+from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
+from .passes import needed_passes, read_render_and_passes
+from .pipeline import run
+from .profile import list_profiles, load_profile
+from .sample import sample_plate, sample_render
 
 #: Declared ranges shared by several commands.
 FPS = Number(0, 1000, low_open=True, what="frames per second")
@@ -49,13 +76,9 @@ EXPOSURE_S = Number(0, 10, low_open=True, what="exposure time in s")
 METRES_PER_UNIT = Number(0, 1e5, low_open=True, what="metres per scene unit")
 PROFILE = Reads("profile")
 LAYER = Text(what="view layer")
-#: The image files Lowcam writes (``lowcam.io.IMAGE_SUFFIXES``, not imported here: it loads OpenCV).
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
 
 
 def _check_frames(spec: str) -> None:
-    from .batch import parse_frames
-
     parse_frames(spec)
 
 
@@ -78,8 +101,6 @@ class Parser(argparse.ArgumentParser):
 
 
 def _load_inputs(args, profile):
-    from .io import read_plate, read_render
-
     render = read_render(args.render, args.layer)
     plate = None
     if args.plate:
@@ -112,11 +133,6 @@ def _pass_options(p, fps: bool) -> None:
 
 
 def cmd_apply(args) -> int:
-    from .io import check_image_output, read_plate, write_image
-    from .passes import needed_passes, read_render_and_passes
-    from .pipeline import run
-    from .profile import load_profile
-
     check_image_output(args.output)
     profile = load_profile(args.profile)
     for name, values in _pass_effects(args):
@@ -136,8 +152,6 @@ def cmd_apply(args) -> int:
 
 def save_stages(stages, folder: Path) -> list[Path]:
     """Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)."""
-    from .io import make_output_folder, write_png
-
     make_output_folder(folder)
     paths = []
     for name, img in stages.items():
@@ -148,11 +162,6 @@ def save_stages(stages, folder: Path) -> list[Path]:
 
 
 def cmd_stages(args) -> int:
-    from .io import check_output_folder
-    from .pipeline import run
-    from .profile import load_profile
-    from .sample import sample_plate, sample_render
-
     check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     if args.render:
@@ -167,9 +176,6 @@ def cmd_stages(args) -> int:
 
 
 def cmd_profiles(args) -> int:
-    from .errors import UntrustedPlugin
-    from .profile import list_profiles, load_profile
-
     if args.name:
         p = load_profile(args.name)
         print(f"{p.name}: {p.camera.name} ({p.source})")
@@ -195,11 +201,6 @@ def cmd_profiles(args) -> int:
 
 
 def cmd_batch(args) -> int:
-    from .batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
-    from .effects import trusted_modules
-    from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
-    from .profile import load_profile
-
     frames = parse_frames(args.frames)
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
@@ -228,9 +229,6 @@ def cmd_batch(args) -> int:
 
 
 def cmd_chart(args) -> int:
-    from .calibrate.chart import write_chart
-    from .io import check_output
-
     if Path(args.output).suffix.lower() not in (".pdf", ".png"):
         raise LowcamError(f"{args.output}: the chart is written as .pdf or .png")
     check_output(args.output)
@@ -244,10 +242,6 @@ def cmd_chart(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from . import calibrate as cal
-    from .io import check_output, check_output_folder
-    from .profile import load_profile
-
     if args.what == "list":
         for name, effects in cal.calibration_listing().items():
             c = cal.CALIBRATIONS.get(name)
@@ -279,8 +273,6 @@ def cmd_calibrate(args) -> int:
         saved = cal.apply_to_profile(base, results, out).save(out)
     except BaseException:  # a refused fit (or Ctrl-C) leaves no plots folder of a profile never written
         if new_plots:
-            import shutil
-
             shutil.rmtree(plots, ignore_errors=True)
         raise
     figures = [f for r in results for f in r.figures]
@@ -288,10 +280,6 @@ def cmd_calibrate(args) -> int:
     if args.report:
         print(f"{cal.write_report(results, args.report)}: report")
     if args.json:
-        import json
-
-        from .io import atomic_write_bytes
-
         doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
                                                         "provenance": r.provenance} for r in results]}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=str).encode())
@@ -304,8 +292,6 @@ def _default_plots(output) -> Path:
 
 
 def _calibrate_also_writes(args):
-    from .boundary import Named
-
     if args.plots or not args.output:
         return []
     return [Named(str(_default_plots(args.output)), "-o (its plots folder)", "plots", "folder")]
@@ -317,8 +303,6 @@ def _steps_folder(output) -> Path:
 
 
 def _diagnose_also_writes(args):
-    from .boundary import Named
-
     if not (args.until_explained and args.output):
         return []
     return [Named(str(_steps_folder(args.output)), "-o (its steps folder)", "steps", "folder")]
@@ -326,8 +310,6 @@ def _diagnose_also_writes(args):
 
 def _check_report_outputs(args) -> None:
     """Check the ``--json`` file and the ``--report`` folder of compare and diagnose before any work."""
-    from .io import check_output, check_output_folder
-
     if args.json:
         check_output(args.json, option="--json")
     if args.report:
@@ -357,9 +339,6 @@ def _end_progress_lines() -> None:
 
 def _compare_plate_only(args, profile) -> int:
     """``lowcam compare --plate-only FOOTAGE``: the plate probes' statistics, profile against footage."""
-    from .measure.plate import PLATE_PROBES, read_footage
-    from .measure.plate_compare import compare_plate, write_plate_report
-
     probes = PLATE_PROBES
     if args.probes:
         names = [n.strip() for n in args.probes.split(",") if n.strip()]
@@ -378,10 +357,6 @@ def _compare_plate_only(args, profile) -> int:
     for name, why in cmp.skipped.items():
         print(f"  {name}: skipped ({why})")
     if args.json:
-        import json
-
-        from .io import atomic_write_bytes
-
         doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
                "where": cmp.where, "skipped": cmp.skipped, "statistics": [s.as_dict() for s in cmp.statistics]}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
@@ -392,11 +367,6 @@ def _compare_plate_only(args, profile) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .measure.compare import compare
-    from .measure.report import read_history, record_history, write_compare_report
-    from .measure.sets import load_set
-    from .profile import load_profile
-
     if (args.set is None) == (args.plate_only is None):
         raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
     if args.probes and not args.plate_only:
@@ -413,10 +383,6 @@ def cmd_compare(args) -> int:
     print(f"{mset.path}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
           ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()))
     if args.json:
-        import json
-
-        from .io import atomic_write_bytes
-
         doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
                "where": cmp.where}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
@@ -427,16 +393,6 @@ def cmd_compare(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    import json
-
-    from .io import atomic_write_bytes, check_output
-    from .measure.diagnose import RENAMED_CANDIDATES, candidates, diagnose, removal_candidates, save_candidate_profile
-    from .measure.report import write_compare_report
-    from .measure.sets import load_set
-    from .profile import load_profile
-
-    from .effects import effect_class
-
     _check_report_outputs(args)
     if (args.add_best or args.until_explained) and not args.output:
         raise LowcamError(f"{'--add-best' if args.add_best else '--until-explained'} needs -o NEW.toml")
@@ -482,13 +438,6 @@ def cmd_diagnose(args) -> int:
 
 def _explain(args, mset, profile) -> int:
     """``diagnose --until-explained``: add and refit until explained; every step's profile and the history."""
-    import json
-    import tempfile
-
-    from .io import atomic_write_bytes, check_output_folder, make_output_folder
-    from .measure.diagnose import explain, save_candidate_profile
-    from .measure.report import history_figure
-
     out = Path(args.output)
     steps_dir = _steps_folder(out)
     check_output_folder(steps_dir, "-o (its steps folder)")
@@ -518,8 +467,6 @@ def _explain(args, mset, profile) -> int:
     print(f"{saved}: the profile after {len(steps) - 1} added effect(s); each step's profile and {figure.name} "
           f"in {steps_dir}")
     if args.report:
-        from .measure.report import write_compare_report
-
         page = write_compare_report(final.diagnosis.comparison, args.report,
                                     f"{profile.name} made to explain {mset.path}", history,
                                     extra={"steps": doc})
@@ -528,10 +475,6 @@ def _explain(args, mset, profile) -> int:
 
 
 def cmd_synth(args) -> int:
-    from .io import check_output_folder
-    from .measure.synth import parse_change, synthesise
-    from .profile import load_profile
-
     check_output_folder(args.output, force=args.force)
     profile = load_profile(args.profile)
     folder = synthesise(profile, args.output, [parse_change(a) for a in args.add or []], args.remove or [],
@@ -545,10 +488,6 @@ def cmd_synth(args) -> int:
 # --- profile from-dng (issue 15, part 2) ------------------------------------------------------------------------
 def cmd_profile_from_lensfun(args) -> int:
     """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
-    from .io import check_output
-    from .lensdb import profile_from_lensfun, require_lensfunpy
-    from .profile import load_profile
-
     out = Path(check_output(args.output))
     if out.suffix.lower() != ".toml":
         raise LowcamError(f"{out}: a profile is written as .toml")
@@ -575,8 +514,6 @@ def cmd_profile_from_lensfun(args) -> int:
 def cmd_profile_search(args) -> int:
     """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
     crop factor | calibrations); none is a one-line error with the nearest names."""
-    from .lensdb import lens_entries, nearest_names, search_lenses
-
     text = " ".join(args.text)
     found = search_lenses(text)
     if not found:
@@ -589,10 +526,6 @@ def cmd_profile_search(args) -> int:
 
 
 def cmd_profile_from_dng(args) -> int:
-    from .dng import profile_from_dng
-    from .io import check_output
-    from .profile import load_profile
-
     if Path(check_output(args.output)).suffix.lower() != ".toml":
         raise LowcamError(f"{args.output}: a profile is written as .toml")
     profile, notes = profile_from_dng(args.dng, load_profile(args.base))
@@ -611,8 +544,6 @@ def add_plugin_commands(sub) -> None:
     """Commands other packages add through the ``lowcam.commands`` entry-point group: each entry is a function
     that takes the sub-parsers and adds its own (the Blender side adds ``demo``, ``render``, ``motion`` and
     ``node-asset``; see ``addon/commands.py``). The engine knows none of them by name."""
-    from importlib.metadata import entry_points
-
     for entry in entry_points(group="lowcam.commands"):
         try:
             add = entry.load()
@@ -708,7 +639,6 @@ def build_parser() -> argparse.ArgumentParser:
                        help="write the profile's path and each calibration's summary as JSON")
         q.set_defaults(func=cmd_calibrate, also_writes=_calibrate_also_writes)
 
-    from .calibrate import CALIBRATIONS
 
     for name, calibrator in CALIBRATIONS.items():
         q = csub.add_parser(name, aliases=list(calibrator.aliases), help=calibrator.help)
@@ -829,7 +759,6 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         if not debug:
             warnings.simplefilter("ignore")
-        from .boundary import check_declared_files, command_name
 
         command = command_name(parser, args)
         try:
@@ -850,8 +779,6 @@ def main(argv=None) -> int:
 
 def _trust_plugins(args) -> None:
     """Trust the modules ``--plugin`` names (before or after the command; ``diagnose --plugin MODULE:CLASS`` too)."""
-    from .effects import trust_plugins
-
     named = list(args.plugins) + list(getattr(args, "plugins_after", []))
     if args.command == "diagnose":
         named += [p.partition(":")[0] for p in args.plugin]

@@ -78,6 +78,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import LowcamError
+from .profile import check_provenance
 
 #: Linear sRGB (D65) to XYZ [sRGB].
 SRGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
@@ -503,7 +504,6 @@ def profile_from_dng(path, base):
         bits = max(1, min(16, math.ceil(math.log2(sensor.white_level + 1))))
         out = out.with_effect("raw_blend", source=src, bits=bits)
         prov["raw_blend.bits"] = f"{name} WhiteLevel {sensor.white_level:g}: {bits} bits"
-    from .profile import check_provenance
 
     out.provenance = check_provenance(prov, out)
     return out, notes

@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import LowcamError
-from .io import read_plate
+from .io import atomic_write_bytes, read_plate
+from .measure.plate import Footage, estimate_profile
 from .motion import (PHONE_GYRO_TIME_OFFSET_S, PHONE_GYRO_TO_CAMERA, average_rate, integrate_rotation,
                      read_exposure_log, read_framestamps, read_phone_gyro_log)
 
@@ -143,8 +144,6 @@ def footage_profile(base, clip: FootageClip):
 def plate_profile(base, clip: FootageClip, frames: int | None = None):
     """(profile, estimates): :func:`footage_profile` of ``base``, then the confident estimates of
     :func:`lowcam.measure.plate.estimate_profile` from ``frames`` of the clip's frames, evenly spread (all: None)."""
-    from .measure.plate import Footage, estimate_profile
-
     n = len(clip.frames) if frames is None else min(len(clip.frames), frames)
     pick = np.unique(np.linspace(0, len(clip.frames) - 1, n).round().astype(int))
     stack = np.stack([read_plate(clip.frames[i], clip.width, clip.height) for i in pick])
@@ -155,7 +154,6 @@ def write_gif(path, frames, fps: float = 10.0) -> Path:
     """``frames`` (uint8 RGB arrays) as a looping animated GIF (Pillow), written atomically."""
     from PIL import Image
 
-    from .io import atomic_write_bytes
 
     images = [Image.fromarray(np.ascontiguousarray(f)) for f in frames]
     buf = io.BytesIO()

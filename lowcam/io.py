@@ -42,6 +42,7 @@ import os
 import re
 import shutil
 import socket
+import subprocess
 import sys
 import tempfile
 import time
@@ -333,8 +334,6 @@ _CHILD_READ = ("import sys, numpy as np\nfrom lowcam.errors import LowcamError\n
 def _read_exr_in_child(path: Path) -> dict[str, np.ndarray]:
     """:func:`read_exr` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is too old
     for the OpenEXR wheel); the channels come back through a temporary ``.npz``."""
-    import subprocess
-
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     with tempfile.TemporaryDirectory(prefix="lowcam-exr-") as folder:
         out = Path(folder) / "channels.npz"

@@ -38,7 +38,11 @@ from __future__ import annotations
 
 import difflib
 import functools
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
 
 from .errors import LowcamError
 
@@ -62,8 +66,6 @@ def _database():
 def _f32(x) -> float:
     """A lensfun number (float32) as the shortest decimal that reads back as the same float32 ("6.118", not
     "6.118000030517578")."""
-    import numpy as np
-
     return float(np.format_float_positional(np.float32(x), unique=True, trim="-"))  # not str(): print options vary
 
 
@@ -178,9 +180,6 @@ def camera_crop_factor(maker: str, model: str) -> tuple[float, str]:
 
 @functools.lru_cache(maxsize=1)
 def _aspect_ratios() -> dict:
-    import xml.etree.ElementTree as ET
-    from pathlib import Path
-
     lensfunpy = require_lensfunpy()
     out: dict = {}
     for path in sorted(Path(lensfunpy.__path__[0], "db_files").glob("*.xml")):

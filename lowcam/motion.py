@@ -52,13 +52,16 @@ Contents
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from . import schema
 from .errors import LowcamError
+from .io import atomic_write_bytes
 
 # numpy 2.0 renamed trapz to trapezoid and 2.4 removed trapz (Blender 5.1+ and Debian's 4.3 run numpy 2.x)
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz
@@ -79,8 +82,6 @@ class FrameMotion:
 
 def write_motion_json(path, motion: dict[int, FrameMotion], fps: float | None = None) -> Path:
     """Write ``{frame: FrameMotion}`` as motion.json (atomically)."""
-    from .io import atomic_write_bytes
-
     frames = []
     for f in sorted(motion):
         m = motion[f]
@@ -180,8 +181,6 @@ def angular_velocity_between(rot_a: np.ndarray, rot_b: np.ndarray, dt: float,
     The relative rotation ``rot_a^T rot_b`` is expressed in the camera frame at the start; its axis-angle vector
     over ``dt`` is the constant body rate that produces it.
     """
-    import cv2
-
     rel = axes @ (np.asarray(rot_a).T @ np.asarray(rot_b)) @ axes.T
     rotvec = cv2.Rodrigues(rel)[0].ravel()
     return tuple(float(v) for v in rotvec / dt)
@@ -236,8 +235,6 @@ def read_framestamps(path) -> np.ndarray:
 def read_exposure_log(path) -> dict[int, float]:
     """Per-frame exposure times (s) from a phone's raw log: ``{frame: exposure_s}`` from its lines
     ``SOF <stamp>, frameNum :N exp time E`` (frames 1-based, as in ``framestamp.txt``)."""
-    import re
-
     path = Path(path)
     if not path.is_file():
         raise LowcamError(f"{path}: no such exposure log")
@@ -258,8 +255,6 @@ def integrate_rotation(samples: np.ndarray, t0: float, t1: float) -> np.ndarray:
     expressed in the camera frame at ``t0`` (``R = prod exp([w_k]x dt_k)``, midpoint rule on the linearly
     interpolated samples). A direction ``d`` seen at ``t0`` is seen at ``R.T @ d`` at ``t1``, so a static point
     moves in the image by the homography ``K R^T K^-1`` (Hartley & Zisserman 2004, sec. 8.4.2)."""
-    import cv2
-
     ts, ws = _rates_within(samples, t0, t1)
     rot = np.eye(3)
     for k in range(len(ts) - 1):

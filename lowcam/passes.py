@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import LowcamError
+from .io import OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_render
 
 
 #: Each kind of pass: its :class:`RenderPasses` field and the Blender pass that holds it.
@@ -114,8 +115,6 @@ def needed_passes(profile) -> tuple[str, ...]:
 def render_layer(channels: dict, layer: str | None = None) -> str:
     """The view layer a Blender multilayer EXR's render comes from: ``layer`` when given, else the one layer with
     a ``Combined`` pass (Lowcam's overlay layer aside); ``""`` for a single-layer file (no layer prefix)."""
-    from .io import OVERLAY_LAYER
-
     if layer:
         return layer
     layers = sorted({k[:-len(".Combined")] for k in channels if k.endswith(".Combined")} - {OVERLAY_LAYER})
@@ -158,8 +157,6 @@ def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: fl
     :func:`render_layer`) from a Blender OpenEXR file as :class:`RenderPasses` for a scene at ``fps`` whose
     length unit is ``metres_per_unit``. A pass named in ``needs`` that is missing is a one-line error naming the
     file, the layer, the pass and where to turn it on (:data:`PASS_HELP`)."""
-    from .io import read_exr
-
     channels = read_exr(path) if channels is None else channels
     layer = render_layer(channels, layer)
     found = find_blender_passes(channels, layer)
@@ -175,8 +172,6 @@ def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps:
     """``(render, passes)``: the render (:func:`lowcam.io.read_render`) and, when ``needs`` names passes, its view
     layer's passes (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A
     render that is not an OpenEXR file has no passes: asking for them is a one-line error."""
-    from .io import _exists, _format, _rgba_from_exr, check_render, read_exr, read_render
-
     if not needs:
         return read_render(path, layer), None
     if _format(_exists(path)) != "exr":

@@ -23,6 +23,7 @@ Contents
 - :func:`check_memory`: refuse a frame that needs more memory than the machine has, before allocating
 - :func:`run`: simulate the camera on one frame as a :class:`Result`; see :func:`simulate`
 - :func:`deterministic_prefix`: how many leading effects of a profile do not depend on (seed, frame)
+- :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
 - :func:`prepare`: run the chain up to its first random effect: the same for every frame of a static scene
 - :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
@@ -36,13 +37,18 @@ References
 """
 from __future__ import annotations
 
+import copy
 import os
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
+from .effects.bayer import demosaic_bilinear, mosaic, unmosaic
+from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
+from .geometry import grid_points, sample_texture
 from .io import check_plate, check_render_window
 from .passes import RenderPasses, check_passes
 from .profile import Profile, load_profile
@@ -178,10 +184,6 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
 def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
     effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order."""
-    import cv2
-
-    from .effects.yuv import yuv_to_rgb
-
     if state.delta_yuv is not None:
         out = cv2.add(state.plate, yuv_to_rgb(state.delta_yuv))
         footprint = _any_nonzero(state.delta_yuv)
@@ -291,6 +293,11 @@ def deterministic_prefix(profile, until: str | None = None) -> int:
     return len(profile.effects)
 
 
+def prefix_key(profile, count: int) -> str:
+    """Identifies the first ``count`` effects of a profile (and its camera) for caching their output."""
+    return repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects[:count]]))
+
+
 def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
             exposure_s: float | None = None, until: str | None = None, passes: RenderPasses | None = None):
     """Run the chain up to its first random effect (noise), or through ``until``: that part is the same for
@@ -305,8 +312,6 @@ def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0,
 def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None) -> np.ndarray:
     """The 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token (which it leaves untouched).
     ``profile`` may replace the token's for the remaining effects (its leading effects must be the same)."""
-    import copy
-
     prefix, start, plate_u8 = token
     state = copy.copy(prefix)
     if profile is not None:
@@ -352,8 +357,6 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
 def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarray:
     """A displayable picture of the state after a stage: float RGBA for the working image, a colour-coded
     mosaic for the sensel planes, 8-bit RGB for the frame, and an arrow plot for sampling fields."""
-    from .effects.bayer import mosaic
-
     if writes in ("render", "working"):
         return getattr(state, writes).copy()
     if writes == "bayer":
@@ -371,10 +374,6 @@ def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarra
 
 def _sampling_plot(state: SimState) -> np.ndarray:
     """Arrows of the chromatic-aberration offsets (x10; red and blue) and motion streaks (white)."""
-    import cv2
-
-    from .geometry import grid_points, sample_texture
-
     g = state.geometry
     img = np.full((g.height, g.width, 3), 40, np.uint8)
     u, v = grid_points(g.frame_extent)
@@ -395,14 +394,10 @@ def _sampling_plot(state: SimState) -> np.ndarray:
 def plain_composite(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None) -> np.ndarray:
     """The standard compositing the paper compares against: the render warped through the lens, resampled to the
     frame and blended over the plate with its alpha, with none of the camera's degradations."""
-    import cv2
-
     profile = load_profile(profile)
     render, window = check_render_window(render)
     plate_u8, plate_f, _ = _prepare_plate(profile, plate)
     if profile.is_raw:
-        from .effects.bayer import demosaic_bilinear, unmosaic
-
         plate_f = demosaic_bilinear(unmosaic(plate_u8, profile.geometry), profile.geometry)
     state = SimState(profile, render, plate_f, None, (0.0, 0.0, 0.0), None, 0, 0)
     state.keep_window("render", window)

@@ -47,10 +47,13 @@ import os
 from functools import cached_property
 from pathlib import Path
 
+import tomli_w
+
 from . import schema
 from .effects import Effect, Param, ParamSet, effect_class
 from .errors import ProfileError
 from .geometry import FrameGeometry
+from .io import atomic_write_bytes
 
 #: Bundled profiles: the repository's ``profiles/`` folder.
 BUNDLED_PROFILES = Path(__file__).resolve().parent.parent / "profiles"
@@ -139,8 +142,6 @@ class Profile:
         ``after`` names an effect of the chain: the effect set is then the one standing right after it (e.g. a
         second vertical blur after ``"sharpening"``, where a scaler or codec blurs the output), inserted there
         new (from its defaults and ``values``) unless the effect right after it is already of type ``name``."""
-        from .effects import effect_class
-
         out = self.copy()
         cls = effect_class(name, self.source)
         if after is None:
@@ -210,10 +211,6 @@ class Profile:
 
     def save(self, path) -> Path:
         """Write the profile as TOML (atomically). Texture paths are written relative to the new file."""
-        import tomli_w
-
-        from .io import atomic_write_bytes
-
         path = Path(path).resolve()
         data = self.to_dict()
         for entry, effect in zip(data["effect"], self.effects):

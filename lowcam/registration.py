@@ -77,6 +77,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 FORWARD_BACKWARD_PX = 0.5
@@ -127,8 +128,6 @@ def register_pair(a: np.ndarray, b: np.ndarray, max_corners: int = 500) -> Regis
     """The homography taking frame ``a``'s pixels to frame ``b``'s (frames (H, W, 3) or (H, W), DN), from
     corners tracked forward and back (module docstring). Too few consistent tracks: the identity, not
     ``registered``."""
-    import cv2
-
     ga, gb = _grey8(a), _grey8(b)
     identity = Registration(np.eye(3), 0, 0, float("inf"), False, float("nan"))
     p0 = cv2.goodFeaturesToTrack(ga, max_corners, 0.01, 8, blockSize=7)
@@ -171,8 +170,6 @@ def _local_error(points: np.ndarray, excess: np.ndarray, shape) -> np.ndarray:
     """(rows, cols) map of :data:`ERROR_CELL_PX` cells: the median excess residual (px) of the tracks in each cell
     over the inliers' typical one (the tracker's own noise), at least 0; a cell without tracks takes its nearest
     cell's value."""
-    import cv2
-
     h, w = shape
     rows, cols = -(-h // ERROR_CELL_PX), -(-w // ERROR_CELL_PX)
     cell = (np.clip(points[:, 1] // ERROR_CELL_PX, 0, rows - 1) * cols
@@ -237,8 +234,6 @@ def registered_difference(a: np.ndarray, b: np.ndarray, reg: Registration) -> tu
     """(level, diff), each (H, W, C) float32 DN on frame ``a``'s grid: ``(a + b')/2`` and ``a - b'``, where
     ``b'`` is frame ``b`` read at ``reg.H``'s image of each pixel by nearest neighbour with the first-order
     correction, NaN where the pixel is not compared (module docstring)."""
-    import cv2
-
     a = np.asarray(a, np.float32)
     b = np.asarray(b, np.float32)
     if a.ndim == 2:
@@ -309,8 +304,6 @@ def rounding_offset(H: np.ndarray, shape, step: int = 16) -> tuple[float, float]
     a frame of ``shape`` (rows, cols)) and the pixels nearest them: what nearest-neighbour sampling leaves to the
     first-order correction (0 for the identity or a whole-pixel shift). ``spread``: their standard deviation per
     axis, about 0.29 px (uniform) where a rotation or zoom varies them over the frame, near 0 for a shift."""
-    import cv2
-
     yy, xx = np.mgrid[0:shape[0]:step, 0:shape[1]:step].astype(np.float32)
     p = cv2.perspectiveTransform(np.stack([xx, yy], -1).reshape(1, -1, 2), np.asarray(H, np.float64))[0]
     off = p - np.rint(p)
@@ -408,8 +401,6 @@ def register_on_grid(frames, starts, grid_px: int = 8, window: int = GRID_WINDOW
     on each part of the frame) or where the frames no longer share half their width or height. A JPEG's coding
     error of a moving scene changes with the grid's place on it; in such pairs it is the same content's on the
     same grid, and cancels in the difference as a still shot's does."""
-    import cv2
-
     count = len(frames)
     step = _consecutive(frames, cache)
     h, w = _frame(frames, 0).shape[:2]

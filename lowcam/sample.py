@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .pipeline import render_field_of_view
+from .pipeline import render_field_of_view, simulate
 from .profile import load_profile
 
 
@@ -149,8 +149,6 @@ def film(photo: np.ndarray, profile="fire-i", angular_velocity=(0.0, 0.0, 0.0), 
 
     Effects that need render passes (object motion, defocus from depth) are left out: a photograph has none.
     """
-    from .pipeline import simulate
-
     profile = load_profile(profile)
     passless = [e.name for e in profile.effects if e.enabled and e.needs_pass]
     if passless:
@@ -170,8 +168,6 @@ def sample_plate(profile="fire-i", angular_velocity=(0.0, 0.0, 0.0), exposure_s:
 
 def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
     """Two frames next to each other with a caption bar above each."""
-    import cv2
-
     h, w = left.shape[:2]
     bar = 28
     canvas = np.full((h + bar, 2 * w + 8, 3), 255, np.uint8)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .errors import LowcamError
@@ -55,8 +56,6 @@ def read_passes(path, layer: str, fps: float, metres_per_unit: float = 1.0, need
 def overlay_in_frame(overlay: np.ndarray, profile) -> np.ndarray:
     """Resample a render-sized ``overlay`` into the output frame through the lens geometry only (bilinear), so
     excluded objects land where the camera sees them but get no blur, noise or colour processing."""
-    import cv2
-
     profile = load_profile(profile)
     g = profile.geometry
     u, v = np.meshgrid(np.arange(g.width, dtype=np.float64), np.arange(g.height, dtype=np.float64))

@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import json
 import math
-import stat
 import numbers as _numbers
+import stat
+import tomllib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -179,8 +180,6 @@ def read_text(path, what: str = "file", error: type[LowcamError] = LowcamError) 
 
 def read_toml(path, what: str = "file", error: type[LowcamError] = LowcamError) -> dict:
     """A TOML file as a table."""
-    import tomllib
-
     text = read_text(path, what, error)
     try:
         return tomllib.loads(text)

@@ -19,7 +19,7 @@ from lowcam.node_maps import bake
 from lowcam.pipeline import render_camera
 from lowcam.profile import load_profile
 
-from ..addon.compat import mark_asset
+from ..blender_compat import mark_asset
 from .build import build_camera_group
 
 

@@ -45,7 +45,7 @@ import numpy as np
 from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
 from lowcam.node_maps import CameraBake, node_stages
 
-from ..addon.compat import has_node, node_type
+from ..blender_compat import has_node, node_type
 
 PREFIX = "Lowcam"
 #: The stage after the effects: the YUV difference added to the plate.

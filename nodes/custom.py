@@ -188,12 +188,11 @@ class LowcamCameraNode(LowcamNodeBase, bpy.types.CompositorNodeCustomGroup):
             layout.prop(self, key)
 
     def profile_source(self, context=None) -> str:
-        """The profile the node simulates: the scene's (Scene's Profile), its Profile File, or its menu's name."""
-        from ..addon.properties import profile_ref
-
+        """The profile the node simulates: the scene's (Scene's Profile: its settings' ``profile_ref()``), its Profile
+        File, or its menu's name."""
         scene = getattr(context or bpy.context, "scene", None)
         if self.use_scene_profile and scene is not None:
-            return profile_ref(scene.lowcam)
+            return scene.lowcam.profile_ref()
         return bpy.path.abspath(self.profile_file) if self.profile_file else self.profile
 
     def on_profile(self, context):

@@ -25,7 +25,7 @@ from lowcam.node_maps import bake, planes_to_mosaic
 from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
-from ..addon.compat import compositor_output, compositor_tree
+from ..blender_compat import compositor_output, compositor_tree
 from .build import build_camera_group, group_stages, image_from_array
 
 

@@ -1,11 +1,11 @@
 """Build the Blender extension, one zip per platform: ``python scripts/build_extension.py [OUT_DIR] [--platform P]``.
 
-Each zip (``lowcam-<version>-<platform>.zip``, default OUT_DIR dist/) holds addon/, nodes/, profiles/, the manifest
-and the wheels the add-on needs at run time for that platform and for every Python the supported Blenders embed
-(3.11 for Blender 4.2-5.0, 3.13 for 5.1 and later): Lowcam's engine itself (built from pyproject.toml, pure
-Python) and its imports that Blender lacks (:data:`RUNTIME`, at the versions installed in this environment).
-numpy comes with Blender and is not bundled. Blender's own builder (``blender_ext.py build --split-platforms``,
-shipped in the bpy wheel) validates the manifest, keeps each platform's wheels and zips.
+Each zip (``lowcam-<version>-<platform>.zip``, default OUT_DIR dist/) holds addon/, nodes/, blender_compat.py,
+profiles/, the manifest and the wheels the add-on needs at run time for that platform and for every Python the
+supported Blenders embed (3.11 for Blender 4.2-5.0, 3.13 for 5.1 and later): Lowcam's engine itself (built from
+pyproject.toml, pure Python) and its imports that Blender lacks (:data:`RUNTIME`, at the versions installed in this
+environment). numpy comes with Blender and is not bundled. Blender's own builder (``blender_ext.py build
+--split-platforms``, shipped in the bpy wheel) validates the manifest, keeps each platform's wheels and zips.
 
 Downloaded wheels are kept in build/wheel-cache/ (git-ignored): a rebuild asks pip only for what is missing there.
 Beside the zips it writes the compositor node group as an asset .blend (``lowcam-camera-fire-i.blend``).
@@ -31,7 +31,8 @@ from packaging.utils import canonicalize_name, parse_wheel_filename
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "build" / "wheel-cache"
 RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w")
-SHIPPED = ("__init__.py", "blender_manifest.toml", "LICENSE", "README.md", "addon", "nodes", "profiles")
+SHIPPED = ("__init__.py", "blender_compat.py", "blender_manifest.toml", "LICENSE", "README.md", "addon", "nodes",
+           "profiles")
 #: The Pythons the supported Blenders embed: 3.11 (4.2 LTS to 5.0) and 3.13 (5.1 and later).
 PYTHONS = ((3, 11), (3, 13))
 #: Blender platform -> the wheel platform tags that run there, best first. The oldest systems are Blender's own

@@ -270,7 +270,7 @@ def _manifest(path: Path) -> None:
 
 def _chart(path: Path) -> None:
     """The printable chart at 100 dpi and its layout: the page itself is a frame of the chart, seen square-on."""
-    from lowcam.calibrate.chart import write_chart
+    from lowcam.chart import write_chart
 
     path.mkdir(parents=True)
     write_chart(path / "chart.png", dpi=100)

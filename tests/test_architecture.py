@@ -1,12 +1,17 @@
-"""The shape of the code: effects describe themselves, dependencies run one way (issue 13).
+"""The shape of the code: effects describe themselves, dependencies run one way (issues 13 and 27).
 
 - The engine (``lowcam/``) imports nothing of the Blender side (``addon/``, ``nodes/``, ``bpy``), directly or by
-  name, and has no import circle.
+  name.
+- Every import, at module level or inside a function, runs down the layers of :data:`LAYERS` or within one layer,
+  and no import circle closes, even through an import made at call time; the Blender side likewise
+  (:data:`BLENDER_LAYERS`). No module hides an edge behind ``importlib`` with a name of its own package.
+- Inside a function the engine imports only the packages of :data:`LAZY`, each for a reason given there.
 - Chain order, node stages and diagnosis candidates are derived from the effects' declarations, so a plug-in
   effect written outside the package shows up in the pipeline, the node bake and diagnosis without a table
   being edited (the claim of ``docs/adding-an-effect.md``).
 """
 import ast
+import fnmatch
 import subprocess
 import sys
 from pathlib import Path
@@ -18,18 +23,205 @@ import lowcam
 from lowcam.effects import EFFECTS, canonical_order
 
 ENGINE = Path(lowcam.__file__).resolve().parent
+ROOT = ENGINE.parent  # the repository: also the Blender extension's package (lowcam_blender)
+
+#: The engine's layers, bottom to top (fnmatch patterns of module names; a package is its ``__init__``). A module
+#: imports modules of its own layer or of the layers below, never above. The effects simulate and fit on arrays;
+#: a fit that needs the whole chain receives it (``Context.simulate``, ``film``) from the layer that runs it.
+LAYERS = (
+    ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
+                 "lowcam.io", "lowcam.registration", "lowcam.reports", "lowcam.captures", "lowcam.motion",
+                 "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments")),
+    ("effects", ("lowcam.effects", "lowcam.effects.*")),
+    ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb")),
+    ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",
+                  "lowcam.batch")),
+    ("measure", ("lowcam.measure.*", "lowcam.footage")),
+    ("calibrate", ("lowcam.calibrate", "lowcam.calibrate.*")),
+    ("cli", ("lowcam.cli", "lowcam.boundary")),
+)
+
+#: The Blender side's layers, bottom to top, above the whole engine: what differs between Blender versions, the
+#: compositor nodes, and the add-on with the extension's entry point (the repository root, ``lowcam_blender``,
+#: whose ``submodule`` the add-on's commands use).
+BLENDER_LAYERS = (
+    ("compat", ("lowcam_blender.blender_compat",)),
+    ("nodes", ("lowcam_blender.nodes", "lowcam_blender.nodes.*")),
+    ("addon", ("lowcam_blender", "lowcam_blender.addon", "lowcam_blender.addon.*")),
+)
+
+#: The only packages the engine imports inside a function, and why (everything else is imported at the top of the
+#: module, so that a module's imports say what it stands on). The Blender extension ships only numpy (Blender's),
+#: OpenCV, OpenEXR and tomli-w (``scripts/build_extension.py``: ``RUNTIME``); what the engine loads inside Blender
+#: must not need more.
+LAZY = {
+    "OpenEXR": "never loaded beside an older libOpenEXRCore (Debian's Blender): lowcam.io then reads in a child",
+    "PIL": "optional (pillow is no dependency): lowcam.footage's GIFs",
+    "dask": "optional extra 'farm': lowcam batch --workers / --scheduler",
+    "distributed": "optional extra 'farm'",
+    "lensfunpy": "optional extra 'lensfun': lowcam profile from-lensfun",
+    "matplotlib": "heavy (1-2 s to import) and not in the Blender extension: report figures, the chart's PDF",
+    "scipy": "heavy (scipy.optimize, scipy.stats: 0.5-2 s) and not in the Blender extension: fits only",
+    "skimage": "not in the Blender extension: the synthetic sets' photographs",
+    "tifffile": "not in the Blender extension: DNG reading",
+    "tqdm": "not in the Blender extension: batch progress bars",
+}
+
+
+def _module_name(path: Path, top: Path, package: str) -> str:
+    parts = (package,) + path.relative_to(top).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _sources(which: str) -> dict[str, Path]:
+    """Module name -> file, for the engine (``"engine"``) or the Blender side (``"blender"``)."""
+    if which == "engine":
+        return {_module_name(p, ENGINE, "lowcam"): p for p in sorted(ENGINE.rglob("*.py"))}
+    files = [*sorted(ROOT.glob("*.py")), *(p for d in ("addon", "nodes") for p in sorted((ROOT / d).rglob("*.py")))]
+    return {_module_name(p, ROOT, "lowcam_blender"): p for p in files}
+
+
+def _known() -> set[str]:
+    return set(_sources("engine")) | set(_sources("blender"))
+
+
+def _inside_function(tree: ast.AST) -> set[ast.AST]:
+    inside = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            inside.update(n for n in ast.walk(node) if isinstance(n, (ast.Import, ast.ImportFrom)))
+    return inside
+
+
+def module_imports(which: str = "engine"):
+    """(module, imported module, line, inside a function) for every import statement of one side, relative ones
+    resolved; ``from package import name`` is an edge to ``package.name`` where that is a module."""
+    known = _known()
+    for module, path in _sources(which).items():
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+        tree = ast.parse(path.read_text())
+        lazy = _inside_function(tree)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    yield module, alias.name, node.lineno, node in lazy
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    source = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    source = node.module
+                targets = [f"{source}.{a.name}" for a in node.names if f"{source}.{a.name}" in known]
+                for target in targets or [source]:
+                    yield module, target, node.lineno, node in lazy
 
 
 def engine_imports():
     """(module file, imported name) for every import statement in lowcam/, relative ones resolved."""
-    for path in sorted(ENGINE.rglob("*.py")):
-        package = ".".join(("lowcam",) + path.relative_to(ENGINE).parent.parts)
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Import):
-                yield from ((path, a.name) for a in node.names)
-            elif isinstance(node, ast.ImportFrom):
-                base = package.split(".")[: len(package.split(".")) - node.level + 1] if node.level else []
-                yield path, ".".join(base + ([node.module] if node.module else []))
+    files = _sources("engine")
+    for module, target, _, _ in module_imports("engine"):
+        yield files[module], target
+
+
+def _layer(module: str, layers) -> int | None:
+    found = [i for i, (_, patterns) in enumerate(layers) for pattern in patterns if fnmatch.fnmatchcase(module,
+                                                                                                         pattern)]
+    return found[0] if len(set(found)) == 1 else None
+
+
+def _edges(which: str) -> dict[str, set[str]]:
+    """Module -> the modules of the same side it imports (module level and inside functions)."""
+    sources = _sources(which)
+    out = {m: set() for m in sources}
+    for module, target, _, _ in module_imports(which):
+        if target in sources and target != module:
+            out[module].add(target)
+    return out
+
+
+def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10 * len(graph) + 100))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+@pytest.mark.parametrize("which, layers", [("engine", LAYERS), ("blender", BLENDER_LAYERS)])
+def test_every_module_has_one_layer(which, layers):
+    unplaced = [m for m in _sources(which) if _layer(m, layers) is None]
+    assert not unplaced, f"place these modules in exactly one layer of tests/test_architecture.py: {unplaced}"
+
+
+@pytest.mark.parametrize("which, layers", [("engine", LAYERS), ("blender", BLENDER_LAYERS)])
+def test_no_import_runs_up_a_layer(which, layers):
+    """Module level or inside a function: an import made at call time is an edge all the same."""
+    sources = _sources(which)
+    up = sorted({f"{m} ({layers[_layer(m, layers)][0]}) -> {t} ({layers[_layer(t, layers)][0]}), line {line}"
+                 f"{' inside a function' if lazy else ''}"
+                 for m, t, line, lazy in module_imports(which)
+                 if t in sources and _layer(m, layers) is not None and _layer(t, layers) is not None
+                 and _layer(t, layers) > _layer(m, layers)})
+    assert not up, "imports that run up a layer:\n" + "\n".join(up)
+
+
+@pytest.mark.parametrize("which", ["engine", "blender"])
+def test_no_import_circle_even_at_call_time(which):
+    circles = _circles(_edges(which))
+    assert not circles, "import circles (function-level imports included): " + "; ".join(
+        " <-> ".join(c) for c in circles)
+
+
+def test_the_engine_imports_inside_functions_only_what_must_load_late():
+    late = sorted(f"{m}:{line}: {t}" for m, t, line, lazy in module_imports("engine")
+                  if lazy and t.split(".")[0] not in LAZY)
+    assert not late, (f"{len(late)} imports inside functions that belong at the top of their module (or, if it "
+                      "must load late, in LAZY with the reason):\n" + "\n".join(late))
+
+
+def test_no_module_hides_an_import_behind_importlib():
+    """``importlib.import_module("lowcam....")`` (or ``__import__``) would be an edge no reading of the imports
+    sees; plug-ins named by the user (``module:Class``) are imported so, never the engine's own modules."""
+    hidden = []
+    for which in ("engine", "blender"):
+        for module, path in _sources(which).items():
+            for node in ast.walk(ast.parse(path.read_text())):
+                if not (isinstance(node, ast.Call) and node.args):
+                    continue
+                name = getattr(node.func, "attr", getattr(node.func, "id", ""))
+                if name not in ("import_module", "__import__", "spec_from_file_location"):
+                    continue
+                arg = node.args[0]
+                text = arg.value if isinstance(arg, ast.Constant) else (
+                    arg.values[0].value if isinstance(arg, ast.JoinedStr) and arg.values
+                    and isinstance(arg.values[0], ast.Constant) else "")
+                if isinstance(text, str) and text.split(".")[0] in ("lowcam", "addon", "nodes", "lowcam_blender"):
+                    hidden.append(f"{module}:{node.lineno}: {name}({text!r}...)")
+    assert not hidden, hidden
 
 
 def test_the_engine_never_imports_the_blender_side():

@@ -16,7 +16,7 @@ from lowcam.scene import OVERLAY_LAYER, overlay_in_frame, read_layers, read_pass
 
 pytestmark = pytest.mark.blender  # real bpy: the Blender tier
 
-#: Blender 4.x builds the node group (addon/compat.py: Translate taps stand in for Convolve, baked masks and noise
+#: Blender 4.x builds the node group (blender_compat.py: Translate taps stand in for Convolve, baked masks and noise
 #: for Image Coordinates and White Noise on 4.2), but its composite does not match the engine there yet: on 4.5.15
 #: the asset's frame is 15 DN off on average and the stage-by-stage parity runs past 10 minutes; on 4.2.23 the
 #: parity render is killed. Blender 5.0 and later are checked.
@@ -167,7 +167,7 @@ def test_vector_pass_reads_as_image_velocity(tmp_path):
     for frame, x in ((1, 0.0), (3, 1.0)):                                    # 0.5 m per frame right, 0.25 up
         plane.location = (x, 0.5 * x, 0.0)
         plane.keyframe_insert("location", frame=frame)
-    compat = submodule("addon.compat")                                       # Blender 4.2 to 5.x
+    compat = submodule("blender_compat")                                       # Blender 4.2 to 5.x
     for fc in compat.action_fcurves(plane):
         for k in fc.keyframe_points:
             k.interpolation = "LINEAR"
@@ -322,7 +322,7 @@ def test_add_camera_node_gives_the_scene_the_render_the_node_is_baked_for(fire_i
     assert (scene.render.resolution_x, scene.render.resolution_y) == (cam["width"], cam["height"])
     assert scene.camera.data.angle == pytest.approx(math.radians(cam["hfov_deg"]), rel=1e-6)
     assert scene.render.use_compositing and scene.render.film_transparent
-    compat = submodule("addon.compat")
+    compat = submodule("blender_compat")
     tree = compat.compositor_tree(scene, create=False)
     node = next(n for n in tree.nodes if n.bl_idname == "LowcamCameraNode")
     assert list(node.node_tree["lowcam_stages"])[-1] == "plate_blend"          # the group was built

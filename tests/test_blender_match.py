@@ -246,7 +246,7 @@ def test_profile_files_drive_the_handler_the_node_and_save_as(scene, tmp_path):
     assert frames.scene_profile(scene).path.resolve() == mine.resolve()
     assert s.saturation == pytest.approx(70.0)                  # the file's own settings are shown
     assert bpy.ops.lowcam.add_camera_node() == {"FINISHED"}
-    tree = submodule("addon.compat").compositor_tree(scene)
+    tree = submodule("blender_compat").compositor_tree(scene)
     node = next(n for n in tree.nodes if n.bl_idname == "LowcamCameraNode")
     assert node.use_scene_profile and Path(node.node_tree["lowcam_profile"]).resolve() == mine.resolve()
     # Save Profile As: the profile with the scene's saturation, selected; the node follows

@@ -224,14 +224,14 @@ def test_chart_has_every_element_and_its_charuco_board_is_detectable(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and (tmp_path / "chart.pdf").read_bytes()[:4] == b"%PDF"
     with pytest.raises(LowcamError, match="chart size"):
-        from lowcam.calibrate.chart import make_chart
+        from lowcam.chart import make_chart
 
         make_chart("a5")
 
 
 def test_colour_from_a_photographed_chart_is_found_automatically(fire_i, tmp_path):
     from lowcam.calibrate import chart_patch_colours, srgb_to_linear
-    from lowcam.calibrate.chart import write_chart
+    from lowcam.chart import write_chart
 
     chart_png, layout = write_chart(tmp_path / "chart.png", dpi=150)
     page = cv2.cvtColor(cv2.imread(str(chart_png)), cv2.COLOR_BGR2RGB)

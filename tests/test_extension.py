@@ -137,8 +137,8 @@ def test_extension_builds_installs_and_registers_twice(built, tmp_path):
     assert (built / "lowcam-camera-fire-i.blend").stat().st_size > 1e6     # the node-group asset
     names = zipfile.ZipFile(zip_path).namelist()
     assert any(n.startswith("wheels/lowcam-") for n in names) and any("opencv" in n for n in names)
-    assert "addon/__init__.py" in names and "profiles/fire-i.toml" in names and not any(
-        n.startswith("lowcam/") for n in names)
+    assert "addon/__init__.py" in names and "blender_compat.py" in names and "profiles/fire-i.toml" in names
+    assert not any(n.startswith("lowcam/") for n in names)
     script = tmp_path / "install.py"
     script.write_text(f"import bpy\nexec(compile({INSTALL_SCRIPT!r}, 'install', 'exec'))\n")
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))

@@ -379,7 +379,7 @@ def test_parse_target_without_a_file_names_the_target():
 # --- chart layout JSON and patch CSV -------------------------------------------------------------------------------
 
 def _layout(tmp_path, change=None):
-    from lowcam.calibrate.chart import make_chart
+    from lowcam.chart import make_chart
 
     _, layout = make_chart("a4", dpi=50)
     if change:

@@ -52,18 +52,36 @@ from __future__ import annotations
 import argparse
 import html
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 
+from ..arguments import Number, Reads, Text
 from ..captures import (chart_patch_colours, detect_target, expand_paths, load_frames, parse_target,  # noqa: F401
                         read_patches_csv, refuse_saturated, srgb_to_linear)
-from ..arguments import Number
+from ..effects import known_effects
+from ..effects.bayer import identify_demosaic
+from ..effects.blur import find_edges, fit_edge_blur, gaussian_taps
+from ..effects.chromatic_aberration import fit_chromatic_aberration, write_ca_grid
+from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
+from ..effects.lens import fit_lens
+from ..effects.noise import MIN_LEVELS, brightness_levels, fit_noise
+from ..effects.saturation import colour_matrix_problems, saturation_matrix
+from ..effects.sharpening import Sharpening, fit_row_filter, fit_sharpening_to_images, frequency_response
+from ..effects.vignetting import fit_vignetting
 from ..errors import LowcamError
+from ..geometry import grid_points
+from ..io import make_output_folder, write_png
+from ..measure import plate
+from ..plate_estimate import format_value
+from ..profile import load_profile
 from ..reports import figure, image, numbers_block, write_page
+from ..schema import read_toml
 
 
 @dataclass
@@ -96,14 +114,10 @@ class Calibration:
 
 
 def _write_gain_png(path: Path, gain: np.ndarray, camera) -> None:
-    from ..io import write_png
-
     write_png(path, np.round(gain * 65535).astype(np.uint16))
 
 
 def _write_ca_csv(path: Path, grid: np.ndarray, camera) -> None:
-    from ..effects.chromatic_aberration import write_ca_grid
-
     write_ca_grid(path, grid, camera.width, camera.height)
 
 
@@ -129,8 +143,6 @@ def _load(patterns, min_frames: int, what: str):
 
 def _contrast(image) -> float:
     """Spread (1st to 99th percentile, DN) of an image lightly smoothed, so that pixel noise alone shows little."""
-    import cv2
-
     smooth = cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.0)
     lo, hi = np.percentile(smooth, [1, 99])
     return float(hi - lo)
@@ -171,10 +183,6 @@ def _distinct_views(points, tolerance_px: float = 0.5) -> int:
 
 def calibrate_lens(patterns, target: str = "checkerboard:9x6:0.025", models=("fov", "opencv"),
                    plot_dir: Path | None = None) -> Calibration:
-    import cv2
-
-    from ..effects.lens import fit_lens
-
     frames, names, source = _load(patterns, 3, "lens calibration")
     spec = parse_target(target)
     obj, img, used, missing = [], [], [], []
@@ -234,8 +242,6 @@ _MIN_FLAT_DN = 10.0
 
 
 def calibrate_vignetting(patterns, plot_dir: Path | None = None) -> Calibration:
-    from ..effects.vignetting import fit_vignetting
-
     frames, names, source = _load(patterns, 1, "vignetting calibration")
     refuse_saturated(frames, names)
     level = float(np.percentile(np.mean(frames, axis=(0, 3)), 99))
@@ -270,9 +276,6 @@ _CA_PATCH = 30
 
 
 def calibrate_chromatic_aberration(patterns, plot_dir: Path | None = None) -> Calibration:
-    from ..effects.chromatic_aberration import fit_chromatic_aberration
-    from ..geometry import grid_points
-
     frames, names, source = _load(patterns, 1, "chromatic-aberration calibration")
     refuse_saturated(frames, names, 0.05)
     h, w = frames[0].shape[:2]
@@ -317,8 +320,6 @@ def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0) -> Non
     """A noise law needs temporal noise and at least :data:`~lowcam.effects.noise.MIN_LEVELS` brightness levels
     in every channel (:func:`lowcam.effects.noise.brightness_levels`: bands of 16 DN, or of five times the noise
     left in the means if wider, so that one flat grey never counts as more than two levels)."""
-    from ..effects.noise import MIN_LEVELS, brightness_levels
-
     if _identical(frames):
         raise LowcamError(f"{source}: the {len(frames)} frames are identical, so they hold no noise to measure "
                           f"(were they copied from one capture?)")
@@ -345,8 +346,6 @@ def _check_noise_stack(source: str, frames, saturation_dn: float = 220.0) -> Non
 
 def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear",
                     plot_dir: Path | None = None) -> Calibration:
-    from ..effects.noise import fit_noise
-
     frames, names, source = _load(patterns, 10, "noise calibration")
     _check_noise_stack(source, frames)
     try:
@@ -387,8 +386,6 @@ _MIN_DEMOSAIC_BLOCKS = 500
 
 
 def calibrate_demosaic(patterns, geometry, plot_dir: Path | None = None) -> Calibration:
-    from ..effects.bayer import identify_demosaic
-
     frames, names, source = _load(patterns, 10, "demosaic identification")
     if _identical(frames):
         raise LowcamError(f"{source}: the {len(frames)} frames are identical, so they hold no noise to identify "
@@ -422,8 +419,6 @@ def calibrate_demosaic(patterns, geometry, plot_dir: Path | None = None) -> Cali
 
 
 def calibrate_blur(patterns, plot_dir: Path | None = None) -> Calibration:
-    from ..effects.blur import find_edges, fit_edge_blur
-
     frames, _, source = _load(patterns, 1, "blur calibration")
     grey = np.mean([f.mean(axis=2) for f in frames], axis=0)
     contrast = _contrast(grey)
@@ -471,8 +466,6 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     camera sharpens: the free 101-tap filter for the plot, and the 7-tap model fitted to the images themselves
     (the free filter is poorly determined at frequencies the scene and the sensor's blur leave empty).
     """
-    from ..effects.sharpening import Sharpening, fit_row_filter, fit_sharpening_to_images, frequency_response
-
     if not np.isfinite(sharpness) or sharpness <= 0:
         raise LowcamError(f"--sharpness {sharpness:g}: the sharp captures' setting must be above 0 (the soft "
                           f"captures are at 0), else there is no sharpening to measure")
@@ -504,8 +497,6 @@ def calibrate_sharpening(soft_patterns, sharp_patterns, sharpness: float, plot_d
     figures = []
     if plot_dir:
         def draw(fig):
-            from ..effects.blur import gaussian_taps
-
             model = (1 + a) * gaussian_taps(0, 7, np.float64) - a * gaussian_taps(sigma, 7, np.float64)
             ax = fig.add_subplot(1, 2, 1)
             ax.plot(np.arange(taps) - taps // 2, h, ".-", label=f"measured ({taps} taps)")
@@ -551,10 +542,6 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
                      source: str = "colour calibration") -> Calibration:
     """Crosstalk from patch colours: ``ideal_rgb`` (N, 3) the light (render units x 255), ``measured_rgb`` the
     camera's mean patch colours (DN) at saturation setting ``saturation``; ``source`` names them in messages."""
-    from ..effects.crosstalk import colour_matrix_problems, crosstalk_from_colour_matrix, fit_colour_matrix
-
-    from ..effects.saturation import saturation_matrix
-
     # at 0 the saturation matrix is singular; within a hair of 0 dividing it out amplifies rounding a trillionfold
     if not np.isfinite(saturation) or saturation <= 0 or np.linalg.cond(saturation_matrix(saturation)) > 1e6:
         raise LowcamError(f"--saturation {saturation:g}: the patches' saturation setting must be above 0 (at 0 the "
@@ -678,10 +665,6 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     written; footage from which nothing can be estimated is refused (one line with every estimate's reason). With
     ``plot_dir`` the base profile films similar content (:func:`lowcam.measure.plate.model_statistics`) and each
     statistic is plotted beside the model's. ``progress`` (stderr; default: when stderr is a terminal)."""
-    import sys
-
-    from ..measure import plate
-
     progress = sys.stderr.isatty() if progress is None else progress
 
     names = [str(f) for f in ([footage] if isinstance(footage, (str, Path)) else footage)]
@@ -727,7 +710,7 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
             if isinstance(v, dict):
                 out += flat(v, f"{prefix}{k}.")
             else:
-                out.append(f"{prefix}{k} = {plate._fmt(v)}")
+                out.append(f"{prefix}{k} = {format_value(v)}")
         return "; ".join(out) if not prefix else out
 
     table = [{"statistic": e.statistic, "effect": e.effect,
@@ -812,8 +795,6 @@ class Option:
     help: str | None = None
 
     def add_argument(self, parser) -> None:
-        from ..arguments import Reads, Text
-
         if self.kind == "frames":
             nargs = "+" if self.required else "*"
             if self.positional:
@@ -1022,8 +1003,6 @@ def calibration_listing() -> dict[str, list[str]]:
     >>> calibration_listing()["lens"]
     ['lens_distortion']
     """
-    from ..effects import known_effects
-
     listing: dict[str, list[str]] = {name: [] for name in CALIBRATIONS}
     for cls in known_effects():
         if cls.calibration:
@@ -1046,9 +1025,6 @@ def run_manifest(path, plot_dir: Path | None = None):
         [sharpening]           soft = ["soft/*.png"], sharp = ["sharp/*.png"], sharpness = 80
         [colour]               patches = "patches.csv", saturation = 90   # or frames = [...], chart = "chart.json"
     """
-    from ..schema import read_toml
-    from ..profile import load_profile
-
     path = Path(path)
     doc = read_toml(path, "manifest")
     known = {"profile", *CALIBRATIONS}
@@ -1067,7 +1043,6 @@ def run_manifest(path, plot_dir: Path | None = None):
     options = [c.options_from_manifest(doc[c.name], f"{path}: [{c.name}]", path.parent) for c in listed]
     if plot_dir is None:
         return base, [c.run(o, base, None) for c, o in zip(listed, options)]
-    from ..io import make_output_folder
 
     # plots go to a staging folder until every calibration has succeeded: a refusal leaves no plots behind
     with tempfile.TemporaryDirectory(prefix="lowcam-plots-") as staging:

@@ -130,7 +130,8 @@ class Search:
     (e.g. ``method = "bilinear"``). ``when``: values the profile's effect must already have (the lens model).
     ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise), or is
     the effect's own fit, a function ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
-    (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``).
+    (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``,
+    ``simulate()``: the effects do not run the pipeline, the fit is handed it).
     ``captures``: which captures it changes (``"all"``, ``"textured"`` or ``"moving"``): it is fitted on
     those, and the others keep the profile's frames (a fit may look at fewer: the veiling glare is seen on
     textured captures' dark areas, yet lifts flat fields too, so it declares ``"all"``). ``requires``: an

@@ -33,6 +33,8 @@ References
 """
 from __future__ import annotations
 
+import copy
+
 import cv2
 import numpy as np
 
@@ -72,8 +74,6 @@ class BayerSampling(Effect):
     def __deepcopy__(self, memo):
         """Copies share the kept warps: one immutable tuple holding everything they depend on, replaced whole
         (so copying a profile does not copy some 30 MB of maps)."""
-        import copy
-
         return copy.copy(self)
 
     def sample_positions(self, state) -> tuple[np.ndarray, np.ndarray]:

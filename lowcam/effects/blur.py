@@ -240,8 +240,6 @@ def edge_sigma(image: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> tuple[f
 def find_edges(image: np.ndarray, half_length: int = 12, half_width: int = 8):
     """Boxes around the sides of every dark or bright slanted square in a greyscale image: returns a list of
     ``(x0, y0, x1, y1, orientation)`` with orientation ``"vertical"`` or ``"horizontal"`` (the edge's)."""
-    import cv2
-
     img = np.asarray(image, np.float32)
     lo, hi = np.percentile(img, 2), np.percentile(img, 98)
     binary = ((img - lo) / max(hi - lo, 1e-6) < 0.5).astype(np.uint8)

@@ -38,11 +38,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .. import schema
 from ..errors import LowcamError
 from ..geometry import grid_points
+from ..io import atomic_write_bytes
 from .base import Effect, NodeStage, Param, Search
 from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
 
@@ -83,8 +85,6 @@ def read_ca_grid(path: Path) -> np.ndarray:
 
 def write_ca_grid(path: Path, grid: np.ndarray, width: int, height: int) -> None:
     """Write ``grid`` (rows, cols, 4) for an output frame of ``width`` x ``height`` in :func:`read_ca_grid`'s format."""
-    from ..io import atomic_write_bytes
-
     rows, cols = grid.shape[:2]
     u, v = grid_points((-0.5, -0.5, width - 0.5, height - 0.5), (cols, rows))
     lines = [",".join(CSV_COLUMNS)]
@@ -226,8 +226,6 @@ def lk_shift(ref: np.ndarray, grad_x: np.ndarray, grad_y: np.ndarray, moving: np
              iterations: int = 30) -> tuple[float, float]:
     """Lucas-Kanade translation ``d`` such that ``moving(p) ~ ref(p + d)`` over a ``size`` x ``size`` patch at
     ``centre`` (Gauss-Newton on bilinearly resampled ``ref``, sub-pixel)."""
-    import cv2
-
     cx, cy = centre
     half = (size - 1) / 2
     ys, xs = np.mgrid[0:size, 0:size].astype(np.float32)
@@ -254,8 +252,6 @@ def channel_shifts(frame: np.ndarray, u: np.ndarray, v: np.ndarray, patch: int =
     """Where red and blue sample relative to green around each point (``u``, ``v``) of an (H, W, 3) ``frame``:
     ``(..., 4)`` ``[red_du, red_dv, blue_du, blue_dv]`` in pixels by Lucas-Kanade over ``patch`` x ``patch``
     patches (NaN where the patch has too little texture)."""
-    import cv2
-
     frame = np.asarray(frame, np.float32)
     green = np.ascontiguousarray(frame[..., 1])
     gx = cv2.Sobel(green, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
@@ -276,8 +272,6 @@ def fit_chromatic_aberration(frames, cells=(24, 18), patch: int = 30, smooth_cel
     returned as (rows, cols, 4) ``[red_du, red_dv, blue_du, blue_dv]`` in :func:`read_ca_grid`'s convention
     (where red/blue sample relative to green). Frames are (H, W, 3) RGB.
     """
-    import cv2
-
     frames = [np.asarray(f, np.float32) for f in frames]
     h, w = frames[0].shape[:2]
     u, v = grid_points((-0.5, -0.5, w - 0.5, h - 0.5), cells)

@@ -14,8 +14,6 @@ stays white.
 Contents
 --------
 - :data:`FIRE_I_CROSSTALK`: the Fire-i filter response to 700/546/438 nm primaries (sec. 4.2)
-- :func:`colour_matrix_problems`: what in a colour matrix no real camera has (:data:`MIN_OWN_WEIGHT`,
-  :data:`MAX_NEGATIVE`, :data:`MIN_DETERMINANT`)
 - :class:`Crosstalk`: mixes the rendered colour channels as the Bayer filters do: ``rgb' = N (M rgb)``
 - :func:`fit_colour_matrix`: the 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches)
 - :func:`crosstalk_from_colour_matrix`: the sensor's own mixing, the saturation setting undone (sec. 4.2, 4.4.2)
@@ -33,37 +31,10 @@ import numpy as np
 
 from ..errors import NotFitted
 from .base import Effect, NodeStage, Param, Search
-from .saturation import SATURATION_LUMA, saturation_matrix
+from .saturation import SATURATION_LUMA, colour_matrix_problems, saturation_matrix
 
 #: Fire-i filter response to 700/546/438 nm primaries, rows sum to 1 (sec. 4.2).
 FIRE_I_CROSSTALK = [[0.95, 0.04, 0.01], [0.07, 0.89, 0.04], [0.00, 0.06, 0.94]]
-
-
-#: What a real camera's colour matrix keeps within (:func:`colour_matrix_problems`): each channel's weight on
-#: itself at least :data:`MIN_OWN_WEIGHT`, no other weight below -:data:`MAX_NEGATIVE`, a determinant at least
-#: :data:`MIN_DETERMINANT` (a matrix that folds the colours together is a grey camera: ``monochrome``).
-MIN_OWN_WEIGHT = 0.2
-MAX_NEGATIVE = 1.0
-MIN_DETERMINANT = 0.05
-
-
-def colour_matrix_problems(matrix, what: str = "the colour matrix") -> list[str]:
-    """What in a 3x3 colour matrix (rows: output channels) no real camera has: a channel weighing itself below
-    :data:`MIN_OWN_WEIGHT` (a negative green weight on green), a weight below -:data:`MAX_NEGATIVE`, or a
-    determinant below :data:`MIN_DETERMINANT` (three equal rows remove every colour).
-
-    >>> colour_matrix_problems([[0.91, -0.73, 0.81]] * 3)[0]
-    'the colour matrix weighs green at -0.73 on itself'
-    """
-    m = np.asarray(matrix, np.float64)
-    names = ("red", "green", "blue")
-    out = [f"{what} weighs {names[k]} at {m[k, k]:.2f} on itself" for k in range(3) if m[k, k] < MIN_OWN_WEIGHT]
-    if m.min() < -MAX_NEGATIVE:
-        out.append(f"{what} has a weight of {m.min():.2f}")
-    det = float(np.linalg.det(m))
-    if det < MIN_DETERMINANT:
-        out.append(f"{what} removes colour (determinant {det:.3f}): a grey camera is 'monochrome'")
-    return out
 
 
 def _rows_to_one(m: np.ndarray) -> np.ndarray:

@@ -29,12 +29,16 @@ References
 """
 from __future__ import annotations
 
+import os
+import tempfile
 import warnings
 
 import numpy as np
 
 from ..errors import NotFitted
+from ..geometry import BAYER_BORDER
 from .base import Effect, Param, Search
+from .noise import frame_rng
 
 
 # --- diagnosis: hot pixels (a few outliers) against DSNU (a dense map), told apart by where the offset sits -------
@@ -118,9 +122,6 @@ def _offsets(ctx):
 def _with_map(ctx, effect: str, values: np.ndarray):
     """The profile with ``effect`` reading the per-pixel map ``values`` (saved as .npy in the workdir, a file of
     its own per fit: a candidate is fitted on several folds at once)."""
-    import os
-    import tempfile
-
     handle, path = tempfile.mkstemp(prefix=f"{effect}-", suffix=".npy", dir=ctx.workdir)
     os.close(handle)
     np.save(path, values.astype(np.float32))
@@ -266,9 +267,6 @@ class RowNoise(Effect):
     params = {"sigma_dn": Param(0.0, low=0.0, high=50.0, unit="DN")}
 
     def apply(self, state):
-        from ..geometry import BAYER_BORDER
-        from .noise import frame_rng
-
         g = state.geometry
         rows = frame_rng(state.seed, state.frame ^ 0x5A5A).standard_normal(g.height + 4).astype(np.float32)
         by = BAYER_BORDER[0]

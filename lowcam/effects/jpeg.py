@@ -53,8 +53,11 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from ..errors import LowcamError
+from ..plate_estimate import PlateEstimate
 from .base import Effect, Param, Search
 
 #: The chroma subsamplings the encoder offers (J:a:b): full, halved across, halved across and down.
@@ -65,10 +68,6 @@ _COARSE_QUALITY = (20, 40, 60, 75, 90)
 
 
 def _encode_decode(frame: np.ndarray, quality: int, subsampling: str) -> np.ndarray:
-    import cv2
-
-    from ..errors import LowcamError
-
     factor = {"4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444, "4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
               "4:2:0": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420}[subsampling]
     ok, data = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR),
@@ -88,7 +87,6 @@ def jpeg_roundtrip(frame: np.ndarray, quality: int, subsampling: str = "4:2:0", 
     extra rounding (under 1 DN) is dithered away by the camera's noise."""
     if not chroma_quality or int(chroma_quality) == int(quality):
         return _encode_decode(frame, quality, subsampling)
-    import cv2
 
     luma = cv2.cvtColor(_encode_decode(frame, quality, subsampling), cv2.COLOR_RGB2YCrCb)
     chroma = cv2.cvtColor(_encode_decode(frame, chroma_quality, subsampling), cv2.COLOR_RGB2YCrCb)
@@ -329,13 +327,11 @@ def fit_jpeg(ctx, effect):
     of the clean frame (quantisation of noisy coefficients shrinks them less), and a noise-free fit picks too
     low a quality. When JPEG is the chain's last stage, the model's noisy frames are simulated once without it
     and each trial only codes them again (the frames :func:`lowcam.measure.compare.compare` makes); otherwise
-    each trial re-simulates the chain. Every subsampling is tried on a coarse quality grid; for the best, the
-    quality is refined, then the chroma quality on its own (an encoder's tables rarely have the standard
-    luma/chroma balance), then the quality again. While diagnosis screens (``ctx.screening``), only the coarse
-    grid at 4:2:0.
+    each trial re-simulates the chain (``ctx.simulate``: the effects do not run the pipeline themselves). Every
+    subsampling is tried on a coarse quality grid; for the best, the quality is refined, then the chroma quality
+    on its own (an encoder's tables rarely have the standard luma/chroma balance), then the quality again. While
+    diagnosis screens (``ctx.screening``), only the coarse grid at 4:2:0.
     """
-    from ..measure.compare import simulate_capture
-
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick  # a few captures: the flattest and the most textured
     means = [ctx.means[i] for i in idx]
@@ -345,8 +341,7 @@ def fit_jpeg(ctx, effect):
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        uncoded = [simulate_capture(base, caps[i], max(len(caps[i].frames), 4), inputs=ctx.inputs[i],
-                                    cache=ctx.cache) for i in idx]
+        uncoded = [ctx.simulate(base, i, max(len(caps[i].frames), 4)) for i in idx]
     scores: dict = {}
 
     def sse(q, s, qc=None):  # the residual of the temporal means, model frames with their noise
@@ -358,9 +353,8 @@ def fit_jpeg(ctx, effect):
                 scores[key] = float(sum(((m - np.mean([jpeg_roundtrip(f, *key) for f in g], axis=0)) ** 2).sum()
                                         for m, g in zip(means, uncoded)))
             else:
-                frames = [simulate_capture(p.with_effect(effect, quality=q, subsampling=s, chroma_quality=key[2],
-                                                         **_SCALED), caps[i], max(len(caps[i].frames), 4),
-                                           inputs=ctx.inputs[i], cache=ctx.cache) for i in idx]
+                frames = [ctx.simulate(p.with_effect(effect, quality=q, subsampling=s, chroma_quality=key[2],
+                                                     **_SCALED), i, max(len(caps[i].frames), 4)) for i in idx]
                 scores[key] = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
         return scores[key]
 
@@ -404,8 +398,7 @@ def fit_jpeg(ctx, effect):
             score = float(sum(((m - np.mean([jpeg_roundtrip_tables(f, luma, chroma, s) for f in g], axis=0)) ** 2
                                ).sum() for m, g in zip(means, uncoded)))
         else:
-            frames = [simulate_capture(p.with_effect(effect, **own), caps[i], max(len(caps[i].frames), 4),
-                                       inputs=ctx.inputs[i], cache=ctx.cache) for i in idx]
+            frames = [ctx.simulate(p.with_effect(effect, **own), i, max(len(caps[i].frames), 4)) for i in idx]
             score = float(sum(((m - g.mean(axis=0)) ** 2).sum() for m, g in zip(means, frames)))
         if score < sse(q, s, qc):
             values = dict(values, **own)
@@ -451,8 +444,6 @@ class Jpeg(Effect):
         """Nothing before the blend: the encode acts on the delivered frame (:meth:`finish`)."""
 
     def finish(self, state, frame, footprint):
-        from ..errors import LowcamError
-
         try:
             if self.luma_table:
                 out = jpeg_roundtrip_tables(frame, self.luma_table, self.chroma_table or self.luma_table,
@@ -578,7 +569,7 @@ def _tile_levels(frames: np.ndarray, phases: tuple[int, int]) -> np.ndarray:
 
 
 def jpeg_quality_from_plate(footage, base=None):
-    """The IJG quality the footage's JPEG blockiness implies, as a :class:`lowcam.measure.plate.PlateEstimate`
+    """The IJG quality the footage's JPEG blockiness implies, as a :class:`lowcam.plate_estimate.PlateEstimate`
     for the ``jpeg`` effect (see "Blockiness from the footage alone" above).
 
     The grid is found on up to 8 frames by the blockiness ratio; the quality from the block step in DN
@@ -594,8 +585,6 @@ def jpeg_quality_from_plate(footage, base=None):
     over 64 px tiles). Not measurable: frames too flat for coding them again to tell qualities apart (the
     calibration's steps span under 1 DN or ten standard errors from quality 5 to 95), or a step above quality
     5's. A step below quality 95's gives quality 95 ("at least")."""
-    from ..measure.plate import PlateEstimate
-
     name, effect = "jpeg_blockiness", "jpeg"
     frames = footage.stack(max_frames=8)
     b = jpeg_blockiness(frames)

@@ -86,7 +86,10 @@ References
 """
 from __future__ import annotations
 
+import copy
+
 import cv2
+import cv2 as _cv2
 import numpy as np
 
 from ..errors import LowcamError, NotFitted
@@ -609,8 +612,6 @@ class LensDistortion(Effect):
     def __deepcopy__(self, memo):
         """Copies share the cache of render maps: its keys hold every parameter, so sharing is safe and saves
         recomputing (and copying) maps of several million pixels whenever a profile is varied."""
-        import copy
-
         new = copy.copy(self)
         new.principal_point = list(self.principal_point)
         new.lensfun_center = list(self.lensfun_center)
@@ -743,8 +744,6 @@ def _flow_targets(means, clean, lens_model, stride: int = 6):
     model's lens sees at ``u + d``, ``d`` being the optical flow from the measured mean to the clean model
     (OpenCV's DIS flow, Kroeger et al. 2016), kept where the texture is strong and the flow is consistent both
     ways. Returns (u, v, x, y) arrays."""
-    import cv2 as _cv2
-
     dis = _cv2.DISOpticalFlow_create(_cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     out = []
     for m, s in zip(means, clean):

@@ -36,7 +36,7 @@ Contents
 - :data:`CODING_GRID_PX`: JPEG's block, the grid a camera moving by its multiples puts back on the same content
 - :data:`CODEC_FLICKER`: how much more luma noise a JPEG-coded pan shows than a still shot, by quality (measured)
 - :func:`channel_proportions`: how a law read on the luma is shared between the channels (the base profile's)
-- :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.measure.plate.PlateEstimate`)
+- :func:`noise_level_function_from_plate`: the noise law from footage (a :class:`lowcam.plate_estimate.PlateEstimate`)
 
 References
 ----------
@@ -57,8 +57,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import LowcamError
+from ..errors import LowcamError, NotFitted
+from ..plate_estimate import PlateEstimate, pair_starts, register_footage
+from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
 from .base import Effect, NodeStage, Param
+from .jpeg import _GRID_T, LUMA_WEIGHTS, bt601_luma, jpeg_blockiness
 
 
 #: Seeds are 0 <= seed < 2**64; frames -2**31 <= frame < 2**31 (Blender's frames are well inside).
@@ -360,9 +363,6 @@ def noise_level_statistic(frames, method: str | None = None, block: int = NLF_BL
     {"64"|"128"|"192": [r, g, b] or [luma]}}`` (``sigma_at_dn`` interpolated between bins; None where that level
     was not measured: never a value made up outside the measured levels) and, for ``"registered"``, ``pairs`` and
     ``compared`` (the share of pixels compared)."""
-    from ..registration import RegisteredPairs, register_frames
-    from .jpeg import bt601_luma
-
     channels = ("luma",) if luma else ("red", "green", "blue")
     if isinstance(frames, RegisteredPairs):
         pairs, method = frames, method or "registered"
@@ -483,7 +483,6 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     through this gain is the noise the frames carried into their coding.
     ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
     ``make_ideal(width, height)`` (:func:`lowcam.measure.plate.film`; effects do not run the pipeline)."""
-    from ..errors import NotFitted
     def ideal(width, height):
         out = np.ones((height, width, 4), np.float32)
         out[..., :3] = level
@@ -527,14 +526,11 @@ def _codec_flicker(footage, base, moving: bool) -> tuple[float, str]:
         return 1.0, ""
     jpeg = base.effect("jpeg") if base is not None else None
     if jpeg is None or not jpeg.enabled:
-        from .jpeg import _GRID_T, jpeg_blockiness
-
         grid = jpeg_blockiness(footage.stack(max_frames=4))
         if min(grid["t_h"], grid["t_v"]) < _GRID_T[0]:
             return 1.0, ""
         return 0.0, ("; the camera moves and the frames show an 8x8 block grid at a quality not measured: a "
                      "block coder's error of a moving scene changes from frame to frame and reads as noise")
-    from ..registration import GRID_WINDOW
 
     qs = sorted(CODEC_FLICKER)
     ratio = float(np.interp(int(jpeg.quality), qs, [CODEC_FLICKER[q] for q in qs]))
@@ -555,16 +551,14 @@ class _LumaFrames:
         return len(self.frames)
 
     def __getitem__(self, i) -> np.ndarray:
-        from .jpeg import bt601_luma
-
         return bt601_luma(self.frames[i])[..., None]
 
 
 def noise_level_function_from_plate(footage, base, film):
-    """The noise law per channel from footage, as a :class:`lowcam.measure.plate.PlateEstimate`.
+    """The noise law per channel from footage, as a :class:`lowcam.plate_estimate.PlateEstimate`.
 
     Up to :data:`PLATE_PAIRS` frame pairs spread over the shot are registered
-    (:func:`lowcam.measure.plate.register_footage`); where at least :data:`MIN_PAIRS` pairs hold still (no pixel
+    (:func:`lowcam.plate_estimate.register_footage`); where at least :data:`MIN_PAIRS` pairs hold still (no pixel
     moves more than :data:`STILL_PX`) only those are used, since a codec's coding error of a moving scene changes
     from frame to frame. JPEG-coded frames (the profile's ``jpeg`` effect) are registered and measured on their
     luma (:func:`noise_level_statistic` with ``luma``): JPEG codes it at full resolution on its own 8 px grid,
@@ -588,10 +582,6 @@ def noise_level_function_from_plate(footage, base, film):
     scatter, and the bins' deviation from the law), times the codec factor of a moving JPEG-coded shot without
     pairs on its grid (:data:`CODEC_FLICKER`). Fewer than :data:`MIN_LEVELS` brightness levels: not measurable.
     ``base``: the profile being refined; ``film``: as :func:`noise_gain` takes it."""
-    from ..measure.plate import PlateEstimate, pair_starts, register_footage
-    from ..registration import register_on_grid
-    from .jpeg import LUMA_WEIGHTS
-
     law = getattr(base.effect("noise"), "law", "sigma_linear")
     jpeg = base.effect("jpeg")
     luma = jpeg is not None and jpeg.enabled

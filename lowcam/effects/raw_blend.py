@@ -15,9 +15,11 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .base import Effect, Param
+from .bayer import mosaic, unmosaic
 
 
 class RawBlend(Effect):
@@ -36,8 +38,6 @@ class RawBlend(Effect):
     params = {"bits": Param(8, int, low=1, high=16, doc="raw bit depth, scaled to 8-bit DN")}
 
     def apply(self, state):
-        from .bayer import unmosaic
-
         plate = unmosaic(state.plate_raw, state.geometry)
         step = 256.0 / 2 ** self.bits
         covered = state.bayer_alpha != 0
@@ -50,10 +50,6 @@ class RawBlend(Effect):
     def finish(self, state, frame, footprint):
         """The frame is the demosaiced raw frame itself; the footprint is the touched sensels' pixels and their
         demosaicing neighbours."""
-        import cv2
-
-        from .bayer import mosaic
-
         touched = mosaic(state.raw_touched, state.geometry).astype(np.uint8)
         rgb = np.rint(np.clip(state.rgb, 0, 255)).astype(np.uint8)
         return rgb, cv2.dilate(touched, np.ones((3, 3), np.uint8)).astype(bool)

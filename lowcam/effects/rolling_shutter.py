@@ -15,6 +15,7 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..geometry import grid_points
@@ -38,7 +39,6 @@ class RollingShutter(Effect):
         w = np.asarray(state.angular_velocity, np.float64)
         if not np.any(w) or self.readout_s <= 0:
             return
-        import cv2
 
         g = state.geometry
         u, v = grid_points(g.working_extent)

@@ -13,6 +13,8 @@ Contents
 - :data:`SATURATION_LUMA`: the rows of the control's fixed part A (sec. 4.4.2)
 - :data:`LUMA_SUM_TOLERANCE`: how far from 1 luma weights may sum
 - :func:`saturation_matrix`: the Fire-i saturation control ``S(beta)``
+- :func:`colour_matrix_problems`: what in a colour matrix no real camera has (:data:`MIN_OWN_WEIGHT`,
+  :data:`MAX_NEGATIVE`, :data:`MIN_DETERMINANT`); the crosstalk's total matrix is judged so too
 - :class:`Saturation`: colour correction and the saturation control on the demosaiced premultiplied colour
 
 References
@@ -47,6 +49,33 @@ def saturation_matrix(beta: float, luma=SATURATION_LUMA) -> np.ndarray:
     return a + (beta / 65.0) * (np.eye(3) - a)
 
 
+#: What a real camera's colour matrix keeps within (:func:`colour_matrix_problems`): each channel's weight on
+#: itself at least :data:`MIN_OWN_WEIGHT`, no other weight below -:data:`MAX_NEGATIVE`, a determinant at least
+#: :data:`MIN_DETERMINANT` (a matrix that folds the colours together is a grey camera: ``monochrome``).
+MIN_OWN_WEIGHT = 0.2
+MAX_NEGATIVE = 1.0
+MIN_DETERMINANT = 0.05
+
+
+def colour_matrix_problems(matrix, what: str = "the colour matrix") -> list[str]:
+    """What in a 3x3 colour matrix (rows: output channels) no real camera has: a channel weighing itself below
+    :data:`MIN_OWN_WEIGHT` (a negative green weight on green), a weight below -:data:`MAX_NEGATIVE`, or a
+    determinant below :data:`MIN_DETERMINANT` (three equal rows remove every colour).
+
+    >>> colour_matrix_problems([[0.91, -0.73, 0.81]] * 3)[0]
+    'the colour matrix weighs green at -0.73 on itself'
+    """
+    m = np.asarray(matrix, np.float64)
+    names = ("red", "green", "blue")
+    out = [f"{what} weighs {names[k]} at {m[k, k]:.2f} on itself" for k in range(3) if m[k, k] < MIN_OWN_WEIGHT]
+    if m.min() < -MAX_NEGATIVE:
+        out.append(f"{what} has a weight of {m.min():.2f}")
+    det = float(np.linalg.det(m))
+    if det < MIN_DETERMINANT:
+        out.append(f"{what} removes colour (determinant {det:.3f}): a grey camera is 'monochrome'")
+    return out
+
+
 class Saturation(Effect):
     """Colour correction and the saturation control on the demosaiced premultiplied colour: ``S(beta) C rgb``
     (sec. 4.4.2; ``colour_correction`` C is the image processor's matrix, identity by default).
@@ -75,9 +104,7 @@ class Saturation(Effect):
 
     def implausible(self) -> list[str]:
         """Luma weights below 0 or not summing to 1 within :data:`LUMA_SUM_TOLERANCE`, and a colour correction no
-        camera has (:func:`lowcam.effects.crosstalk.colour_matrix_problems`)."""
-        from .crosstalk import colour_matrix_problems
-
+        camera has (:func:`colour_matrix_problems`)."""
         out = [f"a negative luma weight ({min(self.luma):.3f})"] if min(self.luma) < 0 else []
         if abs(sum(self.luma) - 1.0) > LUMA_SUM_TOLERANCE:
             out.append(f"luma weights summing to {sum(self.luma):.3f}")

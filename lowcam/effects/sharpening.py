@@ -26,8 +26,10 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from ..plate_estimate import PlateEstimate
 from .base import Effect, NodeStage, Param, Search
 from .blur import filter_rows, gaussian_taps
 
@@ -145,8 +147,6 @@ def _find_edges(g: np.ndarray, contrast_dn: float) -> list[tuple[int, float]]:
     """``(row, x)`` of strong, near-vertical, straight edges of ``g``: gradient peaks along x (parabolic sub-pixel
     position) found on a copy blurred by 1 px, so that the noise at the sampled pixels does not choose which edges
     are kept (that would favour noise that steepens them)."""
-    import cv2
-
     soft = cv2.GaussianBlur(g, (0, 0), 1.0)
     gx = cv2.Sobel(soft, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(soft, cv2.CV_32F, 0, 1, ksize=3)
@@ -293,8 +293,6 @@ def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None) -> 
 def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0) -> np.ndarray:
     """An opaque ideal of grey squares on a lighter ground, rotated ``angle_deg`` so that edges fall at every
     phase of the pixel grid, area-sampled from 4x supersampling (exact steps)."""
-    import cv2
-
     s = 4
     big_w, big_h = width * s, height * s
     yy, xx = np.mgrid[0:big_h, 0:big_w].astype(np.float32) / s
@@ -320,7 +318,7 @@ def _model_edges(profile, values, film, at=None, found=None) -> dict:
 
 def edge_profile_from_plate(footage, base, film):
     """The horizontal blur and sharpening from footage's natural edges, as a
-    :class:`lowcam.measure.plate.PlateEstimate` whose params are ``horizontal_blur.sigma`` and
+    :class:`lowcam.plate_estimate.PlateEstimate` whose params are ``horizontal_blur.sigma`` and
     ``sharpening.sharpness`` (the sharpening gain ``a`` over the profile's ``gain_per_unit``).
 
     The mean edge profile across near-vertical edges (:func:`edge_profile_statistic`, the footage scaled to the
@@ -333,10 +331,8 @@ def edge_profile_from_plate(footage, base, film):
     by 0.03 of the step or more (root mean square), and halved again when the sharpness ends at its range's
     upper end (:class:`Sharpening`'s 255). ``base``: the profile
     being refined; ``film(profile, make_ideal)``: its frame of an ideal (:func:`lowcam.measure.plate.film`)."""
-    import cv2
     from scipy.optimize import least_squares
 
-    from ..measure.plate import PlateEstimate
     frames = footage.stack(max_frames=EDGE_FRAMES)
     w, h = base.camera.width, base.camera.height
     if frames.shape[1:3] != (h, w):

@@ -28,9 +28,13 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from ..errors import LowcamError
 from ..geometry import sample_texture
+from ..io import read_gain_map
+from ..plate_estimate import PlateEstimate
 from .base import Effect, NodeStage, Param, Search
 from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
 
@@ -106,9 +110,6 @@ class Vignetting(Effect):
         super().__init__(*args, **kwargs)
         self._texture = None
         if self.texture:
-            from ..errors import LowcamError
-            from ..io import read_gain_map
-
             try:
                 self._texture = read_gain_map(self.texture)
             except LowcamError as e:
@@ -154,8 +155,6 @@ def fit_vignetting(frames, shape=(60, 80), blur_fraction: float = 1 / 40) -> np.
     """The gain texture from flat-field frames (sec. 4.1): average them, blur away sensor and target
     irregularities (Gaussian, sigma = ``blur_fraction`` of the frame width), subsample to ``shape`` (rows, cols)
     and normalise the brightest texel to 1. Colour frames are averaged over their channels."""
-    import cv2
-
     mean = np.mean([np.asarray(f, np.float32) for f in frames], axis=0)
     if mean.ndim == 3:
         mean = mean.mean(axis=2)
@@ -181,8 +180,6 @@ def vignetting_statistic(frames, max_pairs: int = 30, min_shift_px: float = 1.5)
     pair moves; else the pairs used, the total shift (px), ``c2``, ``c4``, ``k2``, ``k4`` of the radial model
     ``1 + k2 rho^2 + k4 rho^4`` closest to ``exp(c2 rho^2 + c4 rho^4)``, the gain at rho = 0.5, 0.8 and 1 and the
     corner gain's standard error."""
-    import cv2
-
     x = np.asarray(frames, np.float32)
     grey = [cv2.GaussianBlur(f.mean(axis=2) if f.ndim == 3 else f, (0, 0), 1.5) for f in x]
     h, w = grey[0].shape
@@ -239,15 +236,13 @@ def vignetting_statistic(frames, max_pairs: int = 30, min_shift_px: float = 1.5)
 
 
 def vignetting_from_plate(footage, base=None):
-    """k2, k4 of the radial vignetting model from a moving shot, as a :class:`lowcam.measure.plate.PlateEstimate`
+    """k2, k4 of the radial vignetting model from a moving shot, as a :class:`lowcam.plate_estimate.PlateEstimate`
     (:func:`vignetting_statistic`; a measured ``texture`` in the base is replaced by the radial model).
 
     Confidence: 0.9, scaled by how far the camera moved (a tenth of the frame diagonal in all: full) and halved
     when the corner gain's standard error exceeds 0.02; a shot in which the camera hardly moves gives none, and
     neither do corners found brighter than the centre (beyond 2 %: a lens does not brighten its corners; exposure
     changes or moving scene content do)."""
-    from ..measure.plate import PlateEstimate
-
     frames = footage.stack(max_frames=31)
     stat = vignetting_statistic(frames)
     if not stat:

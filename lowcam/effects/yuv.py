@@ -50,7 +50,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..plate_estimate import PlateEstimate
 from .base import Effect, NodeStage, Param, Search
+from .jpeg import _GRID_T, SUBSAMPLINGS, block_difference_profile, jpeg_blockiness
 
 #: Full-range BT.601 (JFIF) RGB -> YUV.
 RGB_TO_YUV = np.array([[0.299, 0.587, 0.114],
@@ -207,8 +209,6 @@ def chroma_subsampling_evidence(frames: np.ndarray, spectrum: bool = True) -> di
     chroma's JPEG step excess, as a log ratio to the median step, at odd multiples of 8 px and at multiples of
     32 px, mean over Cb and Cr, the grid starting at the frame's corner), the same as differences in DN
     (``step8``, ``step32``) and, with ``spectrum``, ``chroma_drop``."""
-    from .jpeg import block_difference_profile
-
     y = _yuv_stack(frames)
     if y.ndim == 3:
         y = y[None]
@@ -254,7 +254,7 @@ def _axis_factor(e: dict) -> tuple[int, float, str]:
 
 
 def chroma_subsampling_from_plate(footage, base=None):
-    """The chroma subsampling the footage shows, as a :class:`lowcam.measure.plate.PlateEstimate`.
+    """The chroma subsampling the footage shows, as a :class:`lowcam.plate_estimate.PlateEstimate`.
 
     Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
     spectrum; module docstring), the confidence is the weaker axis's. Where one axis shows repeated samples
@@ -267,9 +267,6 @@ def chroma_subsampling_from_plate(footage, base=None):
     :class:`ChromaSubsampling`'s ``group`` (the engine's chroma subsampling is horizontal only; a vertical factor
     is reported). Chroma with no detail (mean neighbour step of Cb and Cr under :data:`_CHROMA_DETAIL_DN`, a grey
     or flat scene): not measurable."""
-    from ..measure.plate import PlateEstimate
-    from .jpeg import _GRID_T, SUBSAMPLINGS, jpeg_blockiness
-
     frames = footage.stack(max_frames=6)
     detail = chroma_detail(frames)
     if detail < _CHROMA_DETAIL_DN:

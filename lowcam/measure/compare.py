@@ -30,7 +30,6 @@ Contents
 - :class:`Comparison`: the error, its families and per-capture statistics; ``where`` and ``verdict``
 - :class:`CaptureInputs`: what a capture is simulated from: the ideal render, the plate, the mask of compared pixels
 - :func:`capture_inputs`: a capture's :class:`CaptureInputs`, rendering the target's ideal view when needed
-- :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
 - :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
 - :func:`row_noise_variance`: per channel, the variance of the per-frame row means of the noise of a stack
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
@@ -40,12 +39,17 @@ Contents
 """
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 
 from ..errors import LowcamError
+from ..pipeline import deterministic_prefix, prefix_key, prepare, resume
+from .targets import ideal_from_target
 
 EXPLAINED_BELOW = 1.1
 SIM_SEED = 1000
@@ -110,7 +114,6 @@ def capture_inputs(profile, capture) -> CaptureInputs:
     capture's own (``mask`` in set.toml) and the target fit's, both."""
     if capture.ideal is not None:
         return CaptureInputs(capture.ideal, capture.plate, capture.mask)
-    from .targets import ideal_from_target
 
     ideal, plate, mask = ideal_from_target(profile, capture)
     if capture.mask is not None:
@@ -118,17 +121,10 @@ def capture_inputs(profile, capture) -> CaptureInputs:
     return CaptureInputs(ideal, plate, mask)
 
 
-def prefix_key(profile, count: int) -> str:
-    """Identifies the first ``count`` effects of a profile (and its camera) for caching their output."""
-    return repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects[:count]]))
-
-
 def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
                      until: str | None = None) -> np.ndarray:
     """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``); the
     deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it."""
-    from ..pipeline import deterministic_prefix, prepare, resume
-
     ideal, plate, _ = inputs or capture_inputs(profile, capture)
     key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
     token = cache.pop(key, None) if cache is not None else None
@@ -163,8 +159,6 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> lis
 def row_noise_variance(frames: np.ndarray) -> np.ndarray:
     """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
     and frames (row noise shows here; pixel noise averages out over a row)."""
-    import cv2
-
     # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
     sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
     rows = sums / frames.shape[2]
@@ -271,8 +265,6 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
     keeps the deterministic front of the chain between calls that share it; ``assumed_noise`` (per capture, from
     :attr:`CaptureStats.sums` ``["variance_map"]`` of an earlier comparison) fixes the noise of one-frame
     captures; ``subset`` compares only those captures (by index)."""
-    import threading
-
     chosen = [i for i in range(len(mset.captures)) if subset is None or i in subset]
     for i in chosen:
         cap = mset.captures[i]
@@ -288,8 +280,6 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
         return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask)
 
     if WORKERS > 1 and len(chosen) > 1 and threading.current_thread() is threading.main_thread():
-        from concurrent.futures import ThreadPoolExecutor
-
         with ThreadPoolExecutor(WORKERS) as pool:
             stats = list(pool.map(one, chosen))
     else:

@@ -82,6 +82,7 @@ References
 """
 from __future__ import annotations
 
+import shutil
 import tempfile
 import threading
 import time
@@ -90,11 +91,17 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from ..effects import known_effects
+from ..effects.fixed_pattern import _with_map, mean_noise_var, wiener_shrink
+from ..effects.saturation import LUMA_SUM_TOLERANCE, saturation_matrix
 from ..errors import NotFitted
-from .compare import EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare, prefix_key, \
-    row_noise_variance, simulate_capture
+from ..pipeline import prefix_key
+from .compare import (EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare, row_noise_variance,
+                      simulate_capture)
+from .sets import MeasurementSet
 
 UNEXPLAINED_ABOVE = 1.25
 FITTED = 4
@@ -241,8 +248,6 @@ class Context:
     def view(self, indices, masks=None) -> "Context":
         """This context over the captures ``indices`` only, and within them the pixels ``masks`` (one (H, W)
         bool per index, or None) keep; simulations are shared."""
-        from .sets import MeasurementSet
-
         out = object.__new__(Context)
         out.mset = MeasurementSet(self.mset.path, [self.mset.captures[i] for i in indices])
         out.profile, out.workdir, out._local = self.profile, self.workdir, threading.local()
@@ -339,6 +344,13 @@ class Context:
                         self.memo.popitem(last=False)
             out.append(frame)
         return out
+
+    def simulate(self, profile, i: int, count: int) -> np.ndarray:
+        """``count`` noisy frames (uint8, noise frames 0..count-1 of :data:`~lowcam.measure.compare.SIM_SEED`) of
+        capture ``i`` through ``profile`` (:func:`~lowcam.measure.compare.simulate_capture`), the chain's
+        deterministic front kept in the shared cache: how a fit in an effect's module, which does not run the
+        pipeline itself, asks for the model's frames."""
+        return simulate_capture(profile, self.mset.captures[i], count, inputs=self.inputs[i], cache=self.cache)
 
     def _difference(self, i, frame):
         d = self.means[i] - frame
@@ -438,8 +450,6 @@ def _opaque_output(ideal: np.ndarray, shape) -> np.ndarray:
     """Where the ideal render is opaque, at the output's ``shape`` (rows, cols): the pixels whose content the
     render gives (a target's paper, not the plate around it). The render is scaled to the frame (its field of
     view a little wider than the frame's: close enough for how far content reaches)."""
-    import cv2
-
     alpha = cv2.resize(np.ascontiguousarray(ideal[..., 3]), (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     return alpha > 0.5
 
@@ -449,8 +459,6 @@ def _opaque_output(ideal: np.ndarray, shape) -> np.ndarray:
 def candidates() -> dict:
     """Candidate name -> list of (effect class, :class:`~lowcam.effects.Search`), from every known effect's
     ``searches`` (bundled and plug-in), in chain order."""
-    from ..effects import known_effects
-
     out: dict = {}
     for cls in known_effects():
         for search in cls.searches:
@@ -694,8 +702,6 @@ def fit_pixel_gain(ctx, effect):
     """PRNU: per-pixel least-squares gain of the measured means against the clean model, ``g = sum((m - s) s) /
     sum(s^2)`` over the captures, shrunk towards its mean by :func:`~lowcam.effects.fixed_pattern.wiener_shrink`
     with each gain's noise variance ``sum(s^2 v) / sum(s^2)^2`` (``v``: the means' noise variance)."""
-    from ..effects.fixed_pattern import _with_map, mean_noise_var, wiener_shrink
-
     s, m = _pixel_maps(ctx)
     weight = np.maximum((s * s).sum(0), 1e-6)
     gain = wiener_shrink(((m - s) * s).sum(0) / weight, (s * s * mean_noise_var(ctx)).sum(0) / weight ** 2)
@@ -726,8 +732,6 @@ def fit_monochrome(ctx, effect):
     non-negative least squares to the measured grey only where the ideal renders hold colour
     (:meth:`Context.scene_has_colour`); a grey scene shows every such set of weights alike, so they are then the
     profile's. NotFitted when the measured frames carry colour, or the model delivers grey already."""
-    from ..effects.saturation import LUMA_SUM_TOLERANCE, saturation_matrix
-
     p = ctx.profile
     sat = p.effect(effect)
     s, m = ctx.pixels(p, ctx.quick)
@@ -1367,8 +1371,6 @@ def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain:
 
 def save_candidate_profile(candidate: Candidate, path, profile=None) -> Path:
     """Write the candidate's profile (or ``profile``); fitted maps (.npy) are copied into a folder beside it."""
-    import shutil
-
     path = Path(path).resolve()
     profile = profile or candidate.profile
     for effect in profile.effects:

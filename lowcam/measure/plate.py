@@ -9,25 +9,21 @@ confident estimates to a copy of a base profile and records where each number ca
 measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
 frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
 
-The probes are walked in the order of :data:`PLATE_PROBES`, each estimator in its own effect module. Temporal
-statistics (the noise) compare frames registered by a homography from tracked corners
-(:func:`register_footage`), so a panning camera and people walking through a fixed camera's view are not read
-as noise. Each confidence is earned from the measurement's own evidence (blocks, edges, levels, registered
-pixels, the scatter over tiles); footage that cannot show a statistic at all (flat, still) gives "not
-measurable" and no value.
+The probes are walked in the order of :data:`PLATE_PROBES`, each estimator in its own effect module; an estimate is
+a :class:`lowcam.plate_estimate.PlateEstimate` (defined below the effects, which make them), and an estimator that
+needs the model's frame of a scene is handed :func:`film`. Temporal statistics (the noise) compare frames registered
+by a homography from tracked corners (:func:`lowcam.plate_estimate.register_footage`), so a panning camera and
+people walking through a fixed camera's view are not read as noise. Each confidence is earned from the measurement's
+own evidence (blocks, edges, levels, registered pixels, the scatter over tiles); footage that cannot show a
+statistic at all (flat, still) gives "not measurable" and no value.
 
 Contents
 --------
 - :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
 - :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
-- :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
-  (or that the footage cannot show it: not measurable)
 - :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :data:`PLATE_PROBES`: every plate probe, in the order they run
-- :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
-- :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
-  start with the best of the next few frames
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
 - :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
@@ -58,9 +54,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
+import cv2
 import numpy as np
 
+from ..captures import expand_paths, load_frames
+from ..effects.jpeg import jpeg_blockiness_statistic, jpeg_quality_from_plate
+from ..effects.noise import noise_level_function_from_plate, noise_level_statistic
+from ..effects.sharpening import edge_profile_from_plate, edge_profile_statistic
+from ..effects.vignetting import vignetting_from_plate, vignetting_statistic
+from ..effects.yuv import chroma_bandwidth_statistic, chroma_subsampling_from_plate
 from ..errors import LowcamError, NotFitted
+from ..io import quiet_stderr
+from ..motion import average_rate, read_gyro_csv
+from ..pipeline import render_camera, simulate
+from ..plate_estimate import PlateEstimate
+from ..profile import load_profile
 
 #: Estimates below this confidence are reported, not applied to the profile.
 MIN_CONFIDENCE = 0.5
@@ -107,8 +115,6 @@ class Footage:
 
 
 def _frame_paths(path: Path) -> list[Path]:
-    from ..captures import expand_paths
-
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES and p.is_file())
         return sorted(files, key=_natural_key)
@@ -116,8 +122,6 @@ def _frame_paths(path: Path) -> list[Path]:
 
 
 def _natural_key(p: Path):
-    import re
-
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
 
 
@@ -126,8 +130,6 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
     order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro` or a gyro CSV,
     :func:`lowcam.motion.read_gyro_csv`). Every problem is one line naming the file: missing, unreadable, too few
     frames, mismatched sizes, video data the decoder reports damaged (it would conceal it with grey blocks)."""
-    from ..captures import load_frames
-
     p = Path(path)
     name = str(path)
     if p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
@@ -150,10 +152,6 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
 
 
 def _read_video(path: Path, max_frames: int):
-    import cv2
-
-    from ..io import quiet_stderr
-
     with quiet_stderr():
         cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
@@ -196,8 +194,6 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
     (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s).
     Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s") are converted to seconds. The axes
     are kept as logged: a phone's gyro axes need not be Lowcam's camera axes (x right, y down, z forward)."""
-    from ..motion import read_gyro_csv
-
     path = Path(path)
     if not path.is_file():
         raise LowcamError(f"{path}: no such gyro log")
@@ -239,58 +235,9 @@ def _numeric_row(line: str) -> bool:
         return False
 
 
-@dataclass
-class PlateEstimate:
-    """One statistic measured on the footage and what it implies for the profile.
-
-    ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
-    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
-    parameter of ``effect`` or ``"other_effect.param"`` (``"other_effect.enabled": False`` turns that effect
-    off); ``base_params``: the base profile's values of the same parameters (None where it lacks them), filled by
-    :func:`estimate_profile`; ``confidence`` (0..1, earned from the measurement's own evidence) with a one-line
-    ``reason``; ``measurable``: False where the footage cannot show the statistic at all (too flat, too still):
-    nothing is estimated, and lines and reports say "not measurable" rather than a value; ``model``: the same
-    statistic measured on the profile's simulation of similar content (:func:`model_statistics`), ``None`` until
-    filled; ``applied``: whether :func:`estimate_profile` wrote ``params`` into the profile."""
-
-    statistic: str
-    effect: str
-    measured: dict
-    params: dict
-    confidence: float
-    reason: str
-    model: dict | None = None
-    applied: bool = False
-    base_params: dict = field(default_factory=dict)
-    measurable: bool = True
-
-    @classmethod
-    def not_measurable(cls, statistic: str, effect: str, measured: dict, reason: str) -> "PlateEstimate":
-        """An estimate the footage cannot make: no params, confidence 0, ``measurable`` False."""
-        return cls(statistic, effect, measured, {}, 0.0, reason, measurable=False)
-
-    def line(self) -> str:
-        """One line for the terminal: what was found, how sure, whether it went into the profile."""
-        if not self.measurable:
-            return f"{self.statistic} ({self.effect}): not measurable ({self.reason}); not applied"
-        what = ", ".join(f"{k} = {_fmt(v)}" for k, v in self.params.items()) or "reported only"
-        state = "applied" if self.applied else "not applied"
-        return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
-
-
 def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
     """(effect, param) of one of an estimate's params: ``"effect.param"`` or a param of ``est.effect``."""
     return tuple(key.split(".", 1)) if "." in key else (est.effect, key)
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return "not measurable"
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v)
 
 
 @dataclass(frozen=True)
@@ -319,45 +266,31 @@ def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
     """The frame (float32 DN) of ``profile`` filming the opaque ideal ``make_ideal(width, height)`` (RGBA 0-1, at
     the pinhole field of view the profile's render needs): how the estimators in the effect modules, which do not
     run the pipeline themselves, ask the model what it makes of a scene."""
-    from ..pipeline import render_camera, simulate
-
     cam = render_camera(profile, profile.camera.width)
     return simulate(make_ideal(cam["width"], cam["height"]), profile, seed=seed, frame=frame).astype(np.float32)
 
 
 def _noise_estimate(footage, base=None):
-    from ..effects.noise import noise_level_function_from_plate
-
     return noise_level_function_from_plate(footage, base, film)
 
 
 def _noise_statistic(frames):
-    from ..effects.noise import noise_level_statistic
-
     return noise_level_statistic(frames)
 
 
 def _edge_estimate(footage, base=None):
-    from ..effects.sharpening import edge_profile_from_plate
-
     return edge_profile_from_plate(footage, base, film)
 
 
 def _edge_statistic(frames):
-    from ..effects.sharpening import edge_profile_statistic
-
     return edge_profile_statistic(frames)
 
 
 def _vignetting_estimate(footage, base=None):
-    from ..effects.vignetting import vignetting_from_plate
-
     return vignetting_from_plate(footage, base)
 
 
 def _vignetting_statistic(frames):
-    from ..effects.vignetting import vignetting_statistic
-
     return vignetting_statistic(frames)
 
 
@@ -365,8 +298,6 @@ def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
     """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
     over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
     parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
-    from ..motion import average_rate
-
     if footage.gyro is None:
         return PlateEstimate("gyro_motion", "motion_blur", {}, {}, 0.0,
                              "no gyro: motion left to the tracked camera")
@@ -401,8 +332,6 @@ def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
 def _frame_numbers(footage: Footage) -> list[int]:
     """Each frame's index into the frame stamps: the last number in its file name (``RE_frame-99.jpg`` -> 99),
     else its position."""
-    import re
-
     out = []
     for i in range(len(footage)):
         name = Path(footage.names[i]).stem if i < len(footage.names) else ""
@@ -415,16 +344,6 @@ def _no_statistic(frames):
     return {}
 
 
-def _codec(module: str, name: str) -> Callable:
-    """``lowcam.effects.<module>.<name>``, imported when first called (the effect modules import this one)."""
-    def call(*args, **kwargs):
-        import importlib
-
-        return getattr(importlib.import_module(f"lowcam.effects.{module}"), name)(*args, **kwargs)
-    call.__name__ = name
-    return call
-
-
 #: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
 #: next, since the noise estimate divides by the gain of the row filters the edges fit
 #: (:func:`lowcam.effects.noise.noise_gain`), reads JPEG-coded frames on their luma and judges the codec's share
@@ -432,11 +351,9 @@ def _codec(module: str, name: str) -> Callable:
 PLATE_PROBES: list[PlateProbe] = [
     PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
                "10-90 % edge width and overshoot across strong natural edges"),
-    PlateProbe("jpeg_blockiness", "jpeg", _codec("jpeg", "jpeg_quality_from_plate"),
-               _codec("jpeg", "jpeg_blockiness_statistic"),
+    PlateProbe("jpeg_blockiness", "jpeg", jpeg_quality_from_plate, jpeg_blockiness_statistic,
                "luma steps across the 8x8 grid over those inside blocks; the quality that codes the frame so"),
-    PlateProbe("chroma_bandwidth", "chroma_subsampling", _codec("yuv", "chroma_subsampling_from_plate"),
-               _codec("yuv", "chroma_bandwidth_statistic"),
+    PlateProbe("chroma_bandwidth", "chroma_subsampling", chroma_subsampling_from_plate, chroma_bandwidth_statistic,
                "chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum"),
     PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
                "sigma against mean per channel from registered frame pairs (a moving camera, moving objects)",
@@ -448,24 +365,6 @@ PLATE_PROBES: list[PlateProbe] = [
 ]
 
 
-def pair_starts(frames: int, count: int) -> list[int]:
-    """The first frames of up to ``count`` pairs of consecutive frames ``(i, i + 1)``, spread evenly over a shot
-    of ``frames`` frames."""
-    if frames < 2:
-        return []
-    return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
-
-
-def register_footage(footage: Footage, count: int = 12, cache: dict | None = None):
-    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
-    (:func:`pair_starts`), each frame registered, by a homography from tracked corners, with the one of the next
-    :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
-    (:func:`lowcam.registration.register_frames`; ``cache``: its consecutive registrations, to share)."""
-    from ..registration import register_frames
-
-    return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
-
-
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
     """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves.
 
@@ -474,8 +373,6 @@ def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200)
     few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
     still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
     absolute value is below 2 DN."""
-    import cv2
-
     n = min(len(footage), max_frames)
     if n < 2:
         return []
@@ -505,8 +402,6 @@ def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
     camera never holds still (a median would smear the moving scene), its middle frame denoised by OpenCV's
     non-local means. The frame is not deblurred, so the model films content already as soft as the footage:
     the statistics compare like with like, absolute sharpness is the edge estimate's job."""
-    import cv2
-
     runs = still_segments(footage)
     if runs:
         start, stop = max(runs, key=lambda r: r[1] - r[0])
@@ -523,10 +418,6 @@ def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
 def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) -> np.ndarray:
     """``frames`` frames (T, H, W, 3) float32 DN of ``profile`` filming :func:`similar_content` (a still
     camera), each with its own noise."""
-    from ..pipeline import render_camera, simulate
-
-    from ..profile import load_profile
-
     profile = load_profile(profile) if isinstance(profile, (str, Path)) else profile
     cam = render_camera(profile, profile.camera.width)
     ideal = similar_content(footage, cam["width"], cam["height"])
@@ -574,8 +465,6 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     is reported, not applied). The profile is named after the plate (``camera.name``, with provenance) once
     anything is applied. A probe whose fit cannot be made (:class:`lowcam.errors.NotFitted`) gives a not
     measurable estimate with its reason. Progress goes to stderr."""
-    from ..profile import load_profile
-
     base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
     probes = PLATE_PROBES if probes is None else probes
     out = base.copy()

@@ -29,7 +29,7 @@ own error, so read errors below about 2 as explained by this method even where t
 true profile's error.)
 
 Temporal statistics (the noise level function: a probe with ``pairs``) compare frame pairs registered once for
-the whole frame (:func:`lowcam.measure.plate.register_footage`: consecutive footage frames, the model's frames)
+the whole frame (:func:`lowcam.plate_estimate.register_footage`: consecutive footage frames, the model's frames)
 and then cut into tiles, so that a panning camera's footage is measured like the model's still frames; only a
 probe's ``compared`` values are compared (the noise's sigma at 64, 128 and 192 DN, not its per-bin lists), and a
 value a tile did not measure (a level it lacks) is left out, never made up. A JPEG-coded pan still reads its
@@ -62,13 +62,22 @@ Contents
 """
 from __future__ import annotations
 
+import html
 import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..errors import LowcamError
+from ..io import make_output_folder
+from ..pipeline import prepare, render_camera, resume
+from ..plate_estimate import register_footage
+from ..registration import register_frames
+from ..reports import figure, image, numbers_block, write_page
 from .compare import EXPLAINED_BELOW
+from .plate import PLATE_PROBES, Footage, similar_content
 
 DOWNSCALE = 1
 TILES = (3, 4)
@@ -152,11 +161,6 @@ def model_frames(footage, profile, frames: int = 4, seed: int = 0, downscale: in
     footage's median at ``1 / downscale`` of the render size (scaled back up, bilinear, when ``downscale > 1``)
     as an opaque ideal; a still camera; noise frames ``0..frames-1`` of ``seed``. The noise-free front of the
     chain runs once."""
-    import cv2
-
-    from ..pipeline import prepare, render_camera, resume
-    from .plate import similar_content
-
     cam = render_camera(profile, profile.camera.width)
     w, h = int(cam["width"]), int(cam["height"])
     small = similar_content(footage, max(16, w // downscale), max(16, h // downscale))
@@ -218,9 +222,6 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
     ``frames`` model frames are simulated (twice as many with ``bias_correction``, the model filming its own
     frames, module docstring); up to ``max_footage_frames`` footage frames (evenly thinned) are measured. A probe
     whose statistic is empty on both is listed in ``skipped``."""
-    from ..registration import register_frames
-    from .plate import PLATE_PROBES, Footage, register_footage
-
     probes = PLATE_PROBES if probes is None else probes
     if progress:
         print(f"simulating {frames} frames of {profile.name} filming similar content ...", file=sys.stderr,
@@ -257,11 +258,6 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
 def write_plate_report(cmp: PlateComparison, folder, title: str) -> "Path":
     """The HTML report of a :class:`PlateComparison`: each probe's error as a bar chart, the values footage
     against model with their uncertainty, and the numbers."""
-    import html
-
-    from ..io import make_output_folder
-    from ..reports import figure, image, numbers_block, write_page
-
     folder = make_output_folder(folder)
     fam = cmp.families
 

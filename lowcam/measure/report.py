@@ -24,14 +24,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..effects.bayer import block_correlations
+from ..effects.blur import edge_sigma, find_edges
+from ..effects.chromatic_aberration import channel_shifts
+from ..effects.yuv import rgb_to_yuv
 from ..errors import LowcamError
+from ..io import atomic_write_bytes, make_output_folder
 from ..reports import figure, image, numbers_block, write_page
 from .compare import row_noise_variance
 
 
 def _rgb2yuv(x):
-    from ..effects.yuv import rgb_to_yuv
-
     return rgb_to_yuv(np.asarray(x, np.float32))
 
 
@@ -68,10 +71,6 @@ def masked_shares(cmp) -> dict:
 
 def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     """Every probe as (title, PNG path)."""
-    from ..effects.bayer import block_correlations
-    from ..effects.blur import edge_sigma, find_edges
-    from ..effects.chromatic_aberration import channel_shifts
-
     stats = cmp.captures
     out = []
 
@@ -296,8 +295,6 @@ def read_history(mset_path) -> list[dict]:
 
 def record_history(mset_path, profile_name: str, cmp) -> list[dict]:
     """Append this comparison to the set's history (``<set>/.lowcam/history.json``) and return it."""
-    from ..io import atomic_write_bytes
-
     path = history_path(mset_path)
     entries = read_history(mset_path)
     entries.append({"time": time.strftime("%Y-%m-%d %H:%M:%S"), "profile": profile_name,
@@ -378,8 +375,6 @@ def candidate_sections(candidates: list[dict], not_fitted: list[dict], folder: P
 def write_compare_report(cmp, folder, title: str, history=None, extra: dict | None = None) -> Path:
     """The HTML comparison report: the verdict, the error history, the diagnosis's candidates (``extra``'s
     ``candidates`` and ``not_fitted``) or the steps that added effects (``extra``'s ``steps``), and every probe."""
-    from ..io import make_output_folder
-
     folder = make_output_folder(folder)
     figures = probe_figures(cmp, folder)
     if history:

@@ -32,9 +32,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from .. import schema
+from ..captures import load_frames, parse_target
 from ..errors import LowcamError
+from ..io import atomic_write_bytes, read_image, read_plate, read_render, write_exr, write_png
 from ..motion import MAX_RATE
 
 CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "mask", "angular_velocity", "exposure_s"}
@@ -78,9 +81,6 @@ class MeasurementSet:
 
 def load_set(folder, profile=None) -> MeasurementSet:
     """Read and validate a measurement set; errors name the file, the capture and the key."""
-    from ..captures import load_frames, parse_target
-    from ..io import read_plate, read_render
-
     folder = Path(folder)
     toml_path = folder / "set.toml" if folder.is_dir() else folder
     folder, src = toml_path.parent, str(toml_path)
@@ -133,8 +133,6 @@ def load_set(folder, profile=None) -> MeasurementSet:
 
 def _read_mask(path, width: int, height: int) -> np.ndarray:
     """A capture's mask image as (H, W) bool, True where the frames are compared (grey above half)."""
-    from ..io import read_image
-
     raw = read_image(path)
     img = raw.astype(np.float64)
     img = img.mean(axis=2) if img.ndim == 3 else img
@@ -153,10 +151,6 @@ def _nonempty(value, where: str, key: str) -> str:
 def write_set(folder, captures: list[dict]) -> Path:
     """Write a measurement set. Each dict: ``name``, ``ideal`` (RGBA array), ``frames`` (list of uint8 RGB),
     optional ``plate``, ``mask`` ((H, W) bool: the pixels compared), ``angular_velocity``, ``exposure_s``."""
-    import tomli_w
-
-    from ..io import atomic_write_bytes, write_exr, write_png
-
     folder = Path(folder)
     entries = []
     for c in captures:

@@ -13,7 +13,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..chart import make_chart
 from ..errors import LowcamError
+from ..io import make_output_folder
+from ..pipeline import render_field_of_view, simulate
+from .sets import write_set
 
 PAN = (0.05, 0.6, 0.1)  # rad/s: the camera turns during the "pan" capture
 
@@ -28,8 +32,6 @@ def scenes(profile, width: int = 640) -> dict:
     """Ideal scenes framed for ``profile``: name -> (premultiplied RGBA render, angular velocity)."""
     from skimage import data
 
-    from ..calibrate.chart import make_chart
-    from ..pipeline import render_field_of_view
 
     render_field_of_view(profile)  # validates that the profile can be rendered for
     height = width * profile.camera.height // profile.camera.width
@@ -89,10 +91,6 @@ def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int =
                only_scenes=None):
     """Write a measurement set made by ``profile`` with hidden changes; returns its folder. ``only_scenes``
     limits it to those of :func:`scenes` (a small, focused set)."""
-    from ..io import make_output_folder
-    from ..pipeline import simulate
-    from .sets import write_set
-
     camera = hidden_profile(profile, add, remove)
     captures = []
     every = scenes(profile, width)

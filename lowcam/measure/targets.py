@@ -59,7 +59,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..captures import detect_target, parse_target
 from ..errors import LowcamError
+from ..pipeline import prefix_key, prepare, render_field_of_view, resume
 
 #: Flat render values at which the profile's response is tabulated (denser where tone curves bend most).
 FLAT_LEVELS = (0.0, 0.03, 0.08, 0.16, 0.3, 0.5, 0.75, 1.05, 1.5)
@@ -117,9 +119,6 @@ def _quiet(profile):
 def flat_response(profile) -> np.ndarray:
     """(len(FLAT_LEVELS), H, W) float32: the quiet profile's output (mean of the channels, DN) for a flat opaque
     grey render at each of :data:`FLAT_LEVELS`. Cached per profile (its camera and effects)."""
-    from ..pipeline import prepare, resume
-    from .compare import prefix_key
-
     quiet = _quiet(profile)
     key = prefix_key(quiet, len(quiet.effects))
     if key in _RESPONSES:
@@ -461,8 +460,6 @@ def render_board_view(profile, rvec, tvec, inner=(9, 6), square=0.025, width=160
                       px_per_square: int = 60, nuisances: BoardNuisances | None = None) -> np.ndarray:
     """A pinhole render (premultiplied RGBA, opaque on the paper only) of a chessboard at pose (rvec, tvec);
     ``nuisances`` (fitted) give its margins, white, black and lighting, else a one-square white border."""
-    from ..pipeline import render_field_of_view
-
     half_x, _ = render_field_of_view(profile)
     height = width * profile.camera.height // profile.camera.width
     f = width / (2 * half_x)
@@ -483,8 +480,6 @@ def render_board_view(profile, rvec, tvec, inner=(9, 6), square=0.025, width=160
 def board_pose(profile, capture):
     """(target description, rvec, tvec, the frames' mean as uint8) of a ``target`` capture: the board found in the
     mean of its frames, its pose estimated through the profile's lens."""
-    from ..captures import detect_target, parse_target
-
     spec = parse_target(capture.target)
     if spec[0] != "checkerboard":
         raise LowcamError(f"{capture.where}: only checkerboard targets can be rendered so far")
@@ -505,9 +500,6 @@ def _refine_pose(profile, capture, spec, rvec, tvec, fitted, plate):
     found in the quiet profile's view of the fitted board are
     where the camera chain moves them (half-pixel boxes, blur, aberration); the measured corners are moved back by
     that much and the pose solved again, so the chain's shift is not counted twice."""
-    from ..captures import detect_target
-    from ..pipeline import prepare, resume
-
     quiet = _quiet(profile)
     view = render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120)
     sim = resume(prepare(view, quiet, plate), 0, 0, quiet)
@@ -549,7 +541,6 @@ def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndar
         _, rvec, tvec, fitted = fit_target(profile, capture)
         mask = None if fitted.outliers is None or not fitted.outliers.any() else ~fitted.outliers
         return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8, mask
-    from ..captures import detect_target
 
     img = detect_target(u8, spec)[1]
     hull = cv2.convexHull(img.astype(np.float32)).astype(np.int32)

@@ -22,14 +22,16 @@ References
 """
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..captures import DICTIONARY, charuco_board
-from ..errors import LowcamError
+from .captures import DICTIONARY, charuco_board
+from .errors import LowcamError
+from .io import atomic_write_bytes, write_png
 
 PAGES_MM = {"a4": (297.0, 210.0), "a3": (420.0, 297.0)}
 #: Colour patches (sRGB 0-255): primaries, secondaries, skin and foliage tones, and a few mixed colours.
@@ -104,13 +106,9 @@ def make_chart(size: str = "a4", dpi: int = 300, seed: int = 7) -> tuple[np.ndar
 
 def write_chart(path, size: str = "a4", dpi: int = 300) -> tuple[Path, Path]:
     """Write the chart (``.pdf`` or ``.png``) and its layout ``<name>.json`` beside it."""
-    from ..io import atomic_write_bytes, write_png
-
     path = Path(path)
     img, layout = make_chart(size, dpi)
     if path.suffix.lower() == ".pdf":
-        import io
-
         import matplotlib
 
         matplotlib.use("Agg")

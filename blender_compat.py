@@ -1,8 +1,9 @@
 """What differs between the Blender versions Lowcam supports (4.2 LTS to 5.2), in one place.
 
-Every other module of ``addon/`` and ``nodes/`` asks this one instead of testing ``bpy.app.version`` itself. Each
-function's docstring says which versions differ and how. Measured on the bpy module 4.2.23, 4.5.15 and 5.0.1 and
-on Blender 4.3 / bpy 5.2 (``scripts/test-blenders.sh``).
+It sits at the extension's root, below both ``addon/`` and ``nodes/``: both import it, and ``nodes/`` never imports
+``addon/`` (which registers the nodes). Every other module of ``addon/`` and ``nodes/`` asks this one instead of
+testing ``bpy.app.version`` itself. Each function's docstring says which versions differ and how. Measured on the
+bpy module 4.2.23, 4.5.15 and 5.0.1 and on Blender 4.3 / bpy 5.2 (``scripts/test-blenders.sh``).
 
 Contents
 --------

@@ -1,0 +1,92 @@
+"""What a plate estimator returns, and the frame pairs it reads: below the effects, whose estimators make them.
+
+A plate probe (:class:`lowcam.measure.plate.PlateProbe`) measures one no-reference statistic on footage; its
+estimator, a plain function in the effect's own module, turns the statistic into that effect's parameters with a
+confidence, as a :class:`PlateEstimate`. Temporal statistics (the noise) compare frame pairs registered by a
+homography from tracked corners (:func:`register_footage`). Estimators that need the model's frame of a scene
+receive ``film`` (:func:`lowcam.measure.plate.film`) from the caller: the effects do not run the pipeline.
+
+Contents
+--------
+- :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
+  (or that the footage cannot show it: not measurable)
+- :func:`format_value`: an estimate's value as a line or a table shows it
+- :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
+- :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
+  start with the best of the next few frames
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .registration import register_frames
+
+
+@dataclass
+class PlateEstimate:
+    """One statistic measured on the footage and what it implies for the profile.
+
+    ``statistic``: its name; ``effect``: the profile effect it sets; ``measured``: the statistic's values on the
+    footage (for the report); ``params``: the effect parameters it implies (``{}``: it only reports), each a
+    parameter of ``effect`` or ``"other_effect.param"`` (``"other_effect.enabled": False`` turns that effect
+    off); ``base_params``: the base profile's values of the same parameters (None where it lacks them), filled by
+    :func:`lowcam.measure.plate.estimate_profile`; ``confidence`` (0..1, earned from the measurement's own
+    evidence) with a one-line ``reason``; ``measurable``: False where the footage cannot show the statistic at all
+    (too flat, too still): nothing is estimated, and lines and reports say "not measurable" rather than a value;
+    ``model``: the same statistic measured on the profile's simulation of similar content
+    (:func:`lowcam.measure.plate.model_statistics`), ``None`` until filled; ``applied``: whether
+    :func:`lowcam.measure.plate.estimate_profile` wrote ``params`` into the profile."""
+
+    statistic: str
+    effect: str
+    measured: dict
+    params: dict
+    confidence: float
+    reason: str
+    model: dict | None = None
+    applied: bool = False
+    base_params: dict = field(default_factory=dict)
+    measurable: bool = True
+
+    @classmethod
+    def not_measurable(cls, statistic: str, effect: str, measured: dict, reason: str) -> "PlateEstimate":
+        """An estimate the footage cannot make: no params, confidence 0, ``measurable`` False."""
+        return cls(statistic, effect, measured, {}, 0.0, reason, measurable=False)
+
+    def line(self) -> str:
+        """One line for the terminal: what was found, how sure, whether it went into the profile."""
+        if not self.measurable:
+            return f"{self.statistic} ({self.effect}): not measurable ({self.reason}); not applied"
+        what = ", ".join(f"{k} = {format_value(v)}" for k, v in self.params.items()) or "reported only"
+        state = "applied" if self.applied else "not applied"
+        return f"{self.statistic} ({self.effect}): {what}; confidence {self.confidence:.2f} ({self.reason}); {state}"
+
+
+def format_value(v) -> str:
+    """An estimate's value as a line shows it: floats to 4 significant digits, None as "not measurable"."""
+    if v is None:
+        return "not measurable"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(format_value(x) for x in v) + "]"
+    return str(v)
+
+
+def pair_starts(frames: int, count: int) -> list[int]:
+    """The first frames of up to ``count`` pairs of consecutive frames ``(i, i + 1)``, spread evenly over a shot
+    of ``frames`` frames."""
+    if frames < 2:
+        return []
+    return sorted(set(int(round(v)) for v in np.linspace(0, frames - 2, min(count, frames - 1))))
+
+
+def register_footage(footage, count: int = 12, cache: dict | None = None):
+    """:class:`lowcam.registration.RegisteredPairs` of up to ``count`` frame pairs spread over the shot
+    ``footage`` (anything with ``frames``, e.g. :class:`lowcam.measure.plate.Footage`; :func:`pair_starts`), each
+    frame registered, by a homography from tracked corners, with the one of the next
+    :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
+    (:func:`lowcam.registration.register_frames`; ``cache``: its consecutive registrations, to share)."""
+    return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
