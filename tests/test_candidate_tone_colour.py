@@ -23,6 +23,11 @@ from lowcam.measure.synth import synthesise
 THIS = __name__
 
 
+@pytest.fixture(autouse=True)
+def trusted(monkeypatch):
+    monkeypatch.setenv("LOWCAM_PLUGINS", THIS)  # the user's consent: this file's hidden effects are plug-ins
+
+
 class HiddenTransfer(Effect):
     """A transfer function from colour-science (``colour.oetf``) on the straight demosaiced colour, scaled to
     the code range ``black``..``white`` (DN)."""
