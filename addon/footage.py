@@ -1,4 +1,4 @@
-"""``lowcam demo --footage``: real phone footage as the plate, its gyro log driving the camera (issue 15, part 4).
+"""``lowcam demo --footage``: real phone footage as the plate, its gyro log driving the camera.
 
 The engine reads the clip (:mod:`lowcam.footage`); this module renders the inserted objects with Cycles from a
 camera that turns with the integrated gyro (so they stay fixed in the world), then composites every frame twice:

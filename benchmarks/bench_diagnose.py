@@ -1,4 +1,4 @@
-"""Benchmark: a full diagnosis of the standard ``lowcam synth`` set (issue 12's speed target: 10 s median).
+"""Benchmark: a full diagnosis of the standard ``lowcam synth`` set (its speed target: 10 s median).
 
 Makes the standard set (Fire-i, every bundled scene, 5 frames, a tone curve of gamma 2.0 hidden), then diagnoses
 it with every candidate ``--repeats`` times. Prints the median total, the median and range per candidate

@@ -485,7 +485,7 @@ def cmd_synth(args) -> int:
     return 0
 
 
-# --- profile from-dng (issue 15, part 2) ------------------------------------------------------------------------
+# --- profile from-dng ------------------------------------------------------------------------
 def cmd_profile_from_lensfun(args) -> int:
     """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
     out = Path(check_output(args.output))
@@ -696,7 +696,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", nargs="?", type=PROFILE, help="a profile name or file: show its provenance, effect by effect")
     p.set_defaults(func=cmd_profiles)
 
-    # --- lowcam profile: profiles from outside data (issue 15): a lens database, DNG metadata ---
+    # --- lowcam profile: profiles from outside data: a lens database, DNG metadata ---
     p = sub.add_parser("profile", help="make a profile from outside data: a lens database, DNG metadata")
     psub = p.add_subparsers(dest="what", required=True, parser_class=Parser)
 

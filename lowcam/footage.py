@@ -1,4 +1,4 @@
-"""Real footage with a gyro log as the plate: the engine side of ``lowcam demo --footage`` (issue 15, part 4).
+"""Real footage with a gyro log as the plate: the engine side of ``lowcam demo --footage``.
 
 A phone clip (JPEG frames, frame stamps, a gyro log and per-frame exposures; the ``phone-gyro-video`` layout of
 gyro-video-stabilization) drives the camera: each frame's angular velocity (rad/s, camera frame) is the gyro's

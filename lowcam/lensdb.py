@@ -1,4 +1,4 @@
-"""Lenses from the lensfun database: a profile's lens distortion, lateral colour and vignetting (issue 15, part 1).
+"""Lenses from the lensfun database: a profile's lens distortion, lateral colour and vignetting.
 
 Lensfun (https://lensfun.github.io) holds thousands of measured lenses. Through lensfunpy (the optional extra
 ``pip install lowcam[lensfun]``) this module finds a lens and takes, at one focal length, aperture and focus

@@ -1,4 +1,4 @@
-"""The shape of the code: effects describe themselves, dependencies run one way (issues 13 and 27).
+"""The shape of the code: effects describe themselves, dependencies run one way.
 
 - The engine (``lowcam/``) imports nothing of the Blender side (``addon/``, ``nodes/``, ``bpy``), directly or by
   name.

@@ -1,4 +1,4 @@
-"""A real Blender binary with Python 3.13, and the bpy 5.2 wheel, in a Debian trixie root (issue 14).
+"""A real Blender binary with Python 3.13, and the bpy 5.2 wheel, in a Debian trixie root.
 
 ``scripts/trixie-blender.sh`` builds the root once (mmdebstrap: Blender 4.3.2 with Python 3.13.5, Xvfb, and a venv
 with bpy 5.2 for the same Python 3.13). These tests drive it from here with ``chroot``:

@@ -1,4 +1,4 @@
-"""The codec and demosaicing candidates against real codecs and real demosaicers (issue 12, "fits that finish").
+"""The codec and demosaicing candidates against real codecs and real demosaicers.
 
 Every hidden effect here is made OUTSIDE the engine:
 

@@ -1,5 +1,5 @@
-"""Motion and optics candidates against hidden effects made outside the engine (issue 12, "tests against reality,
-not against ourselves"): a rolling shutter and a motion blur built from the rotation of rays (Rodrigues' formula,
+"""Motion and optics candidates against hidden effects made outside the engine: a rolling shutter and a motion
+blur built from the rotation of rays (Rodrigues' formula,
 OpenCV's ``warpPerspective``), a real lens's lateral colour from lensfun's database (lensfunpy), a horizontal
 sensor blur and a lopsided unsharp mask by OpenCV on the sensel planes, and a defocus disc by OpenCV.
 

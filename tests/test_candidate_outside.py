@@ -1,5 +1,5 @@
 """The remaining candidates against hidden effects made by code in this file, never by Lowcam's own effect
-(issue 12, "test against reality, not against ourselves"): a polynomial fall-off of the delivered frames, OpenCV's
+(test against reality, not against ourselves): a polynomial fall-off of the delivered frames, OpenCV's
 YCrCb conversion with chroma shared by pixel pairs, a per-pixel gain pattern, per-frame row offsets, a coarser
 sensor rows read out with offsets, a coarser analog-to-digital converter, and a veil of OpenCV-blurred light on the render.
 

@@ -1,4 +1,4 @@
-"""Sensor-side candidates against data made outside the engine (issue 12): the noise law under a black level,
+"""Sensor-side candidates against data made outside the engine: the noise law under a black level,
 hot pixels against DSNU, and blur where it acts in the chain.
 
 Every hidden effect here is made by code written in this file (an analytic EMVA 1288 sensor, sparse hot pixels or

@@ -1,4 +1,4 @@
-"""The tone-curve and colour-matrix candidates against real cameras' curves and matrices (issue 12).
+"""The tone-curve and colour-matrix candidates against real cameras' curves and matrices.
 
 The hidden effects are made by colour-science, not by Lowcam: broadcast and display transfer functions
 (``colour.oetf``: ITU-R BT.709 in full and studio range, IEC 61966-2-1 sRGB, SMPTE 240M) and colour-correction

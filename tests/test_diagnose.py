@@ -1,4 +1,4 @@
-"""Model against measurement: hidden effects are found, fitted and explain the data (issue: diagnose).
+"""Model against measurement: hidden effects are found, fitted and explain the data.
 
 Every test hides something in a synthetic measurement set made from bundled scenes (the data has it, the
 diagnosed profile does not, or has it wrong) and checks that `diagnose` ranks the right candidate first and that

@@ -1,4 +1,4 @@
-"""`lowcam profile from-dng` (issue 15, part 2): a profile's sensor from a DNG's metadata.
+"""`lowcam profile from-dng`: a profile's sensor from a DNG's metadata.
 
 The DNGs are written with PiDNG (an independent DNG writer) carrying known tags; the expected numbers are
 computed by hand in the tests from the DNG specification (1.6, ch. 4-6) with colour-science's own sRGB matrix and

@@ -1,4 +1,4 @@
-"""The engine's fast paths (issue 12, speed) keep the exact behaviour of the plain code they replace."""
+"""The engine's fast paths keep the exact behaviour of the plain code they replace."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""``lowcam demo --footage``: the phone gyro log against the frames it was logged with (issue 15, part 4).
+"""``lowcam demo --footage``: the phone gyro log against the frames it was logged with.
 
 The reality here is the footage: OpenCV's Lucas-Kanade tracks between consecutive frames measure the image motion,
 and the camera-frame gyro must predict it through K (a rotation homography written here, Hartley & Zisserman sec.

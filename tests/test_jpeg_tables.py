@@ -1,4 +1,4 @@
-"""JPEG with an encoder's own quantisation tables (issue 12: "JPEG with its table scaling"), against real codecs:
+"""JPEG with an encoder's own quantisation tables, against real codecs:
 the engine's numpy coding path against Pillow's libjpeg and OpenCV's, and the tables read off decoded frames
 against the tables Pillow wrote."""
 import io

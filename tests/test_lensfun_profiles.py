@@ -1,4 +1,4 @@
-"""``lowcam profile from-lensfun`` against lensfun itself (lensfunpy's Modifier), lens by lens (issue 15, part 1).
+"""``lowcam profile from-lensfun`` against lensfun itself (lensfunpy's Modifier), lens by lens.
 
 Each case writes a profile with the command, loads it back, and compares what Lowcam does with it to what lensfun's
 own ``lfModifier`` does for the same lens, setting and frame:

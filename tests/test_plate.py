@@ -1,4 +1,4 @@
-"""A profile from the plate itself (issue 15, part 3): every estimator recovers known parameters.
+"""A profile from the plate itself: every estimator recovers known parameters.
 
 The noise, vignetting and gyro sets are made here with NumPy and OpenCV alone (an analytic construction: a scene,
 a radial gain, Gaussian noise of a known law, a gyro log of a known rate), so they do not depend on Lowcam's own

@@ -1,4 +1,4 @@
-"""Codec estimates from the plate alone, and ``lowcam compare --plate-only`` (issue 15, part 3).
+"""Codec estimates from the plate alone, and ``lowcam compare --plate-only``.
 
 The JPEG and chroma-subsampling estimators are tested on frames coded by outside encoders (Pillow's and OpenCV's
 libjpeg, with their own ``quality`` and ``subsampling`` arguments) of scikit-image's photographs; the comparison's

@@ -1,4 +1,4 @@
-"""Windows around non-zero pixels and the warps that compute only inside them (issue 12, speed): the same
+"""Windows around non-zero pixels and the warps that compute only inside them: the same
 result as the plain ``cv2.remap`` of the whole image, bit for bit, and no invalid pixel left unchecked."""
 import cv2
 import numpy as np

@@ -587,7 +587,7 @@ def calibrate_colour(ideal_rgb, measured_rgb, saturation: float, plot_dir: Path 
                         "saturation": {"saturation": saturation}}, {"total_matrix": total.tolist()}, figures)
 
 
-# --- a profile from the plate itself (issue 15, part 3) --------------------------------------------------------------
+# --- a profile from the plate itself --------------------------------------------------------------
 
 def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
     """One plot per estimate that has something to draw: the noise level function, the edge profiles, the radial
@@ -659,7 +659,7 @@ def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
 def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = None,
                     min_confidence: float | None = None, plot_dir: Path | None = None,
                     progress: bool | None = None) -> Calibration:
-    """A profile from the footage itself (issue 15, part 3): :func:`lowcam.measure.plate.estimate_profile` on
+    """A profile from the footage itself: :func:`lowcam.measure.plate.estimate_profile` on
     ``footage`` (a video file, a folder of frames, or frame names or patterns), starting from ``base``. Confident
     estimates become the calibration's values, each with a ``[provenance]`` entry; the others are listed, not
     written; footage from which nothing can be estimated is refused (one line with every estimate's reason). With

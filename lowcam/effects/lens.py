@@ -692,7 +692,7 @@ class LensDistortion(Effect):
                                                                   slice(cols.start // 2, -(-cols.stop // 2))), self)
 
 
-# --- diagnosis (issue 12): the radial_distortion candidate ---------------------------------------------------------
+# --- diagnosis: the radial_distortion candidate ---------------------------------------------------------
 
 #: Per lens model, the parameters the ``radial_distortion`` candidate fits: (key, index into a vector key or None).
 #: The focal length and the centre always, then the distortion coefficients from the lowest order in the radius

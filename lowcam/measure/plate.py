@@ -1,4 +1,4 @@
-"""A profile from the plate itself: no chart, no ideal (issue 15, part 3).
+"""A profile from the plate itself: no chart, no ideal.
 
 The footage a user films is itself a measurement of the camera. Each :class:`PlateProbe` measures one no-reference
 statistic on the footage (the noise level function, the edge spread and overshoot, the radial fall-off, the gyro's

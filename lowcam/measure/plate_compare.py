@@ -1,4 +1,4 @@
-"""Profile against footage without a chart: the plate probes' statistics, model against footage (issue 15, part 3).
+"""Profile against footage without a chart: the plate probes' statistics, model against footage.
 
 ``lowcam compare --plate-only FOOTAGE --profile P`` has no ideal view of the footage's scene, so it cannot compare
 pixels as :func:`lowcam.measure.compare.compare` does. It compares the no-reference statistics of the plate probes
