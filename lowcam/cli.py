@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import select
 import shutil
 import sys
 import tempfile
@@ -767,6 +768,9 @@ def main(argv=None) -> int:
             return args.func(args)
         except (LowcamError, OSError, MemoryError) as e:
             _end_progress_lines()
+            if isinstance(e, BrokenPipeError) and _reader_gone(sys.stdout):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # `lowcam ... | head`: done
+                return 0
             if debug:
                 raise
             print(f"{command}: error: {_one_line(e)}", file=sys.stderr)
@@ -775,6 +779,17 @@ def main(argv=None) -> int:
             _end_progress_lines()
             print(f"{command}: interrupted", file=sys.stderr)
             return 130
+
+
+def _reader_gone(stream) -> bool:
+    """Whether ``stream`` is a pipe whose reader has closed it (``lowcam profile search Canon | head -1``): poll
+    reports an error on a pipe's writing end once no reader is left."""
+    try:
+        poll = select.poll()
+        poll.register(stream.fileno(), select.POLLOUT)
+        return any(event & select.POLLERR for _, event in poll.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 def _trust_plugins(args) -> None:

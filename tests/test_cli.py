@@ -101,3 +101,18 @@ def test_synthetic_demo_runs_the_engine_without_blender(tmp_path):
     plain = cv2.imread(str(tmp_path / "plain.png")).astype(int)
     assert ours.shape == (480, 640, 3) and np.abs(ours - plain).mean() > 1.0
     assert not (tmp_path / "sample_scene.blend").exists()
+
+
+def test_a_listing_read_only_in_part_ends_quietly_and_a_full_disk_does_not():
+    """``lowcam profile search Canon | head -1``: the reader leaves early; that is no error. Writing to a full
+    device is one."""
+    reader = subprocess.Popen([sys.executable, "-m", "lowcam.cli", "profile", "search", "Canon"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = reader.stdout.readline()
+    reader.stdout.close()  # as head -1 does
+    stderr = reader.stderr.read().decode()
+    assert reader.wait(timeout=120) == 0 and first.startswith(b"Canon") and stderr == "", stderr
+    with open("/dev/full", "wb") as full:
+        r = subprocess.run([sys.executable, "-m", "lowcam.cli", "profile", "search", "Canon"], stdout=full,
+                           stderr=subprocess.PIPE, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip() == "lowcam profile search: error: No space left on device", r.stderr
