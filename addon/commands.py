@@ -28,6 +28,7 @@ from pathlib import Path
 
 from lowcam.arguments import Reads, Writes, angular_velocity, bounded_int, seed
 from lowcam.cli import FRAMES, PROFILE
+from tqdm import tqdm
 
 
 def _side(name: str):
@@ -152,7 +153,6 @@ def _move_into(built: Path, out: Path) -> None:
 
 
 def cmd_render(args) -> int:
-    from tqdm import tqdm
 
     from lowcam.batch import parse_frames
 

@@ -149,10 +149,10 @@ class Job:
             try:
                 if os.name == "posix":
                     os.killpg(p.pid, signal.SIGTERM)
-                else:
-                    p.terminate()
+                else:               # Windows: the child's own children (an EXR read in a child) with it
+                    subprocess.run(["taskkill", "/PID", str(p.pid), "/T", "/F"], capture_output=True, timeout=10)
                 p.wait(timeout=5)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
+            except (OSError, subprocess.TimeoutExpired):        # OSError: no such process, no taskkill
                 if os.name == "posix":
                     try:
                         os.killpg(p.pid, signal.SIGKILL)

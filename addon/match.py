@@ -18,6 +18,7 @@ Contents
 - :func:`profile_folder`: where the loop writes profiles: beside the .blend, or a temporary folder
 - :func:`work_folder`: where the loop writes its JSON and reports
 - :func:`plate_footage`: the scene's plate as ``lowcam calibrate plate`` takes it (a video, or a glob of frames)
+- :func:`plate_frames`: the scene frame showing the plate's first frame, and the plate's frame count
 - :func:`select_profile`: make a profile (name or file) the scene's profile
 - :func:`next_version`: the file of the next profile version (``NAME-vN.toml``)
 - :func:`where_lines`: a comparison's ``where`` as short lines (worst channel, region, band, level)
@@ -38,6 +39,7 @@ Contents
 """
 from __future__ import annotations
 
+import glob
 import json
 import re
 import sys
@@ -51,6 +53,7 @@ from lowcam.errors import LowcamError
 
 from . import jobs
 from ..blender_compat import path_options
+from .motion import write_camera_gyro_csv
 from .properties import profile_ref
 
 #: Image names the loop's pictures get in Blender.
@@ -149,6 +152,19 @@ def plate_footage(scene) -> tuple[str, float]:
     if s.plate_source == "SEQUENCE":
         return _glob_of_pattern(bpy.path.abspath(s.plate_pattern)), fps
     raise LowcamError("the scene has no plate: choose a Movie Clip or an Image Sequence as the Plate")
+
+
+def plate_frames(scene) -> tuple[int, int]:
+    """(the scene frame that shows the plate's first frame, how many frames the plate has)."""
+    s = scene.lowcam
+    if s.plate_source == "CLIP" and s.plate_clip is not None:
+        return s.plate_clip.frame_start, s.plate_clip.frame_duration
+    footage, _ = plate_footage(scene)
+    numbers = sorted(int(re.findall(r"\d+", Path(f).stem)[-1]) for f in glob.glob(footage)
+                     if re.search(r"\d", Path(f).stem))
+    if not numbers:
+        raise LowcamError(f"{footage}: no plate frames")
+    return numbers[0], len(numbers)
 
 
 def _measurement_set(scene, needed: str | None = None) -> str | None:
@@ -357,15 +373,17 @@ def _only(scene) -> list[str]:
 
 
 def start_diagnose(scene) -> jobs.Job:
-    """``lowcam diagnose``: the candidates ranked, into the panel's list."""
+    """``lowcam diagnose``: the candidates ranked, into the panel's list; its HTML report one click away."""
     mset = _measurement_set(scene, "Diagnose")
     ref = _chain(scene)
     out = work_folder() / f"diagnose-{_tag(ref)}.json"
+    report = work_folder() / f"diagnose-{_tag(ref)}-report"
 
     def done(scene, job):
         doc = _read_json(out)
         m = scene.lowcam_match
         _show_comparison(m, doc)
+        _show_report(m, report)
         m.summary = doc.get("summary", "")
         m.candidates.clear()
         for c in doc.get("candidates", []):
@@ -378,8 +396,8 @@ def start_diagnose(scene) -> jobs.Job:
         if v is not None and v.error < 0:       # compare's error is unrounded: it stays when there is one
             v.error, v.verdict = doc["error"], doc["verdict"]
 
-    args = ["diagnose", mset, "--profile", ref, "--json", out] + _only(scene)
-    return _job(scene, "Diagnose", [("diagnosing", args)], [out], done)
+    args = ["diagnose", mset, "--profile", ref, "--json", out, "--report", report] + _only(scene)
+    return _job(scene, "Diagnose", [("diagnosing", args)], [out, report], done)
 
 
 def _add_version(scene, new: Path, label: str, compare_out: Path, report: Path) -> None:
@@ -436,8 +454,9 @@ def start_until_explained(scene) -> jobs.Job:
 
 
 def start_estimate(scene) -> jobs.Job:
-    """``lowcam calibrate plate`` on the scene's plate, starting from the scene's profile (with the motion file as
-    the gyro log when it is a CSV or text log): ``<blend name>-plate.toml`` beside the .blend, selected, the first
+    """``lowcam calibrate plate`` on the scene's plate, starting from the scene's profile, with a gyro log: the
+    motion file when it is a CSV or text log, or, when the motion comes from the scene camera (a camera solved
+    from the clip's tracking), that camera's motion over the plate's frames: ``<blend name>-plate.toml`` beside the .blend, selected, the first
     version of a new chain."""
     footage, fps = plate_footage(scene)
     base = profile_ref(scene.lowcam)
@@ -448,6 +467,10 @@ def start_estimate(scene) -> jobs.Job:
     s = scene.lowcam
     if s.motion_source == "FILE" and s.motion_file.lower().endswith((".csv", ".txt")):
         args += ["--gyro", bpy.path.abspath(s.motion_file)]
+    elif s.motion_source == "CAMERA" and scene.camera is not None:      # the camera solved from the clip's tracks
+        first, frames = plate_frames(scene)
+        args += ["--gyro", write_camera_gyro_csv(scene, scene.camera, first, frames, s.exposure_s,
+                                                 work_folder() / "camera-gyro.csv")]
 
     def done(scene, job):
         doc = _read_json(out)

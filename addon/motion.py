@@ -3,6 +3,7 @@
 Contents
 --------
 - :func:`camera_motion`: per-frame motion of a camera (e.g. a solved one) from its ``matrix_world`` at sub-frames
+- :func:`write_camera_gyro_csv`: a camera's motion (a solved tracking camera's) as a gyro CSV, for ``calibrate plate``
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import math
 
 import numpy as np
 
+from lowcam.io import atomic_write_bytes
 from lowcam.motion import FrameMotion, angular_velocity_between
 
 
@@ -39,3 +41,27 @@ def camera_motion(scene, camera, frames, shutter_frames: float | None = None) ->
     finally:
         scene.frame_set(current[0], subframe=current[1])
     return out
+
+
+def write_camera_gyro_csv(scene, camera, first_frame: int, frames: int, exposure_s: float, path,
+                          steps_per_frame: int = 4):
+    """Write ``camera``'s motion over ``frames`` frames from scene frame ``first_frame`` as a gyro CSV
+    (:func:`lowcam.motion.read_gyro_csv`'s format: ``t,wx,wy,wz``, s and rad/s in Lowcam's camera frame), so a
+    camera solved from the clip's tracking stands in for a gyro log.
+
+    The log's clock starts (``t = 0``) at the first frame's exposure start, ``exposure_s`` centred on the frame as
+    the render's shutter is; the rate at each sample time ``t`` is the body rate between the rotations half a step
+    before and after it (:func:`lowcam.motion.angular_velocity_between`), ``steps_per_frame`` samples a frame and
+    one frame beyond the last."""
+    fps = scene.render.fps / scene.render.fps_base
+    dt = 1.0 / (fps * steps_per_frame)
+    start = first_frame - exposure_s * fps / 2          # scene frame at t = 0
+    count = (frames + 1) * steps_per_frame + 1
+    current = scene.frame_current, scene.frame_subframe
+    try:
+        rotations = [_rotation_at(scene, camera, start + (k - 0.5) * dt * fps) for k in range(count + 1)]
+    finally:
+        scene.frame_set(current[0], subframe=current[1])
+    rows = [(k * dt, *angular_velocity_between(a, b, dt)) for k, (a, b) in enumerate(zip(rotations, rotations[1:]))]
+    text = "t,wx,wy,wz\n" + "".join(",".join(f"{v:.9g}" for v in row) + "\n" for row in rows)
+    return atomic_write_bytes(path, text.encode())

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
+from tqdm import tqdm
 
 from .effects import trust_plugins
 from .effects.noise import FRAME_RANGE
@@ -257,7 +258,6 @@ def check_shot_outputs(output: str, renders: str, plates: str | None, frames: li
 
 
 def _progress(total: int, quiet: bool):
-    from tqdm import tqdm
 
     # on a terminal only (None): a log file gets the summary, not a stream of carriage returns
     return tqdm(total=total, unit="frame", disable=True if quiet else None, dynamic_ncols=True,

@@ -282,9 +282,15 @@ def cmd_calibrate(args) -> int:
         print(f"{cal.write_report(results, args.report)}: report")
     if args.json:
         doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
-                                                        "provenance": r.provenance} for r in results]}
-        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=str).encode())
+                                                        "provenance": r.provenance, "numbers": r.numbers}
+                                                       for r in results]}
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=_plain).encode())
     return 0
+
+
+def _plain(value):
+    """A number array or scalar as JSON takes it (a list, a float); anything else as text."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)
 
 
 def _default_plots(output) -> Path:

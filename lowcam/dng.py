@@ -76,6 +76,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tifffile
 
 from .errors import LowcamError
 from .profile import check_provenance
@@ -177,7 +178,6 @@ def read_dng(path) -> DngSensor:
     """The sensor tags of a DNG file, read with tifffile: colour tags from IFD0, levels and CFA from the raw image
     (the SubIFD whose NewSubfileType is 0, else IFD0). A file that is not a DNG, or has no ColorMatrix1, is a
     :class:`DngError` naming the file."""
-    import tifffile
 
     path = Path(path)
     if not path.is_file():

@@ -11,8 +11,9 @@ and noise level, so a plain composite shows sharp graphics floating on the foota
 
 Contents
 --------
+- :func:`photograph`: a bundled photograph (scikit-image's ``coffee`` or ``astronaut``), uint8 RGB
 - :func:`sample_render`: premultiplied linear RGBA of a shaded sphere, a checkerboard card and white text
-- :func:`sample_photograph`: a real photograph (scikit-image's ``coffee``) cropped and scaled to the frame, uint8 RGB
+- :func:`sample_photograph`: a real photograph (:func:`photograph` ``"coffee"``) cropped and scaled to the frame, uint8 RGB
 - :data:`PLATE_SEED_OFFSET`: added to the graphics' seed (mod 2^64) for the plate's noise
 - :func:`plate_seed`: the noise seed of a plate filmed for graphics simulated with ``seed``
 - :func:`photograph_render`: a photograph as the opaque ideal render of the scene (premultiplied linear RGBA)
@@ -104,12 +105,18 @@ def _crop_to_aspect(img: np.ndarray, w: int, h: int) -> np.ndarray:
     return img[(ih - ch) // 2:(ih - ch) // 2 + ch]
 
 
+def photograph(name: str) -> np.ndarray:
+    """A bundled photograph, uint8 RGB: ``"coffee"`` (600x400, CC0) or ``"astronaut"`` (512x512, public domain),
+    scikit-image's ``data.coffee()`` and ``data.astronaut()`` byte for byte (``lowcam/data/README.md``)."""
+    return cv2.cvtColor(cv2.imread(str(Path(__file__).resolve().parent / "data" / f"{name}.png")), cv2.COLOR_BGR2RGB)
+
+
 def sample_photograph(profile="fire-i") -> np.ndarray:
-    """A real photograph (scikit-image's ``coffee``, CC0, bundled as ``lowcam/data/coffee.png``) cropped and
-    scaled to the camera's frame, uint8 RGB: the sharp scene, before any camera filmed it."""
+    """A real photograph (:func:`photograph` ``"coffee"``) cropped and scaled to the camera's frame, uint8 RGB: the
+    sharp scene, before any camera filmed it."""
     profile = load_profile(profile)
     w, h = profile.camera.width, profile.camera.height
-    photo = cv2.cvtColor(cv2.imread(str(Path(__file__).resolve().parent / "data" / "coffee.png")), cv2.COLOR_BGR2RGB)
+    photo = photograph("coffee")
     return cv2.resize(_crop_to_aspect(photo, w, h), (w, h), interpolation=cv2.INTER_AREA)
 
 

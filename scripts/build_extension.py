@@ -3,8 +3,9 @@
 Each zip (``lowcam-<version>-<platform>.zip``, default OUT_DIR dist/) holds addon/, nodes/, blender_compat.py,
 profiles/, the manifest and the wheels the add-on needs at run time for that platform and for every Python the
 supported Blenders embed (3.11 for Blender 4.2-5.0, 3.13 for 5.1 and later): Lowcam's engine itself (built from
-pyproject.toml, pure Python) and its imports that Blender lacks (:data:`RUNTIME`, at the versions installed in this
-environment). numpy comes with Blender and is not bundled. Blender's own builder (``blender_ext.py build
+pyproject.toml, pure Python) and what it imports at run time that Blender lacks (:data:`RUNTIME`), with everything those
+require on that platform and Python (read from their installed metadata, :func:`runtime_pins`), at the versions
+installed in this environment. numpy comes with Blender and is not bundled. Blender's own builder (``blender_ext.py build
 --split-platforms``, shipped in the bpy wheel) validates the manifest, keeps each platform's wheels and zips.
 
 Downloaded wheels are kept in build/wheel-cache/ (git-ignored): a rebuild asks pip only for what is missing there.
@@ -25,12 +26,18 @@ import tempfile
 from importlib import metadata
 from pathlib import Path
 
+from packaging.markers import default_environment
+from packaging.requirements import Requirement
 from packaging.tags import compatible_tags, cpython_tags, mac_platforms
 from packaging.utils import canonicalize_name, parse_wheel_filename
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "build" / "wheel-cache"
-RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w")
+#: What the engine imports at run time (the loop's fits, plots, progress and DNG tags included): their own
+#: requirements are added by :func:`runtime_pins`.
+RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile")
+#: Every Blender embeds these: never bundled.
+WITH_BLENDER = {"numpy"}
 SHIPPED = ("__init__.py", "blender_compat.py", "blender_manifest.toml", "LICENSE", "README.md", "addon", "nodes",
            "profiles")
 #: The Pythons the supported Blenders embed: 3.11 (4.2 LTS to 5.0) and 3.13 (5.1 and later).
@@ -57,17 +64,53 @@ def supported_tags(platform: str, python: tuple[int, int]) -> set:
     return set(cpython_tags(python, platforms=plats)) | set(compatible_tags(python, platforms=plats))
 
 
-def cached_wheel(name: str, version: str, platform: str, python: tuple[int, int]) -> Path | None:
-    """A wheel of ``name==version`` in the cache that installs on ``platform`` under ``python``."""
+#: Blender platform -> the environment markers of its requirements (PEP 508) that differ between platforms.
+MARKERS = {
+    "windows-x64": {"sys_platform": "win32", "platform_system": "Windows", "os_name": "nt", "platform_machine": "AMD64"},
+    "macos-arm64": {"sys_platform": "darwin", "platform_system": "Darwin", "os_name": "posix",
+                    "platform_machine": "arm64"},
+    "macos-x64": {"sys_platform": "darwin", "platform_system": "Darwin", "os_name": "posix",
+                  "platform_machine": "x86_64"},
+    "linux-x64": {"sys_platform": "linux", "platform_system": "Linux", "os_name": "posix", "platform_machine": "x86_64"},
+}
+
+
+def runtime_pins(platform: str, python: tuple[int, int]) -> list[tuple[str, str | None]]:
+    """``(name, version)`` of :data:`RUNTIME` and everything it requires on ``platform`` under ``python``, extras
+    left out and numpy left to Blender. The version is the one installed here; ``None`` for a requirement of another
+    platform that this environment lacks (colorama on Windows), which then takes the newest wheel."""
+    environment = default_environment() | MARKERS[platform] | {
+        "python_version": f"{python[0]}.{python[1]}", "python_full_version": f"{python[0]}.{python[1]}.0",
+        "implementation_name": "cpython", "platform_python_implementation": "CPython", "extra": ""}
+    pins, todo = {}, list(RUNTIME)
+    while todo:
+        name = canonicalize_name(todo.pop())
+        if name in pins or name in WITH_BLENDER:
+            continue
+        try:
+            pins[name], requires = metadata.version(name), metadata.requires(name) or []
+        except metadata.PackageNotFoundError:
+            pins[name], requires = None, []
+        for text in requires:
+            requirement = Requirement(text)
+            if requirement.marker is None or requirement.marker.evaluate(environment):
+                todo.append(requirement.name)
+    return sorted(pins.items())
+
+
+def cached_wheel(name: str, version: str | None, platform: str, python: tuple[int, int]) -> Path | None:
+    """A wheel of ``name==version`` (the newest when ``version`` is None) in the cache that installs on
+    ``platform`` under ``python``."""
     want = supported_tags(platform, python)
+    found = []
     for path in sorted(CACHE.glob("*.whl")):
         wheel_name, wheel_version, _, tags = parse_wheel_filename(path.name)
-        if wheel_name == canonicalize_name(name) and str(wheel_version) == version and tags & want:
-            return path
-    return None
+        if wheel_name == canonicalize_name(name) and version in (None, str(wheel_version)) and tags & want:
+            found.append((wheel_version, path))
+    return max(found)[1] if found else None
 
 
-def fetch_wheel(name: str, version: str, platform: str, python: tuple[int, int]) -> Path:
+def fetch_wheel(name: str, version: str | None, platform: str, python: tuple[int, int]) -> Path:
     """The cached wheel of ``name==version`` for ``platform`` and ``python``, downloaded first if missing."""
     found = cached_wheel(name, version, platform, python)
     if found is not None:
@@ -77,10 +120,10 @@ def fetch_wheel(name: str, version: str, platform: str, python: tuple[int, int])
     plats = [arg for p in PLATFORMS[platform] for arg in ("--platform", p)]
     r = subprocess.run([sys.executable, "-m", "pip", "--disable-pip-version-check", "-q", "download", "--no-deps",
                         "--only-binary=:all:", "--python-version", py, "--implementation", "cp", *plats,
-                        "-d", str(CACHE), f"{name}=={version}"], capture_output=True, text=True)
+                        "-d", str(CACHE), f"{name}=={version}" if version else name], capture_output=True, text=True)
     found = cached_wheel(name, version, platform, python)
     if r.returncode != 0 or found is None:
-        raise BuildError(f"no wheel of {name}=={version} for {platform} and Python {py} (pip download failed; "
+        raise BuildError(f"no wheel of {name}=={version or 'any version'} for {platform} and Python {py} (pip download failed; "
                          f"pin another version of {name} or leave the platform out with --platform)")
     return found
 
@@ -117,8 +160,8 @@ def build(out_dir: Path, platforms=tuple(PLATFORMS)) -> list[Path]:
     """Build one zip per Blender platform in ``platforms`` into ``out_dir``; return their paths."""
     for p in platforms:
         supported_tags(p, PYTHONS[0])                       # unknown platform: an error before any work
-    pins = [(name, metadata.version(name)) for name in RUNTIME]
-    wheels = {fetch_wheel(name, version, p, py) for p in platforms for py in PYTHONS for name, version in pins}
+    wheels = {fetch_wheel(name, version, p, py) for p in platforms for py in PYTHONS
+              for name, version in runtime_pins(p, py)}
     stage = Path(tempfile.mkdtemp(prefix="lowcam-extension-"))
     try:
         (stage / "wheels").mkdir()

@@ -37,9 +37,6 @@ TIMES: dict[str, float] = {}
 MATCH_DOCS = {"match-before": "lowcam-match-before.png", "match-diagnosed": "lowcam-match-diagnosed.png",
               "match-added": "lowcam-match-added.png"}
 MATCH_GEOMETRY = (760, 1500)
-#: The root's bpy 5.2 venv: SciPy, scikit-image, Matplotlib and tqdm for the loop's ``lowcam`` commands, which the
-#: extension zip does not carry (it bundles OpenCV, OpenEXR and tomli-w); put on Blender's PYTHONPATH for them.
-LOOP_PACKAGES = "/opt/bpy52/lib/python3.13/site-packages"
 
 
 class Unavailable(Exception):
@@ -145,18 +142,17 @@ def build_scene(trixie: Trixie, work: Path, user: str, render_width: int = 400) 
 
 
 def take(trixie: Trixie, work: Path, user: str, blend: Path, shot: str, addon: bool = True, extra=(),
-         env: dict | None = None, timeout: int = 300) -> dict[str, Path]:
-    """Run ``shot`` in the real binary under Xvfb (``extra`` arguments after it, ``env`` added to Blender's);
-    returns {picture name: PNG path here}."""
+         timeout: int = 300) -> dict[str, Path]:
+    """Run ``shot`` in the real binary under Xvfb (``extra`` arguments after it); returns {picture name: PNG path
+    here}."""
     out = work / f"shots-{shot}-{'on' if addon else 'off'}"
     script = work / "screenshots_blender.py"
     shutil.copy2(REPO / "scripts" / "screenshots_blender.py", script)
     w, h = MATCH_GEOMETRY if shot == "match" else GEOMETRY[shot]
-    system_env = ["--python-use-system-env"] if env and "PYTHONPATH" in env else []   # else Blender ignores it
-    args = ["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "blender", "-p", "0", "0", str(w), str(h), *system_env,
+    args = ["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "blender", "-p", "0", "0", str(w), str(h),
             trixie.inside(blend), "--python", trixie.inside(script), "--", trixie.inside(out), shot, *extra]
     t0 = time.monotonic()
-    r = trixie.run(*args, *([] if addon else ["--no-addon"]), env={"BLENDER_USER_RESOURCES": user, **(env or {})},
+    r = trixie.run(*args, *([] if addon else ["--no-addon"]), env={"BLENDER_USER_RESOURCES": user},
                    timeout=timeout)
     TIMES[f"shot_{shot}_{'on' if addon else 'off'}_s"] = time.monotonic() - t0
     if (out / "error.txt").exists():
@@ -177,8 +173,7 @@ def match_pictures(trixie: Trixie, work: Path, user: str, blend: Path) -> tuple[
     subprocess.run([sys.executable, "-m", "lowcam.cli", "synth", "--add", "tone_curve:gamma=2.0", "--frames", "2",
                     "--width", "64", "-o", str(folder), "--force"], check=True, capture_output=True, timeout=600)
     TIMES["match_set_s"] = time.monotonic() - t0
-    pictures = take(trixie, work, user, blend, "match", extra=[trixie.inside(folder)],
-                    env={"PYTHONPATH": LOOP_PACKAGES}, timeout=900)
+    pictures = take(trixie, work, user, blend, "match", extra=[trixie.inside(folder)], timeout=900)
     return pictures, json.loads((work / "shots-match-on" / "match.json").read_text())
 
 

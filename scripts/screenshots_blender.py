@@ -190,6 +190,12 @@ def match_steps():
             shoot("match-diagnosed")
     yield 2.0                                          # the history plot's preview is drawn
     shoot("match-added")
+    # where the loop's child processes find their packages: the installed extension's wheels, nothing else
+    argv, env = jobs.lowcam_command([])
+    modules = "scipy, matplotlib, tifffile, tqdm, cv2, lowcam"
+    where = subprocess.run([argv[0], "-c", f"import json, {modules}; print(json.dumps({{m.__name__: m.__file__ "
+                            f"for m in ({modules})}}))"], env=env, capture_output=True, text=True, timeout=120)
+    numbers["packages"] = json.loads(where.stdout) if where.returncode == 0 else where.stderr.strip()[-500:]
     numbers.update(versions=[[v.label, v.error] for v in m.versions], probe_calls=len(gaps),
                    longest_gap_s=max(g for g, _, _ in gaps), longest_gaps=sorted(gaps, reverse=True)[:6])
     (OUT / "match.json").write_text(json.dumps(numbers, indent=1))

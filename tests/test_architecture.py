@@ -51,20 +51,17 @@ BLENDER_LAYERS = (
 )
 
 #: The only packages the engine imports inside a function, and why (everything else is imported at the top of the
-#: module, so that a module's imports say what it stands on). The Blender extension ships only numpy (Blender's),
-#: OpenCV, OpenEXR and tomli-w (``scripts/build_extension.py``: ``RUNTIME``); what the engine loads inside Blender
-#: must not need more.
+#: module, so that a module's imports say what it stands on). The Blender extension carries the engine's run-time
+#: dependencies (``scripts/build_extension.py``: ``RUNTIME``); the heavy ones wait until a fit or a figure needs them,
+#: so that enabling the add-on stays quick.
 LAZY = {
     "OpenEXR": "never loaded beside an older libOpenEXRCore (Debian's Blender): lowcam.io then reads in a child",
     "PIL": "optional (pillow is no dependency): lowcam.footage's GIFs",
     "dask": "optional extra 'farm': lowcam batch --workers / --scheduler",
     "distributed": "optional extra 'farm'",
     "lensfunpy": "optional extra 'lensfun': lowcam profile from-lensfun",
-    "matplotlib": "heavy (1-2 s to import) and not in the Blender extension: report figures, the chart's PDF",
-    "scipy": "heavy (scipy.optimize, scipy.stats: 0.5-2 s) and not in the Blender extension: fits only",
-    "skimage": "not in the Blender extension: the synthetic sets' photographs",
-    "tifffile": "not in the Blender extension: DNG reading",
-    "tqdm": "not in the Blender extension: batch progress bars",
+    "matplotlib": "heavy (1-2 s to import): report figures, the chart's PDF",
+    "scipy": "heavy (scipy.optimize, scipy.stats: 0.5-2 s): fits only",
 }
 
 

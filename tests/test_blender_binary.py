@@ -171,15 +171,19 @@ def test_screenshots_show_the_addon(trixie, work):
 
 
 def test_match_loop_runs_in_blender_with_a_window_and_blender_stays_responsive(trixie, work, scene):
-    """The installed add-on's Match panel in Blender 4.3 under Xvfb (the loop's commands find SciPy and the rest in
-    the root's bpy 5.2 venv, which the extension zip does not carry yet): Compare, Diagnose and Add Best on a set
-    with a hidden tone curve. The panel differs at each step; the real event loop's probe timer (every 0.05 s)
-    never waits 0.5 s while the jobs run; the docs/ pictures of the panel exist."""
+    """The installed add-on's Match panel in Blender 4.3 under Xvfb, with nothing on Blender's path but the root's
+    Python and numpy and the extension: Compare, Diagnose and Add Best on a set with a hidden tone curve. The loop's
+    processes find SciPy, Matplotlib, tifffile, tqdm, OpenCV and the engine in the extension's wheels; the panel
+    differs at each step; the real event loop's probe timer (every 0.05 s) never waits 0.5 s while the jobs run;
+    the docs/ pictures of the panel exist."""
     import cv2
 
     user, blend = scene
     pictures, numbers = shots.match_pictures(trixie, work, user, blend)
     print(numbers, {k: round(v, 1) for k, v in shots.TIMES.items()})
+    packages = numbers["packages"]
+    assert isinstance(packages, dict) and len(packages) == 6, packages
+    assert all("/extensions/" in path and "/opt/" not in path for path in packages.values()), packages
     assert numbers["compare"]["error"] > 1.25 and numbers["candidates"][0] == "tone_curve"
     assert numbers["add"]["error"] <= 1.25
     assert [label for label, _ in numbers["versions"]] == ["fire-i", "+ tone_curve"]

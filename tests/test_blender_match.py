@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import bpy
+import numpy as np
 import pytest
 
 from lowcam_blender import submodule
@@ -109,6 +110,9 @@ def test_compare_diagnose_add_undo_give_the_command_lines_numbers(scene, measure
     assert [c.effect for c in m.candidates][0] == "tone_curve"
     assert m.candidates[0].error_after <= 1.25 and m.candidates[0].held_out <= 1.25
     assert "power 1/2.0" in m.candidates[0].evidence
+    report = Path(m.report)                      # the diagnosis's own HTML report, not Compare's
+    assert report.name == "index.html" and report.parent.name.startswith("diagnose-") and "tone_curve" in \
+        report.read_text()
 
     # Add the best: fire-i-v2.toml beside the .blend, selected, and its error falls
     job = _finished(bpy.ops.lowcam.match_add, index=-1)
@@ -259,3 +263,33 @@ def test_profile_files_drive_the_handler_the_node_and_save_as(scene, tmp_path):
     assert Path(node.node_tree["lowcam_profile"]).resolve() == saved.with_suffix(".toml").resolve()
     s.profile = "fire-i"                          # a name from the menu replaces the file
     assert s.profile_file == "" and frames.scene_profile(scene).name == "fire-i"
+
+
+def test_estimate_takes_the_tracked_cameras_motion_as_its_gyro(scene, tmp_path):
+    """With the motion taken from the scene camera (a camera solved from the clip's tracks drives it the same
+    way), Estimate hands ``calibrate plate`` that camera's motion as a gyro log: a camera panning about the world's
+    vertical at 0.5 rad/s, looking along the horizon, gives each plate frame an angular velocity of 0.5 rad/s about
+    the camera's vertical (Lowcam's y points down, so a turn to the left is -y) and none about the others."""
+    import math
+
+    rate, fps = 0.5, 25
+    scene.render.fps, scene.render.fps_base = fps, 1.0
+    camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    camera.rotation_euler = (math.pi / 2, 0.0, 0.0)
+    for frame in (-5, 20):
+        camera.rotation_euler[2] = rate * frame / fps
+        camera.keyframe_insert("rotation_euler", index=2, frame=frame)
+    for curve in submodule("blender_compat").action_fcurves(camera):
+        for key in curve.keyframe_points:
+            key.interpolation = "LINEAR"
+    scene.lowcam.motion_source = "CAMERA"
+    assert match.plate_frames(scene) == (0, 2)                    # noise-field-000.png and -001.png
+    assert bpy.ops.lowcam.match_estimate() == {"FINISHED"} and jobs.current() is None, scene.lowcam_match.job_error
+    log = np.loadtxt(Path(match.work_folder()) / "camera-gyro.csv", delimiter=",", skiprows=1)
+    assert log[0, 0] == 0.0 and log[-1, 0] >= 2 / fps                  # both frames and their exposures
+    assert np.allclose(log[:, 1:], [0.0, -rate, 0.0], atol=1e-4), log[:3]
+    doc = json.loads((Path(match.work_folder()) / "estimate.json").read_text())
+    gyro = doc["calibrations"][0]["numbers"]["gyro_motion"]["footage"]
+    assert abs(gyro["median_speed_rad_s"] - rate) < 1e-3 and abs(gyro["max_speed_rad_s"] - rate) < 1e-3, gyro

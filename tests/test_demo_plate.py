@@ -109,3 +109,14 @@ def test_the_sample_plate_is_the_photograph_filmed_while_panning(fire_i):
     assert across < 0.75                                        # blurred across the pan
     assert across < along - 0.15                                # and more than along it
     assert not np.array_equal(sample_plate(fire_i, PAN, seed=1), plate.astype(np.uint8))  # noise follows the seed
+
+
+@pytest.mark.parametrize("name", ["coffee", "astronaut"])
+def test_bundled_photographs_are_scikit_images_byte_for_byte(name):
+    """The photographs the sample plate and the synthetic sets are made of are scikit-image's own data, read
+    without scikit-image (which the Blender extension does not carry): the same uint8 RGB array."""
+    from skimage import data
+
+    from lowcam.sample import photograph
+
+    assert np.array_equal(photograph(name), getattr(data, name)())

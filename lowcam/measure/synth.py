@@ -17,6 +17,7 @@ from ..chart import make_chart
 from ..errors import LowcamError
 from ..io import make_output_folder
 from ..pipeline import render_field_of_view, simulate
+from ..sample import photograph
 from .sets import write_set
 
 PAN = (0.05, 0.6, 0.1)  # rad/s: the camera turns during the "pan" capture
@@ -30,9 +31,6 @@ def _opaque(rgb: np.ndarray) -> np.ndarray:
 
 def scenes(profile, width: int = 640) -> dict:
     """Ideal scenes framed for ``profile``: name -> (premultiplied RGBA render, angular velocity)."""
-    from skimage import data
-
-
     render_field_of_view(profile)  # validates that the profile can be rendered for
     height = width * profile.camera.height // profile.camera.width
     size = (width, height)
@@ -52,14 +50,14 @@ def scenes(profile, width: int = 640) -> dict:
     rng = np.random.default_rng(3)
     noise = cv2.resize(rng.random((height // 6, width // 6)).astype(np.float32), size,
                        interpolation=cv2.INTER_NEAREST)
-    photo = 0.05 + 0.85 * fit(data.astronaut())
+    photo = 0.05 + 0.85 * fit(photograph("astronaut"))
     out = {
         "chart": (_opaque(0.05 + 0.85 * fit(chart)), (0.0, 0.0, 0.0)),
         "photo": (_opaque(photo), (0.0, 0.0, 0.0)),
         "noise-field": (_opaque(0.1 + 0.8 * noise), (0.0, 0.0, 0.0)),
         "flat-bright": (_opaque(np.full(size[::-1], 0.7, np.float32)), (0.0, 0.0, 0.0)),
         "flat-dark": (_opaque(np.full(size[::-1], 0.15, np.float32)), (0.0, 0.0, 0.0)),
-        "pan": (_opaque(0.05 + 0.85 * fit(data.coffee())), PAN),
+        "pan": (_opaque(0.05 + 0.85 * fit(photograph("coffee"))), PAN),
     }
     return out
 
