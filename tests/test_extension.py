@@ -213,6 +213,8 @@ def test_the_loop_runs_from_the_zips_wheels_alone_under_python_311(built, tmp_pa
 
     import numpy
 
+    if bpy.app.version[:2] != (5, 0):
+        pytest.skip("the zip's wheels are the same under every bpy: checked once, beside bpy 5.0")
     zip_path = next(built.glob("lowcam-*-linux_x64.zip"))
     wheels = tmp_path / "wheels"
     supported = set(cpython_tags((3, 11), platforms=WHEEL_PLATFORMS["linux-x64"])) | \
