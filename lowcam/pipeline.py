@@ -12,7 +12,9 @@ Conventions
 
 Contents
 --------
+- :func:`carried`: the contract (shape, dtype, unit, the part that writes it) of one :class:`SimState` array
 - :class:`SimState`: everything one frame's simulation carries from stage to stage
+- :func:`state_contract`: the contract of every :class:`SimState` array, as text lines
 - :class:`Result`: one simulated frame: ``frame``, ``footprint``, ``stages`` when asked for, and the final state
 - :func:`render_field_of_view`: pinhole half-extents (X, Y) the render must cover
 - :func:`render_focal_px`: focal length in render pixels for a render of ``width`` x ``height``
@@ -40,7 +42,7 @@ from __future__ import annotations
 import copy
 import os
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import cv2
 import numpy as np
@@ -55,33 +57,77 @@ from .profile import Profile, load_profile
 from .window import nonzero_window
 
 
+def carried(shape: tuple, dtype: str, unit: str, part: str) -> dict:
+    """The contract of one :class:`SimState` array, as its dataclass field's ``metadata``: ``shape`` (numbers, or
+    names: ``"height"``, ``"width"`` (the output frame), ``"working rows"``, ``"working columns"``
+    (:attr:`~lowcam.geometry.Geometry.working_shape`), ``"bayer rows"``, ``"bayer columns"``
+    (:attr:`~lowcam.geometry.Geometry.bayer_shape`), ``"render rows"``, ``"render columns"``, or ``"grid rows"``,
+    ``"grid columns"``, ``"taps x 2"`` for a grid of any size), numpy ``dtype``, ``unit`` (and meaning), and the
+    ``part`` of the state it belongs to: only effects whose :attr:`~lowcam.effects.Effect.writes` names that part
+    change it (``"input"``: no effect does)."""
+    return {"shape": shape, "dtype": dtype, "unit": unit, "part": part}
+
+
 @dataclass
 class SimState:
-    """Everything one frame's simulation carries from stage to stage (see :class:`lowcam.effects.Effect`)."""
+    """Everything one frame's simulation carries from stage to stage (see :class:`lowcam.effects.Effect`).
+
+    Each array field's shape, dtype, unit and the part of the chain that writes it are in its ``metadata``
+    (:func:`carried`; ``dataclasses.fields(SimState)`` lists them, :func:`state_contract` as text), checked by
+    a test that runs every bundled profile stage by stage. ``None`` means not made yet (or not by this chain)."""
 
     profile: Profile
-    render: np.ndarray
-    plate: np.ndarray
-    plate_raw: np.ndarray | None
-    angular_velocity: tuple[float, float, float]
-    exposure_s: float | None
+    render: np.ndarray = field(metadata=carried(
+        ("render rows", "render columns", 4), "float32",
+        "premultiplied linear RGBA, 0-1: the ideal pinhole render (depth of field and object motion change it)",
+        "render"))
+    plate: np.ndarray = field(metadata=carried(
+        ("height", "width", 3), "float32", "DN 0-255: the plate (zeros for a raw camera, whose plate is plate_raw)",
+        "input"))
+    plate_raw: np.ndarray | None = field(metadata=carried(
+        ("height", "width"), "uint8", "DN 0-255: a raw camera's plate, the colour-filter mosaic", "input"))
+    angular_velocity: tuple[float, float, float]  # rad/s, camera frame (x right, y down, z forward)
+    exposure_s: float | None                        # s; None: the profile's
     seed: int
     frame: int
     passes: RenderPasses | None = None
     applied: list = field(default_factory=list)  # the effects applied so far, in order
-    working: np.ndarray | None = None
-    ca_grid: np.ndarray | None = None
-    motion_taps: np.ndarray | None = None
-    motion_tap_spacing: np.ndarray | None = None
-    bayer: np.ndarray | None = None
-    bayer_alpha: np.ndarray | None = None
-    raw_touched: np.ndarray | None = None
-    rgb: np.ndarray | None = None
-    rgb_alpha: np.ndarray | None = None
-    delta_yuv: np.ndarray | None = None
-    colour_matrix: np.ndarray | None = None
-    sampling_offset: np.ndarray | None = None
-    lens: object = None
+    working: np.ndarray | None = field(default=None, metadata=carried(
+        ("working rows", "working columns", 4), "float32",
+        "premultiplied linear RGBA on the oversampled working grid, after the lens", "working"))
+    ca_grid: np.ndarray | None = field(default=None, metadata=carried(
+        ("grid rows", "grid columns", 4), "float32",
+        "output px: red (du, dv) and blue (du, dv) sampling offsets over the frame (a coarse grid or per pixel)",
+        "sampling"))
+    motion_taps: np.ndarray | None = field(default=None, metadata=carried(
+        ("grid rows", "grid columns", "taps x 2"), "float32",
+        "output px: each motion-blur tap's (du, dv) offset over a grid of the working extent", "sampling"))
+    motion_tap_spacing: np.ndarray | None = field(default=None, metadata=carried(
+        ("grid rows", "grid columns"), "float32", "output px: the largest gap between successive taps", "sampling"))
+    bayer: np.ndarray | None = field(default=None, metadata=carried(
+        (4, "bayer rows", "bayer columns"), "float32",
+        "DN: the four colour-filter planes (R, G1, G2, B) with a border, graphics premultiplied by bayer_alpha",
+        "bayer"))
+    bayer_alpha: np.ndarray | None = field(default=None, metadata=carried(
+        (4, "bayer rows", "bayer columns"), "float32", "coverage of each sensel by the graphics, about 0-1",
+        "bayer"))
+    raw_touched: np.ndarray | None = field(default=None, metadata=carried(
+        (4, "bayer rows", "bayer columns"), "bool", "the sensels a raw blend changed", "bayer"))
+    rgb: np.ndarray | None = field(default=None, metadata=carried(
+        ("height", "width", 3), "float32", "DN: the demosaiced graphics, premultiplied by rgb_alpha", "rgb"))
+    rgb_alpha: np.ndarray | None = field(default=None, metadata=carried(
+        ("height", "width", 3), "float32", "coverage of each pixel and channel by the graphics, about 0-1", "rgb"))
+    delta_yuv: np.ndarray | None = field(default=None, metadata=carried(
+        ("height", "width", 3), "float32", "DN: the graphics' change to the plate in YUV (the paper's blend)",
+        "output"))
+    colour_matrix: np.ndarray | None = field(default=None, metadata=carried(
+        (3, 3), "float64", "the product of the colour matrices applied to rgb so far (saturation, colour "
+        "correction): the YUV blend undoes it on the plate behind", "rgb"))
+    sampling_offset: np.ndarray | None = field(default=None, metadata=carried(
+        ("grid rows", "grid columns", 2), "float32",
+        "output px: where each row's sensels look, (du, dv), over a grid of the working extent (rolling shutter)",
+        "sampling"))
+    lens: object = None                             # the profile's lens model (the lens effect's)
     _windows: dict = field(default_factory=dict, repr=False)  # image name -> (array, window, producer, applied)
 
     def __post_init__(self):
@@ -119,6 +165,16 @@ class SimState:
     def render_pass(self, effect) -> np.ndarray:
         """The render pass ``effect`` needs (``effect.needs_pass``); a clear error when it was not given."""
         return (self.passes or RenderPasses()).get(effect.needs_pass, effect)
+
+
+def state_contract() -> list[str]:
+    """One line per :class:`SimState` array: name, shape, dtype, written by which part, unit.
+
+    >>> state_contract()[3][:70]
+    'working: (working rows, working columns, 4) float32, written by "worki'
+    """
+    return [f"{f.name}: ({', '.join(map(str, f.metadata['shape']))}) {f.metadata['dtype']}, written by "
+            f"\"{f.metadata['part']}\" effects: {f.metadata['unit']}" for f in fields(SimState) if f.metadata]
 
 
 @dataclass

@@ -26,21 +26,25 @@ from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
 from ..blender_compat import compositor_output, compositor_tree
-from .build import build_camera_group, group_stages, image_from_array
+from .build import PLATE_BLEND, build_camera_group, group_stages, image_from_array
 
 
-def _engine_stage(state, stage: str, frame: np.ndarray) -> np.ndarray:
-    """The engine's state after ``stage`` in the node group's units (DN from Bayer sampling on)."""
-    if stage in ("lens_distortion", "half_sampling", "crosstalk", "spatial_blur"):
+def _engine_stage(state, stage: str, frame: np.ndarray | None) -> np.ndarray:
+    """The engine's state after ``stage`` in the node group's units: the part of the state the stage writes
+    (its ``Effect.writes``) as the group's sockets hold it, DN from Bayer sampling on; after the plate blend, the
+    8-bit frame."""
+    if stage == PLATE_BLEND:
+        return frame.astype(np.float32)
+    part = state.profile.effect(stage).writes
+    if part == "working":
         return state.working * 255.0
-    if stage in ("bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening", "quantisation"):
-        mosaic = planes_to_mosaic(np.stack([state.bayer, state.bayer_alpha * 255.0], -1), state.geometry)
-        return mosaic
-    if stage in ("demosaic", "saturation"):
+    if part == "bayer":
+        return planes_to_mosaic(np.stack([state.bayer, state.bayer_alpha * 255.0], -1), state.geometry)
+    if part == "rgb":
         return state.rgb
-    if stage in ("yuv_blend", "chroma_subsampling"):
+    if part == "output":
         return state.delta_yuv
-    return frame.astype(np.float32)
+    raise ValueError(f"node stage {stage!r} writes {part!r}, which the node group does not show")
 
 
 def _compositor_scene(width: int, height: int):
@@ -114,11 +118,11 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
     all_stages = group_stages(camera)
     results = {}
     for stage in stages or all_stages:
-        engine_stop = {"plate_blend": None, "noise": all_stages[all_stages.index(stage) - 1]}.get(stage, stage)
+        engine_stop = {PLATE_BLEND: None, "noise": all_stages[all_stages.index(stage) - 1]}.get(stage, stage)
         result = run(render, quiet, plate_u8, angular_velocity, exposure_s, stop_after=engine_stop)
-        engine = _engine_stage(result.state, stage, result.frame if stage == "plate_blend" else None)
+        engine = _engine_stage(result.state, stage, result.frame)
         group = build_camera_group(camera, name="Lowcam parity camera", until=stage)
-        suffix = ".png" if stage == "plate_blend" else ".exr"
+        suffix = ".png" if stage == PLATE_BLEND else ".exr"
         # the engine's lens warp takes the 2x2 box of half-sampling itself; the group's stays supersampled
         factor = 2 if stage == "lens_distortion" else 1
         shape = (engine.shape[0] * factor, engine.shape[1] * factor)
@@ -126,12 +130,12 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
                             out_dir / f"{stage}{suffix}").astype(np.float32)
         if factor == 2:
             node = node.reshape(engine.shape[0], 2, engine.shape[1], 2, -1).mean(axis=(1, 3))
-        if stage in ("bayer_sampling", "vignetting", "noise", "horizontal_blur", "sharpening", "quantisation"):
+        if stage != PLATE_BLEND and quiet.effect(stage).writes == "bayer":    # the mosaic: value in R, alpha in G
             node = np.stack([node[..., 0], node[..., 1]], -1) * 255.0
-        elif stage != "plate_blend":
+        elif stage != PLATE_BLEND:
             node = node[..., :engine.shape[-1]] * 255.0
         diff = np.abs(node - engine)
-        reach = (np.abs(engine) > 1e-6).any(axis=-1) if stage != "plate_blend" else result.footprint
+        reach = (np.abs(engine) > 1e-6).any(axis=-1) if stage != PLATE_BLEND else result.footprint
         results[stage] = {"mad": float(diff.mean()), "max": float(diff.max()),
                           "mad_object": float(diff[reach].mean()) if reach.any() else 0.0,
                           "max_outside": float(diff[~reach].max()) if (~reach).any() else 0.0}

@@ -175,3 +175,64 @@ def test_prepare_and_resume_give_the_bytes_of_simulate(fire_i, scene):
     for frame in (0, 3):
         assert resume(token, 5, frame).tobytes() == lowcam.simulate(render, fire_i, plate, (0.1, 0.4, 0.0), None, 5,
                                                                     frame).tobytes()
+
+
+def _every_effect(profile):
+    """``profile`` with every bundled effect of its kind (raw or not) enabled: the optional ones at their
+    defaults, the render-pass ones too."""
+    from lowcam.effects import EFFECTS
+
+    raw_only, not_raw = {"raw_blend"}, {"yuv_blend", "chroma_subsampling", "jpeg", "saturation"}
+    for name in EFFECTS:
+        if name in (not_raw if profile.is_raw else raw_only) or (profile.effect(name) and profile.effect(name).enabled):
+            continue
+        profile = profile.with_effect(name)
+    return profile
+
+
+def _fingerprint(value):
+    return None if value is None else (id(value), hash(np.ascontiguousarray(value).tobytes()))
+
+
+@pytest.mark.parametrize("name", ["fire-i", "iphone-xs-lens", "phone-video", "rpi-hq", "ueye"])
+def test_every_stage_keeps_the_state_contract(name):
+    """Each bundled profile, and the same with every other effect enabled (object motion and depth of field with
+    their passes), run stage by stage through the pipeline's own loop on a moving camera: after every stage each
+    array of the state has the shape, dtype and finiteness its field's contract (``SimState`` metadata) states,
+    and a stage changes only the arrays of the part its ``writes`` names."""
+    from dataclasses import fields
+
+    from lowcam import pipeline
+    from lowcam.passes import RenderPasses
+
+    contracts = {f.name: f.metadata for f in fields(pipeline.SimState) if f.metadata}
+    for profile in (lowcam.load_profile(name), _every_effect(lowcam.load_profile(name))):
+        render = disk_render(profile)
+        rows, cols = render.shape[:2]
+        passes = RenderPasses(velocity_px_s=np.full((rows, cols, 2), 30.0, np.float32),
+                              depth_m=np.linspace(0.5, 5.0, rows * cols, dtype=np.float32).reshape(rows, cols))
+        state, _ = pipeline._start(render, profile, None, (0.2, -0.4, 0.1), 0.02, 3, 7, passes)
+        g = profile.geometry
+        sizes = {"height": g.height, "width": g.width, "working rows": g.working_shape[0],
+                 "working columns": g.working_shape[1], "bayer rows": g.bayer_shape[0],
+                 "bayer columns": g.bayer_shape[1], "render rows": rows, "render columns": cols}
+        made = set()
+        for i, effect in enumerate(profile.effects):
+            before = {k: _fingerprint(getattr(state, k)) for k in contracts}
+            pipeline._walk(state, i, i + 1)
+            changed = {k for k in contracts if _fingerprint(getattr(state, k)) != before[k]}
+            wrong = {k: contracts[k]["part"] for k in changed if contracts[k]["part"] != effect.writes}
+            assert not wrong, f"{profile.name}: {effect.name} (writes {effect.writes!r}) changed {wrong}"
+            for k, c in contracts.items():
+                value = getattr(state, k)
+                if value is None:
+                    continue
+                made.add(k)
+                assert value.dtype == np.dtype(c["dtype"]), (profile.name, effect.name, k, value.dtype)
+                assert value.ndim == len(c["shape"]), (profile.name, effect.name, k, value.shape)
+                for size, want in zip(value.shape, c["shape"]):
+                    expected = want if isinstance(want, int) else sizes.get(want, size)
+                    assert size == expected and size > 0, (profile.name, effect.name, k, value.shape, c["shape"])
+                if value.dtype.kind == "f":
+                    assert np.isfinite(value).all(), (profile.name, effect.name, k)
+        assert {"working", "bayer", "bayer_alpha", "rgb", "rgb_alpha"} <= made, made
