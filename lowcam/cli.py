@@ -60,7 +60,7 @@ from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_l
 from .measure.compare import compare
 from .measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,
                                save_candidate_profile)
-from .measure.plate import PLATE_PROBES, read_footage
+from .measure.plate import plate_probes, read_footage
 from .measure.plate_compare import compare_plate, write_plate_report
 from .measure.report import history_figure, read_history, record_history, write_compare_report
 from .measure.sets import load_set
@@ -346,10 +346,10 @@ def _end_progress_lines() -> None:
 
 def _compare_plate_only(args, profile) -> int:
     """``lowcam compare --plate-only FOOTAGE``: the plate probes' statistics, profile against footage."""
-    probes = PLATE_PROBES
+    probes = plate_probes()
     if args.probes:
         names = [n.strip() for n in args.probes.split(",") if n.strip()]
-        known = {p.name: p for p in PLATE_PROBES}
+        known = {p.name: p for p in plate_probes()}
         unknown = [n for n in names if n not in known]
         if unknown:
             raise LowcamError(f"--probes: no plate probe {', '.join(unknown)} (there are: {', '.join(known)})")

@@ -1,13 +1,14 @@
 """What a plate estimator returns, and the frame pairs it reads: below the effects, whose estimators make them.
 
-A plate probe (:class:`lowcam.measure.plate.PlateProbe`) measures one no-reference statistic on footage; its
-estimator, a plain function in the effect's own module, turns the statistic into that effect's parameters with a
-confidence, as a :class:`PlateEstimate`. Temporal statistics (the noise) compare frame pairs registered by a
+A plate probe (:class:`PlateProbe`, declared by its effect as ``Effect.plate_probe``) measures one no-reference
+statistic on footage; its estimator, a plain function in the effect's own module, turns the statistic into that
+effect's parameters with a confidence, as a :class:`PlateEstimate`. Temporal statistics (the noise) compare frame pairs registered by a
 homography from tracked corners (:func:`register_footage`). Estimators that need the model's frame of a scene
 receive ``film`` (:func:`lowcam.measure.plate.film`) from the caller: the effects do not run the pipeline.
 
 Contents
 --------
+- :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
 - :class:`PlateEstimate`: one statistic measured on the footage, the effect parameters it implies, its confidence
   (or that the footage cannot show it: not measurable)
 - :func:`format_value`: an estimate's value as a line or a table shows it
@@ -18,10 +19,37 @@ Contents
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from .registration import register_frames
+
+
+@dataclass(frozen=True)
+class PlateProbe:
+    """One no-reference statistic of footage, declared by the effect it estimates (``Effect.plate_probe``).
+
+    ``estimate(footage, base, film)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it
+    at all); ``base`` is the profile being refined, for the parameters an estimate depends on; ``film`` is
+    :func:`lowcam.measure.plate.film`, for estimators that ask the model what it makes of a scene.
+    ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
+    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured).
+    ``order``: where it runs among the probes (lower first: a later probe sees the earlier estimates).
+    ``compared``: the keys of that dict that ``compare --plate-only`` compares, footage against model (empty: all;
+    the noise's per-bin lists are left out: their bins lie at different levels in the two);
+    ``pairs``: the statistic also takes :class:`lowcam.registration.RegisteredPairs`, which the comparison
+    makes once per stack (:func:`register_footage`) before cutting it into tiles. ``effect``: the effect's name,
+    filled in from the effect that declares the probe."""
+
+    name: str
+    estimate: Callable
+    statistic: Callable[[np.ndarray], dict]
+    order: float
+    about: str = ""
+    compared: tuple = ()
+    pairs: bool = False
+    effect: str = ""
 
 
 @dataclass

@@ -186,6 +186,12 @@ class Profile:
                 out = out.with_effect(effect, **{name: value})
         return out
 
+    def quiet(self) -> "Profile":
+        """A copy without its random and stepped effects (``Effect.random``, ``Effect.stepped``: the noise, the
+        quantisation): deterministic and smooth, what fits compare against."""
+        names = [e.name for e in self.effects if e.random or e.stepped]
+        return self.without(*names) if names else self
+
     def without(self, *names: str) -> "Profile":
         """A copy with the named effects disabled (e.g. ``profile.without("noise", "vignetting")``)."""
         out = self.copy()

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lowcam.effects.motion_blur import gyro_motion_from_plate
 from lowcam.errors import LowcamError
 from lowcam.measure import plate
 from lowcam.profile import profile_from_dict
@@ -82,7 +83,8 @@ def test_temporal_noise_law_recovered_from_a_still_shot():
     shot = plate.Footage(np.stack([_noisy(ramp, law, rng) for _ in range(8)]))
     assert plate.still_segments(shot) == [(0, 8)]
     base = _profile(filters=False)
-    est = plate.PLATE_PROBES[[p.name for p in plate.PLATE_PROBES].index("noise_level_function")].estimate(shot, base)
+    probe = next(p for p in plate.plate_probes() if p.name == "noise_level_function")
+    est = probe.estimate(shot, base, plate.film)
     assert est.measured["method"] == "registered" and est.measured["still_pairs"] == 7
     assert est.confidence >= plate.MIN_CONFIDENCE
     per_sensel = [1.0, np.sqrt(2.0), 1.0]
@@ -143,10 +145,10 @@ def test_phone_gyro_log_gives_each_frames_rate(tmp_path):
     frames = np.zeros((3, 8, 8, 3), np.float32)
     shot = plate.Footage(frames, 30.0, "x", samples, stamps, names=["RE_frame-5.jpg", "RE_frame-6.jpg",
                                                                        "RE_frame-7.jpg"])
-    est = plate.gyro_motion_from_plate(shot)
+    est = gyro_motion_from_plate(shot)
     assert est.params == {} and est.confidence == 1.0
     assert np.allclose(est.measured["angular_velocity_rad_s"], [w] * 3)
-    assert plate.gyro_motion_from_plate(plate.Footage(frames)).reason == "no gyro: motion left to the tracked camera"
+    assert gyro_motion_from_plate(plate.Footage(frames)).reason == "no gyro: motion left to the tracked camera"
 
 
 def test_bad_gyro_log(tmp_path):
@@ -198,7 +200,7 @@ def test_flat_footage_estimates_no_sharpening(capsys):
     shot = plate.Footage(np.stack([_noisy(ramp, ((1.0, 0.01),) * 3, rng) for _ in range(6)]), path="flat")
     base = _profile()
     profile, estimates = plate.estimate_profile(shot, base, progress=True)
-    n = len(plate.PLATE_PROBES)
+    n = len(plate.plate_probes())
     assert [ln.split()[0] for ln in capsys.readouterr().err.splitlines()][:2] == [f"[1/{n}]", f"[2/{n}]"]
     edge = next(e for e in estimates if e.statistic == "edge_profile")
     assert edge.params == {} and not edge.applied and "too little texture to estimate sharpening" in edge.reason
@@ -263,9 +265,9 @@ def test_engine_set_moving_shot_noise_within_10_percent():
     still shot's (the engine makes no codec, so nothing but noise changes between registered frames)."""
     truth = _profile()
     frames = _engine_shot(truth, 6, 5.0, seed=2)
-    probe = plate.PLATE_PROBES[[p.name for p in plate.PLATE_PROBES].index("noise_level_function")]
+    probe = next(p for p in plate.plate_probes() if p.name == "noise_level_function")
     est = probe.estimate(plate.Footage(frames), truth.with_effect("noise", red=[2.0, 0.0], green=[2.0, 0.0],
-                                                                   blue=[2.0, 0.0]))
+                                                                   blue=[2.0, 0.0]), plate.film)
     assert est.measured["method"] == "registered" and est.measured["still_pairs"] == 0
     assert est.confidence >= plate.MIN_CONFIDENCE, est.line()
     got = truth.with_effect("noise", **est.params).effect("noise")

@@ -16,12 +16,12 @@ from skimage import data
 
 from lowcam.effects.jpeg import jpeg_quality_from_plate
 from lowcam.effects.yuv import RGB_TO_YUV, chroma_subsampling_from_plate
-from lowcam.measure.plate import PLATE_PROBES, Footage, estimate_profile
+from lowcam.measure.plate import Footage, estimate_profile, plate_probes
 from lowcam.measure.plate_compare import compare_plate, flatten_statistic, tile_slices
 from lowcam.pipeline import prepare, render_camera, resume
 from lowcam.profile import load_profile
 
-CODEC = [p for p in PLATE_PROBES if p.name in ("jpeg_blockiness", "chroma_bandwidth")]
+CODEC = [p for p in plate_probes() if p.name in ("jpeg_blockiness", "chroma_bandwidth")]
 
 
 def noisy(name, frames=2, sigma=2.0, seed=1):

@@ -128,8 +128,8 @@ class Search:
     (low, high)), from ``start``; ``grid`` ordered discrete values walked from the profile's value towards lower
     error (key -> values; scored on the full error when ``full_error``); ``fixed`` values set without a search
     (e.g. ``method = "bilinear"``). ``when``: values the profile's effect must already have (the lens model).
-    ``fit`` names a closed-form fit in diagnosis instead (per-pixel maps, the colour matrix, row noise), or is
-    the effect's own fit, a function ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
+    ``fit`` is the effect's own closed-form fit instead (per-pixel maps, row noise, a grey camera), a function
+    ``fit(ctx, effect_name)`` returning (profile, params, shown values) or None
     (``ctx`` is a :class:`lowcam.measure.diagnose.Context`: ``profile``, ``means``, ``clean()``, ``sse()``,
     ``simulate()``: the effects do not run the pipeline, the fit is handed it).
     ``captures``: which captures it changes (``"all"``, ``"textured"`` or ``"moving"``): it is fitted on
@@ -142,6 +142,8 @@ class Search:
     per capture to tell the sensor's pattern from a frame's noise). ``reach``: searched keys the captures
     determine only where their compared, rendered pixels reach this far from the centre (a share of the
     half-diagonal; a fall-off's rho^4 term needs the corners): otherwise the key is held at the profile's value.
+    ``changes_noise``: the fitted effect changes the frames' noise, which the screening's noise-free estimate
+    cannot see (the candidate is always compared in full).
     ``evidence`` is formatted with the fitted values (``{key}``) and the profile's (``{was_key}``).
     """
 
@@ -161,6 +163,7 @@ class Search:
     after: str = ""
     per_pixel: bool = False
     reach: dict = field(default_factory=dict)
+    changes_noise: bool = False
 
 
 class Effect(ParamSet):
@@ -184,9 +187,15 @@ class Effect(ParamSet):
     writes: ClassVar[str] = ""
     #: True for a stage the chain cannot skip; disabling it selects its neutral form (the lens becomes a pinhole).
     always_runs: ClassVar[bool] = False
+    #: False for an effect diagnosis never offers to remove (no ``without_EFFECT`` candidate): the camera's noise,
+    #: which every comparison is measured against. Effects that ``always_runs`` are never removed either.
+    removable: ClassVar[bool] = True
     #: True for an effect whose result depends on (seed, frame): everything before the first one is the same for
     #: every frame of a static scene, so it is computed once (:func:`lowcam.pipeline.prepare`).
     random: ClassVar[bool] = False
+    #: True for an effect whose output moves in steps (quantisation): an objective through it is not smooth, so
+    #: fits leave it out with the random ones (:meth:`lowcam.profile.Profile.quiet`).
+    stepped: ClassVar[bool] = False
     #: The render pass the effect reads (``"velocity"`` or ``"depth"``, see :mod:`lowcam.passes`), or "".
     needs_pass: ClassVar[str] = ""
     #: Where the effect stands in a complete chain (:func:`lowcam.effects.canonical_order`); an effect added to
@@ -196,6 +205,9 @@ class Effect(ParamSet):
     node: ClassVar[NodeStage | None] = None
     #: How diagnosis may fit it: one :class:`Search` per candidate it offers.
     searches: ClassVar[tuple[Search, ...]] = ()
+    #: How ``calibrate plate`` and ``compare --plate-only`` measure it on footage
+    #: (:class:`lowcam.plate_estimate.PlateProbe`), or None.
+    plate_probe: ClassVar[Any] = None
     #: The ``lowcam calibrate`` job that measures it (:data:`lowcam.calibrate.CALIBRATIONS`), or "".
     calibration: ClassVar[str] = ""
 

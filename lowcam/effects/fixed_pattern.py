@@ -16,6 +16,9 @@ Contents
 - :func:`fit_hot_pixels`: hot pixels' diagnosis fit: the outliers of the offset map, refused when the map is dense
 - :func:`wiener_shrink`: a per-pixel map shrunk by its Wiener factor (signal variance over signal plus noise)
 - :func:`mean_noise_var`: per capture and pixel, the noise variance left in the frames' mean (DN^2)
+- :func:`row_noise_variance`: per channel, the variance of the per-frame row means of the noise of a stack
+- :func:`fit_pixel_gain`: PRNU's diagnosis fit: the per-pixel gain of the measured means against the clean model
+- :func:`fit_row_noise`: row noise's diagnosis fit: the excess variance of row means over the model's
 - :class:`RowNoise`: temporal row noise: each sensor row gets a random offset per frame (sigma ``sigma_dn``)
 
 References
@@ -33,6 +36,7 @@ import os
 import tempfile
 import warnings
 
+import cv2
 import numpy as np
 
 from ..errors import NotFitted
@@ -204,6 +208,41 @@ class _PixelMap(Effect):
         return (self.strength * rng.standard_normal(shape)).astype(np.float32)
 
 
+def row_noise_variance(frames: np.ndarray) -> np.ndarray:
+    """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
+    and frames (row noise shows here; pixel noise averages out over a row)."""
+    # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
+    sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
+    rows = sums / frames.shape[2]
+    return (rows - rows.mean(axis=0)).var(axis=(0, 1))
+
+
+def _pixel_maps(ctx):
+    """The clean model and the measured means of every capture, stacked."""
+    return np.stack(ctx.clean(ctx.profile)).astype(np.float64), np.stack(ctx.means).astype(np.float64)
+
+
+def fit_pixel_gain(ctx, effect: str):
+    """PRNU: per-pixel least-squares gain of the measured means against the clean model, ``g = sum((m - s) s) /
+    sum(s^2)`` over the captures, shrunk towards its mean by :func:`~lowcam.effects.fixed_pattern.wiener_shrink`
+    with each gain's noise variance ``sum(s^2 v) / sum(s^2)^2`` (``v``: the means' noise variance)."""
+    s, m = _pixel_maps(ctx)
+    weight = np.maximum((s * s).sum(0), 1e-6)
+    gain = wiener_shrink(((m - s) * s).sum(0) / weight, (s * s * mean_noise_var(ctx)).sum(0) / weight ** 2)
+    profile, params = _with_map(ctx, effect, gain)
+    return profile, dict(params, sigma=float(gain.std())), {"sigma": float(gain.std())}
+
+
+def fit_row_noise(ctx, effect: str):
+    """Row noise from the excess variance of row means over the model's (:func:`row_noise_variance`)."""
+    excess = float(np.mean([row_noise_variance(st.measured) - row_noise_variance(st.simulated)
+                            for st in ctx.base.captures if len(st.measured) > 1] or [0.0]))
+    if excess <= 0:
+        raise NotFitted("row means of the noise vary no more than pixel noise explains")
+    sigma = float(np.sqrt(excess))
+    return ctx.profile.with_effect(effect, sigma_dn=sigma), {"sigma_dn": sigma}, {"sigma_dn": sigma}
+
+
 class PRNU(_PixelMap):
     """Photo-response non-uniformity: each pixel's gain is ``1 + map`` (``strength``: the gain's sigma)."""
 
@@ -211,7 +250,7 @@ class PRNU(_PixelMap):
     section = "4.3 (PRNU, after Irie et al.)"
     order = 210
     searches = (Search("prnu", "a fixed per-pixel gain pattern, sigma {sigma:.4f}, proportional to brightness",
-                       fit="pixel_gain", per_pixel=True),)
+                       fit=fit_pixel_gain, per_pixel=True),)
     params = dict(_PixelMap.params, strength=Param(0.0, low=0.0, high=1.0))
 
     def apply(self, state):
@@ -262,7 +301,7 @@ class RowNoise(Effect):
     writes = "bayer"
     order = 140
     searches = (Search("row_noise", "row means of the noise vary {sigma_dn:.2f} DN more than pixel noise explains",
-                       fit="row_noise"),)
+                       fit=fit_row_noise, changes_noise=True),)
     random = True
     params = {"sigma_dn": Param(0.0, low=0.0, high=50.0, unit="DN")}
 

@@ -57,7 +57,7 @@ import cv2
 import numpy as np
 
 from ..errors import LowcamError
-from ..plate_estimate import PlateEstimate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, Param, Search
 
 #: The chroma subsamplings the encoder offers (J:a:b): full, halved across, halved across and down.
@@ -568,7 +568,7 @@ def _tile_levels(frames: np.ndarray, phases: tuple[int, int]) -> np.ndarray:
                      for i in range(0, h - _TILE_PX + 1, _TILE_PX) for j in range(0, w - _TILE_PX + 1, _TILE_PX)])
 
 
-def jpeg_quality_from_plate(footage, base=None):
+def jpeg_quality_from_plate(footage, base=None, film=None):
     """The IJG quality the footage's JPEG blockiness implies, as a :class:`lowcam.plate_estimate.PlateEstimate`
     for the ``jpeg`` effect (see "Blockiness from the footage alone" above).
 
@@ -632,3 +632,9 @@ def jpeg_quality_from_plate(footage, base=None):
               "shifted after coding") + note)
     measured["quality_range"] = [round(lo), round(hi)]
     return PlateEstimate(name, effect, measured, {"quality": q}, round(grid * precision, 3), reason)
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+Jpeg.plate_probe = PlateProbe("jpeg_blockiness", jpeg_quality_from_plate, jpeg_blockiness_statistic, order=20,
+                               about="luma steps across the 8x8 grid over those inside blocks; the quality that "
+                                     "codes the frame so")

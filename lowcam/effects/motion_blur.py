@@ -10,6 +10,7 @@ Contents
 - :func:`rotation_matrices`: rotations ``exp([w]x t)`` for a constant body rate at ``times``
 - :func:`tap_offsets`: where pixel (u, v) looks in the mid-exposure image at each tap of the exposure
 - :func:`shutter_s`: the exposure (s) the motion effects integrate over: the frame's, the effect's or the camera's
+- :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log (its plate probe)
 - :class:`MotionBlur`: ``taps``-tap motion blur along the flow the camera's rotation produces over the exposure
 
 References
@@ -19,10 +20,16 @@ References
 """
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import cv2
 import numpy as np
 
+from ..errors import LowcamError
 from ..geometry import grid_points
+from ..motion import average_rate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -63,6 +70,52 @@ def shutter_s(state) -> float:
     return (effect.exposure_s if effect is not None else 0.0) or state.camera.exposure_s
 
 
+def gyro_motion_from_plate(footage, base=None, film=None) -> PlateEstimate:
+    """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
+    over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
+    parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
+    if footage.gyro is None:
+        return PlateEstimate("gyro_motion", "motion_blur", {}, {}, 0.0,
+                             "no gyro: motion left to the tracked camera")
+    samples = footage.gyro
+    exposure = float(getattr(getattr(base, "camera", None), "exposure_s", 0.0) or 1.0 / footage.fps)
+    frame_ids = _frame_numbers(footage)
+    if footage.frame_times is not None:
+        times = footage.frame_times
+        starts = [times[f] if 0 <= f < len(times) else np.nan for f in frame_ids]
+    else:
+        starts = [samples[0, 0] + i / footage.fps for i in range(len(footage))]
+    rates, missing = [], 0
+    for t0 in starts:
+        try:
+            rates.append(average_rate(samples, t0, t0 + exposure) if np.isfinite(t0) else None)
+        except LowcamError:
+            rates.append(None)
+        missing += rates[-1] is None
+    found = [r for r in rates if r is not None]
+    if not found:
+        return PlateEstimate("gyro_motion", "motion_blur", {"frames_outside_log": missing}, {}, 0.0,
+                             "the gyro log does not cover the footage's frames")
+    w = np.array(found)
+    speed = np.linalg.norm(w, axis=1)
+    measured = {"angular_velocity_rad_s": [None if r is None else [float(v) for v in r] for r in rates],
+                "median_speed_rad_s": float(np.median(speed)), "max_speed_rad_s": float(speed.max()),
+                "exposure_s": exposure, "frames_outside_log": missing}
+    return PlateEstimate("gyro_motion", "motion_blur", measured, {}, len(found) / len(rates),
+                         f"gyro covers {len(found)} of {len(rates)} frames; per-frame motion, not a profile value")
+
+
+def _frame_numbers(footage) -> list[int]:
+    """Each frame's index into the frame stamps: the last number in its file name (``RE_frame-99.jpg`` -> 99),
+    else its position."""
+    out = []
+    for i in range(len(footage)):
+        name = Path(footage.names[i]).stem if i < len(footage.names) else ""
+        digits = re.findall(r"\d+", name)
+        out.append(int(digits[-1]) if digits else i)
+    return out
+
+
 class MotionBlur(Effect):
     """``taps``-tap motion blur along the flow that the camera's rotation produces over the exposure.
 
@@ -77,6 +130,8 @@ class MotionBlur(Effect):
     writes = "sampling"
     order = 50
     node = NodeStage("Motion Blur", "image", baked_into="bayer_sampling")
+    plate_probe = PlateProbe("gyro_motion", gyro_motion_from_plate, lambda frames: {}, order=60,
+                             about="angular velocity per frame from a gyro log")
     searches = (Search("motion_blur", "moving captures are smeared as by a {exposure_s:.4f} s exposure",
                        bounds={"exposure_s": (0.0005, 0.1)}, captures="moving"),)
     params = {

@@ -58,7 +58,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import LowcamError, NotFitted
-from ..plate_estimate import PlateEstimate, pair_starts, register_footage
+from ..plate_estimate import PlateEstimate, PlateProbe, pair_starts, register_footage
 from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
 from .base import Effect, NodeStage, Param
 from .jpeg import _GRID_T, LUMA_WEIGHTS, bt601_luma, jpeg_blockiness
@@ -100,6 +100,7 @@ class Noise(Effect):
     calibration = "noise"
     node = NodeStage("Noise", "mosaic", "noise")
     random = True
+    removable = False           # the noise every comparison is measured against
     params = {
         "law": Param("sigma_linear", str, choices=("sigma_linear", "variance_linear")),
         "red": Param([1.5, 0.015], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
@@ -667,3 +668,10 @@ def noise_level_function_from_plate(footage, base, film):
         confidence = 0.0
         reason += f"; not applied: {'; '.join(bad)}"
     return PlateEstimate("noise_level_function", "noise", measured, params, round(confidence, 3), reason)
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+Noise.plate_probe = PlateProbe(
+    "noise_level_function", noise_level_function_from_plate, noise_level_statistic, order=40,
+    about="sigma against mean per channel from registered frame pairs (a moving camera, moving objects)",
+    compared=("sigma_at_dn",), pairs=True)

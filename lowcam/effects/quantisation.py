@@ -29,6 +29,7 @@ class Quantisation(Effect):
     """
 
     name = "quantisation"
+    stepped = True
     section = "4.3, 5.2 step 7"
     writes = "bayer"
     order = 180

@@ -15,6 +15,7 @@ Contents
 - :func:`saturation_matrix`: the Fire-i saturation control ``S(beta)``
 - :func:`colour_matrix_problems`: what in a colour matrix no real camera has (:data:`MIN_OWN_WEIGHT`,
   :data:`MAX_NEGATIVE`, :data:`MIN_DETERMINANT`); the crosstalk's total matrix is judged so too
+- :func:`fit_monochrome`: diagnosis's fit of a camera without colour: no colour filters, or grey output
 - :class:`Saturation`: colour correction and the saturation control on the demosaiced premultiplied colour
 
 References
@@ -27,6 +28,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import NotFitted
 from .base import Effect, NodeStage, Param, Search
 
 #: Rows of the saturation control's fixed part A (sec. 4.4.2).
@@ -76,6 +78,50 @@ def colour_matrix_problems(matrix, what: str = "the colour matrix") -> list[str]
     return out
 
 
+def fit_monochrome(ctx, effect: str):
+    """A camera without colour, in whichever of two forms fits the measured means better (noise-free SSE):
+
+    - *no colour filters*: every sensel sees the same mix of the light (``bayer_sampling.colour_filters`` off,
+      its ``grey_weights``), each output pixel is its own sensel (``demosaic.method = "monochrome"``), and the
+      crosstalk and lateral colour of colour filters are gone;
+    - *grey output*: a colour camera whose processor delivers the luma of the demosaiced colour (the saturation
+      control at 0).
+
+    The weights (>= 0, summing to 1 within :data:`~lowcam.effects.saturation.LUMA_SUM_TOLERANCE`) are fitted by
+    non-negative least squares to the measured grey only where the ideal renders hold colour
+    (:meth:`Context.scene_has_colour`); a grey scene shows every such set of weights alike, so they are then the
+    profile's. NotFitted when the measured frames carry colour, or the model delivers grey already."""
+    p = ctx.profile
+    sat = p.effect(effect)
+    s, m = ctx.pixels(p, ctx.quick)
+    grey = m.mean(axis=1)
+    if np.abs(m - grey[:, None]).mean() > 0.1 * max(m.std(), 1e-6):
+        raise NotFitted("the frames carry colour")
+    control = saturation_matrix(sat.saturation, sat.luma)
+    if abs(np.linalg.det(control)) < 1e-9 or not p.effect("bayer_sampling").colour_filters:
+        raise NotFitted("the profile delivers grey already")
+    if ctx.scene_has_colour():
+        from scipy.optimize import nnls
+
+        ok = (s.max(1) < 250) & (grey < 250) & (s.min(1) > 3)
+        luma = nnls(np.linalg.solve(control, s[ok].T).T, grey[ok])[0]  # from the colour before the control
+        total = float(luma.sum())
+        luma *= np.clip(total, 1 - LUMA_SUM_TOLERANCE, 1 + LUMA_SUM_TOLERANCE) / max(total, 1e-12)
+        how = "fitted"
+    else:
+        luma = np.asarray(sat.luma, np.float64)
+        how = "the profile's: a grey scene does not determine them"
+    forms = [("grey output of a colour sensor", p.with_effect(effect, saturation=0.0, luma=luma.tolist()))]
+    unfiltered = p.without(*(n for n in ("crosstalk", "chromatic_aberration") if p.effect(n) is not None))
+    forms.append(("a sensor without colour filters",
+                  unfiltered.with_effect("bayer_sampling", colour_filters=False, grey_weights=luma.tolist())
+                  .with_effect("demosaic", method="monochrome")))
+    form, profile = min(forms, key=lambda f: ctx.sse(f[1], ctx.quick))
+    weights = " ".join(f"{w:.3f}" for w in luma)
+    return profile, {"form": form, "luma": luma.round(4).tolist(), "luma_weights": how}, \
+        {"form": form, "weights": weights, "how": how}
+
+
 class Saturation(Effect):
     """Colour correction and the saturation control on the demosaiced premultiplied colour: ``S(beta) C rgb``
     (sec. 4.4.2; ``colour_correction`` C is the image processor's matrix, identity by default).
@@ -90,7 +136,7 @@ class Saturation(Effect):
     order = 240
     node = NodeStage("Saturation", "rgb", "saturation")
     searches = (Search("monochrome", "the frames carry no colour: {form} (luma weights {weights}, {how})",
-                       fit="monochrome", requires="saturation", full_error=True),)
+                       fit=fit_monochrome, requires="saturation", full_error=True),)
     params = {
         "saturation": Param(90.0, low=0.0, high=255.0, doc="camera setting; 65 is the identity, Fire-i default 90"),
         "luma": Param(list(SATURATION_LUMA), "vector", length=3, low=0.0, high=1.0),

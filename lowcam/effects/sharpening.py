@@ -29,7 +29,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
 from .blur import filter_rows, gaussian_taps
 
@@ -380,3 +380,8 @@ def edge_profile_from_plate(footage, base, film):
                          f"{nx} near-vertical and {ny} near-horizontal edges, profile fit rms {rms:.3f}"
                          + (f"; the sharpness is at its range's end ({params[keys[2]]:.0f}): the edges may be "
                             "sharper than this camera model can make them" if at_bound else ""))
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+Sharpening.plate_probe = PlateProbe("edge_profile", edge_profile_from_plate, edge_profile_statistic, order=10,
+                                     about="10-90 % edge width and overshoot across strong natural edges")

@@ -34,7 +34,7 @@ import numpy as np
 from ..errors import LowcamError
 from ..geometry import sample_texture
 from ..io import read_gain_map
-from ..plate_estimate import PlateEstimate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
 from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
 
@@ -235,7 +235,7 @@ def vignetting_statistic(frames, max_pairs: int = 30, min_shift_px: float = 1.5)
             "k2": float(k2), "k4": float(k4), "gain_at_rho": gain, "corner_gain_se": float(np.exp(c2 + c4) * se)}
 
 
-def vignetting_from_plate(footage, base=None):
+def vignetting_from_plate(footage, base=None, film=None):
     """k2, k4 of the radial vignetting model from a moving shot, as a :class:`lowcam.plate_estimate.PlateEstimate`
     (:func:`vignetting_statistic`; a measured ``texture`` in the base is replaced by the radial model).
 
@@ -259,3 +259,9 @@ def vignetting_from_plate(footage, base=None):
     return PlateEstimate("radial_falloff", "vignetting", stat, params, round(confidence, 3),
                          f"{stat['pairs']} moving frame pairs, {stat['shift_px_total']:.0f} px of motion, corner "
                          f"gain {stat['gain_at_rho']['1.0']:.3f} +- {stat['corner_gain_se']:.3f}")
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+Vignetting.plate_probe = PlateProbe("radial_falloff", vignetting_from_plate, vignetting_statistic, order=50,
+                                      about="brightness of the same scene points at different radii over a moving "
+                                            "shot")

@@ -50,7 +50,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
 from .jpeg import _GRID_T, SUBSAMPLINGS, block_difference_profile, jpeg_blockiness
 
@@ -253,7 +253,7 @@ def _axis_factor(e: dict) -> tuple[int, float, str]:
     return (2 if d < _DROP_HALVED_BELOW else 1), conf, f"chroma spectrum (drop {d:.2f})"
 
 
-def chroma_subsampling_from_plate(footage, base=None):
+def chroma_subsampling_from_plate(footage, base=None, film=None):
     """The chroma subsampling the footage shows, as a :class:`lowcam.plate_estimate.PlateEstimate`.
 
     Per axis the factor comes from the first cue that speaks (replication, then the JPEG grid, then the
@@ -304,3 +304,9 @@ def chroma_subsampling_from_plate(footage, base=None):
     if fv > 1:
         reason += "; the vertical halving is reported only (the engine's chroma subsampling is horizontal)"
     return PlateEstimate("chroma_bandwidth", "chroma_subsampling", measured, {"group": fh}, confidence, reason)
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+ChromaSubsampling.plate_probe = PlateProbe(
+    "chroma_bandwidth", chroma_subsampling_from_plate, chroma_bandwidth_statistic, order=30,
+    about="chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum")

@@ -31,7 +31,6 @@ Contents
 - :class:`CaptureInputs`: what a capture is simulated from: the ideal render, the plate, the mask of compared pixels
 - :func:`capture_inputs`: a capture's :class:`CaptureInputs`, rendering the target's ideal view when needed
 - :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
-- :func:`row_noise_variance`: per channel, the variance of the per-frame row means of the noise of a stack
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
 - :func:`combine`: the error and its families over all captures
 - :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
@@ -47,6 +46,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from ..effects.fixed_pattern import row_noise_variance
 from ..errors import LowcamError
 from ..pipeline import deterministic_prefix, prefix_key, prepare, resume
 from .targets import ideal_from_target
@@ -154,15 +154,6 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> lis
             if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
                 out.append(float(np.log(mf / mg)))
     return out
-
-
-def row_noise_variance(frames: np.ndarray) -> np.ndarray:
-    """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
-    and frames (row noise shows here; pixel noise averages out over a row)."""
-    # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
-    sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
-    rows = sums / frames.shape[2]
-    return (rows - rows.mean(axis=0)).var(axis=(0, 1))
 
 
 def _row_log_ratios(F, G) -> list[float]:

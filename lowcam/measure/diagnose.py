@@ -41,7 +41,6 @@ Contents
   factor of the best screened candidate's
 - :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
-- :data:`NOT_REMOVABLE`: effects no ``without_EFFECT`` candidate removes (the chain needs them)
 - :data:`TILE_PX`, :data:`UNDETERMINED_SPREAD`, :data:`AT_BOUND`: the folds' image tiles, and when a fitted number
   is not determined or at its bound
 - :class:`Candidate`: one fitted candidate: its errors in sample and held out, params, uncertainties and evidence
@@ -51,11 +50,6 @@ Contents
 - :func:`candidate_effect`: the profile effect a candidate adds or changes
 - :func:`gauss_newton`: bounded Gauss-Newton (Levenberg-Marquardt) steps on the noise-free residual
 - :func:`fit_candidate`: fit one candidate on the context's profile: (profile with it, params, evidence)
-- :func:`fit_pixel_gain`: PRNU: per-pixel least-squares gain of the measured means against the clean model
-- :func:`fit_row_noise`: row noise from the excess variance of row means over the model's
-- :func:`fit_monochrome`: a camera without colour: no colour filters, or grey output; its luma weights
-- :data:`CLOSED_FORM`: the closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``)
-- :data:`NOISE_FITS`: the closed-form fits whose candidates change the noise (always fully compared)
 - :func:`per_pixel`: True for a candidate fitted as a dense per-pixel map
 - :class:`Diagnosis`: the comparison, the ranked candidates, those not fitted and why, the verdict, the time
 - :func:`rank`: screen, fit and rank the named candidates by their held-out errors
@@ -95,11 +89,9 @@ import cv2
 import numpy as np
 
 from ..effects import known_effects
-from ..effects.fixed_pattern import _with_map, mean_noise_var, wiener_shrink
-from ..effects.saturation import LUMA_SUM_TOLERANCE, saturation_matrix
 from ..errors import NotFitted
 from ..pipeline import prefix_key
-from .compare import (EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare, row_noise_variance,
+from .compare import (EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare,
                       simulate_capture)
 from .sets import MeasurementSet
 
@@ -109,8 +101,6 @@ REFINE_WITHIN = 1.5
 FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
-#: Effects no ``without_EFFECT`` candidate removes: the chain cannot run without them, or they are its noise.
-NOT_REMOVABLE = ("bayer_sampling", "demosaic", "yuv_blend", "noise", "raw_blend")
 _MEMO_ENTRIES = 160  # noise-free frames kept (one capture each, about 4 MB at 640x480)
 #: Candidates fitted at once (threads: OpenCV and numpy release the GIL); the results do not depend on it.
 WORKERS = 2
@@ -319,14 +309,9 @@ class Context:
     def screening(self, value: bool):
         self._local.screening = value
 
-    def quiet(self, profile):
-        """The profile without its random and step effects, for a smooth, deterministic objective."""
-        names = [n for n in ("noise", "row_noise", "quantisation") if profile.effect(n) is not None]
-        return profile.without(*names) if names else profile
-
     def clean(self, profile, subset=None) -> list[np.ndarray]:
         """Noise-free frames (float32) of the captures (all, or ``subset``) through ``profile``, memoised."""
-        q = self.quiet(profile)
+        q = profile.quiet()
         key = prefix_key(q, len(q.effects))
         out = []
         for i in range(len(self.inputs)) if subset is None else subset:
@@ -469,7 +454,7 @@ def candidates() -> dict:
 def removal_candidates(profile) -> list[str]:
     """The ``without_EFFECT`` candidates of ``profile``: each enabled effect the chain can run without."""
     return [f"without_{e.name}" for e in profile.effects
-            if e.enabled and not e.always_runs and e.name not in NOT_REMOVABLE]
+            if e.enabled and not e.always_runs and e.removable]
 
 
 def candidate_effect(name: str) -> str:
@@ -581,9 +566,6 @@ class _Fit:
             i = min(better, key=score)
         self.values[key] = options[i]
 
-    def _fit(self):
-        return CLOSED_FORM[self.search.fit] if isinstance(self.search.fit, str) and self.search.fit else self.search.fit
-
     def _gauss_newton(self, steps):
         self.x, _, blind = gauss_newton(self.ctx, self.build, self.x, self.bounds, self.subset, steps=steps)
         self.blind = {self.keys[k] for k in blind}
@@ -591,7 +573,7 @@ class _Fit:
     def screen(self):
         started = time.perf_counter()
         self.screened = True
-        fit = self._fit()
+        fit = self.search.fit
         if fit:
             self.ctx.screening = True  # a fit that ``refines`` does a coarse version now, the full one in finish
             try:
@@ -610,7 +592,7 @@ class _Fit:
     def finish(self):
         started = time.perf_counter()
         if self.search.fit:  # a fit that refines: its full version
-            self.result, self.done = self._fit()(self.ctx, self.cls.name), True
+            self.result, self.done = self.search.fit(self.ctx, self.cls.name), True
             self.seconds += time.perf_counter() - started
             return
         if self.keys:
@@ -693,88 +675,13 @@ def _removal(ctx, name):
     return ctx.profile.without(effect), {}, f"the frames look as if the camera had no {effect}"
 
 
-def _pixel_maps(ctx):
-    """The clean model and the measured means of every capture, stacked."""
-    return np.stack(ctx.clean(ctx.profile)).astype(np.float64), np.stack(ctx.means).astype(np.float64)
-
-
-def fit_pixel_gain(ctx, effect):
-    """PRNU: per-pixel least-squares gain of the measured means against the clean model, ``g = sum((m - s) s) /
-    sum(s^2)`` over the captures, shrunk towards its mean by :func:`~lowcam.effects.fixed_pattern.wiener_shrink`
-    with each gain's noise variance ``sum(s^2 v) / sum(s^2)^2`` (``v``: the means' noise variance)."""
-    s, m = _pixel_maps(ctx)
-    weight = np.maximum((s * s).sum(0), 1e-6)
-    gain = wiener_shrink(((m - s) * s).sum(0) / weight, (s * s * mean_noise_var(ctx)).sum(0) / weight ** 2)
-    profile, params = _with_map(ctx, effect, gain)
-    return profile, dict(params, sigma=float(gain.std())), {"sigma": float(gain.std())}
-
-
-def fit_row_noise(ctx, effect):
-    """Row noise from the excess variance of row means over the model's (:func:`row_noise_variance`)."""
-    excess = float(np.mean([row_noise_variance(st.measured) - row_noise_variance(st.simulated)
-                            for st in ctx.base.captures if len(st.measured) > 1] or [0.0]))
-    if excess <= 0:
-        raise NotFitted("row means of the noise vary no more than pixel noise explains")
-    sigma = float(np.sqrt(excess))
-    return ctx.profile.with_effect(effect, sigma_dn=sigma), {"sigma_dn": sigma}, {"sigma_dn": sigma}
-
-
-def fit_monochrome(ctx, effect):
-    """A camera without colour, in whichever of two forms fits the measured means better (noise-free SSE):
-
-    - *no colour filters*: every sensel sees the same mix of the light (``bayer_sampling.colour_filters`` off,
-      its ``grey_weights``), each output pixel is its own sensel (``demosaic.method = "monochrome"``), and the
-      crosstalk and lateral colour of colour filters are gone;
-    - *grey output*: a colour camera whose processor delivers the luma of the demosaiced colour (the saturation
-      control at 0).
-
-    The weights (>= 0, summing to 1 within :data:`~lowcam.effects.saturation.LUMA_SUM_TOLERANCE`) are fitted by
-    non-negative least squares to the measured grey only where the ideal renders hold colour
-    (:meth:`Context.scene_has_colour`); a grey scene shows every such set of weights alike, so they are then the
-    profile's. NotFitted when the measured frames carry colour, or the model delivers grey already."""
-    p = ctx.profile
-    sat = p.effect(effect)
-    s, m = ctx.pixels(p, ctx.quick)
-    grey = m.mean(axis=1)
-    if np.abs(m - grey[:, None]).mean() > 0.1 * max(m.std(), 1e-6):
-        raise NotFitted("the frames carry colour")
-    control = saturation_matrix(sat.saturation, sat.luma)
-    if abs(np.linalg.det(control)) < 1e-9 or not p.effect("bayer_sampling").colour_filters:
-        raise NotFitted("the profile delivers grey already")
-    if ctx.scene_has_colour():
-        from scipy.optimize import nnls
-
-        ok = (s.max(1) < 250) & (grey < 250) & (s.min(1) > 3)
-        luma = nnls(np.linalg.solve(control, s[ok].T).T, grey[ok])[0]  # from the colour before the control
-        total = float(luma.sum())
-        luma *= np.clip(total, 1 - LUMA_SUM_TOLERANCE, 1 + LUMA_SUM_TOLERANCE) / max(total, 1e-12)
-        how = "fitted"
-    else:
-        luma = np.asarray(sat.luma, np.float64)
-        how = "the profile's: a grey scene does not determine them"
-    forms = [("grey output of a colour sensor", p.with_effect(effect, saturation=0.0, luma=luma.tolist()))]
-    unfiltered = p.without(*(n for n in ("crosstalk", "chromatic_aberration") if p.effect(n) is not None))
-    forms.append(("a sensor without colour filters",
-                  unfiltered.with_effect("bayer_sampling", colour_filters=False, grey_weights=luma.tolist())
-                  .with_effect("demosaic", method="monochrome")))
-    form, profile = min(forms, key=lambda f: ctx.sse(f[1], ctx.quick))
-    weights = " ".join(f"{w:.3f}" for w in luma)
-    return profile, {"form": form, "luma": luma.round(4).tolist(), "luma_weights": how}, \
-        {"form": form, "weights": weights, "how": how}
-
-
-#: The closed-form fits a :class:`~lowcam.effects.Search` may name (``fit = ...``).
-CLOSED_FORM = {"pixel_gain": fit_pixel_gain, "row_noise": fit_row_noise, "monochrome": fit_monochrome}
-NOISE_FITS = ("row_noise",)
-
-
 def per_pixel(name: str) -> bool:
     """True for a candidate fitted as a dense per-pixel map."""
     return not name.startswith("without_") and any(search.per_pixel for _, search in candidates()[name])
 
 
 def _changes_noise(name: str) -> bool:
-    return not name.startswith("without_") and any(search.fit in NOISE_FITS or search.full_error
+    return not name.startswith("without_") and any(search.changes_noise or search.full_error
                                                    for _, search in candidates()[name])
 
 
@@ -1175,7 +1082,7 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
         # a fit whose screening is coarse on purpose (``refines``) is refined when its error in sample could win
         finalists += [t for t in trials if t.folds and t not in finalists and t.folds[0][2] is not None
-                      and getattr(t.folds[0][2]._fit(), "refines", False) and t.folds[0][2].fitted() is not None
+                      and getattr(t.folds[0][2].search.fit, "refines", False) and t.folds[0][2].fitted() is not None
                       and _in_sample(ctx, t)[0] <= REFINE_WITHIN * top]
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:

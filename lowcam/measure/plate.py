@@ -9,7 +9,7 @@ confident estimates to a copy of a base profile and records where each number ca
 measures the same statistics on the base profile's simulation of similar content (the footage's denoised median
 frame as an opaque ideal through :mod:`lowcam.pipeline`), so a report shows each estimate beside the model's value.
 
-The probes are walked in the order of :data:`PLATE_PROBES`, each estimator in its own effect module; an estimate is
+The probes are walked in the order of :func:`plate_probes`, each declared by its effect and its estimator in that effect's module; an estimate is
 a :class:`lowcam.plate_estimate.PlateEstimate` (defined below the effects, which make them), and an estimator that
 needs the model's frame of a scene is handed :func:`film`. Temporal statistics (the noise) compare frames registered
 by a homography from tracked corners (:func:`lowcam.plate_estimate.register_footage`), so a panning camera and
@@ -22,11 +22,9 @@ Contents
 - :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
 - :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
-- :class:`PlateProbe`: one no-reference statistic: its estimator and the statistic itself for model vs footage
-- :data:`PLATE_PROBES`: every plate probe, in the order they run
+- :func:`plate_probes`: every plate probe the effects declare, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
 - :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
-- :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log, or why there is none
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
 - :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
 - :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
@@ -50,24 +48,20 @@ from __future__ import annotations
 
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import cv2
 import numpy as np
 
 from ..captures import expand_paths, load_frames
-from ..effects.jpeg import jpeg_blockiness_statistic, jpeg_quality_from_plate
-from ..effects.noise import noise_level_function_from_plate, noise_level_statistic
-from ..effects.sharpening import edge_profile_from_plate, edge_profile_statistic
-from ..effects.vignetting import vignetting_from_plate, vignetting_statistic
-from ..effects.yuv import chroma_bandwidth_statistic, chroma_subsampling_from_plate
+from ..effects import known_effects
 from ..errors import LowcamError, NotFitted
 from ..io import quiet_stderr
-from ..motion import average_rate, read_gyro_csv
+from ..motion import read_gyro_csv
 from ..pipeline import render_camera, simulate
-from ..plate_estimate import PlateEstimate
+from ..plate_estimate import PlateEstimate, PlateProbe
 from ..profile import load_profile
 
 #: Estimates below this confidence are reported, not applied to the profile.
@@ -240,28 +234,6 @@ def _target(est: "PlateEstimate", key: str) -> tuple[str, str]:
     return tuple(key.split(".", 1)) if "." in key else (est.effect, key)
 
 
-@dataclass(frozen=True)
-class PlateProbe:
-    """One no-reference statistic of footage.
-
-    ``estimate(footage, base)`` returns a :class:`PlateEstimate` (or None where the footage cannot show it at
-    all); ``base`` is the profile being refined (or None), for the parameters an estimate depends on.
-    ``statistic(frames)`` measures the statistic alone on a stack (T, H, W, 3) float32 DN, the same way for the
-    footage and for the model's simulation, returning a dict of numbers (``{}`` where it cannot be measured).
-    ``compared``: the keys of that dict that ``compare --plate-only`` compares, footage against model (empty: all;
-    the noise's per-bin lists are left out: their bins lie at different levels in the two);
-    ``pairs``: the statistic also takes :class:`lowcam.registration.RegisteredPairs`, which the comparison
-    makes once per stack (:func:`register_footage`) before cutting it into tiles."""
-
-    name: str
-    effect: str
-    estimate: Callable
-    statistic: Callable[[np.ndarray], dict]
-    about: str = ""
-    compared: tuple = ()
-    pairs: bool = False
-
-
 def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
     """The frame (float32 DN) of ``profile`` filming the opaque ideal ``make_ideal(width, height)`` (RGBA 0-1, at
     the pinhole field of view the profile's render needs): how the estimators in the effect modules, which do not
@@ -270,99 +242,14 @@ def film(profile, make_ideal, seed: int = 0, frame: int = 0) -> np.ndarray:
     return simulate(make_ideal(cam["width"], cam["height"]), profile, seed=seed, frame=frame).astype(np.float32)
 
 
-def _noise_estimate(footage, base=None):
-    return noise_level_function_from_plate(footage, base, film)
-
-
-def _noise_statistic(frames):
-    return noise_level_statistic(frames)
-
-
-def _edge_estimate(footage, base=None):
-    return edge_profile_from_plate(footage, base, film)
-
-
-def _edge_statistic(frames):
-    return edge_profile_statistic(frames)
-
-
-def _vignetting_estimate(footage, base=None):
-    return vignetting_from_plate(footage, base)
-
-
-def _vignetting_statistic(frames):
-    return vignetting_statistic(frames)
-
-
-def gyro_motion_from_plate(footage: Footage, base=None) -> PlateEstimate:
-    """The angular velocity per frame (rad/s) from the footage's gyro log (:func:`lowcam.motion.average_rate`
-    over each frame's exposure), or a report that motion is left to the tracked camera. It sets no profile
-    parameter: the motion is per frame (``lowcam batch`` takes it as a motion.json)."""
-    if footage.gyro is None:
-        return PlateEstimate("gyro_motion", "motion_blur", {}, {}, 0.0,
-                             "no gyro: motion left to the tracked camera")
-    samples = footage.gyro
-    exposure = float(getattr(getattr(base, "camera", None), "exposure_s", 0.0) or 1.0 / footage.fps)
-    frame_ids = _frame_numbers(footage)
-    if footage.frame_times is not None:
-        times = footage.frame_times
-        starts = [times[f] if 0 <= f < len(times) else np.nan for f in frame_ids]
-    else:
-        starts = [samples[0, 0] + i / footage.fps for i in range(len(footage))]
-    rates, missing = [], 0
-    for t0 in starts:
-        try:
-            rates.append(average_rate(samples, t0, t0 + exposure) if np.isfinite(t0) else None)
-        except LowcamError:
-            rates.append(None)
-        missing += rates[-1] is None
-    found = [r for r in rates if r is not None]
-    if not found:
-        return PlateEstimate("gyro_motion", "motion_blur", {"frames_outside_log": missing}, {}, 0.0,
-                             "the gyro log does not cover the footage's frames")
-    w = np.array(found)
-    speed = np.linalg.norm(w, axis=1)
-    measured = {"angular_velocity_rad_s": [None if r is None else [float(v) for v in r] for r in rates],
-                "median_speed_rad_s": float(np.median(speed)), "max_speed_rad_s": float(speed.max()),
-                "exposure_s": exposure, "frames_outside_log": missing}
-    return PlateEstimate("gyro_motion", "motion_blur", measured, {}, len(found) / len(rates),
-                         f"gyro covers {len(found)} of {len(rates)} frames; per-frame motion, not a profile value")
-
-
-def _frame_numbers(footage: Footage) -> list[int]:
-    """Each frame's index into the frame stamps: the last number in its file name (``RE_frame-99.jpg`` -> 99),
-    else its position."""
-    out = []
-    for i in range(len(footage)):
-        name = Path(footage.names[i]).stem if i < len(footage.names) else ""
-        digits = re.findall(r"\d+", name)
-        out.append(int(digits[-1]) if digits else i)
-    return out
-
-
-def _no_statistic(frames):
-    return {}
-
-
-#: Every plate probe, in the order they run: the edges first and the codec (JPEG blockiness, chroma bandwidth)
-#: next, since the noise estimate divides by the gain of the row filters the edges fit
-#: (:func:`lowcam.effects.noise.noise_gain`), reads JPEG-coded frames on their luma and judges the codec's share
-#: of a moving shot's noise by the JPEG quality found (:data:`lowcam.effects.noise.CODEC_FLICKER`).
-PLATE_PROBES: list[PlateProbe] = [
-    PlateProbe("edge_profile", "sharpening", _edge_estimate, _edge_statistic,
-               "10-90 % edge width and overshoot across strong natural edges"),
-    PlateProbe("jpeg_blockiness", "jpeg", jpeg_quality_from_plate, jpeg_blockiness_statistic,
-               "luma steps across the 8x8 grid over those inside blocks; the quality that codes the frame so"),
-    PlateProbe("chroma_bandwidth", "chroma_subsampling", chroma_subsampling_from_plate, chroma_bandwidth_statistic,
-               "chroma against luma detail: repeated samples, the JPEG chroma grid, the spectrum"),
-    PlateProbe("noise_level_function", "noise", _noise_estimate, _noise_statistic,
-               "sigma against mean per channel from registered frame pairs (a moving camera, moving objects)",
-               compared=("sigma_at_dn",), pairs=True),
-    PlateProbe("radial_falloff", "vignetting", _vignetting_estimate, _vignetting_statistic,
-               "brightness of the same scene points at different radii over a moving shot"),
-    PlateProbe("gyro_motion", "motion_blur", gyro_motion_from_plate, _no_statistic,
-               "angular velocity per frame from a gyro log"),
-]
+def plate_probes() -> list[PlateProbe]:
+    """Every plate probe the known effects declare (``Effect.plate_probe``, plug-ins included), in the order they
+    run (``PlateProbe.order``): the edges first and the codec (JPEG blockiness, chroma bandwidth) next, since the
+    noise estimate divides by the gain of the row filters the edges fit (:func:`lowcam.effects.noise.noise_gain`),
+    reads JPEG-coded frames on their luma and judges the codec's share of a moving shot's noise by the JPEG quality
+    found (:data:`lowcam.effects.noise.CODEC_FLICKER`)."""
+    probes = [replace(cls.plate_probe, effect=cls.name) for cls in known_effects() if cls.plate_probe is not None]
+    return sorted(probes, key=lambda p: p.order)
 
 
 def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
@@ -426,7 +313,7 @@ def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) 
 
 def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], frames: int = 4) -> None:
     """Fill each estimate's ``model`` with its statistic measured on ``profile`` filming similar content."""
-    by_name = {p.name: p for p in PLATE_PROBES}
+    by_name = {p.name: p for p in plate_probes()}
     sim = simulate_similar(footage, profile, frames)
     for est in estimates:
         probe = by_name.get(est.statistic)
@@ -457,7 +344,7 @@ def headline(stat: dict) -> dict:
 
 def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_confidence: float = MIN_CONFIDENCE,
                      probes: list[PlateProbe] | None = None):
-    """(profile, estimates): every probe of :data:`PLATE_PROBES` run on ``footage``; the params of each estimate
+    """(profile, estimates): every probe of :func:`plate_probes` run on ``footage``; the params of each estimate
     with a confidence of at least ``min_confidence`` applied to a copy of ``base_profile`` (a profile or a name),
     with a ``[provenance]`` entry per parameter (``"effect.enabled": False`` turns the effect off, with an entry
     for the effect: a JPEG chroma subsampling found replaces the base's own chroma subsampling rather than
@@ -466,14 +353,14 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
     anything is applied. A probe whose fit cannot be made (:class:`lowcam.errors.NotFitted`) gives a not
     measurable estimate with its reason. Progress goes to stderr."""
     base = load_profile(base_profile) if isinstance(base_profile, (str, Path)) else base_profile
-    probes = PLATE_PROBES if probes is None else probes
+    probes = plate_probes() if probes is None else probes
     out = base.copy()
     estimates = []
     for i, probe in enumerate(probes):
         if progress:
             print(f"[{i + 1}/{len(probes)}] {probe.name}", file=sys.stderr, flush=True)
         try:
-            est = probe.estimate(footage, out)  # later probes see earlier estimates (noise: the fitted filters, codec)
+            est = probe.estimate(footage, out, film)  # later probes see earlier estimates (noise: the fitted filters, codec)
         except NotFitted as e:
             est = PlateEstimate.not_measurable(probe.name, probe.effect, {}, str(e))
         if est is None:

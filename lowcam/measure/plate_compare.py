@@ -2,7 +2,7 @@
 
 ``lowcam compare --plate-only FOOTAGE --profile P`` has no ideal view of the footage's scene, so it cannot compare
 pixels as :func:`lowcam.measure.compare.compare` does. It compares the no-reference statistics of the plate probes
-(:data:`lowcam.measure.plate.PLATE_PROBES`: noise level function, edge profile, radial fall-off, JPEG blockiness,
+(:func:`lowcam.measure.plate.plate_probes`: noise level function, edge profile, radial fall-off, JPEG blockiness,
 chroma bandwidth, ...) measured on the footage with the same statistics measured on the profile filming similar
 content.
 
@@ -77,7 +77,7 @@ from ..plate_estimate import register_footage
 from ..registration import register_frames
 from ..reports import figure, image, numbers_block, write_page
 from .compare import EXPLAINED_BELOW
-from .plate import PLATE_PROBES, Footage, similar_content
+from .plate import Footage, plate_probes, similar_content
 
 DOWNSCALE = 1
 TILES = (3, 4)
@@ -218,11 +218,11 @@ def compare_plate(footage, profile, probes=None, frames: int = 4, max_footage_fr
                   tiles: tuple[int, int] = TILES, seed: int = 0, progress: bool = True,
                   bias_correction: bool = True) -> PlateComparison:
     """Compare ``profile`` with ``footage`` (:class:`lowcam.measure.plate.Footage`) through the statistics of
-    ``probes`` (default :data:`lowcam.measure.plate.PLATE_PROBES`); see the module docstring for the error.
+    ``probes`` (default :func:`lowcam.measure.plate.plate_probes`); see the module docstring for the error.
     ``frames`` model frames are simulated (twice as many with ``bias_correction``, the model filming its own
     frames, module docstring); up to ``max_footage_frames`` footage frames (evenly thinned) are measured. A probe
     whose statistic is empty on both is listed in ``skipped``."""
-    probes = PLATE_PROBES if probes is None else probes
+    probes = plate_probes() if probes is None else probes
     if progress:
         print(f"simulating {frames} frames of {profile.name} filming similar content ...", file=sys.stderr,
               flush=True)

@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..effects.fixed_pattern import row_noise_variance
 from ..effects.bayer import block_correlations
 from ..effects.blur import edge_sigma, find_edges
 from ..effects.chromatic_aberration import channel_shifts
@@ -31,7 +32,6 @@ from ..effects.yuv import rgb_to_yuv
 from ..errors import LowcamError
 from ..io import atomic_write_bytes, make_output_folder
 from ..reports import figure, image, numbers_block, write_page
-from .compare import row_noise_variance
 
 
 def _rgb2yuv(x):

@@ -111,15 +111,10 @@ class BoardNuisances:
         return out
 
 
-def _quiet(profile):
-    names = [n for n in ("noise", "row_noise", "quantisation") if profile.effect(n) is not None]
-    return profile.without(*names) if names else profile
-
-
 def flat_response(profile) -> np.ndarray:
     """(len(FLAT_LEVELS), H, W) float32: the quiet profile's output (mean of the channels, DN) for a flat opaque
     grey render at each of :data:`FLAT_LEVELS`. Cached per profile (its camera and effects)."""
-    quiet = _quiet(profile)
+    quiet = profile.quiet()
     key = prefix_key(quiet, len(quiet.effects))
     if key in _RESPONSES:
         _RESPONSES.move_to_end(key)
@@ -500,7 +495,7 @@ def _refine_pose(profile, capture, spec, rvec, tvec, fitted, plate):
     found in the quiet profile's view of the fitted board are
     where the camera chain moves them (half-pixel boxes, blur, aberration); the measured corners are moved back by
     that much and the pose solved again, so the chain's shift is not counted twice."""
-    quiet = _quiet(profile)
+    quiet = profile.quiet()
     view = render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120)
     sim = resume(prepare(view, quiet, plate), 0, 0, quiet)
     measured, simulated = detect_target(plate, spec), detect_target(sim, spec)
