@@ -21,7 +21,8 @@ import bpy
 import numpy as np
 
 from lowcam.io import read_exr, read_image
-from lowcam.node_maps import bake, planes_to_mosaic
+from lowcam.node_images import planes_to_mosaic
+from lowcam.node_maps import bake
 from lowcam.pipeline import run
 from lowcam.profile import load_profile
 

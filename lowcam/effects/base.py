@@ -40,6 +40,7 @@ from typing import Any, ClassVar
 
 from .. import schema
 from ..errors import ProfileError
+from ..node_images import mosaic_kernel, planes_to_mosaic
 
 
 @dataclass(frozen=True)
@@ -226,6 +227,20 @@ class Effect(ParamSet):
     def apply(self, state) -> None:  # pragma: no cover - interface
         """Run this step of the imaging chain on ``state`` (a :class:`lowcam.pipeline.SimState`) in place."""
         raise NotImplementedError
+
+    def bake_node(self, state, bake) -> None:
+        """Put what this effect's compositor node reads into ``bake`` (a :class:`lowcam.node_maps.CameraBake`:
+        ``images``, ``values``, ``geometry``, ``render_shape``), from ``state``: the chain run on an empty render up
+        to Bayer sampling. The generic recipes of :class:`NodeStage` bake here from the effect's own arrays:
+        ``"kernel"`` its ``kernel()`` as a mosaic row filter, ``"gain"`` its ``gain_planes(geometry)`` as a mosaic,
+        ``"matrix"`` its ``total_matrix()``; an effect with a recipe of its own overrides this."""
+        builder, g = self.node.builder, bake.geometry
+        if builder == "kernel":
+            bake.images[f"{self.name}_kernel"] = mosaic_kernel(self.kernel())
+        elif builder == "gain":
+            bake.images[f"{self.name}_gain"] = planes_to_mosaic(self.gain_planes(g), g)
+        elif builder == "matrix":
+            bake.values[f"{self.name}_matrix"] = self.total_matrix().ravel().tolist()
 
     def finish(self, state, frame, footprint):
         """After the blend: change the 8-bit ``frame`` (H, W, 3) and its ``footprint`` (H, W) bool of pixels the

@@ -38,7 +38,9 @@ import copy
 import cv2
 import numpy as np
 
+from ..errors import LowcamError
 from ..geometry import BAYER_BORDER, CFA_CHANNELS, COLOUR_INDEX, sample_texture
+from ..node_images import mosaic_shape, planes_to_mosaic, stmap
 from ..parallel import thread_map
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
@@ -75,6 +77,18 @@ class BayerSampling(Effect):
         """Copies share the kept warps: one immutable tuple holding everything they depend on, replaced whole
         (so copying a profile does not copy some 30 MB of maps)."""
         return copy.copy(self)
+
+    def bake_node(self, state, bake) -> None:
+        """Each mosaic pixel reads its own sensel's positions, aberration and motion taps included: one Map UV
+        per tap (``bayer_uv_T``), with the tap count, the render's white and the CFA offsets."""
+        g = bake.geometry
+        hw, ww = g.working_shape
+        sx, sy = self.sample_positions(state)     # (4, taps, hb, wb)
+        for t in range(sx.shape[1]):
+            bake.images[f"bayer_uv_{t}"] = stmap(planes_to_mosaic(sx[:, t], g), planes_to_mosaic(sy[:, t], g), ww, hw)
+        bake.values["bayer_taps"] = sx.shape[1]
+        bake.values["render_white"] = self.render_white
+        bake.values["cfa"] = {name: g.cfa[name] for name in CFA_CHANNELS}
 
     def sample_positions(self, state) -> tuple[np.ndarray, np.ndarray]:
         """x and y, each (4, taps, rows, cols) float32: working-grid coordinates each sensel averages over.
@@ -306,6 +320,21 @@ class Demosaic(Effect):
                        fixed={"method": "edge_aware"}, requires="demosaic"))
     always_runs = True
     params = {"method": Param("block", str, choices=tuple(DEMOSAICERS))}
+
+    def bake_node(self, state, bake) -> None:
+        """2x2-block demosaicing as Map UVs (``demosaic_uv_R`` ...): each output pixel reads the mosaic pixel of
+        its block's sensel of that colour. The node group has no other method."""
+        if self.method != "block":
+            raise LowcamError(f"{bake.profile.source}: the node group demosaics 2x2 blocks only, not {self.method!r}")
+        g = bake.geometry
+        by, bx = BAYER_BORDER
+        hm, wm = mosaic_shape(g)
+        yo, xo = np.mgrid[0:g.height, 0:g.width]
+        for name in CFA_CHANNELS:
+            dy, dx = g.cfa[name]
+            i = (2 * by - dy + yo) // 2
+            j = (2 * bx - dx + 1 + xo) // 2
+            bake.images[f"demosaic_uv_{name}"] = stmap(2 * j + dx, 2 * i + dy, wm, hm)
 
     def apply(self, state):
         fn = DEMOSAICERS[self.method]

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..geometry import grid_points, sample_texture
+from ..node_images import gaussian_blur_kernel
 from ..window import grow_window
 from .base import Effect, NodeStage, Param, Search
 
@@ -138,6 +139,22 @@ class SpatialBlur(Effect):
         "grid": Param([24.0, 18.0], "vector", length=2, low=1, high=256, whole=True,
                        doc="cells (columns, rows)"),
     }
+
+    def bake_node(self, state, bake) -> None:
+        """One Gaussian kernel per blur level (``blur_kernel_I``, ``values["blur_levels"]``) and the weight of each
+        level after the first as cv2.blendLinear mixes them in turn (``blur_mix_I``: acc = acc + t (level - acc),
+        t = its weight over the running sum)."""
+        g = bake.geometry
+        hw, ww = g.working_shape
+        sigma_grid = self.sigma_grid(state) * min(g.working_scale)
+        total = np.zeros((hw, ww), np.float32)
+        bake.values["blur_levels"] = []
+        for i, (s, wmap) in enumerate(blur_level_maps(sigma_grid, (hw, ww))):
+            total += 1.0 if wmap is None else wmap
+            bake.values["blur_levels"].append(float(s))
+            bake.images[f"blur_kernel_{i}"] = gaussian_blur_kernel(s) if s > 0 else np.ones((1, 1), np.float32)
+            if i:
+                bake.images[f"blur_mix_{i}"] = np.divide(wmap, total, out=np.zeros_like(wmap), where=total > 0)
 
     def sigma_grid(self, state) -> np.ndarray:
         """Blur sigma in output pixels at the grid's cell centres over the working extent."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..node_images import stmap
 from ..window import grow_window
 from .base import Effect, NodeStage, Param
 
@@ -39,6 +40,16 @@ class HalfSampling(Effect):
     node = NodeStage("Half Sampling", "image", "half_sampling")
     always_runs = True
     params = {"box_enlargement": Param(0.05, low=0.0, high=0.33, doc="weight of each neighbouring tap")}
+
+    def bake_node(self, state, bake) -> None:
+        """Bilinear reads at the corner each 2x2 box shares (exact box means, ``half_uv``), then the 3x3 kernel
+        ``[e, 1 - 2e, e]`` outer itself (``half_kernel``)."""
+        hw, ww = bake.geometry.working_shape
+        yy, xx = np.mgrid[0:hw, 0:ww].astype(np.float32)
+        bake.images["half_uv"] = stmap(2 * xx + 0.5, 2 * yy + 0.5, 2 * ww, 2 * hw)
+        e = self.box_enlargement if self.enabled else 0.0
+        k = np.array([e, 1 - 2 * e, e], np.float32)
+        bake.images["half_kernel"] = np.outer(k, k).astype(np.float32)
 
     def apply(self, state):
         e = self.box_enlargement if self.enabled else 0.0

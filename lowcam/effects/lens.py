@@ -93,6 +93,7 @@ import cv2 as _cv2
 import numpy as np
 
 from ..errors import LowcamError, NotFitted
+from ..node_images import stmap
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 
@@ -666,6 +667,12 @@ class LensDistortion(Effect):
         hr, wr = render_shape
         focal = self.render_focal_px(geometry, wr, hr)
         return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
+
+    def bake_node(self, state, bake) -> None:
+        """The node's Map UV from the supersampled working grid into the render (``lens_uv``)."""
+        rows, cols = bake.render_shape
+        x, y = self.render_coordinates(state, (rows, cols))
+        bake.images["lens_uv"] = stmap(x, y, cols, rows)
 
     def render_coordinates(self, state, render_shape) -> tuple[np.ndarray, np.ndarray]:
         """Render pixel coordinates (x, y), float32, of every supersampled working-grid pixel: where each one

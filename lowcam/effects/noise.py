@@ -139,6 +139,11 @@ class Noise(Effect):
         law = np.maximum(a + b * mu, 0.0)
         return law if self.law == "sigma_linear" else np.sqrt(law)
 
+    def bake_node(self, state, bake) -> None:
+        """The law and its coefficients per channel (the node adds noise from them)."""
+        bake.values["noise_law"] = self.law
+        bake.values["noise"] = {c: list(getattr(self, c)) for c in ("red", "green", "blue")}
+
     def apply(self, state):
         rng = frame_rng(state.seed, state.frame)
         z = rng.standard_normal(state.bayer.shape, dtype=np.float32)

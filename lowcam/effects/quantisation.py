@@ -38,6 +38,9 @@ class Quantisation(Effect):
                        full_error=True, requires="quantisation"),)
     params = {"bits": Param(6, int, low=1, high=16)}
 
+    def bake_node(self, state, bake) -> None:
+        bake.values["quantisation_step_dn"] = self.step_dn()
+
     def step_dn(self) -> float:
         return 256.0 / 2 ** self.bits
 

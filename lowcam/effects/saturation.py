@@ -156,6 +156,12 @@ class Saturation(Effect):
             out.append(f"luma weights summing to {sum(self.luma):.3f}")
         return out + colour_matrix_problems(self.colour_correction, "the colour correction")
 
+    def bake_node(self, state, bake) -> None:
+        """The stage's matrix and its pseudo-inverse (the YUV blend undoes it on the plate behind)."""
+        s = self.total_matrix()
+        bake.values["saturation_matrix"] = s.ravel().tolist()
+        bake.values["saturation_inverse"] = np.linalg.pinv(s).ravel().tolist()
+
     def total_matrix(self) -> np.ndarray:
         """``S(beta) C``: what the stage does to the colour."""
         s = saturation_matrix(self.saturation, self.luma)

@@ -50,6 +50,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..node_images import stmap
 from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
 from .jpeg import _GRID_T, SUBSAMPLINGS, block_difference_profile, jpeg_blockiness
@@ -114,6 +115,16 @@ class ChromaSubsampling(Effect):
     searches = (Search("chroma_subsampling", "colour is shared by groups of {group} pixels horizontally",
                        grid={"group": (2, 4, 8)}, requires="yuv_blend"),)
     params = {"group": Param(4, int, low=1, high=64)}
+
+    def bake_node(self, state, bake) -> None:
+        """The mean of each group of ``group`` pixels (``chroma_kernel``, a row filter over pixels x .. x + n - 1)
+        and the Map UV that reads it at the group's first pixel (``chroma_uv``)."""
+        g, n = bake.geometry, self.group
+        kernel = np.zeros((1, 2 * n - 1), np.float32)
+        kernel[0, n - 1:] = 1.0 / n
+        bake.images["chroma_kernel"] = kernel
+        yo, xo = np.mgrid[0:g.height, 0:g.width]
+        bake.images["chroma_uv"] = stmap(n * (xo // n), yo, g.width, g.height)
 
     def apply(self, state):
         d = state.delta_yuv
