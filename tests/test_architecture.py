@@ -262,6 +262,22 @@ def test_every_bundled_effect_declares_its_place_and_the_order_is_derived():
 PLUGIN = '''
 import numpy as np
 from lowcam.effects import Effect, NodeStage, Param, Search
+from lowcam.plate_estimate import PlateEstimate, PlateProbe
+
+
+def darkest(frames):
+    return {"darkest_dn": float(np.percentile(frames, 0.5))}
+
+
+def veil_from_plate(footage, base=None, film=None):
+    low = darkest(np.stack([footage.frame(i) for i in range(len(footage))]))["darkest_dn"]
+    return PlateEstimate("dark_floor", "haze", {"darkest_dn": low}, {"veil_dn": low}, 0.9,
+                         f"the darkest pixels sit at {low:.1f} DN")
+
+
+def fit_veil(ctx, effect):
+    veil = max(float(np.median(np.stack(ctx.means) - np.stack(ctx.clean(ctx.profile)))), 0.0)
+    return ctx.profile.with_effect(effect, veil_dn=veil), {"veil_dn": veil}, {"veil_dn": veil}
 
 
 class Haze(Effect):
@@ -271,7 +287,9 @@ class Haze(Effect):
     writes = "bayer"
     order = 125                                   # after vignetting, before noise
     node = NodeStage("Haze", "mosaic", "kernel")  # built like a row filter
-    searches = (Search("haze", "a veil of {veil_dn:.1f} DN", bounds={"veil_dn": (0.0, 40.0)}),)
+    searches = (Search("haze", "a veil of {veil_dn:.1f} DN", bounds={"veil_dn": (0.0, 40.0)}),
+                Search("haze_closed_form", "a veil of {veil_dn:.1f} DN, the median offset", fit=fit_veil))
+    plate_probe = PlateProbe("dark_floor", veil_from_plate, darkest, order=45, about="the darkest pixels")
     params = {"veil_dn": Param(0.0, low=0.0, high=255.0, unit="DN")}
 
     def kernel(self):
@@ -323,9 +341,28 @@ def test_a_plugin_effect_is_a_diagnosis_candidate_and_is_found(tmp_path, fire_i,
     assert "haze" in candidates()
     folder = synthesise(fire_i, tmp_path / "set", add=[(haze, {"veil_dn": 12.0})], frames=4,
                         only_scenes=("flat-dark", "photo"))
-    d = diagnose(load_set(folder, fire_i), fire_i, only=["haze", "dsnu", "tone_curve"], workdir=tmp_path / "w")
-    assert d.candidates[0].effect == "haze", [(c.effect, c.score) for c in d.candidates]
+    d = diagnose(load_set(folder, fire_i), fire_i, only=["haze", "haze_closed_form", "dsnu", "tone_curve"],
+                 workdir=tmp_path / "w")
+    assert d.candidates[0].effect in ("haze", "haze_closed_form"), [(c.effect, c.score) for c in d.candidates]
     assert abs(d.candidates[0].params["veil_dn"] - 12.0) < 1.0 and d.candidates[0].error_after <= 1.1
+    closed = next(c for c in d.candidates if c.effect == "haze_closed_form")    # its own fit, from outside
+    assert abs(closed.params["veil_dn"] - 12.0) < 1.5 and closed.error_after <= 1.1, closed
+
+
+def test_a_plugin_effects_plate_probe_runs_in_its_place(fire_i, haze):
+    """The plug-in's plate probe is found among the bundled ones, at its declared place (after the noise, before
+    the fall-off), and the plate estimate applies what it measures to the plug-in effect."""
+    from lowcam.effects import effect_class
+    from lowcam.measure.plate import Footage, estimate_profile, plate_probes
+
+    effect_class(haze)
+    names = [p.name for p in plate_probes()]
+    assert names.index("noise_level_function") + 1 == names.index("dark_floor") == names.index("radial_falloff") - 1
+    frames = np.random.default_rng(1).normal(40.0, 2.0, (3, 48, 64, 3)).clip(0, 255).astype(np.float32)
+    probe = next(p for p in plate_probes() if p.name == "dark_floor")
+    assert probe.effect == "haze"
+    profile, (estimate,) = estimate_profile(Footage(frames), fire_i, progress=False, probes=[probe])
+    assert estimate.applied and abs(profile.effect("haze").veil_dn - np.percentile(frames, 0.5)) < 1e-3
 
 
 def test_every_engine_module_says_what_it_holds_and_effects_cite_the_paper():
