@@ -12,7 +12,8 @@ import lowcam
 from lowcam import LowcamError
 from lowcam.calibrate import (apply_to_profile, calibrate_blur, calibrate_chromatic_aberration, calibrate_colour,
                               calibrate_demosaic, calibrate_lens, calibrate_noise, calibrate_sharpening,
-                              calibrate_vignetting, detect_target, parse_target)
+                              calibrate_vignetting)
+from lowcam.captures import detect_target, parse_target
 from lowcam.effects.chromatic_aberration import radial_ca_grid
 from lowcam.effects.vignetting import radial_vignetting
 
@@ -230,7 +231,7 @@ def test_chart_has_every_element_and_its_charuco_board_is_detectable(tmp_path):
 
 
 def test_colour_from_a_photographed_chart_is_found_automatically(fire_i, tmp_path):
-    from lowcam.calibrate import chart_patch_colours, srgb_to_linear
+    from lowcam.captures import chart_patch_colours, srgb_to_linear
     from lowcam.chart import write_chart
 
     chart_png, layout = write_chart(tmp_path / "chart.png", dpi=150)
