@@ -7,7 +7,7 @@ distance, lensfun's own interpolation of its three calibrations (``Lens.interpol
 The terms go into Lowcam's effects unchanged, in lensfun's own models and normalisation:
 
 - distortion (poly3, poly5, ptlens) -> ``lens_distortion`` with the same model
-  (:class:`~lowcam.effects.lens.LensfunLens`);
+  (:class:`~lowcam.effects.lens_models.LensfunLens`);
 - transverse chromatic aberration (linear, poly3) -> ``chromatic_aberration`` with ``model = "lensfun"``
   (:func:`~lowcam.effects.chromatic_aberration.lensfun_tca_offsets`);
 - vignetting (pa) -> ``vignetting`` with ``model = "lensfun_pa"``

@@ -5,7 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam.effects.lens import BlenderLens, FovLens, LensDistortion, OpenCVLens, fold_and_shortfall
+from lowcam.effects.lens import LensDistortion, fold_and_shortfall
+from lowcam.effects.lens_models import BlenderLens, FovLens, OpenCVLens
 
 W, H = 640, 480
 
@@ -212,7 +213,7 @@ def test_a_given_render_field_must_cover_the_frame_and_the_margin_beyond_it_read
     grid's margin around the frame may reach beyond it and then reads as transparent (a real lens fitted to a
     capture's render was refused for its margin alone)."""
     import lowcam
-    from lowcam.effects.lens import field_needed
+    from lowcam.effects.lens_models import field_needed
     from lowcam.errors import LowcamError
 
     lens = fire_i.effect("lens_distortion")

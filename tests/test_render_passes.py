@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects.lens import PinholeLens
+from lowcam.effects.lens_models import PinholeLens
 from lowcam.effects.motion_blur import tap_offsets
 from lowcam.effects.object_motion import rotation_velocity
 from lowcam.errors import LowcamError

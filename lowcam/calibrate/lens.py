@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..captures import detect_target, parse_target
-from ..effects.lens import fit_lens
+from ..effects.lens_fit import fit_lens
 from ..errors import LowcamError
 from ..reports import figure
 from .checks import load_checked, require_finite

@@ -32,7 +32,8 @@ Modules, in chain order (sections of [Klein2010]):
 
 - :mod:`~lowcam.effects.object_motion`: motion blur of moving objects, from a velocity pass (beyond the paper)
 - :mod:`~lowcam.effects.depth_of_field`: defocus from a depth pass (beyond the paper)
-- :mod:`~lowcam.effects.lens`: lens distortion (sec. 4.1, 5.2 step 1)
+- :mod:`~lowcam.effects.lens`: lens distortion (sec. 5.2 step 1); the lens models in :mod:`~lowcam.effects.lens_models`,
+  their calibration fit in :mod:`~lowcam.effects.lens_fit` (sec. 4.1)
 - :mod:`~lowcam.effects.half_sampling`: half-sampling (sec. 5.2 step 2)
 - :mod:`~lowcam.effects.crosstalk`: Bayer filter crosstalk (sec. 4.2, 5.2 step 2)
 - :mod:`~lowcam.effects.motion_blur`: motion blur from camera rotation (sec. 5.2 step 4)

@@ -46,7 +46,7 @@ from ..errors import LowcamError
 from ..geometry import grid_points
 from ..io import atomic_write_bytes
 from .base import Effect, NodeStage, Param, Search
-from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
+from .lens_models import LENSFUN_FRAME_PARAMS, lensfun_frame
 
 CSV_COLUMNS = ["u", "v", "red_du", "red_dv", "blue_du", "blue_dv"]
 
@@ -113,7 +113,7 @@ def lensfun_tca_offsets(u, v, width, height, red, blue, crop_factor=1.0, calibra
 
     ``red`` and ``blue`` are lensfun's ``[v, c, b]`` of ``Rd = Ru (b Ru^2 + c Ru + v)``: the colour's image is
     green's scaled radially about the distortion centre, radii in lensfun's normalised unit
-    (:func:`~lowcam.effects.lens.lensfun_frame`). A sensel at radius ``Rd`` therefore sees what green sees at
+    (:func:`~lowcam.effects.lens_models.lensfun_frame`). A sensel at radius ``Rd`` therefore sees what green sees at
     ``Ru`` (solved by Newton's method, as lensfun's ``ModifyCoord_UnTCA_Poly3`` does when it simulates the lens).
     """
     unit, u0, v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor, calibration_aspect_ratio,

@@ -36,7 +36,7 @@ from ..geometry import sample_texture
 from ..io import read_gain_map
 from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, NodeStage, Param, Search
-from .lens import LENSFUN_FRAME_PARAMS, lensfun_frame
+from .lens_models import LENSFUN_FRAME_PARAMS, lensfun_frame
 
 
 def radial_vignetting(width: int, height: int, k2: float, k4: float, shape=(60, 80)) -> np.ndarray:
@@ -55,7 +55,7 @@ def lensfun_vignetting(u, v, width, height, terms, crop_factor=1.0, calibration_
                        calibration_aspect_ratio=1.5, center=(0.0, 0.0)) -> np.ndarray:
     """Lensfun's ``pa`` vignetting ``1 + k1 r^2 + k2 r^4 + k3 r^6`` (``terms`` = [k1, k2, k3]) at output pixels
     (``u``, ``v``) of a ``width`` x ``height`` frame; ``r`` is lensfun's normalised radius
-    (:func:`~lowcam.effects.lens.lensfun_frame`) over ``sqrt(1 + calibration_aspect_ratio^2)``: 1 at the corner
+    (:func:`~lowcam.effects.lens_models.lensfun_frame`) over ``sqrt(1 + calibration_aspect_ratio^2)``: 1 at the corner
     of the calibration sensor. The gain is 1 at the centre, not renormalised (lensfun's own convention)."""
     unit, u0, v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor, calibration_aspect_ratio,
                                  center)
