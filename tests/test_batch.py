@@ -51,6 +51,7 @@ def test_patterns_and_frame_ranges():
     assert parse_frames("1-4,9,20-24x2") == [1, 2, 3, 4, 9, 20, 22, 24]
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_serial_dask_and_chunked_runs_give_the_same_bytes(shot_dir, tmp_path):
     shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "serial/####.png"),
                 str(shot_dir / "plates/####.png"), read_motion_json(shot_dir / "motion.json"), True)

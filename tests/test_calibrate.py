@@ -82,6 +82,7 @@ def test_vignetting_recovered_within_2_percent(fire_i, tmp_path, k2, k4):
     assert np.sqrt(np.mean((gain - truth) ** 2)) < 0.02
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("red, blue", [(1.2, 0.5), (-0.8, 1.5)])
 def test_chromatic_aberration_recovered_within_0_1_px(fire_i, tmp_path, red, blue):
     profile = quiet(fire_i, "noise")
@@ -98,6 +99,7 @@ def gradient_render(width=800, height=600):
     return opaque(np.tile(x, (height, 1)))
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("law, coeffs", [
     ("sigma_linear", {"red": [1.5, 0.015], "green": [1.2, 0.012], "blue": [1.8, 0.016]}),
     ("variance_linear", {"red": [2.0, 0.08], "green": [1.0, 0.05], "blue": [3.0, 0.04]}),
@@ -115,6 +117,7 @@ def test_noise_law_recovered_within_5_percent(fire_i, tmp_path, law, coeffs):
         assert fa == pytest.approx(a, rel=0.05) and fb == pytest.approx(b, rel=0.05), (channel, fa, fb)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("method", ["block", "bilinear"])
 def test_demosaic_method_identified(fire_i, tmp_path, method):
     profile = quiet(fire_i, "vignetting", "chromatic_aberration")
@@ -173,6 +176,7 @@ def test_calibrated_parts_write_a_profile_that_loads_and_runs(fire_i, tmp_path):
     assert lowcam.simulate(flat_render(0.5), mine).shape == (480, 640, 3)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_calibrate_all_from_a_manifest_with_report(fire_i, tmp_path):
     profile = quiet(fire_i)
     save([lowcam.simulate(flat_render(0.7, 800, 600), profile, seed=s) for s in range(4)], tmp_path / "flat")
@@ -209,6 +213,7 @@ def test_bad_captures_get_a_message_naming_the_frame(tmp_path, make, args, messa
         assert "f01.png" in r.stderr  # the offending frame is named
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_chart_has_every_element_and_its_charuco_board_is_detectable(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lowcam.cli", "chart", "-o", str(tmp_path / "chart.png"),
                         "--dpi", "120"], capture_output=True, text=True, timeout=120)
@@ -294,6 +299,7 @@ def test_cli_and_manifest_take_exactly_the_table_of_calibrations(tmp_path, capsy
     assert [ln.split()[:2] for ln in lines] == [[n, ", ".join(listing[n]) or "-"] for n in CALIBRATIONS]
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_ca_alias_calibrates_and_writes_the_grid_beside_the_profile(fire_i, tmp_path, capsys):
     from lowcam.cli import main
 

@@ -73,7 +73,7 @@ PILLOW_JPEG = {
 }
 
 
-@pytest.mark.parametrize("case", [c if c in ("q40_420", "q60_422", "web_low") else pytest.param(
+@pytest.mark.parametrize("case", [c if c == "q40_420" else pytest.param(
     c, marks=pytest.mark.slow) for c in PILLOW_JPEG])
 def test_a_pillow_jpeg_is_named_and_fitted(tmp_path, fire_i, case):
     options = PILLOW_JPEG[case]

@@ -112,6 +112,7 @@ def pinhole_profile(fire_i, focal_px, model, hfov=HFOV_DEG, **values):
     return fire_i.with_effect("lens_distortion", replace=True, model=model, **base, **values)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("name, diagnosed, bound", CASES)
 def test_radial_distortion_fits_a_real_lens(tmp_path, fire_i, name, diagnosed, bound):
     lens = next(lens for lens in lensfunpy.Database().lenses if lens.model == name)

@@ -104,6 +104,7 @@ def rolling_shutter(profile, readout_s):
     return hidden
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("readout_s", [0.03])
 def test_a_rolling_shutter_made_from_rotated_rays_is_named_with_its_sign_and_size(tmp_path, readout_s):
     """Rows read out over 30 ms while the camera turns at 0.3-0.7 rad/s; no motion blur in camera or data.
@@ -138,6 +139,7 @@ def motion_blur(exposure_s, taps=24):
     return hidden
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_motion_blur_made_by_rotating_the_render_over_the_exposure_is_named_with_its_exposure(tmp_path):
     """A 20 ms exposure while the camera turns; the diagnosed camera has no motion blur. Measured: 2.63 -> 1.04,
     exposure 0.0200 s."""
@@ -226,6 +228,7 @@ def lateral_colour_diagnosis(tmp_path, profile, hidden):
                     workdir=tmp_path / "work", rounds=1)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_radial_lateral_colour_is_named_chromatic_aberration_with_its_sides(tmp_path):
     """Red magnified 0.3 % + 0.1 % rho^2 (1.6 px outward at the corners), blue 0.2 % + 0.1 % rho^2 less (1.2 px
     inward), on the image plane. Measured: 2.03 -> 1.20, red +1.26 px and blue -0.83 px at the corners (the
@@ -271,6 +274,7 @@ def along_plane_rows(mosaic, kernel):
     return out
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_an_extra_horizontal_blur_of_the_sensel_planes_is_fitted_by_horizontal_blur(tmp_path):
     """OpenCV's Gaussian (sigma 1.0 sensel) along the rows of each sensel plane, after the noise, where the
     camera's own 0.7-sensel blur acts: the two together are a Gaussian of sqrt(0.7^2 + 1.0^2) = 1.22.
@@ -331,6 +335,7 @@ def disc_blur(image, radius_px):
     return cv2.filter2D(np.asarray(image, np.float32), -1, k / k.sum(), borderType=cv2.BORDER_REPLICATE)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_defocus_disc_on_the_image_plane_is_named_defocus(tmp_path):
     """A 2-px disc by OpenCV on a 640-px render of 90 degrees (f = 320 px) seen by the 360-px pinhole: a
     uniform 2.25-px disc on the image plane, as defocus is. Measured: 2.72 -> 1.03, radius 2.38 px.

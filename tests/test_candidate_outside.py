@@ -36,6 +36,7 @@ def check(d, expected, bound=1.25):
     return best
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_polynomial_fall_off_of_the_frames_is_named_vignetting(tmp_path):
     """Gain 1 - 0.25 rho^2 - 0.1 rho^4 of the delivered frames (rho: distance from the frame centre over the
     half-diagonal), on top of the profile's own vignetting texture."""
@@ -58,6 +59,7 @@ def opencv_chroma_pairs(frame):
     return cv2.cvtColor(to_uint8(ycc), cv2.COLOR_YCrCb2RGB)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_chroma_shared_by_pixel_pairs_is_named_chroma_subsampling(tmp_path):
     profile = quiet_fire_i()
     d = diagnose_set(tmp_path, profile, ["chroma_subsampling", "chromatic_aberration", "horizontal_blur"],
@@ -102,6 +104,7 @@ def sensor_set(tmp_path, profile, scene_names, after, change, frames=4, seed=7):
     return load_set(write_set(tmp_path / "set", captures), profile)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_per_frame_sensor_row_offsets_are_named_row_noise(tmp_path):
     """Each sensor row read out with its own offset, new every frame (sigma 2 DN), after the pixel noise."""
     profile = quiet_fire_i()
@@ -112,6 +115,7 @@ def test_per_frame_sensor_row_offsets_are_named_row_noise(tmp_path):
     assert 1.5 < best.params["sigma_dn"] < 2.5, best.params
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_coarser_analog_to_digital_converter_is_named_quantisation_bits(tmp_path):
     """The sensels converted with 16 DN steps (4 bits) where the profile's 6-bit converter sits."""
     profile = quiet_fire_i()
@@ -128,6 +132,7 @@ def test_a_coarser_analog_to_digital_converter_is_named_quantisation_bits(tmp_pa
     assert best.params["bits"] == 4, best.params
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_veil_of_blurred_light_is_named_veiling_glare(tmp_path):
     """8 % of the render's light spread by OpenCV's Gaussian blur (sigma 60 px of the render) over the image."""
     profile = quiet_fire_i()

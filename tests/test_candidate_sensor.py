@@ -205,6 +205,7 @@ def disc_blur(image, radius_px):
     return cv2.filter2D(np.asarray(image, np.float32), -1, k / k.sum(), borderType=cv2.BORDER_REPLICATE)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_an_optical_blur_is_still_fitted_before_sharpening(tmp_path, fire_i):
     """A defocus made on the ideal render (before the sensor, its noise and the sharpening): the optical
     candidate, before the sharpening, beats the blur after it. (Defocus reaches about 1.4 here, not 1.25: through

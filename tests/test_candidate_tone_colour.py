@@ -98,6 +98,7 @@ def cases(table):
     return [pytest.param(k, marks=() if k in FAST else pytest.mark.slow) for k in table]
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("case", cases(CURVES))
 def test_a_real_transfer_curve_is_named_and_fitted(tmp_path, fire_i, case):
     """The curve candidate ranks first against the colour matrix and vignetting, closes the error, and its
@@ -119,6 +120,7 @@ def test_a_real_transfer_curve_is_named_and_fitted(tmp_path, fire_i, case):
     assert np.abs(fitted - (black + (white - black) * colour.oetf(x, function=function))).max() < 1.5, v
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("case", cases(MATRICES))
 def test_a_real_colour_correction_matrix_is_named_and_fitted(tmp_path, fire_i, case):
     """The colour-matrix candidate ranks first against the tone curve and chroma subsampling, closes the error,

@@ -80,6 +80,7 @@ def test_profiles_lists_the_bundled_profiles():
     assert r.returncode == 0 and "fire-i" in r.stdout and "ueye" in r.stdout
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_demo_writes_the_composite_next_to_the_plain_composite(tmp_path):
     r = lowcam("demo", "-o", tmp_path / "demo", "--render-width", "1000")
     assert r.returncode == 0, r.stderr

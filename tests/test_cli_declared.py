@@ -325,6 +325,7 @@ def test_numbers_out_of_range_are_refused_naming_the_option(tmp_path, capsys, ar
 
 # --- the same command works the second time; errors name the file they are about -----------------------------------
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_compare_into_the_set_folder_works_the_second_time(tmp_path, capsys):
     """Lowcam's own earlier output in the set's folder is no input: set.toml names the inputs."""
     mset = tmp_path / "set"

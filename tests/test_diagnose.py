@@ -126,9 +126,10 @@ def test_every_candidate_has_a_hidden_case_and_a_focused_set():
     assert set(HIDDEN) == set(FOCUS) == set(candidates())
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("candidate", list(HIDDEN))
 def test_a_hidden_effect_beats_its_decoys_on_a_small_focused_set(tmp_path, fire_i, candidate):
-    """The fast tier: 4 frames of 2-3 scenes that show the effect, the candidate against two it could be
+    """A small focused set: 4 frames of 2-3 scenes that show the effect, the candidate against two it could be
     mistaken for."""
     add, remove, diagnosed = hidden_case(fire_i, candidate)
     scenes, decoys = FOCUS[candidate]
@@ -154,13 +155,15 @@ def test_a_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(t
     assert d.verdict == "missing-effect"
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_set_with_nothing_hidden_is_explained(tmp_path, fire_i):
     d = run_case(tmp_path, fire_i, [], [], seed=31, only=["vignetting", "tone_curve", "dsnu"])
     assert d.verdict == "explained" and d.error <= 1.1
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_two_hidden_effects_both_surface_on_a_focused_set(tmp_path, fire_i):
-    """The fast tier's version of the next test: the two among four decoys, on the scenes that show them."""
+    """A focused version of the next test: the two among four decoys, on the scenes that show them."""
     d = run_case(tmp_path, fire_i, [("tone_curve", {"gamma": 1.8})], ["vignetting"], seed=32, frames=4,
                  only=["tone_curve", "vignetting", "colour_matrix", "veiling_glare", "dsnu", "defocus"],
                  only_scenes=("flat-bright", "flat-dark", "photo"))
@@ -175,6 +178,7 @@ def test_two_hidden_effects_both_surface_in_the_top_three(tmp_path, fire_i):
     assert "tone_curve" in top and "vignetting" in top, top
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_diagnose_cli_writes_json_and_adds_the_best_effect(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lowcam.cli", "synth", "--add", "tone_curve:gamma=2.0", "-o",
                         str(tmp_path / "set")], capture_output=True, text=True, timeout=300)
@@ -221,6 +225,7 @@ def test_a_user_plugin_effect_can_be_hidden_and_added(tmp_path, monkeypatch):
     assert lowcam.load_profile(saved).effect("tint").red_gain == 1.15
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.skipif(not (SHARED / "opencv-chessboard-left").is_dir(), reason="../shared/data is not beside")
 def test_compare_on_real_chessboard_frames_writes_a_report(tmp_path):
     from lowcam.calibrate import apply_to_profile, calibrate_lens
@@ -262,6 +267,7 @@ def test_with_one_frame_per_capture_added_model_noise_cannot_lower_the_error(tmp
     assert ctx.base.measured == {"mean": True, "variance": False, "rows": False}
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_removing_an_effect_is_a_candidate(tmp_path, fire_i):
     """The camera lacks the profile's sharpening: ``without_sharpening`` wins against changing it."""
     folder = synthesise(fire_i, tmp_path / "set", remove=["sharpening"], seed=42, frames=4,
@@ -274,6 +280,7 @@ def test_removing_an_effect_is_a_candidate(tmp_path, fire_i):
     assert d.candidates[0].error_after <= 1.25, ranking
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_grey_camera_is_found_monochrome(tmp_path, fire_i):
     """Frames of a monochrome camera, made here by OpenCV's own RGB -> grey (BT.601 luma) of the profile's frames:
     ``monochrome`` beats the colour candidates."""
@@ -302,6 +309,7 @@ def test_a_grey_camera_is_found_monochrome(tmp_path, fire_i):
     assert np.allclose(luma, [0.299, 0.587, 0.114], atol=0.03), luma  # OpenCV's BT.601 weights, found
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_until_explained_adds_effects_step_by_step_and_draws_the_history(tmp_path):
     """Two hidden effects (a tone curve, and no vignetting): the loop adds both, refits them together and stops
     near the noise floor; each step's profile, the history plot and the JSON are written."""

@@ -234,6 +234,7 @@ def engine_estimates():
     return truth, base, profile, {e.statistic: e for e in estimates}
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_engine_set_noise_and_vignetting_within_10_percent(engine_estimates):
     truth, base, profile, est = engine_estimates
     noise = est["noise_level_function"]

@@ -143,6 +143,7 @@ def engine_footage():
     return base, truth, engine_frames(truth, "coffee", 6)
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_plate_compare_finds_the_missing_codec_and_the_error_falls_when_it_is_added(engine_footage):
     base, truth, shot = engine_footage
     without = compare_plate(shot, base, CODEC, progress=False)

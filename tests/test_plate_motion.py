@@ -318,6 +318,7 @@ def _cli(*args):
                           cwd=Path(__file__).resolve().parents[1])
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_jpeg_plate_replaces_the_bases_chroma_subsampling(tmp_path):
     """Pillow JPEG 4:2:0 at quality 40 of a panning photograph, from a base with the Fire-i's YUV 4:1:1 chroma: the
     profile written codes JPEG 4:2:0 and turns the 4:1:1 off (one chroma subsampling, not both), is named after

@@ -39,6 +39,7 @@ def test_masked_shares_count_pixels_and_residual(masked_comparison):
         assert share["residual"] > 0.95, share
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_the_report_draws_a_grid_of_residual_maps_and_names_the_masked_share(masked_comparison, tmp_path):
     from PIL import Image
 

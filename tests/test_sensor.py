@@ -17,6 +17,7 @@ def _noise_only(profile, **noise):
     return p
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("law, coeffs, grey", [
     ("sigma_linear", dict(red=[1.5, 0.015], green=[1.2, 0.012], blue=[1.8, 0.016]), 0.5),
     ("sigma_linear", dict(red=[3.0, 0.0], green=[0.5, 0.03], blue=[2.0, 0.01]), 0.2),
@@ -55,6 +56,7 @@ def test_noise_is_reproducible_from_seed_and_frame(fire_i):
     assert abs(np.corrcoef((a - a.mean()).ravel(), (c - c.mean()).ravel())[0, 1]) < 0.02  # frames independent
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_noise_covariance_shows_2x2_block_cliques_not_the_bilinear_pattern(fire_i):
     profile = fire_i.without("vignetting", "chromatic_aberration", "spatial_blur", "chroma_subsampling")
     noise = profile.effect("noise")

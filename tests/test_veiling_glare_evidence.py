@@ -8,6 +8,7 @@ import re
 
 import cv2
 import numpy as np
+import pytest
 
 from helpers import quiet_fire_i
 from lowcam.measure.diagnose import diagnose
@@ -16,6 +17,7 @@ from lowcam.measure.synth import scenes as bundled
 from lowcam.pipeline import simulate
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_the_veil_s_evidence_names_the_lift_of_the_dark_areas(tmp_path):
     profile = quiet_fire_i()
     every = bundled(profile, 640)

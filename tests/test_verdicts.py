@@ -52,6 +52,7 @@ def chessboard_set(tmp_path_factory):
     return tmp, lowcam.load_profile(tmp / "left.toml")
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_grey_target_determines_no_colour_matrix_and_the_grey_camera_is_monochrome(chessboard_set):
     """On a black-and-white board every set of colour weights summing to 1 gives the same ideal: the colour matrix
     is not offered (it was, with a negative green weight), and ``monochrome`` keeps the profile's weights."""
@@ -67,6 +68,7 @@ def test_a_grey_target_determines_no_colour_matrix_and_the_grey_camera_is_monoch
     assert "grey scene does not determine" in best.params["luma_weights"]
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_vignetting_of_views_that_never_reach_the_corners_holds_its_outer_term(tmp_path):
     """A fall-off 1 - 0.25 rho^2 - 0.1 rho^4 written on the frames, compared only within 70 % of the half-diagonal
     (the captures' masks): k4 acts mostly beyond, so it is held at the profile's value and said so; over the
@@ -87,6 +89,7 @@ def test_vignetting_of_views_that_never_reach_the_corners_holds_its_outer_term(t
     assert held.held_out <= 1.25, held.held_out
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_fit_that_does_not_carry_over_to_other_captures_gets_no_credit(tmp_path):
     """Each capture tinted its own way (red, green, blue gains of 1.12 on one channel: a per-shot white balance,
     written here on the delivered frames) is not a colour matrix of the camera: one matrix fitted to all of them
@@ -130,6 +133,7 @@ def test_one_capture_holds_nothing_out_and_its_closed_form_fit_takes_no_credit(t
     assert d.verdict == "unexplained"
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_every_candidate_that_cannot_be_fitted_says_why(tmp_path):
     """``--only`` names candidates the set cannot show: the line, the JSON and the report give each one's
     reason (it printed only "no candidate could be fitted")."""
@@ -148,6 +152,7 @@ def test_every_candidate_that_cannot_be_fitted_says_why(tmp_path):
     assert "<b>rolling_shutter</b>: no capture moves" in page
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_the_report_shows_held_out_errors_and_uncertainties(tmp_path):
     """The diagnosis report draws each candidate's error in sample beside its held-out error and lists its fitted
     numbers with their standard errors."""
