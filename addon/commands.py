@@ -41,7 +41,7 @@ def _side(name: str):
 def cmd_demo(args) -> int:
     """Build the sample scene, render it headless with Cycles on the CPU through the add-on, and write the plain
     and degraded composites side by side (``--synthetic``: the engine alone on a generated render)."""
-    from lowcam.io import output_folder
+    from lowcam.outputs import output_folder
     from lowcam.profile import load_profile
 
     if args.footage is not None:
@@ -53,7 +53,8 @@ def cmd_demo(args) -> int:
 
 def _sample_demo(args, profile, out: Path) -> int:
     """``lowcam demo`` (``--synthetic`` or with Blender) into the folder ``out``, made for it."""
-    from lowcam.io import read_image, read_plate, write_png
+    from lowcam.io import read_image, read_plate
+    from lowcam.outputs import write_png
     from lowcam.pipeline import plain_composite
     from lowcam.sample import side_by_side
 
@@ -61,7 +62,7 @@ def _sample_demo(args, profile, out: Path) -> int:
     say = lambda i: print(f"[{i + 1}/{len(steps)}] {steps[i]}", flush=True)  # noqa: E731
     say(0)
     if args.synthetic:
-        from lowcam.io import write_exr
+        from lowcam.outputs import write_exr
         from lowcam.pipeline import run
         from lowcam.sample import sample_plate, sample_render
 
@@ -104,7 +105,7 @@ def _footage_demo(args) -> int:
     """``lowcam demo --footage [DIR]``: :func:`addon.footage.run_footage_demo` on the phone clip."""
     from lowcam.errors import LowcamError
     from lowcam.footage import find_footage
-    from lowcam.io import check_output_folder, make_output_folder
+    from lowcam.outputs import check_output_folder, make_output_folder
 
     folder = args.footage
     if not folder:
@@ -168,7 +169,7 @@ def cmd_render(args) -> int:
 def cmd_motion(args) -> int:
     from lowcam.batch import parse_frames
     from lowcam.errors import LowcamError
-    from lowcam.io import check_output
+    from lowcam.outputs import check_output
 
     if not args.output.lower().endswith(".json"):
         raise LowcamError(f"{args.output}: the motion is written as a .json file")
@@ -180,7 +181,7 @@ def cmd_motion(args) -> int:
 
 def cmd_node_asset(args) -> int:
     from lowcam.errors import LowcamError
-    from lowcam.io import check_output
+    from lowcam.outputs import check_output
 
     if not args.output.lower().endswith(".blend"):
         raise LowcamError(f"{args.output}: the asset is written as a .blend file")

@@ -124,7 +124,8 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
     """The whole demo (see the module docstring); returns the paths written and the figures shown. Under
     :func:`addon.render.interruptible`, Ctrl-C during a render ends it."""
     from lowcam.footage import camera_rotations, frame_motion, read_footage_clip, write_gif
-    from lowcam.io import read_plate, read_render, write_png
+    from lowcam.io import read_plate, read_render
+    from lowcam.outputs import write_png
     from lowcam.pipeline import plain_composite, render_camera, simulate
     from lowcam.sample import side_by_side
 

@@ -164,7 +164,7 @@ class Job:
         self._end("cancelled")
 
     def _end(self, state: str) -> None:
-        from lowcam.io import remove_stale_temporaries
+        from lowcam.outputs import remove_stale_temporaries
 
         self.state = state
         for path in self._fresh:

@@ -456,8 +456,8 @@ def start_until_explained(scene) -> jobs.Job:
 def start_estimate(scene) -> jobs.Job:
     """``lowcam calibrate plate`` on the scene's plate, starting from the scene's profile, with a gyro log: the
     motion file when it is a CSV or text log, or, when the motion comes from the scene camera (a camera solved
-    from the clip's tracking), that camera's motion over the plate's frames: ``<blend name>-plate.toml`` beside the .blend, selected, the first
-    version of a new chain."""
+    from the clip's tracking), that camera's motion over the plate's frames. Writes ``<blend name>-plate.toml``
+    beside the .blend and selects it: the first version of a new chain."""
     footage, fps = plate_footage(scene)
     base = profile_ref(scene.lowcam)
     name = Path(bpy.data.filepath).stem if bpy.data.filepath else "untitled"
@@ -672,7 +672,7 @@ class LOWCAM_OT_save_profile_as(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        from lowcam.io import check_output
+        from lowcam.outputs import check_output
         from lowcam.profile import load_profile
 
         s = context.scene.lowcam

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from lowcam.io import atomic_write_bytes
+from lowcam.outputs import atomic_write_bytes
 from lowcam.motion import FrameMotion, angular_velocity_between
 
 

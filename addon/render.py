@@ -28,7 +28,8 @@ from pathlib import Path
 import bpy
 
 from lowcam.errors import DiskFull, LowcamError
-from lowcam.io import check_image_output, check_output, quiet_stderr
+from lowcam.io import quiet_stderr
+from lowcam.outputs import check_image_output, check_output
 
 from . import frames, handlers
 

@@ -39,7 +39,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     collection is excluded from the camera simulation; the camera pans at ``pan_rad_s`` about its vertical axis.
     Cycles on the CPU with ``samples`` samples.
     """
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
     from lowcam.sample import film, plate_seed, sample_photograph
 
     from ..blender_compat import action_fcurves

@@ -29,7 +29,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from lowcam.batch import Shot, run_shot
-    from lowcam.io import write_exr
+    from lowcam.outputs import write_exr
     from lowcam.motion import FrameMotion
     from lowcam.sample import sample_plate, sample_render
 

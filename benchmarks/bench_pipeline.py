@@ -110,7 +110,7 @@ def main() -> None:
 
     import numpy as np
 
-    from lowcam.io import write_exr
+    from lowcam.outputs import write_exr
     from lowcam.sample import sample_render
 
     tmp = Path(tempfile.mkdtemp())

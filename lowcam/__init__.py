@@ -33,7 +33,8 @@ References
 """
 from .effects import trust_plugins
 from .errors import LowcamError, ProfileError
-from .io import read_plate, read_render, write_image, write_png
+from .io import read_plate, read_render
+from .outputs import write_image, write_png
 from .pipeline import Result, render_camera, render_field_of_view, run, simulate
 from .profile import Profile, list_profiles, load_profile
 

@@ -47,7 +47,8 @@ from tqdm import tqdm
 from .effects import trust_plugins
 from .effects.noise import FRAME_RANGE
 from .errors import DiskFull, LowcamError
-from .io import check_image_output, check_plate, quiet_stderr, read_plate, remove_stale_temporaries, write_image
+from .io import check_plate, quiet_stderr, read_plate
+from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .motion import FrameMotion
 from .passes import needed_passes, read_render_and_passes
 from .pipeline import simulate

@@ -31,7 +31,7 @@ import numpy as np
 
 from .captures import DICTIONARY, charuco_board
 from .errors import LowcamError
-from .io import atomic_write_bytes, write_png
+from .outputs import atomic_write_bytes, write_png
 
 PAGES_MM = {"a4": (297.0, 210.0), "a3": (420.0, 297.0)}
 #: Colour patches (sRGB 0-255): primaries, secondaries, skin and foliage tones, and a few mixed colours.

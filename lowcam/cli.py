@@ -54,8 +54,9 @@ from .chart import write_chart
 from .dng import profile_from_dng
 from .effects import effect_class, trust_plugins, trusted_modules
 from .errors import LowcamError, UntrustedPlugin
-from .io import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_output, check_output_folder,
-                 make_output_folder, read_plate, read_render, write_image, write_png)
+from .io import read_plate, read_render
+from .outputs import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_output, check_output_folder,
+                      make_output_folder, write_image, write_png)
 from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
 from .measure.compare import compare
 from .measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,

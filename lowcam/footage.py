@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import LowcamError
-from .io import atomic_write_bytes, read_plate
+from .io import read_plate
+from .outputs import atomic_write_bytes
 from .measure.plate import Footage, estimate_profile
 from .motion import (PHONE_GYRO_TIME_OFFSET_S, PHONE_GYRO_TO_CAMERA, average_rate, integrate_rotation,
                      read_exposure_log, read_framestamps, read_phone_gyro_log)

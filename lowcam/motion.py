@@ -61,7 +61,7 @@ import numpy as np
 
 from . import schema
 from .errors import LowcamError
-from .io import atomic_write_bytes
+from .outputs import atomic_write_bytes
 
 # numpy 2.0 renamed trapz to trapezoid and 2.4 removed trapz (Blender 5.1+ and Debian's 4.3 run numpy 2.x)
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz

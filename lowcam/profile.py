@@ -53,7 +53,7 @@ from . import schema
 from .effects import Effect, Param, ParamSet, effect_class
 from .errors import ProfileError
 from .geometry import FrameGeometry
-from .io import atomic_write_bytes
+from .outputs import atomic_write_bytes
 
 #: Bundled profiles: the repository's ``profiles/`` folder.
 BUNDLED_PROFILES = Path(__file__).resolve().parent.parent / "profiles"

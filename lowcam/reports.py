@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_write_bytes, make_output_folder
+from .outputs import atomic_write_bytes, make_output_folder
 
 STYLE = ("body{font-family:sans-serif;max-width:1200px;margin:auto}img{max-width:100%}"
          "pre{background:#f4f4f4;padding:8px;overflow:auto}")

@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr, write_image
+from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr
+from .outputs import write_image
 from .passes import RenderPasses, needed_passes, read_blender_passes
 from .pipeline import run
 from .profile import load_profile

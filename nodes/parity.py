@@ -92,7 +92,7 @@ def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
 
 def plate_image(plate_u8: np.ndarray) -> bpy.types.Image:
     """The plate as Blender loads a video frame: an sRGB 8-bit image file."""
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
 
     folder = Path(tempfile.mkdtemp(prefix="lowcam-plate-"))
     path = write_png(folder / "plate.png", plate_u8)

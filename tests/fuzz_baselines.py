@@ -109,14 +109,14 @@ def fuzzcam():
 
 
 def _render(path: Path) -> None:
-    from lowcam.io import write_exr
+    from lowcam.outputs import write_exr
     from lowcam.sample import sample_render
 
     write_exr(path, sample_render(fuzzcam(), 160))
 
 
 def _plate(path: Path) -> None:
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
     from lowcam.sample import sample_plate
 
     write_png(path, sample_plate(fuzzcam()))

@@ -134,13 +134,13 @@ def plate_array() -> np.ndarray:
 
 
 def write_render(path: Path, rgba=None) -> Path:
-    from lowcam.io import write_exr
+    from lowcam.outputs import write_exr
 
     return write_exr(path, render_array() if rgba is None else rgba)
 
 
 def write_plate(path: Path, image=None) -> Path:
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
 
     return write_png(path, plate_array() if image is None else image)
 
@@ -168,7 +168,7 @@ def write_plates(folder: Path, frames, pattern: str = "plates/{:04d}.png") -> st
 
 def reference_frame(folder: Path, name: str, rgba=None, seed: int = 0, frame: int = 0, plate: bool = True) -> Path:
     """The frame ``lowcam apply`` must give for ``rgba`` (default the sample render) over the sample plate."""
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
     from lowcam.pipeline import simulate
 
     img = simulate(render_array() if rgba is None else rgba, _profile(), plate_array() if plate else None,
@@ -208,7 +208,7 @@ def write_measurement_set(folder: Path, **capture_extra) -> Path:
     """A one-capture, one-frame measurement set (valid); ``capture_extra`` overrides keys of its [[capture]]."""
     import tomli_w
 
-    from lowcam.io import write_exr, write_png
+    from lowcam.outputs import write_exr, write_png
     from lowcam.pipeline import simulate
 
     frame = simulate(render_array(), _profile(), plate_array(), seed=1)
@@ -904,7 +904,7 @@ def _(folder):
 
 @case("input-png-render-without-alpha")
 def _(folder):
-    from lowcam.io import write_png
+    from lowcam.outputs import write_png
 
     path = write_png(folder / "rgb.png", np.full((480, 640, 3), 128, np.uint8))
     return Case(apply_argv(folder, render=path, plate=False), names=("rgb.png",))

@@ -30,8 +30,9 @@ ROOT = ENGINE.parent  # the repository: also the Blender extension's package (lo
 #: a fit that needs the whole chain receives it (``Context.simulate``, ``film``) from the layer that runs it.
 LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
-                 "lowcam.io", "lowcam.registration", "lowcam.reports", "lowcam.captures", "lowcam.motion",
-                 "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments", "lowcam.node_images")),
+                 "lowcam.io", "lowcam.outputs", "lowcam.registration", "lowcam.reports", "lowcam.captures",
+                 "lowcam.motion", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments",
+                 "lowcam.node_images")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",

@@ -12,7 +12,7 @@ import pytest
 
 from lowcam.calibrate import CALIBRATIONS
 from lowcam.cli import main
-from lowcam.io import write_png
+from lowcam.outputs import write_png
 
 GREY = 120
 

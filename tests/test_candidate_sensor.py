@@ -13,7 +13,7 @@ import pytest
 import lowcam
 from helpers import diagnose_set, quiet_fire_i
 from lowcam.errors import LowcamError, ProfileError
-from lowcam.io import write_png
+from lowcam.outputs import write_png
 
 
 # --- 1. the noise law with a black level (EMVA 1288) -------------------------------------------------------------

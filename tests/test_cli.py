@@ -7,7 +7,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from lowcam.io import write_exr
+from lowcam.outputs import write_exr
 from lowcam.sample import sample_plate, sample_render
 
 

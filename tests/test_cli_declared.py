@@ -133,7 +133,7 @@ def test_every_numeric_option_is_bounded_and_every_command_that_writes_declares_
 
 def test_the_image_suffixes_the_cli_declares_are_the_ones_lowcam_writes():
     from lowcam.cli import IMAGE_SUFFIXES
-    from lowcam.io import IMAGE_SUFFIXES as WRITTEN
+    from lowcam.outputs import IMAGE_SUFFIXES as WRITTEN
 
     assert tuple(IMAGE_SUFFIXES) == tuple(WRITTEN)
 

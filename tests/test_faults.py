@@ -81,7 +81,7 @@ def test_a_disk_that_fills_mid_shot_stops_the_shot_at_the_first_failed_write(tmp
 
 
 def test_an_exr_onto_a_full_disk_is_disk_full_and_leaves_nothing(tmp_path):
-    from lowcam.io import write_exr, write_image
+    from lowcam.outputs import write_exr, write_image
 
     folder = tmp_path / "disk"
     with small_disk(folder, 64 * 1024) as mounted:
@@ -110,7 +110,7 @@ def test_a_worker_killed_mid_shot_loses_no_frame_and_leaves_no_temporary(tmp_pat
     """A Dask worker killed while it writes a frame leaves that frame's temporary behind; by the time the shot ends
     it is gone (its process is dead), and the frame is made again on another worker. The temporary is laid down
     under the worker's own name just before it is killed, as a write in progress would leave it."""
-    from lowcam.io import _part_prefix
+    from lowcam.outputs import _part_prefix
 
     frames = 16
     corpus.write_renders(tmp_path, range(1, frames + 1))

@@ -435,7 +435,7 @@ def _extreme(data: bytes, f: Path) -> bytes:
     if s == ".exr":
         import numpy as np
 
-        from lowcam.io import write_exr
+        from lowcam.outputs import write_exr
 
         tmp = f.parent / f".fuzz-tiny-{os.getpid()}.exr"
         write_exr(tmp, np.full((2, 2, 4), 6e4, np.float32))

@@ -8,7 +8,8 @@ import pytest
 
 import lowcam
 from lowcam import LowcamError
-from lowcam.io import read_render, write_exr, write_png
+from lowcam.io import read_render
+from lowcam.outputs import write_exr, write_png
 
 
 def test_single_layer_exr_round_trip(tmp_path, rng):
@@ -94,7 +95,7 @@ def test_only_temporaries_of_dead_processes_are_removed(tmp_path):
     import sys
     import time
 
-    from lowcam.io import _HOST, remove_stale_temporaries
+    from lowcam.outputs import _HOST, remove_stale_temporaries
 
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     dead = subprocess.Popen([sys.executable, "-c", "pass"])

@@ -10,7 +10,7 @@ import pytest
 
 from lowcam import batch
 from lowcam.batch import Shot, read_video_frame, run_shot
-from lowcam.io import write_exr
+from lowcam.outputs import write_exr
 
 FRAMES = 6
 

@@ -128,7 +128,7 @@ def test_the_node_group_leaves_pass_effects_to_the_handler(fire_i):
 
 
 def test_a_frame_without_the_pass_an_effect_needs_names_the_file(fire_i, tmp_path):
-    from lowcam.io import write_exr
+    from lowcam.outputs import write_exr
     from lowcam.scene import degrade_frame
 
     path = write_exr(tmp_path / "0001.exr", _square())

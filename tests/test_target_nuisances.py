@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.io import write_png
+from lowcam.outputs import write_png
 from lowcam.measure.compare import CaptureInputs, capture_inputs, compare
 from lowcam.measure.sets import Capture, MeasurementSet, load_set
 from lowcam.measure.targets import fit_target, ideal_from_target

@@ -51,7 +51,7 @@ from ..arguments import Number, Reads, Text
 from ..captures import chart_patch_colours, expand_paths, read_patches_csv
 from ..effects import known_effects
 from ..errors import LowcamError
-from ..io import make_output_folder
+from ..outputs import make_output_folder
 from ..profile import load_profile
 from ..schema import read_toml
 from .blur import calibrate_blur

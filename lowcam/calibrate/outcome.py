@@ -23,7 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..effects.chromatic_aberration import write_ca_grid
-from ..io import write_png
+from ..outputs import write_png
 from ..reports import image, numbers_block, write_page
 
 

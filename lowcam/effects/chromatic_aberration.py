@@ -44,7 +44,7 @@ import numpy as np
 from .. import schema
 from ..errors import LowcamError
 from ..geometry import grid_points
-from ..io import atomic_write_bytes
+from ..outputs import atomic_write_bytes
 from .base import Effect, NodeStage, Param, Search
 from .lens_models import LENSFUN_FRAME_PARAMS, lensfun_frame
 

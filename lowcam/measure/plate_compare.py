@@ -71,7 +71,7 @@ import cv2
 import numpy as np
 
 from ..errors import LowcamError
-from ..io import make_output_folder
+from ..outputs import make_output_folder
 from ..pipeline import prepare, render_camera, resume
 from ..plate_estimate import register_footage
 from ..registration import register_frames

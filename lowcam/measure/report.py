@@ -30,7 +30,7 @@ from ..effects.blur import edge_sigma, find_edges
 from ..effects.chromatic_aberration import channel_shifts
 from ..effects.yuv import rgb_to_yuv
 from ..errors import LowcamError
-from ..io import atomic_write_bytes, make_output_folder
+from ..outputs import atomic_write_bytes, make_output_folder
 from ..reports import figure, image, numbers_block, write_page
 
 

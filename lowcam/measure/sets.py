@@ -37,7 +37,8 @@ import tomli_w
 from .. import schema
 from ..captures import load_frames, parse_target
 from ..errors import LowcamError
-from ..io import atomic_write_bytes, read_image, read_plate, read_render, write_exr, write_png
+from ..io import read_image, read_plate, read_render
+from ..outputs import atomic_write_bytes, write_exr, write_png
 from ..motion import MAX_RATE
 
 CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "mask", "angular_velocity", "exposure_s"}

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..chart import make_chart
 from ..errors import LowcamError
-from ..io import make_output_folder
+from ..outputs import make_output_folder
 from ..pipeline import render_field_of_view, simulate
 from ..sample import photograph
 from .sets import write_set
