@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from lowcam.outputs import atomic_write_bytes
 from lowcam.motion import FrameMotion, angular_velocity_between
+from lowcam.outputs import atomic_write_bytes
 
 
 def _rotation_at(scene, camera, time_frames: float) -> np.ndarray:

@@ -55,8 +55,6 @@ from .dng import profile_from_dng
 from .effects import effect_class, trust_plugins, trusted_modules
 from .errors import LowcamError, UntrustedPlugin
 from .io import read_plate, read_render
-from .outputs import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_output, check_output_folder,
-                      make_output_folder, write_image, write_png)
 from .lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
 from .measure.compare import compare
 from .measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,
@@ -67,6 +65,8 @@ from .measure.report import history_figure, read_history, record_history, write_
 from .measure.sets import load_set
 from .measure.synth import parse_change, synthesise
 from .motion import gyro_to_motion, read_gyro_csv, read_motion_json
+from .outputs import (IMAGE_SUFFIXES, atomic_write_bytes, check_image_output, check_output, check_output_folder,
+                      make_output_folder, write_image, write_png)
 from .passes import needed_passes, read_render_and_passes
 from .pipeline import run
 from .profile import list_profiles, load_profile

@@ -33,10 +33,10 @@ import numpy as np
 
 from .errors import LowcamError
 from .io import read_plate
-from .outputs import atomic_write_bytes
 from .measure.plate import Footage, estimate_profile
 from .motion import (PHONE_GYRO_TIME_OFFSET_S, PHONE_GYRO_TO_CAMERA, average_rate, integrate_rotation,
                      read_exposure_log, read_framestamps, read_phone_gyro_log)
+from .outputs import atomic_write_bytes
 
 #: Intrinsics of the phone-gyro-video camera for its 800x600 frames (px), from the data set's source.
 PHONE_K = np.array([[573.8534, -0.6974, 406.0101], [0.0, 575.0448, 309.0112], [0.0, 0.0, 1.0]])

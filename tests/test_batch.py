@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from lowcam.batch import Shot, expand_pattern, parse_frames, run_shot
-from lowcam.outputs import write_exr
 from lowcam.motion import FrameMotion, read_motion_json, write_motion_json
+from lowcam.outputs import write_exr
 from lowcam.sample import sample_plate
 
 from helpers import disk_render

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam.errors import NotFitted
 from lowcam.effects.lens import fit_radial_distortion
+from lowcam.errors import NotFitted
 from lowcam.measure.diagnose import Context, diagnose
 from lowcam.measure.sets import load_set, write_set
 from lowcam.measure.synth import scenes

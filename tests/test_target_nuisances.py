@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.outputs import write_png
 from lowcam.measure.compare import CaptureInputs, capture_inputs, compare
 from lowcam.measure.sets import Capture, MeasurementSet, load_set
 from lowcam.measure.targets import fit_target, ideal_from_target
+from lowcam.outputs import write_png
 
 INNER, SQUARE = (9, 6), 0.025
 WHITE, BLACK, TABLE, WALL = 0.8, 0.07, 0.15, 0.5

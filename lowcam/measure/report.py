@@ -24,10 +24,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..effects.fixed_pattern import row_noise_variance
 from ..effects.bayer import block_correlations
 from ..effects.blur import edge_sigma, find_edges
 from ..effects.chromatic_aberration import channel_shifts
+from ..effects.fixed_pattern import row_noise_variance
 from ..effects.yuv import rgb_to_yuv
 from ..errors import LowcamError
 from ..outputs import atomic_write_bytes, make_output_folder

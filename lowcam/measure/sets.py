@@ -38,8 +38,8 @@ from .. import schema
 from ..captures import load_frames, parse_target
 from ..errors import LowcamError
 from ..io import read_image, read_plate, read_render
-from ..outputs import atomic_write_bytes, write_exr, write_png
 from ..motion import MAX_RATE
+from ..outputs import atomic_write_bytes, write_exr, write_png
 
 CAPTURE_KEYS = {"name", "ideal", "target", "frames", "plate", "mask", "angular_velocity", "exposure_s"}
 
