@@ -39,7 +39,7 @@ LAYERS = (
                   "lowcam.batch")),
     ("measure", ("lowcam.measure.*", "lowcam.footage")),
     ("calibrate", ("lowcam.calibrate", "lowcam.calibrate.*")),
-    ("cli", ("lowcam.cli", "lowcam.boundary")),
+    ("cli", ("lowcam.cli", "lowcam.cli.*", "lowcam.boundary")),
 )
 
 #: The Blender side's layers, bottom to top, above the whole engine: what differs between Blender versions, the

@@ -1,0 +1,145 @@
+"""The commands about profiles: ``lowcam profiles`` (the list, or one profile's provenance) and ``lowcam profile
+from-lensfun | search | from-dng`` (profiles from outside data).
+
+Contents
+--------
+- :func:`cmd_profiles`: ``lowcam profiles [NAME]``: list the profiles, or one profile's provenance
+- :func:`cmd_profile_from_lensfun`: ``lowcam profile from-lensfun``: a base profile with a lensfun database lens
+- :func:`cmd_profile_search`: ``lowcam profile search TEXT``: lenses of the lensfun database that match
+- :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
+- :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..arguments import Number, Reads, Text, Writes
+from ..dng import profile_from_dng
+from ..errors import LowcamError, UntrustedPlugin
+from ..lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
+from ..outputs import check_output
+from ..profile import list_profiles, load_profile
+from .common import PROFILE, Parser
+
+
+def cmd_profiles(args) -> int:
+    if args.name:
+        p = load_profile(args.name)
+        print(f"{p.name}: {p.camera.name} ({p.source})")
+        print(f"  {'camera':22s} {p.provenance.get('camera', '(not stated)')}")
+        for e in p.effects:
+            print(f"  {e.name:22s} {p.provenance_of(e.name) or '(not stated)'}")
+            for key, source in p.provenance.items():
+                if key.startswith(f"{e.name}."):
+                    print(f"    {key.partition('.')[2]:20s} {source}")
+        return 0
+    for name, path in list_profiles():
+        try:
+            p = load_profile(path)
+            stated = sum(1 for e in p.effects if p.provenance_of(e.name))
+            desc = (f"{p.camera.name}: {p.camera.width}x{p.camera.height}, {len(p.effects)} effects, "
+                    f"provenance stated for {stated}")
+        except UntrustedPlugin as e:  # nothing was imported
+            desc = f"NEEDS PLUG-IN {e.effect_type}: {e.how_to_allow}"
+        except LowcamError as e:
+            desc = f"INVALID: {e}"
+        print(f"{name:12s} {desc}  ({path})")
+    return 0
+
+# --- profile from-dng ------------------------------------------------------------------------
+def cmd_profile_from_lensfun(args) -> int:
+    """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
+    out = Path(check_output(args.output))
+    if out.suffix.lower() != ".toml":
+        raise LowcamError(f"{out}: a profile is written as .toml")
+    if (args.camera_maker is None) != (args.camera_model is None):
+        raise LowcamError("--camera-maker and --camera-model go together")
+    require_lensfunpy()
+    base = load_profile(args.base)
+    camera = (args.camera_maker, args.camera_model) if args.camera_maker is not None else None
+    profile, setting = profile_from_lensfun(base, args.maker, args.model, args.focal_mm, args.aperture,
+                                            args.distance_m, camera, args.crop_factor)
+    if args.name:
+        profile.camera.name = args.name
+        profile.camera.description = f"{base.camera.name} with the lens {setting.entry.name} (lensfun)"
+        profile.provenance["camera"] = (f"{base.provenance.get('camera', 'not stated')} (from base {base.name}); "
+                                        "name and description given to profile from-lensfun")
+    profile.save(out)
+    have = [name for name in ("distortion", "tca", "vignetting") if getattr(setting, name) is not None]
+    print(f"{out}: {setting.entry.name} at {setting.focal_mm:g} mm, f/{setting.aperture:g}, "
+          f"{setting.distance_m:g} m, crop factor {setting.crop_factor:.4g}, on {base.name}: "
+          f"{', '.join(have) or 'no calibration'} from lensfun")
+    return 0
+
+def cmd_profile_search(args) -> int:
+    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
+    crop factor | calibrations); none is a one-line error with the nearest names."""
+    text = " ".join(args.text)
+    found = search_lenses(text)
+    if not found:
+        names = sorted({e.name for e in lens_entries()})
+        raise LowcamError(f"no lens of the lensfun database matches '{text}'; nearest: {nearest_names(text, names)}")
+    for e in found:
+        print(e.row())
+    print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
+    return 0
+
+def cmd_profile_from_dng(args) -> int:
+    if Path(check_output(args.output)).suffix.lower() != ".toml":
+        raise LowcamError(f"{args.output}: a profile is written as .toml")
+    profile, notes = profile_from_dng(args.dng, load_profile(args.base))
+    for note in notes:
+        print(f"note: {note}")
+    path = profile.save(args.output)
+    noise = profile.effect("noise")
+    laws = "; ".join(f"{c} [{getattr(noise, c)[0]:.4g}, {getattr(noise, c)[1]:.4g}]" for c in ("red", "green", "blue"))
+    print(f"{path}: {profile.camera.name}, Bayer {profile.camera.bayer_pattern}, noise variance_linear {laws} DN"
+          if noise is not None and noise.law == "variance_linear" else f"{path}: {profile.camera.name}")
+    return 0
+
+
+def add_commands(sub) -> None:
+    """Add this module's commands to ``sub`` (the ``lowcam`` sub-parsers)."""
+    p = sub.add_parser("profiles", help="list the profiles; with a name, where each of its numbers came from")
+    p.add_argument("name", nargs="?", type=PROFILE, help="a profile name or file: show its provenance, effect by effect")
+    p.set_defaults(func=cmd_profiles)
+
+    # --- lowcam profile: profiles from outside data: a lens database, DNG metadata ---
+    p = sub.add_parser("profile", help="make a profile from outside data: a lens database, DNG metadata")
+    psub = p.add_subparsers(dest="what", required=True, parser_class=Parser)
+
+    # profile from-lensfun / profile search (lowcam.lensdb)
+    q = psub.add_parser("from-lensfun", help="a lens of the lensfun database (distortion, TCA, vignetting) on a "
+                        "base profile (needs pip install lowcam[lensfun])")
+    q.add_argument("--maker", type=Text(what="lens maker"), required=True,
+                   help="lens maker, as 'lowcam profile search' lists it")
+    q.add_argument("--model", type=Text(what="lens model"), required=True,
+                   help="lens model (or a unique part of it)")
+    q.add_argument("--focal-mm", type=Number(0, 5000, low_open=True, what="focal length in mm"), required=True,
+                   help="focal length (mm) within the lens's range")
+    q.add_argument("--aperture", type=Number(0.5, 64, what="f-number"), default=None,
+                   help="f-number for the vignetting, 0.5 to 64 (default: widest)")
+    q.add_argument("--distance-m", type=Number(0.01, 1e6, what="focus distance in m"), default=1000.0,
+                   help="focus distance (m) for the vignetting, 0.01 to 1e6")
+    q.add_argument("--camera-maker", type=Text(what="camera maker"), default=None,
+                   help="the camera, for its crop factor (with --camera-model)")
+    q.add_argument("--camera-model", type=Text(what="camera model"), default=None)
+    q.add_argument("--crop-factor", type=Number(0.1, 100, what="crop factor"), default=None,
+                   help="the camera's crop factor (default: the one the lens was calibrated on)")
+    q.add_argument("--base", type=PROFILE, required=True, help="profile for everything else (name or file)")
+    q.add_argument("--name", type=Text(what="camera name"), default=None,
+                   help="the new camera's name (default: the base's)")
+    q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="the new profile (.toml)")
+    q.set_defaults(func=cmd_profile_from_lensfun)
+    q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
+    q.add_argument("text", nargs="+", type=Text(what="TEXT"), help="words of the lens's maker and model")
+    q.set_defaults(func=cmd_profile_search)
+    q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
+    q.add_argument("dng", type=Reads("file"), help="a DNG file (a phone's or camera's raw)")
+    q.add_argument("--base", type=PROFILE, default="fire-i", help="profile whose frame, optics and processing are kept")
+    q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="profile TOML to write")
+    q.set_defaults(func=cmd_profile_from_dng)
+    for q in psub.choices.values():
+        q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
