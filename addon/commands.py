@@ -104,7 +104,7 @@ FOOTAGE_DEFAULT = Path("shared") / "data" / "phone-gyro-video"
 def _footage_demo(args) -> int:
     """``lowcam demo --footage [DIR]``: :func:`addon.footage.run_footage_demo` on the phone clip."""
     from lowcam.errors import LowcamError
-    from lowcam.footage import find_footage
+    from lowcam.gyro_footage import find_footage
     from lowcam.outputs import check_output_folder, make_output_folder
 
     folder = args.footage

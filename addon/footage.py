@@ -1,6 +1,6 @@
 """``lowcam demo --footage``: real phone footage as the plate, its gyro log driving the camera.
 
-The engine reads the clip (:mod:`lowcam.footage`); this module renders the inserted objects with Cycles from a
+The engine reads the clip (:mod:`lowcam.gyro_footage`); this module renders the inserted objects with Cycles from a
 camera that turns with the integrated gyro (so they stay fixed in the world), then composites every frame twice:
 plain (alpha over the plate) and through the camera profile with the frame's gyro rate, logged exposure and
 rolling shutter. The profile is the base profile set to the clip's camera, then estimated from the plate
@@ -123,7 +123,7 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
                      render_width: int = 640, samples: int = 8, seed: int = 0) -> dict:
     """The whole demo (see the module docstring); returns the paths written and the figures shown. Under
     :func:`addon.render.interruptible`, Ctrl-C during a render ends it."""
-    from lowcam.footage import camera_rotations, frame_motion, read_footage_clip, write_gif
+    from lowcam.gyro_footage import camera_rotations, frame_motion, read_footage_clip, write_gif
     from lowcam.io import read_plate, read_render
     from lowcam.outputs import write_png
     from lowcam.pipeline import plain_composite, render_camera, simulate
@@ -174,7 +174,7 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
 def _plate_profile(clip, base_profile):
     """The profile for the clip: the base profile set to the clip's camera (K, read-out, gyro), then
     ``lowcam calibrate plate``'s estimates from :data:`PLATE_FRAMES` of the clip's frames."""
-    from lowcam.footage import plate_profile
+    from lowcam.gyro_footage import plate_profile
     from lowcam.profile import load_profile
 
     estimated, estimates = plate_profile(load_profile(base_profile), clip, PLATE_FRAMES)

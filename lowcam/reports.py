@@ -1,6 +1,7 @@
 """Plots and HTML reports: the pictures and pages that calibration and measurement write.
 
-Used by :func:`lowcam.calibrate.write_report` and :func:`lowcam.measure.report.write_compare_report`.
+Used by :func:`lowcam.calibrate.write_report` and
+:func:`lowcam.measure.comparison_report.write_compare_report`.
 
 Contents
 --------

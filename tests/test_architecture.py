@@ -37,7 +37,7 @@ LAYERS = (
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",
                   "lowcam.batch")),
-    ("measure", ("lowcam.measure.*", "lowcam.footage")),
+    ("measure", ("lowcam.measure.*", "lowcam.gyro_footage")),
     ("calibrate", ("lowcam.calibrate", "lowcam.calibrate.*")),
     ("cli", ("lowcam.cli", "lowcam.cli.*", "lowcam.boundary")),
 )
@@ -57,7 +57,7 @@ BLENDER_LAYERS = (
 #: so that enabling the add-on stays quick.
 LAZY = {
     "OpenEXR": "never loaded beside an older libOpenEXRCore (Debian's Blender): lowcam.io then reads in a child",
-    "PIL": "optional (pillow is no dependency): lowcam.footage's GIFs",
+    "PIL": "optional (pillow is no dependency): lowcam.gyro_footage's GIFs",
     "dask": "optional extra 'farm': lowcam batch --workers / --scheduler",
     "distributed": "optional extra 'farm'",
     "lensfunpy": "optional extra 'lensfun': lowcam profile from-lensfun",

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from lowcam.errors import LowcamError
-from lowcam.footage import (PHONE_K, camera_rotations, footage_profile, frame_motion, read_footage_clip,
+from lowcam.gyro_footage import (PHONE_K, camera_rotations, footage_profile, frame_motion, read_footage_clip,
                             write_gif)
 from lowcam.motion import PHONE_GYRO_TO_CAMERA, read_exposure_log, read_framestamps, read_phone_gyro_log
 from lowcam.profile import load_profile

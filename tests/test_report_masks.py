@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lowcam.measure.compare import Comparison, capture_stats, combine
-from lowcam.measure.report import masked_shares, write_compare_report
+from lowcam.measure.comparison_report import masked_shares, write_compare_report
 
 
 @pytest.fixture(scope="module")

@@ -20,11 +20,11 @@ from ..boundary import Named
 from ..effects import effect_class
 from ..errors import LowcamError
 from ..measure.compare import compare
+from ..measure.comparison_report import history_figure, read_history, record_history, write_compare_report
 from ..measure.diagnose import (RENAMED_CANDIDATES, candidates, diagnose, explain, removal_candidates,
                                save_candidate_profile)
 from ..measure.plate import plate_probes, read_footage
 from ..measure.plate_compare import compare_plate, write_plate_report
-from ..measure.report import history_figure, read_history, record_history, write_compare_report
 from ..measure.sets import load_set
 from ..measure.synth import parse_change, synthesise
 from ..outputs import atomic_write_bytes, check_output, check_output_folder, make_output_folder
