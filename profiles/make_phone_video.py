@@ -1,5 +1,5 @@
 """Regenerate ``profiles/phone-video.toml``: the phone of ``../shared/data/phone-gyro-video`` (800x600 JPEG video,
-gyro log), measured from its own footage without a chart (issue 15, part 3).
+gyro log), measured from its own footage without a chart.
 
 The Fire-i chain is set to the clip's camera (its published K, 33.3 ms rolling-shutter read-out, logged exposure:
 ``lowcam.footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from all 103 frames of the footage

@@ -1,4 +1,4 @@
-"""Regenerate profiles/rpi-hq.toml: a phone-class sensor from DNG metadata (issue 15, part 5).
+"""Regenerate profiles/rpi-hq.toml: a phone-class sensor from DNG metadata.
 
     python profiles/make_rpi_hq.py [-o profiles/rpi-hq.toml]
 
