@@ -37,6 +37,7 @@ from ..outputs import IMAGE_SUFFIXES
 from . import calibrate, frames, measure, profiles
 from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, Parser, end_progress_lines
 
+
 #: What other packages' commands (the Blender side's) take from here.
 __all__ = ["main", "build_parser", "add_plugin_commands", "Parser", "FPS", "EXPOSURE_S", "METRES_PER_UNIT", "PROFILE",
            "LAYER", "FRAMES", "IMAGE_SUFFIXES"]
@@ -54,6 +55,7 @@ def add_plugin_commands(sub) -> None:
             p.set_defaults(func=lambda args, e=e, name=entry.name: _unavailable(name, e))
             continue
         add(sub)
+
 
 def _unavailable(name: str, problem: Exception) -> int:
     raise LowcamError(f"'{name}' commands cannot be loaded ({problem}); reinstall Lowcam with pip install -e .")
@@ -117,6 +119,7 @@ def main(argv=None) -> int:
             print(f"{command}: interrupted", file=sys.stderr)
             return 130
 
+
 def _reader_gone(stream) -> bool:
     """Whether ``stream`` is a pipe whose reader has closed it (``lowcam profile search Canon | head -1``): poll
     reports an error on a pipe's writing end once no reader is left."""
@@ -127,12 +130,14 @@ def _reader_gone(stream) -> bool:
     except (AttributeError, OSError, ValueError):
         return False
 
+
 def _trust_plugins(args) -> None:
     """Trust the modules ``--plugin`` names (before or after the command; ``diagnose --plugin MODULE:CLASS`` too)."""
     named = list(args.plugins) + list(getattr(args, "plugins_after", []))
     if args.command == "diagnose":
         named += [p.partition(":")[0] for p in args.plugin]
     trust_plugins(*named, option="--plugin")
+
 
 def _one_line(error: BaseException) -> str:
     if isinstance(error, MemoryError):

@@ -36,6 +36,7 @@ def cmd_chart(args) -> int:
     print(f"{chart}: {args.size.upper()} calibration chart at {args.dpi} dpi; layout in {layout}")
     return 0
 
+
 def cmd_calibrate(args) -> int:
     if args.what == "list":
         for name, effects in cal.calibration_listing().items():
@@ -81,13 +82,16 @@ def cmd_calibrate(args) -> int:
         atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=_plain).encode())
     return 0
 
+
 def _plain(value):
     """A number array or scalar as JSON takes it (a list, a float); anything else as text."""
     return value.tolist() if hasattr(value, "tolist") else str(value)
 
+
 def _default_plots(output) -> Path:
     """``calibrate``'s plots folder without ``--plots``: ``<output>-plots`` beside the profile."""
     return Path(output).parent / f"{Path(output).stem}-plots"
+
 
 def _calibrate_also_writes(args):
     if args.plots or not args.output:

@@ -33,22 +33,22 @@ class Parser(argparse.ArgumentParser):
             return self._get_value(action, "--")
         return super()._get_values(action, arg_strings)
 
+
 #: Declared ranges shared by several commands.
 FPS = Number(0, 1000, low_open=True, what="frames per second")
-
 EXPOSURE_S = Number(0, 10, low_open=True, what="exposure time in s")
-
 METRES_PER_UNIT = Number(0, 1e5, low_open=True, what="metres per scene unit")
-
 PROFILE = Reads("profile")
-
 LAYER = Text(what="view layer")
+
 
 def _check_frames(spec: str) -> None:
     parse_frames(spec)
 
+
 #: A frame list, ``1-240``, ``1-10,15``, ``1-240x2`` (:func:`lowcam.batch.parse_frames`).
 FRAMES = Text(what="frames", check=_check_frames)
+
 
 def check_report_outputs(args) -> None:
     """Check the ``--json`` file and the ``--report`` folder of compare and diagnose before any work."""
@@ -57,13 +57,16 @@ def check_report_outputs(args) -> None:
     if args.report:
         check_output_folder(args.report, "--report")
 
+
 _open_line = False  # a progress line without its newline is on stderr
+
 
 def progress_line(i, n, name):
     global _open_line
     _open_line = sys.stderr.isatty()
     print(f"{chr(13) if _open_line else ''}[{i + 1}/{n}] fitting {name:<24s}", end="" if _open_line else "\n",
           file=sys.stderr, flush=True)
+
 
 def end_progress_lines() -> None:
     """End an open progress line, and close any progress bar, so that what follows starts on its own line."""

@@ -39,6 +39,7 @@ def _load_inputs(args, profile):
         plate = read_plate(args.plate, c.width, c.height, channels=None if profile.is_raw else 3)
     return render, plate
 
+
 def _pass_effects(args) -> tuple:
     """The effects ``--object-motion`` and ``--defocus`` add to the profile, as ``(name, ((key, value), ...))``."""
     effects = []
@@ -47,6 +48,7 @@ def _pass_effects(args) -> tuple:
     if args.defocus:
         effects.append(("depth_of_field", (("focus_distance_m", args.defocus[0]), ("aperture_mm", args.defocus[1]))))
     return tuple(effects)
+
 
 def _pass_options(p, fps: bool) -> None:
     """``--object-motion``, ``--defocus`` and the units of the render passes they read (apply and batch)."""
@@ -59,6 +61,7 @@ def _pass_options(p, fps: bool) -> None:
                        help="frame rate of the render's Vector pass (pixels per frame; default 24)")
     p.add_argument("--metres-per-unit", type=METRES_PER_UNIT, default=1.0,
                    help="the Depth pass's unit in metres (Blender's Unit Scale; default 1)")
+
 
 def cmd_apply(args) -> int:
     check_image_output(args.output)
@@ -77,6 +80,7 @@ def cmd_apply(args) -> int:
           f"{100 * result.footprint.mean():.1f} % of pixels from the render, {1e3 * (time.perf_counter() - t0):.0f} ms")
     return 0
 
+
 def save_stages(stages, folder: Path) -> list[Path]:
     """Write each stage's picture as PNG (the working image as premultiplied-over-black RGB)."""
     make_output_folder(folder)
@@ -86,6 +90,7 @@ def save_stages(stages, folder: Path) -> list[Path]:
             img = np.clip(img[..., :3] * 255.0 + 0.5, 0, 255).astype(np.uint8)
         paths.append(write_png(folder / f"{name}.png", img))
     return paths
+
 
 def cmd_stages(args) -> int:
     check_output_folder(args.output, force=args.force)
@@ -99,6 +104,7 @@ def cmd_stages(args) -> int:
     paths = save_stages(result.stages, Path(args.output))
     print(f"{args.output}: {len(paths)} stage images ({', '.join(p.stem for p in paths)})")
     return 0
+
 
 def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)

@@ -36,10 +36,12 @@ def _steps_folder(output) -> Path:
     """``diagnose --until-explained``'s folder of step profiles beside ``-o``."""
     return Path(output).parent / f"{Path(output).stem}-steps"
 
+
 def _diagnose_also_writes(args):
     if not (args.until_explained and args.output):
         return []
     return [Named(str(_steps_folder(args.output)), "-o (its steps folder)", "steps", "folder")]
+
 
 def _compare_plate_only(args, profile) -> int:
     """``lowcam compare --plate-only FOOTAGE``: the plate probes' statistics, profile against footage."""
@@ -69,6 +71,7 @@ def _compare_plate_only(args, profile) -> int:
         print(f"{page}: report")
     return 0
 
+
 def cmd_compare(args) -> int:
     if (args.set is None) == (args.plate_only is None):
         raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
@@ -93,6 +96,7 @@ def cmd_compare(args) -> int:
         page = write_compare_report(cmp, args.report, f"{profile.name} against {mset.path}", history)
         print(f"{page}: report")
     return 0
+
 
 def cmd_diagnose(args) -> int:
     check_report_outputs(args)
@@ -137,6 +141,7 @@ def cmd_diagnose(args) -> int:
         print(f"{saved}: {profile.name} with {' and '.join(dict.fromkeys(added))} added")
     return 0
 
+
 def _explain(args, mset, profile) -> int:
     """``diagnose --until-explained``: add and refit until explained; every step's profile and the history."""
     out = Path(args.output)
@@ -173,6 +178,7 @@ def _explain(args, mset, profile) -> int:
                                     extra={"steps": doc})
         print(f"{page}: report")
     return 0
+
 
 def cmd_synth(args) -> int:
     check_output_folder(args.output, force=args.force)

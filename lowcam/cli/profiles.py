@@ -72,6 +72,7 @@ def cmd_profile_from_lensfun(args) -> int:
           f"{', '.join(have) or 'no calibration'} from lensfun")
     return 0
 
+
 def cmd_profile_search(args) -> int:
     """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
     crop factor | calibrations); none is a one-line error with the nearest names."""
@@ -84,6 +85,7 @@ def cmd_profile_search(args) -> int:
         print(e.row())
     print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
     return 0
+
 
 def cmd_profile_from_dng(args) -> int:
     if Path(check_output(args.output)).suffix.lower() != ".toml":
