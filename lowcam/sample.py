@@ -173,6 +173,7 @@ def sample_plate(profile="fire-i", angular_velocity=(0.0, 0.0, 0.0), exposure_s:
     profile = load_profile(profile)
     return film(sample_photograph(profile), profile, angular_velocity, exposure_s, plate_seed(seed), frame)
 
+
 def side_by_side(left: np.ndarray, right: np.ndarray, left_label: str, right_label: str) -> np.ndarray:
     """Two frames next to each other with a caption bar above each."""
     h, w = left.shape[:2]

@@ -34,6 +34,7 @@ _spec = importlib.util.spec_from_file_location("lowcam_screenshots", REPO / "scr
 shots = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(shots)
 
+
 @pytest.fixture(scope="module")
 def trixie():
     if os.geteuid() != 0:
