@@ -18,9 +18,11 @@ Every number written gets a ``[provenance]`` entry naming the lens, the setting 
 Contents
 --------
 - :func:`require_lensfunpy`: import lensfunpy, or a one-line error saying how to install it
-- :class:`LensEntry`: one database lens: maker, model, mount, focal range and which calibrations it has
+- :class:`LensEntry`: one database lens: maker, model, type, mount, focal range and which calibrations it has
 - :func:`lens_entries`: every lens of the database as :class:`LensEntry`
-- :func:`search_lenses`: the lenses whose maker and model contain every word of a text
+- :func:`search_lenses`: the lenses whose maker and model contain every word of a text (of a type, at a focal length)
+- :func:`corrected_search`: a search text with its mistyped words replaced by the nearest words of the database
+- :func:`lens_types`: the lens types of the database
 - :func:`nearest_names`: the names closest to a text (difflib), quoted, for an error
 - :func:`find_lens`: one lens by maker and model (a one-line error with the nearest names otherwise)
 - :func:`camera_crop_factor`: a camera's crop factor from the database
@@ -38,6 +40,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,8 +101,9 @@ class LensEntry:
         lo, hi = self.focal_range
         focal = f"{lo:g} mm" if lo == hi else f"{lo:g}-{hi:g} mm"
         vig = f"vignetting ({self.vignetting})" if self.vignetting else "-"
-        return (f"{self.maker} | {self.model} | {', '.join(self.mounts)} | {focal} | crop {self.crop_factor:.3g} | "
-                f"distortion {self.distortion or '-'}, TCA {self.tca or '-'}, {vig}")
+        return (f"{self.maker} | {self.model} | {self.lens_type.replace('_', ' ')} | {', '.join(self.mounts)} | "
+                f"{focal} | crop {self.crop_factor:.3g} | distortion {self.distortion or '-'}, TCA {self.tca or '-'}, "
+                f"{vig}")
 
 
 def _entry(lens) -> LensEntry:
@@ -116,11 +120,44 @@ def lens_entries() -> tuple[LensEntry, ...]:
     return tuple(_entry(lens) for lens in _database().lenses)
 
 
-def search_lenses(text: str) -> list[LensEntry]:
-    """The lenses whose maker and model together contain every word of ``text`` (case-insensitive), sorted."""
+def search_lenses(text: str, lens_type: str | None = None, focal_mm: float | None = None) -> list[LensEntry]:
+    """The lenses whose maker and model together contain every word of ``text`` (case-insensitive), sorted; with
+    ``lens_type``, only lenses of that type or its kinds (``"fisheye"`` takes ``fisheye_equisolid`` too); with
+    ``focal_mm``, only lenses whose focal range holds it."""
     words = text.lower().split()
-    found = [e for e in lens_entries() if all(w in e.name.lower() for w in words)]
+    found = [e for e in lens_entries() if all(w in e.name.lower() for w in words)
+             and (lens_type is None or e.lens_type == lens_type or e.lens_type.startswith(f"{lens_type}_"))
+             and (focal_mm is None or e.focal_range[0] - 1e-3 <= focal_mm <= e.focal_range[1] + 1e-3)]
     return sorted(found, key=lambda e: (e.maker.lower(), e.model.lower()))
+
+
+@functools.lru_cache(maxsize=1)
+def _vocabulary() -> tuple[str, ...]:
+    return tuple(sorted({w for e in lens_entries() for w in re.findall(r"[a-z0-9]+", e.name.lower())}))
+
+
+def corrected_search(text: str) -> str | None:
+    """``text`` with each word that no lens's maker and model contain replaced by the nearest word of the
+    database's makers and models (difflib, similarity at least 0.6: ``iphnoe`` -> ``iphone``); None when every
+    word is found as typed, or one has no near word."""
+    names = [e.name.lower() for e in lens_entries()]
+    out, changed = [], False
+    for word in text.lower().split():
+        if any(word in name for name in names):
+            out.append(word)
+            continue
+        close = difflib.get_close_matches(word, _vocabulary(), n=1, cutoff=0.6)
+        if not close:
+            return None
+        out.append(close[0])
+        changed = True
+    return " ".join(out) if changed else None
+
+
+def lens_types() -> tuple[str, ...]:
+    """The lens types of the database (lensfun's ``LensType`` names, lower case: ``rectilinear``, ``fisheye``,
+    ``fisheye_equisolid``, ...)."""
+    return tuple(sorted({e.lens_type for e in lens_entries()}))
 
 
 def nearest_names(text: str, names, n: int = 3) -> str:

@@ -173,10 +173,35 @@ def test_search_lists_matching_lenses_with_their_calibrations(capsys):
     assert main(["profile", "search", "powershot", "g12"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[-1] == "1 lens"
-    assert out[0].startswith("Canon | Canon PowerShot G12 & compatibles (Standard) | canonG12 | 6.1-30.5 mm")
+    assert out[0].startswith("Canon | Canon PowerShot G12 & compatibles (Standard) | rectilinear | canonG12 | "
+                             "6.1-30.5 mm")
     assert "distortion poly5, TCA poly3, -" in out[0]
     assert main(["profile", "search", "FC2103"]) == 0
     assert "distortion ptlens, TCA poly3, vignetting (2)" in capsys.readouterr().out
+
+
+def test_search_filters_by_type_and_focal_length_and_corrects_a_typo(capsys):
+    """``--type fisheye`` keeps every fisheye projection and nothing else, ``--focal-mm`` the lenses whose range
+    holds it; a mistyped word is replaced by the database's nearest word, said on stderr."""
+    def rows(*args):
+        assert main(["profile", "search", *args]) == 0
+        captured = capsys.readouterr()
+        return captured.out.splitlines()[:-1], captured.err
+
+    every, _ = rows("Sony")
+    fisheyes, _ = rows("Sony", "--type", "fisheye")
+    assert fisheyes and len(fisheyes) < len(every)
+    assert all(row.split(" | ")[2].startswith("fisheye") for row in fisheyes)
+    assert {row.split(" | ")[2] for row in rows("Samyang", "--type", "fisheye")[0]} >= {"fisheye stereographic"}
+    at_16, _ = rows("Sony", "--focal-mm", "16")
+    assert at_16 and len(at_16) < len(every)
+    for row in at_16:
+        focal = row.split(" | ")[4].removesuffix(" mm").split("-")
+        assert float(focal[0]) <= 16 <= float(focal[-1]), row
+    phones, err = rows("iphnoe")
+    assert "showing 'iphone'" in err and phones and all("iPhone" in row for row in phones)
+    assert main(["profile", "search", "Sony", "--type", "fishy"]) == 2
+    assert "no such lens type" in capsys.readouterr().err
 
 
 def test_a_lens_not_in_the_database_is_one_line_with_the_nearest_names(tmp_path, capsys):
@@ -249,3 +274,14 @@ def test_the_bundled_lensfun_profile_is_what_its_script_makes(tmp_path):
     for e in bundled.effects:
         assert bundled.provenance_of(e.name), e.name
     assert "(from base fire-i)" in bundled.provenance["camera"]
+
+
+def test_the_new_profile_is_named_after_its_lens_unless_named(tmp_path):
+    """The base's sensor with another lens is another camera: named after the lens and focal length (not the base's
+    'Unibrain Fire-i, 2.1 mm lens'), or as ``--name`` says; the description keeps the base."""
+    made = make(tmp_path, "fire-i", "DJI", "FC2103", 4.5)
+    assert made.camera.name == "DJI FC2103 & compatibles at 4.5 mm"
+    assert "Unibrain Fire-i" in made.camera.description and "from the lens" in made.provenance["camera"]
+    assert main(["profile", "from-lensfun", "--maker", "DJI", "--model", "FC2103", "--focal-mm", "4.5", "--base",
+                 "fire-i", "--name", "Drone", "-o", str(tmp_path / "named.toml")]) == 0
+    assert load_profile(tmp_path / "named.toml").camera.name == "Drone"

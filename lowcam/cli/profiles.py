@@ -12,12 +12,14 @@ Contents
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..arguments import Number, Reads, Text, Writes
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
-from ..lensdb import lens_entries, nearest_names, profile_from_lensfun, require_lensfunpy, search_lenses
+from ..lensdb import (corrected_search, lens_entries, lens_types, nearest_names, profile_from_lensfun,
+                      require_lensfunpy, search_lenses)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
 from .common import PROFILE, Parser
@@ -60,11 +62,11 @@ def cmd_profile_from_lensfun(args) -> int:
     camera = (args.camera_maker, args.camera_model) if args.camera_maker is not None else None
     profile, setting = profile_from_lensfun(base, args.maker, args.model, args.focal_mm, args.aperture,
                                             args.distance_m, camera, args.crop_factor)
-    if args.name:
-        profile.camera.name = args.name
-        profile.camera.description = f"{base.camera.name} with the lens {setting.entry.name} (lensfun)"
-        profile.provenance["camera"] = (f"{base.provenance.get('camera', 'not stated')} (from base {base.name}); "
-                                        "name and description given to profile from-lensfun")
+    # the camera is now the base's sensor with another lens: named after the lens unless --name says otherwise
+    profile.camera.name = args.name or f"{setting.entry.name} at {setting.focal_mm:g} mm"
+    profile.camera.description = f"{base.camera.name} with the lens {setting.entry.name} (lensfun)"
+    profile.provenance["camera"] = (f"{base.provenance.get('camera', 'not stated')} (from base {base.name}); name "
+                                    f"{'given to' if args.name else 'from the lens by'} profile from-lensfun")
     profile.save(out)
     have = [name for name in ("distortion", "tca", "vignetting") if getattr(setting, name) is not None]
     print(f"{out}: {setting.entry.name} at {setting.focal_mm:g} mm, f/{setting.aperture:g}, "
@@ -74,13 +76,25 @@ def cmd_profile_from_lensfun(args) -> int:
 
 
 def cmd_profile_search(args) -> int:
-    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | mounts | focal range |
-    crop factor | calibrations); none is a one-line error with the nearest names."""
+    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | type | mounts | focal range |
+    crop factor | calibrations), filtered by ``--type`` and ``--focal-mm``. A mistyped word is replaced by the
+    nearest word of the database, said on stderr; no match at all is a one-line error with the nearest names."""
     text = " ".join(args.text)
-    found = search_lenses(text)
+    if args.type is not None and args.type not in lens_types() and not any(
+            t.startswith(f"{args.type}_") for t in lens_types()):
+        raise LowcamError(f"--type {args.type}: no such lens type; the database has {', '.join(lens_types())}")
+    found = search_lenses(text, args.type, args.focal_mm)
+    corrected = None if found else corrected_search(text)
+    if corrected:
+        found = search_lenses(corrected, args.type, args.focal_mm)
     if not found:
+        if search_lenses(corrected or text):
+            raise LowcamError(f"no lens matching '{corrected or text}' is of the type and focal length asked for "
+                              "(without --type and --focal-mm: lowcam profile search TEXT)")
         names = sorted({e.name for e in lens_entries()})
         raise LowcamError(f"no lens of the lensfun database matches '{text}'; nearest: {nearest_names(text, names)}")
+    if corrected:
+        print(f"no lens matches '{text}'; showing '{corrected}'", file=sys.stderr)
     for e in found:
         print(e.row())
     print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
@@ -131,11 +145,16 @@ def add_commands(sub) -> None:
                    help="the camera's crop factor (default: the one the lens was calibrated on)")
     q.add_argument("--base", type=PROFILE, required=True, help="profile for everything else (name or file)")
     q.add_argument("--name", type=Text(what="camera name"), default=None,
-                   help="the new camera's name (default: the base's)")
+                   help="the new camera's name (default: the lens and focal length)")
     q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="the new profile (.toml)")
     q.set_defaults(func=cmd_profile_from_lensfun)
     q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
     q.add_argument("text", nargs="+", type=Text(what="TEXT"), help="words of the lens's maker and model")
+    q.add_argument("--type", type=Text(what="lens type"),
+                   help="only lenses of this type: rectilinear, fisheye (any fisheye projection), fisheye_equisolid, "
+                        "...")
+    q.add_argument("--focal-mm", type=Number(0, 5000, low_open=True, what="focal length in mm"),
+                   help="only lenses whose focal range holds this focal length (mm)")
     q.set_defaults(func=cmd_profile_search)
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
     q.add_argument("dng", type=Reads("file"), help="a DNG file (a phone's or camera's raw)")
