@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import LowcamError
+from .errors import LowcamError, ProfileError
 
 _INSTALL = "pip install lowcam[lensfun]"
 
@@ -94,7 +94,8 @@ class LensEntry:
 
     @property
     def name(self) -> str:
-        return f"{self.maker} {self.model}"
+        """Maker and model, the maker once (lensfun's models often begin with it)."""
+        return self.model if self.model.lower().startswith(self.maker.lower()) else f"{self.maker} {self.model}"
 
     def row(self) -> str:
         """One line of ``lowcam profile search``."""
@@ -357,8 +358,14 @@ def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture
                           "rectilinear lenses from lensfun so far")
     setting = lens_setting(entry, focal_mm, aperture, distance_m, crop_factor, source)
     profile = base
-    for name, values in setting.effects().items():
-        profile = profile.with_effect(name, replace=True, **values)
+    try:
+        for name, values in setting.effects().items():
+            profile = profile.with_effect(name, replace=True, **values)
+    except ProfileError as e:  # the effect's own words, naming the lens and the setting rather than the base's file
+        c = base.camera
+        raise LowcamError(f"{entry.name} at {setting.focal_mm:g} mm, crop factor {setting.crop_factor:.3g}, on "
+                          f"{base.name}'s {c.width}x{c.height} frame: {str(e).partition(chr(39) + ': ')[2] or e}"
+                          ) from None
     tag = f"(from base {base.name})"
     provenance = {k: v if tag in v else f"{v} {tag}" for k, v in base.provenance.items()
                   if k.partition(".")[0] not in setting.effects()}  # a replaced effect's old entries no longer hold

@@ -285,3 +285,14 @@ def test_the_new_profile_is_named_after_its_lens_unless_named(tmp_path):
     assert main(["profile", "from-lensfun", "--maker", "DJI", "--model", "FC2103", "--focal-mm", "4.5", "--base",
                  "fire-i", "--name", "Drone", "-o", str(tmp_path / "named.toml")]) == 0
     assert load_profile(tmp_path / "named.toml").camera.name == "Drone"
+
+
+def test_a_lens_that_folds_on_the_frame_is_named_with_its_setting(tmp_path, capsys):
+    """The Samsung Galaxy S21 ultrawide (a phone lens of the database) folds over inside fire-i's frame at its own
+    crop factor: one line naming the lens, the focal length, the crop factor and the frame, not the base's file."""
+    code = main(["profile", "from-lensfun", "--maker", "Samsung", "--model", "Galaxy S21 ultrawide", "--focal-mm",
+                 "2.2", "--base", "fire-i", "-o", str(tmp_path / "s21.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "Samsung Galaxy S21 ultrawide at 2.2 mm, crop factor 6, on fire-i's 640x480 frame" in err, err
+    assert "folds over" in err and "fire-i.toml" not in err and not (tmp_path / "s21.toml").exists()
