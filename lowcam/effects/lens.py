@@ -42,8 +42,8 @@ from ..node_images import stmap
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 from .lens_models import (BLENDER_KEYS, BLENDER_MODELS, FULL_FRAME_HALF_DIAGONAL_MM, LENSFUN_FRAME_PARAMS,
-                          LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens, LensfunLens, LensModel,
-                          OpenCVLens, field_needed, lensfun_frame)
+                          LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens, KannalaBrandtLens,
+                          LensfunLens, LensModel, OpenCVLens, field_needed, lensfun_frame)
 
 
 def lens_model_from(values: dict, width: int, height: int) -> LensModel:
@@ -58,6 +58,8 @@ def lens_model_from(values: dict, width: int, height: int) -> LensModel:
         return FovLens(width, height, get("fx"), get("fy"), get("cx"), get("cy"), get("w"))
     if model == "opencv":
         return OpenCVLens(width, height, *(get(k) for k in MODEL_KEYS["opencv"]))
+    if model == "fisheye":
+        return KannalaBrandtLens(width, height, *(get(k) for k in MODEL_KEYS["fisheye"]))
     if model in LENSFUN_MODELS:
         return LensfunLens(width, height, model, [get(k) for k in MODEL_KEYS[model]], get("focal_length"),
                            get("crop_factor"), get("calibration_crop_factor"), get("calibration_aspect_ratio"),
@@ -105,6 +107,10 @@ class LensDistortion(Effect):
         "k3": Param(0.0, low=-100.0, high=100.0),
         "p1": Param(0.0, low=-10.0, high=10.0),
         "p2": Param(0.0, low=-10.0, high=10.0),
+        "fisheye_k1": Param(0.0, low=-10.0, high=10.0, doc="fisheye (OpenCV's Kannala-Brandt) model"),
+        "fisheye_k2": Param(0.0, low=-10.0, high=10.0),
+        "fisheye_k3": Param(0.0, low=-10.0, high=10.0),
+        "fisheye_k4": Param(0.0, low=-10.0, high=10.0),
         "focal_length": Param(4.0, low=0.01, high=5000.0, unit="mm",
                               doc="Blender and lensfun models (lensfun: of the undistorted coordinates)"),
         "sensor_width": Param(3.6, low=0.01, high=500.0, unit="mm"),
@@ -156,6 +162,17 @@ class LensDistortion(Effect):
         self._maps: dict = {}
 
     def check(self):
+        if self.model == "fisheye":
+            # every pixel of the frame the principal point centres (2 cx + 1 by 2 cy + 1 px) must see a ray the
+            # model maps one to one (theta_d still rising)
+            lens = self.model_for(2, 2)
+            fx, fy, cx, cy = lens.pinhole_intrinsics()
+            corners = [np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, self.cx_px * 2 + 0.5)
+                       for v in (-0.5, self.cy_px * 2 + 0.5)]
+            if lens.theta_d(lens.theta_max()) < max(corners):
+                raise self.error(f"the fisheye distortion folds over inside the frame (its radius stops rising at "
+                                 f"{np.degrees(lens.theta_max()):.1f} deg from the axis, before the corner): check "
+                                 "the coefficients and the intrinsics")
         if self.model in LENSFUN_MODELS:
             # The frame's corner in lensfun's normalised units (the crop factors are ratios of diagonals); the
             # distortion must stay invertible (Rd rising with Ru) a little beyond it.

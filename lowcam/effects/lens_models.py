@@ -14,6 +14,9 @@ Models
     Brown-Conrady as in OpenCV: ``fx_px, fy_px, cx_px, cy_px`` and ``k1, k2, k3, p1, p2``. Without tangential
     terms, the inverse solves the radius alone; beyond the peak of ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)``, where
     the model has no inverse, it gives the peak.
+``fisheye``
+    OpenCV's fisheye model (Kannala-Brandt), as ``cv2.fisheye``: ``fx_px, fy_px, cx_px, cy_px`` and
+    ``fisheye_k1 .. fisheye_k4`` on the ray's angle (see :class:`KannalaBrandtLens`).
 ``polynomial``, ``division``, ``nuke``, ``brown``
     Blender's motion-tracking camera models (libmv), with the names of ``clip.tracking.camera``: ``focal_length``
     and ``sensor_width`` in mm, ``principal_point`` in Blender's normalised frame coordinates (-1..1, y up),
@@ -32,6 +35,7 @@ Contents
 - :class:`PinholeLens`: no distortion: ``u = cx + fx x``
 - :class:`FovLens`: Devernay & Faugeras' FOV model with PTAM's normalised parameters (``fov`` above)
 - :class:`OpenCVLens`: Brown-Conrady with OpenCV's coefficients: radial k1, k2, k3 and tangential p1, p2
+- :class:`KannalaBrandtLens`: OpenCV's fisheye model (``cv2.fisheye``): the ray's angle, distorted by an odd polynomial
 - :class:`BlenderLens`: Blender's tracking-camera models (libmv), in Blender's pixel frame
 - :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
 - :func:`lensfun_frame`: lensfun's normalised unit (px) and distortion centre on a frame (shared by TCA and
@@ -53,6 +57,8 @@ References
 - [Lensfun] A. Zabolotny et al., lensfun 0.3.4, ``libs/lensfun/modifier.cpp`` (the ``lfModifier`` constructor:
   normalisation and crop factors) and ``libs/lensfun/mod-coord.cpp`` (``ModifyCoord_Dist_Poly3/Poly5/PTLens``),
   https://github.com/lensfun/lensfun (tag v0.3.4).
+- [Kannala2006] J. Kannala and S. S. Brandt, "A Generic Camera Model and Calibration Method for Conventional,
+  Wide-Angle, and Fish-Eye Lenses", IEEE TPAMI 28(8), 1335-1340, 2006; OpenCV's ``cv2.fisheye`` module.
 - [Dersch] H. Dersch, Panorama Tools (``a, b, c`` radial polynomial, the ``ptlens`` form), and lensfun's
   ``ModifyCoord_Dist_PTLens``; [Triggs2000] B. Triggs et al., "Bundle Adjustment - A Modern Synthesis", Vision
   Algorithms: Theory and Practice, LNCS 1883, 298-372, 2000 (robust losses in least squares, sec. 3.3).
@@ -252,6 +258,63 @@ class OpenCVLens(LensModel):
         return xd * g, yd * g
 
 
+class KannalaBrandtLens(LensModel):
+    """OpenCV's fisheye model (``cv2.fisheye``, after Kannala & Brandt [Kannala2006]): a ray at angle
+    ``theta = atan(r)`` from the axis lands at radius ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 +
+    k4 theta^8)`` on the normalised image plane, ``u = fx theta_d x / r + cx`` (pixel centres on integers, as
+    OpenCV's). Rays at 90 degrees and beyond cannot be written as ``x = X/Z``; the inverse gives the angle where
+    ``theta_d`` stops rising, or just short of 90 degrees."""
+
+    def __init__(self, width, height, fx_px, fy_px, cx_px, cy_px, k1=0.0, k2=0.0, k3=0.0, k4=0.0):
+        super().__init__(width, height)
+        self._k = (fx_px, fy_px, cx_px, cy_px)
+        self.k = (float(k1), float(k2), float(k3), float(k4))
+
+    def pinhole_intrinsics(self):
+        return self._k
+
+    def theta_d(self, theta):
+        """The distorted angle (normalised image radius) of a ray ``theta`` rad from the axis."""
+        k1, k2, k3, k4 = self.k
+        t2 = np.asarray(theta, np.float64) ** 2
+        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    def theta_max(self) -> float:
+        """The largest angle (rad) the model maps one to one: where ``theta_d`` stops rising, at most just short
+        of 90 degrees."""
+        k1, k2, k3, k4 = self.k
+        roots = np.roots([9 * k4, 7 * k3, 5 * k2, 3 * k1, 1.0]) if any(self.k) else []   # the slope's zeros in theta^2
+        peaks = [float(np.sqrt(z.real)) for z in roots if abs(z.imag) < 1e-12 and z.real > 0]
+        return min(peaks + [np.pi / 2 - 1e-3])
+
+    def distort(self, x, y):
+        x = np.asarray(x, np.float64)
+        y = np.asarray(y, np.float64)
+        r = np.hypot(x, y)
+        theta = np.arctan(r)
+        scale = np.where(r > 1e-12, self.theta_d(theta) / np.maximum(r, 1e-300), 1.0)
+        return self.pinhole_distort(x * scale, y * scale)
+
+    def undistort(self, u, v):
+        """Newton's method on ``theta_d(theta) = r_d`` from ``theta = r_d`` until each step is below 1e-14;
+        beyond :meth:`theta_max` the ray at ``theta_max``."""
+        xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        rd = np.hypot(xd, yd)
+        t_max = self.theta_max()
+        target = np.minimum(rd, self.theta_d(t_max))
+        theta = np.clip(target, 0.0, t_max)
+        k1, k2, k3, k4 = self.k
+        for _ in range(50):
+            t2 = theta * theta
+            slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + 9 * k4 * t2)))
+            step = (self.theta_d(theta) - target) / np.where(np.abs(slope) < 1e-12, 1e-12, slope)
+            theta = np.clip(theta - step, 0.0, t_max)
+            if np.abs(step).max(initial=0.0) < 1e-14:
+                break
+        g = np.where(rd > 0, np.tan(theta) / np.maximum(rd, 1e-300), 1.0)
+        return xd * g, yd * g
+
+
 class BlenderLens(LensModel):
     """Blender's tracking-camera models (libmv), in Blender's pixel frame (origin bottom-left, y up)."""
 
@@ -416,6 +479,7 @@ class LensfunLens(LensModel):
 MODEL_KEYS = {
     "fov": ("fx", "fy", "cx", "cy", "w"),
     "opencv": ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3", "p1", "p2"),
+    "fisheye": ("fx_px", "fy_px", "cx_px", "cy_px", "fisheye_k1", "fisheye_k2", "fisheye_k3", "fisheye_k4"),
     "polynomial": ("k1", "k2", "k3"),
     "division": ("division_k1", "division_k2"),
     "nuke": ("nuke_k1", "nuke_k2"),
