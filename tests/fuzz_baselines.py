@@ -169,6 +169,16 @@ def _footage(path: Path) -> None:
                     .astype(np.uint8))
 
 
+def _gyroflow(path: Path) -> None:
+    """A Gyroflow lens profile of a 4:3 fisheye (fire-i's aspect ratio), with a read-out time and a frame rate."""
+    import json
+
+    path.write_text(json.dumps({
+        "calib_dimension": {"w": 1920, "h": 1440}, "frame_readout_time": 15.0, "fps": 60.0,
+        "fisheye_params": {"camera_matrix": [[850.0, 0.0, 959.5], [0.0, 850.0, 719.5], [0.0, 0.0, 1.0]],
+                           "distortion_coeffs": [0.048, 0.014, 0.015, -0.017]}}))
+
+
 def _dng(path: Path) -> None:
     """A 32x24 raw DNG (PiDNG): RGGB, levels 64..1023, a D65 colour matrix, an as-shot neutral, a noise profile."""
     from pidng.core import RAW2DNG
@@ -309,6 +319,7 @@ INPUTS = {
     "set": _set,
     "footage": _footage,
     "cam.dng": _dng,
+    "gyroflow.json": _gyroflow,
     "patches.csv": _patches,
     "lens": _lens,
     "flat": _flat,
@@ -425,6 +436,9 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
         companions={"camera_maker": {"camera_model": ["PowerShot G12"]},
                     "camera_model": {"camera_maker": ["Canon"]}}),
     ("profile", "search"): Baseline({"text": ["G12"]}, (), 0.2),
+    ("profile", "from-gyroflow"): Baseline(
+        {"lens_profile": ["{in}/gyroflow.json"], "base": [P], "output": ["{out}/gyroflow.toml"]}, ("gyroflow.json",),
+        0.2),
     ("profile", "from-dng"): Baseline(
         {"dng": ["{in}/cam.dng"], "base": [P], "output": ["{out}/dng.toml"]}, ("cam.dng",), 0.2),
     ("demo",): Baseline(

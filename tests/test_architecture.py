@@ -34,7 +34,7 @@ LAYERS = (
                  "lowcam.motion", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments",
                  "lowcam.node_images")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
-    ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb")),
+    ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb", "lowcam.gyroflow")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",
                   "lowcam.batch")),
     ("measure", ("lowcam.measure.*", "lowcam.gyro_footage")),

@@ -1,11 +1,12 @@
 """The commands about profiles: ``lowcam profiles`` (the list, or one profile's provenance) and ``lowcam profile
-from-lensfun | search | from-dng`` (profiles from outside data).
+from-lensfun | search | from-gyroflow | from-dng`` (profiles from outside data).
 
 Contents
 --------
 - :func:`cmd_profiles`: ``lowcam profiles [NAME]``: list the profiles, or one profile's provenance
 - :func:`cmd_profile_from_lensfun`: ``lowcam profile from-lensfun``: a base profile with a lensfun database lens
 - :func:`cmd_profile_search`: ``lowcam profile search TEXT``: lenses of the lensfun database that match
+- :func:`cmd_profile_from_gyroflow`: ``lowcam profile from-gyroflow``: a profile's lens from a Gyroflow lens profile
 - :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
 - :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
 """
@@ -18,6 +19,7 @@ from pathlib import Path
 from ..arguments import Number, Reads, Text, Writes
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
+from ..gyroflow import profile_from_gyroflow
 from ..lensdb import (corrected_search, lens_entries, lens_types, nearest_names, profile_from_lensfun,
                       require_lensfunpy, search_lenses)
 from ..outputs import check_output
@@ -49,7 +51,6 @@ def cmd_profiles(args) -> int:
         print(f"{name:12s} {desc}  ({path})")
     return 0
 
-# --- profile from-dng ------------------------------------------------------------------------
 def cmd_profile_from_lensfun(args) -> int:
     """``lowcam profile from-lensfun``: the base profile with a database lens at one setting, written to ``-o``."""
     out = Path(check_output(args.output))
@@ -101,6 +102,17 @@ def cmd_profile_search(args) -> int:
     return 0
 
 
+def cmd_profile_from_gyroflow(args) -> int:
+    """``lowcam profile from-gyroflow FILE.json``: the base profile with a Gyroflow lens profile's lens, rolling
+    shutter and exposure limit."""
+    if Path(check_output(args.output)).suffix.lower() != ".toml":
+        raise LowcamError(f"{args.output}: a profile is written as .toml")
+    profile, notes = profile_from_gyroflow(args.lens_profile, load_profile(args.base))
+    path = profile.save(args.output)
+    print(f"{path}: {profile.camera.name}; " + "; ".join(notes))
+    return 0
+
+
 def cmd_profile_from_dng(args) -> int:
     if Path(check_output(args.output)).suffix.lower() != ".toml":
         raise LowcamError(f"{args.output}: a profile is written as .toml")
@@ -122,7 +134,8 @@ def add_commands(sub) -> None:
     p.set_defaults(func=cmd_profiles)
 
     # --- lowcam profile: profiles from outside data: a lens database, DNG metadata ---
-    p = sub.add_parser("profile", help="make a profile from outside data: a lens database, DNG metadata")
+    p = sub.add_parser("profile", help="make a profile from outside data: a lens database, a Gyroflow lens "
+                       "profile, DNG metadata")
     psub = p.add_subparsers(dest="what", required=True, parser_class=Parser)
 
     # profile from-lensfun / profile search (lowcam.lensdb)
@@ -156,6 +169,13 @@ def add_commands(sub) -> None:
     q.add_argument("--focal-mm", type=Number(0, 5000, low_open=True, what="focal length in mm"),
                    help="only lenses whose focal range holds this focal length (mm)")
     q.set_defaults(func=cmd_profile_search)
+    q = psub.add_parser("from-gyroflow", help="the lens (OpenCV fisheye or standard), rolling shutter and frame rate "
+                        "of a Gyroflow lens profile (.json) on a base profile")
+    q.add_argument("lens_profile", type=Reads("file"), help="a Gyroflow lens profile (JSON)")
+    q.add_argument("--base", type=PROFILE, default="fire-i",
+                   help="profile whose frame (of the calibration's aspect ratio), sensor and processing are kept")
+    q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="profile TOML to write")
+    q.set_defaults(func=cmd_profile_from_gyroflow)
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")
     q.add_argument("dng", type=Reads("file"), help="a DNG file (a phone's or camera's raw)")
     q.add_argument("--base", type=PROFILE, default="fire-i", help="profile whose frame, optics and processing are kept")
