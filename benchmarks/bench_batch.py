@@ -29,8 +29,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from lowcam.batch import Shot, run_shot
-    from lowcam.outputs import write_exr
     from lowcam.motion import FrameMotion
+    from lowcam.outputs import write_exr
     from lowcam.sample import sample_plate, sample_render
 
     tmp = Path(tempfile.mkdtemp())

@@ -2,8 +2,8 @@
 gyro log), measured from its own footage without a chart.
 
 The Fire-i chain is set to the clip's camera (its published K, 33.3 ms rolling-shutter read-out, logged exposure:
-``lowcam.footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from all 103 frames of the footage
-(noise, edges and sharpening, vignetting, chroma subsampling) are applied where confident; the JPEG quality, too high
+``lowcam.gyro_footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from all 103 frames of the
+footage (noise, edges and sharpening, vignetting, chroma subsampling) are applied where confident; the JPEG quality, too high
 for the plate's blockiness to show, is read from the files' own quantisation tables. Every number's source is in
 the profile's ``[provenance]``.
 
@@ -13,7 +13,7 @@ import argparse
 from pathlib import Path
 
 from lowcam.effects.jpeg import ijg_quality
-from lowcam.footage import find_footage, plate_profile, read_footage_clip
+from lowcam.gyro_footage import find_footage, plate_profile, read_footage_clip
 from lowcam.profile import load_profile
 
 HERE = Path(__file__).resolve().parent

@@ -12,7 +12,7 @@ import numpy as np
 
 from lowcam.effects.chromatic_aberration import radial_ca_grid, write_ca_grid
 from lowcam.effects.vignetting import radial_vignetting
-from lowcam.io import write_png
+from lowcam.outputs import write_png
 
 HERE = Path(__file__).resolve().parent
 
