@@ -3,9 +3,9 @@ gyro log), measured from its own footage without a chart.
 
 The Fire-i chain is set to the clip's camera (its published K, 33.3 ms rolling-shutter read-out, logged exposure:
 ``lowcam.gyro_footage.footage_profile``), then ``lowcam calibrate plate``'s estimates from all 103 frames of the
-footage (noise, edges and sharpening, vignetting, chroma subsampling) are applied where confident; the JPEG quality, too high
-for the plate's blockiness to show, is read from the files' own quantisation tables. Every number's source is in
-the profile's ``[provenance]``.
+footage (noise, edges and sharpening, vignetting, chroma subsampling) are applied where confident; the JPEG quality,
+too high for the plate's blockiness to show, is read from the files' own quantisation tables. Every number's source
+is in the profile's ``[provenance]``.
 
     .venv/bin/python profiles/make_phone_video.py [DATA_DIR] [-o profiles/phone-video.toml]
 """
