@@ -33,13 +33,13 @@ References
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import LowcamError, ProfileError
 from .profile import check_provenance
+from .schema import read_json
 
 #: Gyroflow's distortion models Lowcam reads, and its lens model for each.
 MODELS = {"opencv_fisheye": "fisheye", "opencv_standard": "opencv"}
@@ -76,11 +76,7 @@ def read_gyroflow_lens(path) -> GyroflowLens:
     """The lens profile in ``path``: a one-line :class:`~lowcam.errors.LowcamError` naming the file and the key
     for a file that is no Gyroflow lens profile, a model Lowcam lacks, or a value that is missing or not finite."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_bytes())
-    except (OSError, UnicodeDecodeError, ValueError) as e:
-        raise LowcamError(f"{path}: not a Gyroflow lens profile ({type(e).__name__}: "
-                          f"{str(e).splitlines()[0] if str(e) else 'unreadable'})") from None
+    doc = read_json(path, "Gyroflow lens profile")      # a device, a huge file, NaN: refused there
     if not isinstance(doc, dict) or not isinstance(doc.get("calib_dimension"), dict):
         raise LowcamError(f"{path}: not a Gyroflow lens profile (no calib_dimension)")
     model = doc.get("distortion_model") or ("opencv_standard" if doc.get("use_opencv_standard") and

@@ -83,7 +83,8 @@ def test_a_standard_opencv_profile_and_its_rolling_shutter(tmp_path):
     (lambda d: d.update(calib_dimension={"w": 1920, "h": 1080}), "the calibration's aspect ratio"),
     (lambda d: d.update(distortion_model="sony"), "'sony' lens model is not one Lowcam reads"),
     (lambda d: d["fisheye_params"].update(distortion_coeffs=[0.1, 0.2]), "distortion_coeffs must hold 4"),
-    (lambda d: d["fisheye_params"]["camera_matrix"][0].__setitem__(0, float("nan")), "camera_matrix[0][0]"),
+    (lambda d: d["fisheye_params"]["camera_matrix"][0].__setitem__(0, float("nan")), "not a finite number"),
+    (lambda d: d["fisheye_params"]["camera_matrix"][0].__setitem__(0, "850"), "camera_matrix[0][0]"),
     (lambda d: d.pop("calib_dimension"), "not a Gyroflow lens profile"),
     (lambda d: d["fisheye_params"].update(distortion_coeffs=[-0.9, 0.0, 0.0, 0.0]), "folds over inside the frame"),
 ])
@@ -102,4 +103,6 @@ def test_a_file_that_is_not_json_is_one_line(tmp_path, capsys):
     path.write_bytes(b"\x00\xffnot json")
     assert main(["profile", "from-gyroflow", str(path), "-o", str(tmp_path / "out.toml")]) == 2
     err = capsys.readouterr().err
-    assert "not a Gyroflow lens profile" in err and len(err.strip().splitlines()) == 1
+    assert "not UTF-8" in err and str(path) in err and len(err.strip().splitlines()) == 1
+    assert main(["profile", "from-gyroflow", "/dev/zero", "-o", str(tmp_path / "out.toml")]) == 2
+    assert "/dev/zero: is a device" in capsys.readouterr().err
