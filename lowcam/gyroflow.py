@@ -33,13 +33,12 @@ References
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import LowcamError, ProfileError
-from .profile import check_provenance
-from .schema import read_json
+from .errors import LowcamError
+from . import schema
+from .profile import check_provenance, inherited_provenance
 
 #: Gyroflow's distortion models Lowcam reads, and its lens model for each.
 MODELS = {"opencv_fisheye": "fisheye", "opencv_standard": "opencv"}
@@ -65,18 +64,11 @@ class GyroflowLens:
     calibration: str
 
 
-def _number(path, key, value, low=-math.inf, high=math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
-            not low <= value <= high:
-        raise LowcamError(f"{path}: {key} must be a finite number from {low:g} to {high:g}, got {value!r}")
-    return float(value)
-
-
 def read_gyroflow_lens(path) -> GyroflowLens:
     """The lens profile in ``path``: a one-line :class:`~lowcam.errors.LowcamError` naming the file and the key
     for a file that is no Gyroflow lens profile, a model Lowcam lacks, or a value that is missing or not finite."""
     path = Path(path)
-    doc = read_json(path, "Gyroflow lens profile")      # a device, a huge file, NaN: refused there
+    doc = schema.read_json(path, "Gyroflow lens profile")      # a device, a huge file, NaN: refused there
     if not isinstance(doc, dict) or not isinstance(doc.get("calib_dimension"), dict):
         raise LowcamError(f"{path}: not a Gyroflow lens profile (no calib_dimension)")
     model = doc.get("distortion_model") or ("opencv_standard" if doc.get("use_opencv_standard") and
@@ -88,25 +80,24 @@ def read_gyroflow_lens(path) -> GyroflowLens:
         and doc["calib_params"].get("camera_matrix") else doc.get("fisheye_params")
     if not isinstance(params, dict):
         raise LowcamError(f"{path}: no fisheye_params (the camera matrix and the distortion coefficients)")
-    matrix = params.get("camera_matrix")
-    if not (isinstance(matrix, list) and len(matrix) == 3 and all(isinstance(r, list) and len(r) == 3
-                                                                   for r in matrix)):
-        raise LowcamError(f"{path}: camera_matrix must be 3x3 numbers")
-    k = [[_number(path, f"camera_matrix[{i}][{j}]", matrix[i][j]) for j in range(3)] for i in range(3)]
-    fx, fy = (_number(path, key, value, 1e-6) for key, value in (("fx", k[0][0]), ("fy", k[1][1])))
+    where = f"{path}: {'calib_params' if params is doc.get('calib_params') else 'fisheye_params'}"
+    k = schema.array_of(params.get("camera_matrix"), where, "camera_matrix",
+                        lambda row, w, key: schema.numbers(row, w, key, 3), 3)
+    fx, fy = (schema.number(value, where, key, low=1e-6) for key, value in (("fx", k[0][0]), ("fy", k[1][1])))
     coefficients = params.get("distortion_coeffs")
     wanted = 4 if model == "opencv_fisheye" else 5
     if not isinstance(coefficients, list) or len(coefficients) < wanted:
         raise LowcamError(f"{path}: distortion_coeffs must hold {wanted} numbers for {model}")
-    coefficients = [_number(path, f"distortion_coeffs[{i}]", c, -100, 100) for i, c in enumerate(coefficients)]
+    coefficients = schema.numbers(coefficients, where, "distortion_coeffs", low=-100, high=100)
     if any(coefficients[wanted:]):
         raise LowcamError(f"{path}: {len(coefficients)} distortion_coeffs; {model} has {wanted} (the rational and "
                           "thin-prism terms are not read)")
-    size = tuple(int(_number(path, f"calib_dimension.{a}", doc["calib_dimension"].get(a), 16, 65536))
+    size = tuple(schema.integer(doc["calib_dimension"].get(a), f"{path}: calib_dimension", a, 16, 65536, "px")
                  for a in ("w", "h"))
     readout_ms = doc.get("frame_readout_time")
-    readout_s = 0.0 if readout_ms is None else _number(path, "frame_readout_time", readout_ms, 0, 1000) / 1000
-    fps = 0.0 if doc.get("fps") in (None, 0) else _number(path, "fps", doc["fps"], 1e-3, 1000)
+    readout_s = 0.0 if readout_ms is None else schema.number(readout_ms, str(path), "frame_readout_time", 0, 1000,
+                                                             "ms") / 1000
+    fps = 0.0 if doc.get("fps") in (None, 0) else schema.number(doc["fps"], str(path), "fps", 1e-3, 1000)
     words = [str(doc.get(key) or "").strip() for key in ("camera_brand", "camera_model", "lens_model",
                                                           "camera_setting")]
     name = " ".join(w for w in words if w) or path.stem
@@ -143,15 +134,10 @@ def profile_from_gyroflow(path, base):
         ("k1", "k2", "p1", "p2", "k3")
     values.update(zip(keys, lens.coefficients))
     source = f"Gyroflow lens profile {lens.path.name} ({lens.name}; {lens.calibration or 'calibrator not stated'})"
-    try:
-        out = base.with_effect("lens_distortion", replace=True, source=str(lens.path), **values)
-        if lens.readout_s > 0:
-            out = out.with_effect("rolling_shutter", replace=True, source=str(lens.path), readout_s=lens.readout_s)
-    except ProfileError as e:
-        raise LowcamError(f"{lens.path}: {str(e).partition(chr(39) + ': ')[2] or e}") from None
-    tag = f"(from base {base.name})"
-    provenance = {k: v if tag in v else f"{v} {tag}" for k, v in base.provenance.items()
-                  if k.partition(".")[0] not in ("lens_distortion", "rolling_shutter")}
+    out = base.with_effect("lens_distortion", replace=True, source=str(lens.path), **values)
+    if lens.readout_s > 0:
+        out = out.with_effect("rolling_shutter", replace=True, source=str(lens.path), readout_s=lens.readout_s)
+    provenance = inherited_provenance(base, ("lens_distortion", "rolling_shutter"))
     provenance["lens_distortion"] = f"{source}, {wc}x{hc} scaled to {w}x{h}"
     notes = [f"lens: {MODELS[lens.model]} model from {lens.model}, scaled from {wc}x{hc} to {w}x{h}"]
     if lens.readout_s > 0:
@@ -159,7 +145,7 @@ def profile_from_gyroflow(path, base):
         notes.append(f"rolling shutter: {lens.readout_s * 1e3:g} ms from the first row to the last")
     out.camera.name = lens.name
     out.camera.description = f"{base.camera.name}'s sensor and processing with the lens of {lens.name} (Gyroflow)"
-    provenance["camera"] = f"{base.provenance.get('camera', 'not stated')} {tag}; name from {lens.path.name}"
+    provenance["camera"] = f"{provenance.get('camera', 'not stated')}; name from {lens.path.name}"
     if lens.fps and c.exposure_s > 1 / lens.fps:
         out.camera.exposure_s = 1 / lens.fps
         provenance["camera.exposure_s"] = f"{source}: at most one frame at {lens.fps:g} frames/s"

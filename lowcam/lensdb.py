@@ -22,6 +22,7 @@ Contents
 - :func:`lens_entries`: every lens of the database as :class:`LensEntry`
 - :func:`search_lenses`: the lenses whose maker and model contain every word of a text (of a type, at a focal length)
 - :func:`corrected_search`: a search text with its mistyped words replaced by the nearest words of the database
+- :func:`is_of_type`: whether a lens type is the type asked for, or one of its kinds
 - :func:`lens_types`: the lens types of the database
 - :func:`nearest_names`: the names closest to a text (difflib), quoted, for an error
 - :func:`find_lens`: one lens by maker and model (a one-line error with the nearest names otherwise)
@@ -47,7 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import LowcamError, ProfileError
+from .errors import LowcamError
+from .profile import inherited_provenance
 
 _INSTALL = "pip install lowcam[lensfun]"
 
@@ -127,7 +129,7 @@ def search_lenses(text: str, lens_type: str | None = None, focal_mm: float | Non
     ``focal_mm``, only lenses whose focal range holds it."""
     words = text.lower().split()
     found = [e for e in lens_entries() if all(w in e.name.lower() for w in words)
-             and (lens_type is None or e.lens_type == lens_type or e.lens_type.startswith(f"{lens_type}_"))
+             and (lens_type is None or is_of_type(e.lens_type, lens_type))
              and (focal_mm is None or e.focal_range[0] - 1e-3 <= focal_mm <= e.focal_range[1] + 1e-3)]
     return sorted(found, key=lambda e: (e.maker.lower(), e.model.lower()))
 
@@ -153,6 +155,12 @@ def corrected_search(text: str) -> str | None:
         out.append(close[0])
         changed = True
     return " ".join(out) if changed else None
+
+
+def is_of_type(lens_type: str, asked: str) -> bool:
+    """Whether a lens of ``lens_type`` is of the type ``asked``: the same, or one of its kinds (``fisheye`` asked:
+    ``fisheye_equisolid`` too)."""
+    return lens_type == asked or lens_type.startswith(f"{asked}_")
 
 
 def lens_types() -> tuple[str, ...]:
@@ -357,21 +365,13 @@ def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture
         raise LowcamError(f"{entry.name}: a {entry.lens_type.replace('_', ' ')} lens; Lowcam takes only "
                           "rectilinear lenses from lensfun so far")
     setting = lens_setting(entry, focal_mm, aperture, distance_m, crop_factor, source)
+    # the new effects' errors (a lens that folds over) name the lens and the setting, not the base's file
+    source = (f"{entry.name} at {setting.focal_mm:g} mm, crop factor {setting.crop_factor:.3g}, on {base.name}'s "
+              f"{base.camera.width}x{base.camera.height} frame")
     profile = base
-    try:
-        for name, values in setting.effects().items():
-            profile = profile.with_effect(name, replace=True, **values)
-    except ProfileError as e:  # the effect's own words, naming the lens and the setting rather than the base's file
-        c = base.camera
-        raise LowcamError(f"{entry.name} at {setting.focal_mm:g} mm, crop factor {setting.crop_factor:.3g}, on "
-                          f"{base.name}'s {c.width}x{c.height} frame: {str(e).partition(chr(39) + ': ')[2] or e}"
-                          ) from None
-    tag = f"(from base {base.name})"
-    provenance = {k: v if tag in v else f"{v} {tag}" for k, v in base.provenance.items()
-                  if k.partition(".")[0] not in setting.effects()}  # a replaced effect's old entries no longer hold
-    for owner in ("camera", *(e.name for e in base.effects)):
-        if owner not in setting.effects() and owner not in provenance:
-            provenance[owner] = f"not stated {tag}"
+    for name, values in setting.effects().items():
+        profile = profile.with_effect(name, replace=True, source=source, **values)
+    provenance = inherited_provenance(base, setting.effects())
     provenance.update(setting.provenance())
     profile.provenance = provenance
     return profile, setting

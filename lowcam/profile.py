@@ -33,6 +33,7 @@ Contents
 - :func:`find_profile`: the file of a profile name or path (a clear error naming the known ones)
 - :func:`load_profile`: load and validate a profile by name (``"fire-i"``) or path (``"my-camera.toml"``)
 - :func:`profile_from_dict`: a validated :class:`Profile` from parsed TOML
+- :func:`inherited_provenance`: the base's provenance for a profile made from it, its replaced effects left out
 - :func:`check_provenance`: validate a ``[provenance]`` table against a profile's camera and effects
 
 References
@@ -307,6 +308,19 @@ def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
     profile = Profile(camera, effects, path)
     profile.provenance = check_provenance(data.get("provenance", {}), profile)
     return profile
+
+
+def inherited_provenance(base: Profile, replaced) -> dict[str, str]:
+    """The ``[provenance]`` of a profile made from ``base`` with the effects ``replaced`` new: each other entry of
+    the base marked ``(from base NAME)``, and ``not stated (from base NAME)`` for the camera and each kept effect
+    the base says nothing of. A replaced effect's old entries no longer hold and are left out."""
+    tag = f"(from base {base.name})"
+    out = {k: v if tag in v else f"{v} {tag}" for k, v in base.provenance.items()
+           if k.partition(".")[0] not in replaced}
+    for owner in ("camera", *(e.name for e in base.effects)):
+        if owner not in replaced and owner not in out:
+            out[owner] = f"not stated {tag}"
+    return out
 
 
 def check_provenance(table, profile: Profile) -> dict[str, str]:

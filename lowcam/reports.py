@@ -8,6 +8,7 @@ Contents
 - :data:`STYLE`: the pages' CSS
 - :func:`figure`: draw one matplotlib figure (headless, 100 dpi) and save it as PNG
 - :func:`image`: an ``<img>`` of a PNG, copied into the page's folder when it lies elsewhere
+- :func:`json_value`: what JSON cannot take as it is (a NumPy value, a path) as a list, float or text
 - :func:`numbers_block`: numbers (NumPy values allowed) as indented JSON in a ``<pre>``, optionally folded
 - :func:`write_page`: ``index.html`` in a folder: title, style and heading around HTML sections; returns its path
 """
@@ -18,7 +19,7 @@ import io
 import json
 from pathlib import Path
 
-import numpy as np
+import numpy as np  # the doctests' NumPy values
 
 from .outputs import atomic_write_bytes, make_output_folder
 
@@ -51,8 +52,10 @@ def image(folder, path, alt: str) -> str:
     return f"<img src='{html.escape(path.name)}' alt='{html.escape(alt)}'>"
 
 
-def _plain(value):
-    return np.asarray(value).tolist()
+def json_value(value):
+    """What ``json.dumps`` cannot take as it is (``default=``): a NumPy number or array as a float or list; anything
+    else (a path) as its text."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)
 
 
 def numbers_block(numbers, summary: str | None = None) -> str:
@@ -61,7 +64,7 @@ def numbers_block(numbers, summary: str | None = None) -> str:
     >>> numbers_block(np.float32(0.5), "fit")
     '<details><summary>fit</summary><pre>0.5</pre></details>'
     """
-    pre = f"<pre>{html.escape(json.dumps(numbers, indent=1, default=_plain))}</pre>"
+    pre = f"<pre>{html.escape(json.dumps(numbers, indent=1, default=json_value))}</pre>"
     return f"<details><summary>{html.escape(summary)}</summary>{pre}</details>" if summary else pre
 
 

@@ -21,6 +21,7 @@ from ..chart import write_chart
 from ..errors import LowcamError
 from ..outputs import atomic_write_bytes, check_output, check_output_folder
 from ..profile import load_profile
+from ..reports import json_value
 from .common import PROFILE
 
 
@@ -79,13 +80,8 @@ def cmd_calibrate(args) -> int:
         doc = {"profile": str(saved), "calibrations": [{"what": r.what, "summary": r.summary, "notes": r.notes,
                                                         "provenance": r.provenance, "numbers": r.numbers}
                                                        for r in results]}
-        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=_plain).encode())
+        atomic_write_bytes(args.json, json.dumps(doc, indent=1, default=json_value).encode())
     return 0
-
-
-def _plain(value):
-    """A number array or scalar as JSON takes it (a list, a float); anything else as text."""
-    return value.tolist() if hasattr(value, "tolist") else str(value)
 
 
 def _default_plots(output) -> Path:

@@ -20,7 +20,7 @@ from ..arguments import Number, Reads, Text, Writes
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
 from ..gyroflow import profile_from_gyroflow
-from ..lensdb import (corrected_search, lens_entries, lens_types, nearest_names, profile_from_lensfun,
+from ..lensdb import (corrected_search, is_of_type, lens_entries, lens_types, nearest_names, profile_from_lensfun,
                       require_lensfunpy, search_lenses)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
@@ -81,8 +81,7 @@ def cmd_profile_search(args) -> int:
     crop factor | calibrations), filtered by ``--type`` and ``--focal-mm``. A mistyped word is replaced by the
     nearest word of the database, said on stderr; no match at all is a one-line error with the nearest names."""
     text = " ".join(args.text)
-    if args.type is not None and args.type not in lens_types() and not any(
-            t.startswith(f"{args.type}_") for t in lens_types()):
+    if args.type is not None and not any(is_of_type(t, args.type) for t in lens_types()):
         raise LowcamError(f"--type {args.type}: no such lens type; the database has {', '.join(lens_types())}")
     found = search_lenses(text, args.type, args.focal_mm)
     corrected = None if found else corrected_search(text)

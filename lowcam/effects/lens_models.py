@@ -129,6 +129,25 @@ class LensModel:
         return p, q
 
 
+def _solve_rising(value, slope, target, start, upper: float) -> np.ndarray:
+    """For each of ``target`` (1-D), the ``x`` in [0, ``upper``] where the rising ``value(x)`` equals it: Newton's
+    method with ``slope`` (the derivative) from ``start``, each point until its own step is below 1e-14, at most 50
+    steps (the radial inverses of :class:`OpenCVLens` and :class:`KannalaBrandtLens`)."""
+    x = np.clip(start, 0.0, upper)
+    out = x.copy()
+    active = np.arange(x.size)
+    for _ in range(50):
+        d = slope(x)
+        step = (value(x) - target) / np.where(np.abs(d) < 1e-12, 1e-12, d)
+        x = np.clip(x - step, 0.0, upper)
+        out[active] = x
+        moving = np.abs(step) >= 1e-14
+        if not moving.any():
+            break
+        active, x, target = active[moving], x[moving], target[moving]
+    return out
+
+
 class PinholeLens(LensModel):
     """No distortion: ``u = cx + fx x``."""
 
@@ -243,17 +262,13 @@ class OpenCVLens(LensModel):
         active = np.flatnonzero(rd < rd_max)
         target = rd.ravel()[active]
         guess = radial(target * target)
-        flat = np.clip(target / np.where(guess > 1e-3, guess, 1e-3), 0.0, r_max)
-        for _ in range(50):
-            r2 = flat * flat
-            slope = 1 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2))
-            step = (flat * radial(r2) - target) / np.where(np.abs(slope) < 1e-12, 1e-12, slope)
-            flat = np.clip(flat - step, 0.0, r_max)
-            r.ravel()[active] = flat
-            moving = np.abs(step) >= 1e-14
-            if not moving.any():
-                break
-            active, flat, target = active[moving], flat[moving], target[moving]
+
+        def slope(x):
+            x2 = x * x
+            return 1 + x2 * (3 * k1 + x2 * (5 * k2 + 7 * k3 * x2))
+
+        r.ravel()[active] = _solve_rising(lambda x: x * radial(x * x), slope, target,
+                                          target / np.where(guess > 1e-3, guess, 1e-3), r_max)
         g = np.where(rd > 0, r / np.maximum(rd, 1e-300), 1.0)
         return xd * g, yd * g
 
@@ -296,21 +311,21 @@ class KannalaBrandtLens(LensModel):
         return self.pinhole_distort(x * scale, y * scale)
 
     def undistort(self, u, v):
-        """Newton's method on ``theta_d(theta) = r_d`` from ``theta = r_d`` until each step is below 1e-14;
-        beyond :meth:`theta_max` the ray at ``theta_max``."""
+        """Newton's method on ``theta_d(theta) = r_d`` from ``theta = r_d`` (:func:`_solve_rising`); beyond
+        :meth:`theta_max` the ray at ``theta_max``."""
         xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
         rd = np.hypot(xd, yd)
         t_max = self.theta_max()
-        target = np.minimum(rd, self.theta_d(t_max))
-        theta = np.clip(target, 0.0, t_max)
         k1, k2, k3, k4 = self.k
-        for _ in range(50):
-            t2 = theta * theta
-            slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + 9 * k4 * t2)))
-            step = (self.theta_d(theta) - target) / np.where(np.abs(slope) < 1e-12, 1e-12, slope)
-            theta = np.clip(theta - step, 0.0, t_max)
-            if np.abs(step).max(initial=0.0) < 1e-14:
-                break
+
+        def slope(t):
+            t2 = t * t
+            return 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + 9 * k4 * t2)))
+
+        theta = np.full_like(rd, t_max)
+        active = np.flatnonzero(rd < self.theta_d(t_max))
+        target = rd.ravel()[active]
+        theta.ravel()[active] = _solve_rising(self.theta_d, slope, target, target, t_max)
         g = np.where(rd > 0, np.tan(theta) / np.maximum(rd, 1e-300), 1.0)
         return xd * g, yd * g
 
