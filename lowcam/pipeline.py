@@ -14,7 +14,6 @@ Contents
 --------
 - :func:`carried`: the contract (shape, dtype, unit, the part that writes it) of one :class:`SimState` array
 - :class:`SimState`: everything one frame's simulation carries from stage to stage
-- :func:`state_contract`: the contract of every :class:`SimState` array, as text lines
 - :class:`Result`: one simulated frame: ``frame``, ``footprint``, ``stages`` when asked for, and the final state
 - :func:`render_field_of_view`: pinhole half-extents (X, Y) the render must cover
 - :func:`render_focal_px`: focal length in render pixels for a render of ``width`` x ``height``
@@ -42,7 +41,7 @@ from __future__ import annotations
 import copy
 import os
 from collections import OrderedDict
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -73,8 +72,8 @@ class SimState:
     """Everything one frame's simulation carries from stage to stage (see :class:`lowcam.effects.Effect`).
 
     Each array field's shape, dtype, unit and the part of the chain that writes it are in its ``metadata``
-    (:func:`carried`; ``dataclasses.fields(SimState)`` lists them, :func:`state_contract` as text), checked by
-    a test that runs every bundled profile stage by stage. ``None`` means not made yet (or not by this chain)."""
+    (:func:`carried`; ``dataclasses.fields(SimState)`` lists them), checked by a test that runs every bundled
+    profile stage by stage. ``None`` means not made yet (or not by this chain)."""
 
     profile: Profile
     render: np.ndarray = field(metadata=carried(
@@ -165,16 +164,6 @@ class SimState:
     def render_pass(self, effect) -> np.ndarray:
         """The render pass ``effect`` needs (``effect.needs_pass``); a clear error when it was not given."""
         return (self.passes or RenderPasses()).get(effect.needs_pass, effect)
-
-
-def state_contract() -> list[str]:
-    """One line per :class:`SimState` array: name, shape, dtype, written by which part, unit.
-
-    >>> state_contract()[3][:70]
-    'working: (working rows, working columns, 4) float32, written by "worki'
-    """
-    return [f"{f.name}: ({', '.join(map(str, f.metadata['shape']))}) {f.metadata['dtype']}, written by "
-            f"\"{f.metadata['part']}\" effects: {f.metadata['unit']}" for f in fields(SimState) if f.metadata]
 
 
 @dataclass
