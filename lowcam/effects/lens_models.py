@@ -86,6 +86,18 @@ class LensModel:
         """Output pixel (u, v) -> camera plane (x, y)."""
         return self._solve(self.distort, u, v, self.pinhole_undistort)
 
+    def undistort_ray(self, u, v):
+        """Output pixel (u, v) -> the ray it sees, as (theta, phi): the angle from the optical axis (rad, may pass
+        90 degrees for a fisheye) and the azimuth ``atan2(y, x)`` on the camera plane (x right, y down)."""
+        x, y = self.undistort(u, v)
+        return np.arctan(np.hypot(x, y)), np.arctan2(y, x)
+
+    def distort_ray(self, theta, phi):
+        """The ray (theta, phi) (see :meth:`undistort_ray`) -> output pixel (u, v); rays at 90 degrees and beyond
+        only for models that see them."""
+        r = np.tan(np.asarray(theta, np.float64))
+        return self.distort(r * np.cos(phi), r * np.sin(phi))
+
     # The pinhole part, used for starting guesses and by :meth:`pinhole`.
     def pinhole_distort(self, x, y):
         fx, fy, cx, cy = self.pinhole_intrinsics()
@@ -294,13 +306,17 @@ class KannalaBrandtLens(LensModel):
         t2 = np.asarray(theta, np.float64) ** 2
         return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
 
-    def theta_max(self) -> float:
-        """The largest angle (rad) the model maps one to one: where ``theta_d`` stops rising, at most just short
-        of 90 degrees."""
+    def theta_rising(self) -> float:
+        """The largest angle (rad) the model maps one to one: where ``theta_d`` stops rising, at most 180 degrees."""
         k1, k2, k3, k4 = self.k
         roots = np.roots([9 * k4, 7 * k3, 5 * k2, 3 * k1, 1.0]) if any(self.k) else []   # the slope's zeros in theta^2
         peaks = [float(np.sqrt(z.real)) for z in roots if abs(z.imag) < 1e-12 and z.real > 0]
-        return min(peaks + [np.pi / 2 - 1e-3])
+        return min(peaks + [np.pi])
+
+    def theta_max(self) -> float:
+        """The largest angle (rad) the camera plane ``x = X/Z`` can carry: :meth:`theta_rising`, at most just short
+        of 90 degrees."""
+        return min(self.theta_rising(), np.pi / 2 - 1e-3)
 
     def distort(self, x, y):
         x = np.asarray(x, np.float64)
@@ -310,12 +326,13 @@ class KannalaBrandtLens(LensModel):
         scale = np.where(r > 1e-12, self.theta_d(theta) / np.maximum(r, 1e-300), 1.0)
         return self.pinhole_distort(x * scale, y * scale)
 
-    def undistort(self, u, v):
-        """Newton's method on ``theta_d(theta) = r_d`` from ``theta = r_d`` (:func:`_solve_rising`); beyond
-        :meth:`theta_max` the ray at ``theta_max``."""
-        xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
-        rd = np.hypot(xd, yd)
-        t_max = self.theta_max()
+    def distort_ray(self, theta, phi):
+        rd = self.theta_d(np.asarray(theta, np.float64))
+        return self.pinhole_distort(rd * np.cos(phi), rd * np.sin(phi))
+
+    def _theta(self, rd, t_max):
+        """The angle whose distorted radius is ``rd``: Newton's method on ``theta_d(theta) = rd`` from ``theta =
+        rd`` (:func:`_solve_rising`); beyond ``t_max``, ``t_max``."""
         k1, k2, k3, k4 = self.k
 
         def slope(t):
@@ -326,8 +343,20 @@ class KannalaBrandtLens(LensModel):
         active = np.flatnonzero(rd < self.theta_d(t_max))
         target = rd.ravel()[active]
         theta.ravel()[active] = _solve_rising(self.theta_d, slope, target, target, t_max)
+        return theta
+
+    def undistort(self, u, v):
+        """The camera plane's point of each pixel; beyond :meth:`theta_max`, the ray at ``theta_max``."""
+        xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        rd = np.hypot(xd, yd)
+        theta = self._theta(rd, self.theta_max())
         g = np.where(rd > 0, np.tan(theta) / np.maximum(rd, 1e-300), 1.0)
         return xd * g, yd * g
+
+    def undistort_ray(self, u, v):
+        """The ray of each pixel, out to :meth:`theta_rising` (beyond it, the ray at ``theta_rising``)."""
+        xd, yd = self.pinhole_undistort(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        return self._theta(np.hypot(xd, yd), self.theta_rising()), np.arctan2(yd, xd)
 
 
 class BlenderLens(LensModel):
