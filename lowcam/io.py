@@ -26,6 +26,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -59,22 +60,27 @@ def quiet_stderr(stdout: bool = False):
     fds = (1, 2) if stdout else (2,)
     sys.stdout.flush()
     sys.stderr.flush()
-    try:
-        saved = [os.dup(fd) for fd in fds]
-    except OSError:  # no such descriptor (a detached process): nothing to keep quiet
-        yield said
-        return
-    with tempfile.TemporaryFile() as capture:
+    with _QUIET:
         try:
-            for fd in fds:
-                os.dup2(capture.fileno(), fd)
+            saved = [os.dup(fd) for fd in fds]
+        except OSError:  # no such descriptor (a detached process): nothing to keep quiet
             yield said
-        finally:
-            for fd, old in zip(fds, saved):
-                os.dup2(old, fd)
-                os.close(old)
-            capture.seek(0)
-            said["text"] = capture.read(4096).decode(errors="replace")
+            return
+        with tempfile.TemporaryFile() as capture:
+            try:
+                for fd in fds:
+                    os.dup2(capture.fileno(), fd)
+                yield said
+            finally:
+                for fd, old in zip(fds, saved):
+                    os.dup2(old, fd)
+                    os.close(old)
+                capture.seek(0)
+                said["text"] = capture.read(4096).decode(errors="replace")
+
+
+#: One thread at a time moves descriptors 1 and 2 (a shot reads its next frame while it simulates this one).
+_QUIET = threading.RLock()
 
 
 #: File signatures: the format is told by the bytes, not the name (an EXR named .png is still an EXR).
