@@ -134,6 +134,13 @@ def _read_exr_in_child(path: Path) -> dict[str, np.ndarray]:
             return {k: z[k] for k in z.files}
 
 
+def _float32(pixels: np.ndarray) -> np.ndarray:
+    """A channel's pixels as float32; half floats through OpenCV (exact, and 4x numpy's conversion)."""
+    if pixels.dtype == np.float16 and pixels.ndim <= 3 and pixels.size:
+        return cv2.convertFp16(np.ascontiguousarray(pixels).view(np.int16))
+    return np.asarray(pixels, np.float32)
+
+
 def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays). In a process that holds an older libOpenEXRCore (Debian's
@@ -149,7 +156,7 @@ def read_exr(path) -> dict[str, np.ndarray]:
     with quiet_stderr(stdout=True) as said:
         try:
             with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
-                parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
+                parts = [(part.name(), {n: _float32(c.pixels) for n, c in part.channels.items()})
                          for part in f.parts]
         except Exception as e:
             parts, reason = None, (str(e).splitlines()[0] if str(e) else type(e).__name__)
