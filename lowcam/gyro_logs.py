@@ -196,11 +196,8 @@ def _gcsv_rows(path: Path, text: str):
         if columns is None:
             if cells[0].lower() in ("t", "time"):
                 columns = [c.lower() for c in cells]
-            elif len(cells) == 2:
-                header[cells[0]] = (cells[1], n)
-            else:
-                raise LowcamError(f"{path}: line {n}: expected 'key,value' or the column header 't,gx,gy,gz', "
-                                  f"got {schema.shown(','.join(cells))}")
+            elif len(cells) >= 2:   # key,value (a note may hold commas); a line of one word is passed over
+                header[cells[0]] = (",".join(cells[1:]), n)
             continue
         rows.append((n, cells))
     if columns is None:
