@@ -188,7 +188,7 @@ def cmd_motion(args) -> int:
     check_output(args.output)
     frames = parse_frames(args.frames)
     if args.gyro is not None:
-        path = write_motion_json(args.output, gyro_motion(args, frames), args.fps)
+        path = write_motion_json(args.output, *gyro_motion(args, frames))
     else:
         path = _side("addon.render").write_motion(args.blend, frames, args.output)
     print(f"{path}: camera motion of {len(frames)} frames")

@@ -51,7 +51,7 @@ Contents
 - :func:`read_gcsv`: a ``.gcsv`` log as a :class:`GyroLog`
 - :func:`read_gyroflow_project`: a ``.gyroflow`` project's gyro data, axes and offsets as a :class:`GyroLog`
 - :func:`read_gyro_log`: any of the three (a ``.gcsv``, a ``.gyroflow``, Lowcam's CSV), told by content
-- :func:`gyro_log_motion`: per-frame motion from a gyro log file (``lowcam batch --gyro``, ``lowcam motion --gyro``)
+- :func:`gyro_log_motion`: per-frame motion from a gyro log file, and the frame rate used (``batch``/``motion --gyro``)
 
 References
 ----------
@@ -394,11 +394,12 @@ def read_gyro_log(path) -> GyroLog:
 
 
 def gyro_log_motion(path, frames, fps: float | None, exposure_s: float, t0: float = 0.0,
-                    first_frame: int | None = None) -> dict[int, FrameMotion]:
-    """Per-frame motion from the gyro log ``path`` (:func:`read_gyro_log`): frame f is exposed from
-    ``t0 + (f - first_frame) / fps`` (video clock) for ``exposure_s``; ``fps`` None takes the project's."""
+                    first_frame: int | None = None) -> tuple[dict[int, FrameMotion], float]:
+    """Per-frame motion from the gyro log ``path`` (:func:`read_gyro_log`), and the frame rate used: frame f is
+    exposed from ``t0 + (f - first_frame) / fps`` (video clock) for ``exposure_s``; ``fps`` None takes the
+    project's."""
     log = read_gyro_log(path)
     fps = fps or log.fps
     if not fps:
         raise LowcamError(f"{path}: give the frame rate (--fps): the gyro log states none")
-    return gyro_to_motion(log.samples, frames, fps, exposure_s, t0, first_frame, source=str(path))
+    return gyro_to_motion(log.samples, frames, fps, exposure_s, t0, first_frame, source=str(path)), fps

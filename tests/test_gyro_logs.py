@@ -231,6 +231,7 @@ def test_batch_takes_a_projects_fps_and_offset(shot, tmp_path):
     assert main(["motion", "--gyro", str(project), "--exposure-s", "0.02", "--frames", "1-2", "-o",
                  str(tmp_path / "m.json")]) == 0
     m = read_motion_json(tmp_path / "m.json")
+    assert json.loads((tmp_path / "m.json").read_text())["fps"] == 30.0
     np.testing.assert_allclose(m[2].angular_velocity, known_rate([T_START + 1 / 30 + 0.01])[0], atol=1e-6)
 
 

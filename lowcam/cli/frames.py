@@ -6,7 +6,7 @@ Contents
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
-- :func:`gyro_motion`: each frame's motion from ``--gyro`` and its options (batch and motion)
+- :func:`gyro_motion`: each frame's motion from ``--gyro`` and its options, and the frame rate (batch and motion)
 - :func:`gyro_options`: add ``--gyro`` and its options to a command
 - :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
 - :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
@@ -109,9 +109,10 @@ def cmd_stages(args) -> int:
     return 0
 
 
-def gyro_motion(args, frames) -> dict:
+def gyro_motion(args, frames) -> tuple[dict, float]:
     """Each frame's motion from ``--gyro`` (a Gyroflow ``.gcsv`` log or ``.gyroflow`` project, or Lowcam's CSV),
-    ``--fps`` (or the project's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion)."""
+    ``--fps`` (or the project's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion),
+    and the frame rate used."""
     if args.exposure_s is None:
         raise LowcamError(f"{args.gyro}: a gyro log needs --exposure-s (and --fps unless it is a Gyroflow project "
                           f"that states it)")
@@ -135,14 +136,14 @@ def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
-    motion, require = {}, False
+    motion, require, fps = {}, False, args.fps or 24.0
     if args.motion:
         motion, require = read_motion_json(args.motion), True
     elif args.gyro:
-        motion, require = gyro_motion(args, frames), True
+        (motion, fps), require = gyro_motion(args, frames), True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
-                _pass_effects(args), args.fps or 24.0, args.metres_per_unit, tuple(sorted(trusted_modules())))
+                _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())))
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
