@@ -27,8 +27,9 @@ Time. A ``.gcsv`` log's time is the video's as it stands (``--gyro-t0`` shifts i
 Gyroflow does: ``t_video = t_gyro + offset(t_gyro)``, the offset interpolated linearly between the synced points
 and extended along the first and last segments (one point: a constant). Video time 0 is the first row of the
 video's first frame (Gyroflow stamps frame k at ``k / fps``); with ``--gyro-t0 0`` and ``--gyro-first-frame 1``,
-shot frame 1 is the video's first frame. The rate is not rescaled for a drifting offset (clock drift is
-parts per million).
+shot frame 1 is the video's first frame. Where the offset drifts, the rates are divided by ``d t_video / d
+t_gyro``, so that a frame turns by what the gyro turned between its start and end on the gyro's clock, as
+Gyroflow's orientation at a video time is the gyro's at the mapped time.
 
 ``.gyroflow`` project (JSON, ``"title": "Gyroflow data file"``): ``gyro_source`` gives the samples, either
 embedded (``raw_imu``, a list of ``{"timestamp_ms", "gyro": [x, y, z] deg/s}``, or ``file_metadata.raw_imu``)
@@ -47,6 +48,7 @@ Contents
 - :func:`orientation_matrix`: an orientation string as the 3x3 matrix taking the file's axes to Gyroflow's
 - :func:`imu_rotation`: Gyroflow's ``rotation`` ``[pitch, roll, yaw]`` (deg) as a 3x3 matrix
 - :func:`offset_ms`: Gyroflow's synced offset (ms) at gyro times (ms), as Gyroflow interpolates it
+- :func:`offset_slope`: the slope of that offset (ms per ms) at gyro times (ms)
 - :func:`log_kind`: ``"gcsv"``, ``"gyroflow"`` or ``"csv"``, from a file's first bytes
 - :func:`read_gcsv`: a ``.gcsv`` log as a :class:`GyroLog`
 - :func:`read_gyroflow_project`: a ``.gyroflow`` project's gyro data, axes and offsets as a :class:`GyroLog`
@@ -141,6 +143,17 @@ def offset_ms(offsets: dict[int, float], t_ms: np.ndarray) -> np.ndarray:
         return np.full_like(t_ms, values[0])
     k = np.clip(np.searchsorted(keys, t_ms, side="right") - 1, 0, len(keys) - 2)
     return values[k] + (values[k + 1] - values[k]) * (t_ms - keys[k]) / (keys[k + 1] - keys[k])
+
+
+def offset_slope(offsets: dict[int, float], t_ms: np.ndarray) -> np.ndarray:
+    """The slope of :func:`offset_ms` (ms of offset per ms of gyro time) at gyro times ``t_ms`` (ms)."""
+    t_ms = np.asarray(t_ms, np.float64)
+    if len(offsets) < 2:
+        return np.zeros_like(t_ms)
+    keys = np.array(sorted(offsets), np.float64) / 1000.0
+    values = np.array([offsets[k] for k in sorted(offsets)], np.float64)
+    k = np.clip(np.searchsorted(keys, t_ms, side="right") - 1, 0, len(keys) - 2)
+    return (values[k + 1] - values[k]) / (keys[k + 1] - keys[k])
 
 
 def log_kind(path) -> str:
@@ -370,6 +383,7 @@ def read_gyroflow_project(path) -> GyroLog:
     rates = file_rates @ (GYROFLOW_TO_CAMERA @ turn @ orientation_matrix(orientation, at)).T
     t_video = (t_ms + offset_ms(offsets, t_ms)) / 1000.0
     _check_times(t_video, f"{where}: 'offsets' (gyro time + offset)")
+    rates = rates / (1.0 + offset_slope(offsets, t_ms))[:, None]   # rad per second of video time
     return GyroLog(np.column_stack([t_video, rates]), fps, readout, orientation, "gyroflow")
 
 

@@ -104,7 +104,7 @@ def _project(path: Path, gyro_source: dict, offsets=None, fps=30.0) -> Path:
 def test_project_with_embedded_imu_and_offsets(tmp_path):
     """Embedded raw IMU (ms, deg/s in the file's axes) with the project's orientation, and its synced offsets
     (gyro time in us -> ms) taking gyro time to video time: t_video = t_gyro + offset(t_gyro), linear between the
-    points and along the end segments beyond them."""
+    points and along the end segments beyond them; the rates per second of video time."""
     t = sample_times()
     raw = np.degrees(file_axes(known_rate(t), "YxZ"))
     imu = [{"timestamp_ms": ti * 1000.0, "gyro": list(g), "accl": [0.0, 1.0, 0.0]} for ti, g in zip(t, raw)]
@@ -113,7 +113,8 @@ def test_project_with_embedded_imu_and_offsets(tmp_path):
                                          offsets))
     shift_ms = -40.0 + 2.0 * (t - 13.0)
     np.testing.assert_allclose(log.samples[:, 0], t + shift_ms / 1000.0, atol=1e-9)
-    np.testing.assert_allclose(log.samples[:, 1:], known_rate(t), atol=1e-6)
+    # the video's clock runs 1.002 times the gyro's: per second of video, the camera turns 1/1.002 as far
+    np.testing.assert_allclose(log.samples[:, 1:], known_rate(t) / 1.002, atol=1e-6)
     assert log.fps == 30.0 and log.kind == "gyroflow" and log.readout_s == pytest.approx(0.015)
 
 
