@@ -36,7 +36,7 @@ embedded (``raw_imu``, a list of ``{"timestamp_ms", "gyro": [x, y, z] deg/s}``, 
 or from the ``.gcsv`` log ``filepath`` names (absolute, relative to the project, or of that name beside it); its
 ``imu_orientation`` (else the log's), ``gyro_bias`` (deg/s, added in the file's axes before orienting) and
 ``rotation`` (``[pitch, roll, yaw]`` deg, applied after orienting as Gyroflow's ``set_imu_rotation`` does) are
-applied; ``video_info.fps`` is the frame rate when ``--fps`` is not given. Gyroflow's compressed data (a string)
+applied; ``video_info.fps`` (times its ``fps_scale``, when set) is the frame rate when ``--fps`` is not given. Gyroflow's compressed data (a string)
 cannot be read: the log it came from, beside the project, can. Gyroflow's smoothing filters (``lpf``, ``mf``) are
 stabilisation choices, not motion, and are not applied.
 
@@ -352,9 +352,11 @@ def read_gyroflow_project(path) -> GyroLog:
     turn = np.eye(3) if rotation is None else imu_rotation(*schema.numbers(rotation, at, "rotation", 3, -360, 360,
                                                                              "deg"))
     offsets = _offsets(doc, where)
-    fps = None
-    if isinstance(doc.get("video_info"), dict) and doc["video_info"].get("fps") is not None:
-        fps = schema.number(doc["video_info"]["fps"], f"{where}: 'video_info'", "fps", 1e-3, 1e4, "frames/s")
+    fps, info = None, doc.get("video_info")
+    if isinstance(info, dict) and info.get("fps") is not None:   # Gyroflow's frame k is at k / (fps * fps_scale)
+        fps = schema.number(info["fps"], f"{where}: 'video_info'", "fps", 1e-3, 1e4, "frames/s")
+        if info.get("fps_scale") is not None:
+            fps *= schema.number(info["fps_scale"], f"{where}: 'video_info'", "fps_scale", 1e-3, 1e3)
     readout = None
     if isinstance(doc.get("stabilization"), dict) and doc["stabilization"].get("frame_readout_time") is not None:
         ms = schema.number(doc["stabilization"]["frame_readout_time"], f"{where}: 'stabilization'",

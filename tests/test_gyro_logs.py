@@ -93,9 +93,9 @@ def test_imu_rotation_is_gyroflows_euler_order():
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
 
 
-def _project(path: Path, gyro_source: dict, offsets=None, fps=30.0) -> Path:
+def _project(path: Path, gyro_source: dict, offsets=None, fps=30.0, fps_scale=None) -> Path:
     doc = {"title": "Gyroflow data file", "version": 3, "videofile": "clip.mp4",
-           "video_info": {"width": 1920, "height": 1080, "fps": fps, "num_frames": 60},
+           "video_info": {"width": 1920, "height": 1080, "fps": fps, "num_frames": 60, "fps_scale": fps_scale},
            "stabilization": {"frame_readout_time": 15.0}, "gyro_source": gyro_source, "offsets": offsets or {}}
     path.write_text(json.dumps(doc))
     return path
@@ -228,7 +228,8 @@ def test_batch_takes_a_projects_fps_and_offset(shot, tmp_path):
     """A .gyroflow project's frame rate and offset: no --fps, no --gyro-t0."""
     shutil.copyfile(shot / "clip.gcsv", tmp_path / "clip.gcsv")
     # gyro time + 12.5 s... the offset (ms) puts the log's start at video time 0
-    project = _project(tmp_path / "clip.gyroflow", {"filepath": "clip.gcsv"}, {"12500000": -12500.0}, fps=30.0)
+    project = _project(tmp_path / "clip.gyroflow", {"filepath": "clip.gcsv"}, {"12500000": -12500.0}, fps=15.0,
+                       fps_scale=2.0)   # a 30 fps clip conformed to 15 fps: Gyroflow times frames at 30
     assert main(["motion", "--gyro", str(project), "--exposure-s", "0.02", "--frames", "1-2", "-o",
                  str(tmp_path / "m.json")]) == 0
     m = read_motion_json(tmp_path / "m.json")
