@@ -333,9 +333,9 @@ def _offsets(doc: dict, where: str) -> dict[int, float]:
 
 
 def read_gyroflow_project(path) -> GyroLog:
-    """A ``.gyroflow`` project's gyro data as a :class:`GyroLog`: the embedded samples (or the ``.gcsv`` /
-    Lowcam CSV its ``filepath`` names), oriented by its ``imu_orientation``, with its ``gyro_bias`` and
-    ``rotation``, on the video's clock through its ``offsets``; ``fps`` from ``video_info``."""
+    """A ``.gyroflow`` project's gyro data as a :class:`GyroLog`: the embedded samples (or those of the ``.gcsv``
+    its ``filepath`` names), oriented by its ``imu_orientation``, with its ``gyro_bias`` and ``rotation``, on the
+    video's clock through its ``offsets``; ``fps`` from ``video_info``."""
     path = Path(path)
     doc = schema.read_json(path, "Gyroflow project")
     where = str(path)
