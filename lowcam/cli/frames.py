@@ -6,6 +6,8 @@ Contents
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
+- :func:`gyro_motion`: each frame's motion from ``--gyro`` and its options, and the frame rate (batch and motion)
+- :func:`gyro_options`: add ``--gyro`` and its options to a command
 - :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
 - :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
 """
@@ -22,7 +24,8 @@ from ..batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
 from ..effects import trusted_modules
 from ..errors import LowcamError
 from ..io import read_plate, read_render
-from ..motion import gyro_to_motion, read_gyro_csv, read_motion_json
+from ..gyro_logs import gyro_log_motion
+from ..motion import read_motion_json
 from ..outputs import IMAGE_SUFFIXES, check_image_output, check_output_folder, make_output_folder, write_image, write_png
 from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
@@ -106,22 +109,41 @@ def cmd_stages(args) -> int:
     return 0
 
 
+def gyro_motion(args, frames) -> tuple[dict, float]:
+    """Each frame's motion from ``--gyro`` (a Gyroflow ``.gcsv`` log or ``.gyroflow`` project, or Lowcam's CSV),
+    ``--fps`` (or the project's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion),
+    and the frame rate used."""
+    if args.exposure_s is None:
+        raise LowcamError(f"{args.gyro}: a gyro log needs --exposure-s (and --fps unless it is a Gyroflow project "
+                          f"that states it)")
+    return gyro_log_motion(args.gyro, frames, args.fps, args.exposure_s, args.gyro_t0, args.gyro_first_frame)
+
+
+def gyro_options(p) -> None:
+    """``--gyro``, ``--fps``, ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion)."""
+    p.add_argument("--gyro", type=Reads("file"),
+                   help="gyro log integrated over each frame's exposure: a Gyroflow .gcsv log or .gyroflow project "
+                        "(axes and sync offsets from the file), or a CSV of t, wx, wy, wz (rad/s, camera frame)")
+    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro (default: a .gyroflow project's) and the "
+                                           "renders' Vector pass (default 24)")
+    p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
+    p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0,
+                   help="time (s, the log's clock; a project's: the video's) at which --gyro-first-frame starts")
+    p.add_argument("--gyro-first-frame", type=frame_number, default=1)
+
+
 def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
-    motion, require = {}, False
+    motion, require, fps = {}, False, args.fps or 24.0
     if args.motion:
         motion, require = read_motion_json(args.motion), True
     elif args.gyro:
-        if not args.fps or args.exposure_s is None:
-            raise LowcamError(f"{args.gyro}: a gyro log needs --fps and --exposure-s")
-        motion = gyro_to_motion(read_gyro_csv(args.gyro), frames, args.fps, args.exposure_s, args.gyro_t0,
-                                args.gyro_first_frame, source=args.gyro)
-        require = True
+        (motion, fps), require = gyro_motion(args, frames), True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
-                _pass_effects(args), args.fps or 24.0, args.metres_per_unit, tuple(sorted(trusted_modules())))
+                _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())))
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -170,11 +192,7 @@ def add_commands(sub) -> None:
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
     p.add_argument("--motion", type=Reads("file"), help="motion.json: per-frame angular velocity and exposure")
-    p.add_argument("--gyro", type=Reads("file"), help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
-    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro and the renders' Vector pass (default 24)")
-    p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
-    p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
-    p.add_argument("--gyro-first-frame", type=frame_number, default=1)
+    gyro_options(p)
     p.add_argument("--frames", type=FRAMES, required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
     p.add_argument("-o", "--output", type=Writes("pattern", IMAGE_SUFFIXES), required=True,
                    help="output pattern: out/####.png")
