@@ -179,7 +179,8 @@ _MOTION_FILE_CACHE: dict = {}
 
 def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
     """The camera's angular velocity over ``frame``'s exposure from the chosen motion source."""
-    from lowcam.motion import gyro_to_motion, read_gyro_csv, read_motion_json
+    from lowcam.gyro_logs import read_gyro_log
+    from lowcam.motion import gyro_to_motion, read_motion_json
 
     from .motion import camera_motion
 
@@ -195,7 +196,7 @@ def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
     is_json = path.lower().endswith(".json")
     key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
     if key not in _MOTION_FILE_CACHE:                   # read once, not once per frame
-        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_csv(path)
+        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_log(path).samples
     data = _MOTION_FILE_CACHE[key]
     if is_json:
         if frame not in data:

@@ -65,6 +65,16 @@ def test_gcsv_reads_back_the_known_rotation(tmp_path):
     assert log.readout_s == pytest.approx(0.015)
 
 
+def test_plate_calibration_reads_a_gcsv_in_the_camera_frame(tmp_path):
+    """``calibrate plate --gyro`` (and the footage reader under it) takes a Gyroflow log as it takes Lowcam's CSV."""
+    from lowcam.measure.plate import read_phone_gyro
+
+    t = sample_times()
+    samples, frame_times = read_phone_gyro(write_gcsv(tmp_path / "clip.gcsv", t, known_rate(t)))
+    assert frame_times is None
+    np.testing.assert_allclose(samples[:, 1:], known_rate(t), atol=1e-6)
+
+
 def test_gyroflow_axes_are_up_left_back():
     """Gyroflow's IMU frame (its docs: z backward, x up, y left) in Lowcam's camera frame (x right, y down, z
     forward): a turn about Gyroflow's +x (up) is a turn about the camera's -y; about +y (left), -x; about +z
