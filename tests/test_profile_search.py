@@ -198,22 +198,23 @@ def test_without_lensfunpy_a_gyroflow_folder_is_still_searched(capsys, tmp_path,
             cache.cache_clear()
 
 
-def _search(*args, **kwargs):
-    return subprocess.run([sys.executable, "-m", "lowcam.cli", "profile", "search", *args], stderr=subprocess.PIPE,
-                          text=True, timeout=120, env={**os.environ, "LOWCAM_GYROFLOW_PROFILES": ""}, **kwargs)
+#: A user's environment: no Gyroflow folder, and stdout buffered as in a terminal session's pipe (an unbuffered
+#: stdout would meet the closed pipe at the first row, not at the flush on the way out).
+ENV = {**{k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}, lensdb.GYROFLOW_ENV: ""}
 
 
 def test_a_reader_that_leaves_is_no_error(tmp_path):
     """``lowcam profile search Canon | head -1`` through a real shell pipe, and a pipe whose reader is gone before
     the first row (the rows fit in the pipe's buffer, so only the flush sees it): status 0, nothing on stderr."""
     r = subprocess.run(["bash", "-c", f"set -o pipefail; {shlex.quote(sys.executable)} -m lowcam.cli profile search "
-                        "Canon | head -1"], capture_output=True, text=True, timeout=120,
-                       env={**os.environ, "LOWCAM_GYROFLOW_PROFILES": ""})
+                        "Canon | head -1"], capture_output=True, text=True, timeout=120, env=ENV)
     assert r.returncode == 0 and r.stderr == "" and r.stdout.startswith("Canon | ") and r.stdout.count("\n") == 1
     read, write = os.pipe()
     os.close(read)
     try:
-        r = _search("Canon", "--gyroflow", str(_gyroflow_folder(tmp_path)), stdout=write)
+        r = subprocess.run([sys.executable, "-m", "lowcam.cli", "profile", "search", "Canon", "--gyroflow",
+                            str(_gyroflow_folder(tmp_path))], stdout=write, stderr=subprocess.PIPE, text=True,
+                           timeout=120, env=ENV)
     finally:
         os.close(write)
     assert r.returncode == 0 and r.stderr.count("\n") == 1 and "no Gyroflow lens profile" in r.stderr, r.stderr
