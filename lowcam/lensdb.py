@@ -34,6 +34,7 @@ Contents
 - :data:`TYPO_LETTERS`: how long a word must be to be taken as mistyped
 - :class:`Match`: one row of a search: the entry, its score and the mistyped words it was found by
 - :func:`search`: lenses, cameras and Gyroflow profiles matching a text, typos allowed, best first, filtered
+- :func:`nearest_maker`: the maker a mistyped maker stands for
 - :func:`makers`: the makers of the lenses, cameras and Gyroflow profiles
 - :func:`is_of_type`: whether a lens type is the type asked for, or one of its kinds
 - :func:`lens_types`: the lens types of the database
@@ -365,6 +366,15 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     order = {LensEntry: 0, CameraEntry: 1, GyroflowEntry: 2}
     out.sort(key=lambda m: (-m[0].score, -m[1], order[type(m[0].entry)], m[0].entry.name.lower()))
     return [m for m, _ in out]
+
+
+def nearest_maker(text: str, names) -> str | None:
+    """The name of ``names`` (makers) that ``text`` is a typo of, case-blind, as :func:`search` takes a mistyped
+    word (at least :data:`TYPO_SIMILARITY` similar, rapidfuzz's ``OSA``); None if there is none."""
+    lowered = {name: name.lower() for name in names}
+    best = process.extractOne(text.strip().lower(), lowered, scorer=OSA.normalized_similarity,
+                              score_cutoff=TYPO_SIMILARITY / 100)
+    return None if best is None else best[2]
 
 
 def makers(gyroflow: Path | None = None, lensfun: bool = True) -> list[str]:

@@ -17,13 +17,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from rapidfuzz import fuzz, process
-
 from ..arguments import Number, Reads, Text, Writes, bounded_int
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
 from ..gyroflow import profile_from_gyroflow
-from ..lensdb import (GYROFLOW_ENV, TYPO_SIMILARITY, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers,
+from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, nearest_maker,
                       nearest_names, profile_from_lensfun, require_lensfunpy, search)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
@@ -98,20 +96,19 @@ def _counted(found) -> str:
 
 
 def _search_maker(maker: str | None, folder, lensfun: bool) -> str | None:
-    """The ``--maker`` to filter by: as given where a maker contains it, else the nearest maker (rapidfuzz,
-    said on stderr), else a one-line error with the nearest makers."""
+    """The ``--maker`` to filter by: as given where a maker contains it, else the nearest maker
+    (:func:`~lowcam.lensdb.nearest_maker`, said on stderr), else a one-line error with the nearest makers."""
     if not maker:
         return maker
     known = makers(folder, lensfun)
     if any(maker.strip().lower() in m.lower() for m in known):
         return maker
-    best = process.extractOne(maker.strip().lower(), {m: m.lower() for m in known}, scorer=fuzz.ratio,
-                              score_cutoff=TYPO_SIMILARITY)
+    best = nearest_maker(maker, known)
     if best is None:
         raise LowcamError(f"--maker {maker}: no lens, camera or Gyroflow profile of that maker; nearest: "
                           f"{nearest_names(maker, known)}")
-    print(f"no maker is '{maker}'; showing '{best[2]}'", file=sys.stderr)
-    return best[2]
+    print(f"no maker is '{maker}'; showing '{best}'", file=sys.stderr)
+    return best
 
 
 def cmd_profile_search(args) -> int:
