@@ -312,14 +312,14 @@ class Match:
 def _word_score(word: str, name_words: list[str], compact: str, near: dict[str, float]) -> tuple[float, str]:
     """How well one word of the search matches a name: 100 a word of it, 95 the start of one, 90 inside one or
     across words (``1835`` in ``18-35mm``), else the rapidfuzz similarity to its nearest word, at most 89."""
+    if word not in compact:
+        if not near:
+            return 0.0, ""
+        best = max(name_words, key=lambda w: near.get(w, 0.0), default="")
+        return min(near.get(best, 0.0), 89.0), best
     if word in name_words:
         return 100.0, word
-    if any(w.startswith(word) for w in name_words):
-        return 95.0, word
-    if word in compact:
-        return 90.0, word
-    best = max(name_words, key=lambda w: near.get(w, 0.0), default="")
-    return min(near.get(best, 0.0), 89.0), best
+    return (95.0 if any(w.startswith(word) for w in name_words) else 90.0), word
 
 
 def search(text: str, maker: str | None = None, lens_type: str | None = None, focal_mm: float | None = None,
@@ -358,8 +358,12 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     for e in entries:
         name_words = names[id(e)]
         compact = "".join(name_words)
-        scores = [_word_score(w, name_words, compact, near[w]) for w in words]
-        if all(s >= TYPO_SIMILARITY for s, _ in scores):
+        scores = []
+        for w in words:  # most names miss the first word: no need to score the rest
+            scores.append(_word_score(w, name_words, compact, near[w]))
+            if scores[-1][0] < TYPO_SIMILARITY:
+                break
+        else:
             out.append((Match(e, sum(s for s, _ in scores) / len(scores) if scores else 100.0,
                               tuple((w, m) for w, (s, m) in zip(words, scores) if s < 90)),
                         fuzz.ratio(whole, "".join(_words(e.name)))))
