@@ -6,8 +6,10 @@ distance, lensfun's own interpolation of its three calibrations (``Lens.interpol
 ``interpolate_tca``, ``interpolate_vignetting``): nothing of the database lookup or interpolation is redone here.
 The terms go into Lowcam's effects unchanged, in lensfun's own models and normalisation:
 
-- distortion (poly3, poly5, ptlens) -> ``lens_distortion`` with the same model
-  (:class:`~lowcam.effects.lens_models.LensfunLens`);
+- distortion (poly3, poly5, ptlens) -> ``lens_distortion`` with the same model, on the lens's projection (its
+  lensfun lens type: rectilinear, or a fisheye: equidistant, equisolid, stereographic, orthographic, Thoby; as
+  ``lensfun_geometry``) (:class:`~lowcam.effects.lens_models.LensfunLens`); a fisheye's focal length is the one
+  lensfun's geometry conversion takes (its real focal length where the database has one);
 - transverse chromatic aberration (linear, poly3) -> ``chromatic_aberration`` with ``model = "lensfun"``
   (:func:`~lowcam.effects.chromatic_aberration.lensfun_tca_offsets`);
 - vignetting (pa) -> ``vignetting`` with ``model = "lensfun_pa"``
@@ -42,6 +44,7 @@ Contents
 - :func:`find_lens`: one lens by maker and model (a one-line error with the nearest names otherwise)
 - :func:`camera_crop_factor`: a camera's crop factor from the database
 - :func:`calibration_aspect_ratio`: the lens entry's ``aspect-ratio`` from lensfun's XML (lensfunpy lacks it)
+- :func:`real_focal_length`: the lens entry's real focal length from lensfun's XML (lensfunpy lacks it)
 - :class:`LensSetting`: the lensfun terms of one lens at one setting, and the effects' values they give
 - :func:`lens_setting`: the lens's calibrations interpolated by lensfun at focal length, aperture and distance
 - :func:`profile_from_lensfun`: a profile: the base with the lens's distortion, TCA and vignetting
@@ -68,6 +71,7 @@ import numpy as np
 from rapidfuzz import fuzz, process
 from rapidfuzz.distance import OSA
 
+from .effects.lens_models import LENSFUN_GEOMETRIES
 from .errors import LowcamError
 from .gyroflow import read_gyroflow_lens
 from .profile import inherited_provenance
@@ -457,31 +461,51 @@ def camera_crop_factor(maker: str, model: str) -> tuple[float, str]:
 
 
 @functools.lru_cache(maxsize=1)
-def _aspect_ratios() -> dict:
+def _xml_lenses() -> dict:
+    """(maker, model, crop factor to 3 decimals) -> the lens's first element in lensfun's XML files."""
     lensfunpy = require_lensfunpy()
     out: dict = {}
     for path in sorted(Path(lensfunpy.__path__[0], "db_files").glob("*.xml")):
         for el in ET.parse(path).getroot().iter("lens"):
             crop = el.findtext("cropfactor")
             key = (el.findtext("maker") or "", el.findtext("model") or "", round(float(crop or 1.0), 3))
-            out.setdefault(key, el.findtext("aspect-ratio"))
+            out.setdefault(key, el)
     return out
+
+
+def _xml_lens(entry: LensEntry):
+    return _xml_lenses().get((entry.maker, entry.model, round(entry.crop_factor, 3)))
 
 
 def calibration_aspect_ratio(entry: LensEntry) -> float:
     """The lens entry's ``aspect-ratio`` (long / short side of the calibration sensor) from lensfun's XML files
     (lensfunpy does not expose it); lensfun's default 3:2 where the entry gives none."""
-    text = _aspect_ratios().get((entry.maker, entry.model, round(entry.crop_factor, 3)))
+    el = _xml_lens(entry)
+    text = None if el is None else el.findtext("aspect-ratio")
     if not text:
         return 1.5
     a, _, b = text.partition(":")
     return float(a) / float(b) if b else float(a)
 
 
+def real_focal_length(entry: LensEntry, focal_mm: float) -> float | None:
+    """The lens's real focal length (mm) at ``focal_mm`` from its ``real-focal-length`` calibrations in lensfun's
+    XML (lensfunpy does not expose them), linear between calibrated focal lengths; None where it has none.
+    Lensfun's geometry conversion uses it (``lfModifier::GetRealFocalLength``)."""
+    el = _xml_lens(entry)
+    found = sorted((float(c.get("focal")), float(c.get("real-focal"))) for c in ([] if el is None else
+                   el.iter("real-focal-length")) if c.get("focal") and c.get("real-focal"))
+    if not found:
+        return None
+    return _f32(np.interp(focal_mm, [f for f, _ in found], [r for _, r in found]))
+
+
 @dataclass
 class LensSetting:
     """The lensfun terms of one lens at one setting (focal length mm, f-number, focus distance m) on a camera of
-    crop factor ``crop_factor``, and the values of Lowcam's effects they give (:meth:`effects`)."""
+    crop factor ``crop_factor``, and the values of Lowcam's effects they give (:meth:`effects`). ``geometry``: the
+    lens's projection (lensfun's lens type); ``real_focal_mm``: its real focal length where the database has one
+    (lensfun's geometry conversion of a fisheye uses it)."""
 
     entry: LensEntry
     focal_mm: float
@@ -493,6 +517,18 @@ class LensSetting:
     distortion: tuple[str, list[float]] | None
     tca: tuple[str, list[float]] | None
     vignetting: list[float] | None
+    geometry: str = "rectilinear"
+    real_focal_mm: float | None = None
+
+    def projection_focal_mm(self) -> float:
+        """The focal length (mm) of the undistorted coordinates, LensDistortion's ``focal_length``: the nominal one,
+        but for a fisheye with a real focal length that over Hugin's correction ``1 - k1`` or ``1 - a - b - c``
+        (lensfun 0.3.4 ``lfModifier::Initialize``: ``GetRealFocalLength / get_hugin_focal_correction``)."""
+        if self.geometry == "rectilinear" or self.real_focal_mm is None:
+            return self.focal_mm
+        model, terms = self.distortion or ("poly3", [0.0])
+        hugin = {"poly3": 1.0 - terms[0], "ptlens": 1.0 - sum(terms)}.get(model, 1.0)
+        return self.real_focal_mm / hugin
 
     def _frame(self) -> dict:
         lens = self.entry.lens
@@ -506,8 +542,10 @@ class LensSetting:
         keys = {"poly3": ("lensfun_k1",), "poly5": ("lensfun_k1", "lensfun_k2"),
                 "ptlens": ("lensfun_a", "lensfun_b", "lensfun_c")}
         model, terms = self.distortion or ("poly3", [0.0])
-        out = {"lens_distortion": {"model": model, "focal_length": self.focal_mm, **self._frame(),
+        out = {"lens_distortion": {"model": model, "focal_length": self.projection_focal_mm(), **self._frame(),
                                    **dict(zip(keys[model], terms)), "render_hfov_deg": 0.0}}
+        if self.geometry != "rectilinear":  # the default stays unwritten
+            out["lens_distortion"]["lensfun_geometry"] = self.geometry
         if self.tca is not None:
             tmodel, t = self.tca
             red, blue = ([t[0], 0.0, 0.0], [t[1], 0.0, 0.0]) if tmodel == "linear" else ([t[0], t[2], t[4]],
@@ -527,13 +565,23 @@ class LensSetting:
         crop = f"on a camera of crop factor {self.crop_factor:.4g} ({self.crop_source})"
         fmt = lambda xs: ", ".join(f"{x:.6g}" for x in xs)  # noqa: E731
         out = {}
+        kind = self.geometry.replace("_", " ")
+        if self.geometry == "rectilinear":
+            focal = "focal_length is the nominal focal length"
+        elif self.real_focal_mm is None:
+            focal = f"a {kind} lens (lensfun's lens type); focal_length is the nominal focal length"
+        else:
+            focal = f"a {kind} lens (lensfun's lens type); focal_length is the database's real focal length " \
+                    f"{self.real_focal_mm:g} mm over Hugin's correction (1 - k1 or 1 - a - b - c), as lensfun's " \
+                    "geometry conversion takes it"
         if self.distortion is None:
-            out["lens_distortion"] = f"{db}: the database has no distortion calibration for this lens: a pinhole " \
-                                     f"(poly3 k1 = 0) of focal length {self.focal_mm:g} mm {crop}"
+            ideal = "a pinhole" if self.geometry == "rectilinear" else f"an ideal {kind} projection"
+            out["lens_distortion"] = f"{db}: the database has no distortion calibration for this lens: {ideal} " \
+                                     f"(poly3 k1 = 0) of focal length {self.projection_focal_mm():g} mm {crop}"
         else:
             model, terms = self.distortion
             out["lens_distortion"] = f"{db} at {self.focal_mm:g} mm {crop}: {model} terms {fmt(terms)} " \
-                                     "(lensfun's interpolation); focal_length is the nominal focal length"
+                                     f"(lensfun's interpolation); {focal}"
         if self.tca is not None:
             model, terms = self.tca
             out["chromatic_aberration"] = f"{db} at {self.focal_mm:g} mm {crop}: TCA {model} terms " \
@@ -572,7 +620,8 @@ def lens_setting(entry: LensEntry, focal_mm: float, aperture: float | None = Non
                                                                   dist.terms[:{"poly3": 1, "poly5": 2}.get(
                                                                       _model_name(dist), 3)]]),
         None if tca is None or _model_name(tca) == "none" else (_model_name(tca), [_f32(t) for t in tca.terms]),
-        None if vig is None or _model_name(vig) != "pa" else [_f32(t) for t in vig.terms[:3]])
+        None if vig is None or _model_name(vig) != "pa" else [_f32(t) for t in vig.terms[:3]],
+        entry.lens_type, real_focal_length(entry, focal_mm))
 
 
 def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture: float | None = None,
@@ -593,9 +642,9 @@ def profile_from_lensfun(base, maker: str, model: str, focal_mm: float, aperture
             raise LowcamError(f"--crop-factor {crop_factor:g} is outside 0.1..100")
         source = "given"
     entry = find_lens(maker, model, crop_factor)
-    if entry.lens_type != "rectilinear":
-        raise LowcamError(f"{entry.name}: a {entry.lens_type.replace('_', ' ')} lens; Lowcam takes only "
-                          "rectilinear lenses from lensfun so far")
+    if entry.lens_type not in LENSFUN_GEOMETRIES:
+        raise LowcamError(f"{entry.name}: a {entry.lens_type.replace('_', ' ')} lens; Lowcam takes rectilinear and "
+                          f"fisheye lenses from lensfun ({', '.join(g.replace('_', ' ') for g in LENSFUN_GEOMETRIES)})")
     setting = lens_setting(entry, focal_mm, aperture, distance_m, crop_factor, source)
     # the new effects' errors (a lens that folds over) name the lens and the setting, not the base's file
     source = (f"{entry.name} at {setting.focal_mm:g} mm, crop factor {setting.crop_factor:.3g}, on {base.name}'s "
