@@ -42,8 +42,9 @@ from ..node_images import stmap
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 from .lens_models import (BLENDER_KEYS, BLENDER_MODELS, FULL_FRAME_HALF_DIAGONAL_MM, LENSFUN_FRAME_PARAMS,
-                          LENSFUN_GEOMETRIES, LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens, KannalaBrandtLens,
-                          LensfunLens, LensModel, OpenCVLens, field_needed, lensfun_frame)
+                          LENSFUN_GEOMETRIES, LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens,
+                          KannalaBrandtLens, LensfunLens, LensModel, OpenCVLens, field_needed, lensfun_frame,
+                          lensfun_projection, lensfun_projection_limit)
 
 
 def lens_model_from(values: dict, width: int, height: int) -> LensModel:
@@ -184,6 +185,12 @@ class LensDistortion(Effect):
             corner = np.sqrt(1 + self.calibration_aspect_ratio ** 2) * self.calibration_crop_factor / self.crop_factor
             lens = self.model_for(2, 2)
             if lens.rd_max() < (1 - LENSFUN_FOLD_TOLERANCE) * corner:
+                limit = lensfun_projection_limit(lens.geometry)
+                if lens.ru_max() >= lens.scale * lensfun_projection(lens.geometry, limit) * (1 - 1e-9):
+                    raise self.error(f"the frame's corner (normalised radius {corner:.3f}) lies beyond what the "
+                                     f"{lens.geometry.replace('_', ' ')} lens sees, {np.degrees(limit):.0f} deg from "
+                                     f"the axis at normalised radius {lens.rd_max():.3f} (an image circle inside "
+                                     "the frame): a larger crop factor takes a part of it")
                 raise self.error(f"the {self.model} distortion folds over inside the frame (its radius stops rising "
                                  f"at normalised radius {lens.rd_max():.3f}, before the corner's {corner:.3f}): "
                                  "check the coefficients and the crop factors")
