@@ -116,6 +116,7 @@ class Shot:
     fps: float = 24.0              # the frame rate the renders' Vector pass was made at
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
     plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
+    render_space: str | None = None  # the renders' colour space (None: their header's, else linear Rec.709)
 
     def load_profile(self):
         """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
@@ -231,7 +232,8 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
             raise LowcamError(f"{shot.motion_source}: no entry for this frame")
         motion = motion or FrameMotion((0.0, 0.0, 0.0))
         render, passes = read_render_and_passes(expand_pattern(shot.renders, frame), shot.layer,
-                                                needed_passes(profile), shot.fps, shot.metres_per_unit)
+                                                needed_passes(profile), shot.fps, shot.metres_per_unit,
+                                                shot.render_space)
         plate = _read_plate(shot, frame, profile) if shot.plates else None
         image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame,
                          passes)

@@ -1,0 +1,127 @@
+"""Blender's colour management respected: a render made in any working space Blender offers (5.0: Linear Rec.709,
+Linear Rec.2020, ACEScg) gives the same degraded frame, and setting a scene up leaves its view transform and look
+alone. The conversion itself is checked against colour-science's."""
+import colour
+import numpy as np
+import OpenEXR
+import pytest
+
+from lowcam.errors import LowcamError
+from lowcam.io import read_exr_and_space, read_render
+from lowcam.render_spaces import (LINEAR_REC709, RENDER_SPACES, header_space, render_space, space_from_chromaticities,
+                                  to_camera_space, to_rec709_matrix)
+
+#: Test colours in linear Rec.709: saturated, pale, dark, white.
+COLOURS = np.array([[0.8, 0.1, 0.05], [0.1, 0.6, 0.3], [0.2, 0.3, 0.9], [0.02, 0.01, 0.015], [1.0, 1.0, 1.0]])
+
+
+def _colour_science(name):
+    """colour-science's own colourspace, its matrices derived from primaries and white (as Blender's are)."""
+    space = colour.RGB_COLOURSPACES[name].copy()
+    space.use_derived_transformation_matrices(True)
+    return space
+
+
+@pytest.mark.parametrize("ours, theirs", [("acescg", "ACEScg"), ("linear-rec2020", "ITU-R BT.2020"),
+                                          ("aces2065-1", "ACES2065-1"), ("linear-p3-d65", "P3-D65")])
+def test_conversion_matches_colour_science(ours, theirs):
+    """Each space -> linear Rec.709 (Bradford between the whites) as colour-science converts it, within 2e-6."""
+    rgb = np.linalg.solve(to_rec709_matrix(render_space(ours)), COLOURS.T).T      # the colours in that space
+    expected = colour.RGB_to_RGB(rgb, _colour_science(theirs), _colour_science("sRGB"),
+                                 chromatic_adaptation_transform="Bradford")
+    got = to_camera_space(np.concatenate([rgb, np.ones((len(rgb), 1))], -1)[None].astype(np.float32),
+                          render_space(ours))[0]
+    assert np.abs(got[:, :3] - expected).max() < 2e-6
+    assert np.abs(got[:, :3] - COLOURS).max() < 2e-6
+    assert np.array_equal(got[:, 3], np.ones(len(rgb)))
+
+
+def test_acescg_matches_blenders_own_conversion():
+    """Blender 5.0 turned the world colour (0.8, 0.2, 0.1) into ACEScg (0.56312, 0.24077, 0.12539) and Linear
+    Rec.2020 (0.57211, 0.24032, 0.12028) (wm.set_working_color_space, printed to 5 places)."""
+    for name, seen in (("acescg", (0.56312, 0.24077, 0.12539)), ("linear-rec2020", (0.57211, 0.24032, 0.12028))):
+        assert np.allclose(to_rec709_matrix(render_space(name)) @ seen, (0.8, 0.2, 0.1), atol=1e-5)
+
+
+def test_rec709_is_left_as_it_is():
+    rgba = np.random.default_rng(1).random((4, 5, 4), dtype=np.float32)
+    assert to_camera_space(rgba, LINEAR_REC709) is rgba
+    assert to_camera_space(rgba, None) is rgba
+    assert np.array_equal(to_rec709_matrix(LINEAR_REC709), np.eye(3)) or \
+        np.abs(to_rec709_matrix(LINEAR_REC709) - np.eye(3)).max() < 1e-12
+
+
+def test_names_headers_and_refusals():
+    """Blender's names and interop IDs find the spaces; chromaticities match a known space or make their own;
+    an interop ID Lowcam does not know is one line naming the file."""
+    assert render_space("ACEScg") is render_space("lin_ap1_scene") is RENDER_SPACES["acescg"][0]
+    assert render_space("Linear Rec.2020") is RENDER_SPACES["linear-rec2020"][0]
+    ap1 = (0.713, 0.293, 0.165, 0.830, 0.128, 0.044, 0.32168, 0.33767)
+    assert space_from_chromaticities(np.float32(ap1)) is RENDER_SPACES["acescg"][0]
+    odd = space_from_chromaticities((0.7, 0.3, 0.2, 0.7, 0.15, 0.05, 0.3127, 0.329))
+    assert odd.name.startswith("chromaticities") and odd.white == pytest.approx((0.3127, 0.329))
+    assert header_space({}) is None
+    assert header_space({"colorInteropID": "lin_rec709_scene"}) is LINEAR_REC709
+    with pytest.raises(LowcamError, match=r"^r\.exr: rendered in colour space 'srgb_tx'.*--render-space"):
+        header_space({"colorInteropID": "srgb_tx"}, "r.exr")
+    with pytest.raises(LowcamError, match="unknown render colour space 'p3'"):
+        render_space("p3")
+
+
+def _exr(path, rgba, **header):
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **header},
+                 {"RGBA": rgba}).write(str(path))
+    return path
+
+
+def test_read_render_converts_by_header_or_stated_space(tmp_path):
+    """An EXR naming ACEScg (Blender's colorInteropID or the chromaticities) reads as linear Rec.709; one naming
+    nothing reads as it is, unless a space is stated; linear Rec.709 gives the same bytes as before."""
+    rng = np.random.default_rng(2)
+    rgba = np.zeros((48, 64, 4), np.float32)
+    rgba[8:40, 8:56] = rng.random((32, 48, 4), dtype=np.float32)
+    rgba[..., :3] *= rgba[..., 3:]
+    ap1 = RENDER_SPACES["acescg"][0]
+    expected = to_camera_space(rgba, ap1)
+    by_id = _exr(tmp_path / "id.exr", rgba, colorInteropID="lin_ap1_scene")
+    by_xy = _exr(tmp_path / "xy.exr", rgba, chromaticities=(0.713, 0.293, 0.165, 0.830, 0.128, 0.044, 0.32168,
+                                                            0.33767))
+    bare = _exr(tmp_path / "bare.exr", rgba)
+    rec709 = _exr(tmp_path / "709.exr", rgba, colorInteropID="lin_rec709_scene")
+    assert read_exr_and_space(by_id)[1] is ap1
+    assert np.array_equal(read_render(by_id), expected)
+    assert np.array_equal(read_render(by_xy), expected)
+    assert np.array_equal(read_render(bare), rgba)
+    assert np.array_equal(read_render(rec709), rgba)
+    assert np.array_equal(read_render(bare, render_space="acescg"), expected)
+    assert np.array_equal(read_render(by_id, render_space="linear-rec709"), rgba)      # stated wins
+    assert np.abs(expected - rgba).max() > 0.05                                         # a real change
+
+
+def test_cli_render_space(tmp_path):
+    """``lowcam apply --render-space acescg`` on a bare EXR gives the frame of the converted render; an unknown
+    space is one line."""
+    import subprocess
+    import sys
+
+    from lowcam.outputs import write_image
+    from lowcam.pipeline import run
+
+    rgba = np.zeros((480, 640, 4), np.float32)
+    rgba[100:380, 150:500] = (0.5, 0.2, 0.1, 1.0)
+    bare = _exr(tmp_path / "bare.exr", rgba)
+    cmd = [sys.executable, "-m", "lowcam.cli", "apply", "--render", str(bare), "--profile", "fire-i"]
+    r = subprocess.run(cmd + ["--render-space", "acescg", "-o", str(tmp_path / "a.png")], capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr
+    from lowcam.io import read_image
+
+    expected = run(to_camera_space(rgba, render_space("acescg")), "fire-i").frame
+    assert np.array_equal(read_image(tmp_path / "a.png"), expected)
+    write_image(tmp_path / "plain.png", run(rgba, "fire-i").frame)
+    assert not np.array_equal(read_image(tmp_path / "plain.png"), expected)
+    r = subprocess.run(cmd + ["--render-space", "p3", "-o", str(tmp_path / "b.png")], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        "lowcam apply: error: argument --render-space: unknown render colour space 'p3' (known: linear-rec709, "
+        "linear-rec2020, acescg, aces2065-1, linear-p3-d65) (see lowcam apply --help)"]
