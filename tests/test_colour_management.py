@@ -231,3 +231,39 @@ def test_set_up_leaves_the_view_transform_and_look(renders_by_space):
     """After ``lowcam render``'s set-up and render the scene's view transform and look are the user's."""
     for space, (_, _, after) in renders_by_space.items():
         assert after == USER_VIEWS[space], space
+
+
+@pytest.mark.blender
+def test_node_group_gives_the_rec709_frame_in_every_working_space(tmp_path):
+    """*Add Camera Node* on the planes' scene in each working space, noise off: the compositor's frame (written
+    with the output's own Standard view while the scene keeps the user's view and look) is the Linear Rec.709
+    one within 1 DN but for 1 value in 10,000, 4 DN everywhere (a 6-bit step, as above)."""
+    bpy = pytest.importorskip("bpy")
+    from lowcam_blender import submodule
+
+    from lowcam.io import read_image
+
+    if bpy.app.version < (5, 0, 0):
+        pytest.skip(f"Blender {bpy.app.version_string}: the node group's composite is checked from 5.0 on")
+    spaces = [item.identifier for item in bpy.data.colorspace.bl_rna.properties["working_space"].enum_items]
+    frames = {}
+    for space in spaces:
+        folder = tmp_path / space.replace(" ", "_").replace(".", "")
+        folder.mkdir()
+        _scene_in(bpy, folder, space)
+        scene = bpy.context.scene
+        assert bpy.ops.lowcam.add_camera_node() == {"FINISHED"}
+        node = next(n for n in submodule("blender_compat").compositor_tree(scene).nodes
+                    if n.bl_idname == "LowcamCameraNode")
+        node.inputs["Noise"].default_value = 0.0
+        settings = scene.render.image_settings
+        settings.file_format, settings.color_depth, settings.color_mode = "PNG", "8", "RGB"
+        scene.render.filepath = str(folder / "node.png")
+        bpy.ops.render.render(write_still=True)
+        assert (scene.view_settings.view_transform, scene.view_settings.look) == USER_VIEWS[space]
+        frames[space] = read_image(folder / "node.png").astype(int)
+    for space, frame in frames.items():
+        diff = np.abs(frame - frames["Linear Rec.709"])
+        print(space, "node frame vs Rec.709: max", diff.max(), "DN, share > 1 DN", (diff > 1).mean())
+        assert diff.max() <= 4 and (diff > 1).mean() < 1e-4, (space, diff.max(), (diff > 1).mean())
+        assert frame.std() > 5                                   # a picture, not a flat field
