@@ -23,6 +23,7 @@ Contents
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import subprocess
@@ -35,6 +36,7 @@ import numpy as np
 
 from .errors import LowcamError
 from .parallel import row_strips, thread_map
+from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
 from .window import nonzero_window
 
 
@@ -120,8 +122,6 @@ _COLOUR_TAGS = ("colorInteropID", "chromaticities")
 def _read_exr_in_child(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     """:func:`_read_exr_tagged` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is
     too old for the OpenEXR wheel); the channels and tags come back through a temporary ``.npz``."""
-    import json
-
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     with tempfile.TemporaryDirectory(prefix="lowcam-exr-") as folder:
         out = Path(folder) / "channels.npz"
@@ -148,8 +148,6 @@ def read_exr_and_space(path):
     """``(channels, space)``: :func:`read_exr`'s channels and the colour space the file's header names
     (:func:`lowcam.render_spaces.header_space`: Blender 5's ``colorInteropID`` or the ``chromaticities``), None
     when it names none."""
-    from .render_spaces import header_space
-
     channels, tags = _read_exr_tagged(path)
     return channels, header_space(tags, path)
 
@@ -158,8 +156,6 @@ def render_space_of(path, stated=None, header=None):
     """The colour space of the render at ``path``: ``stated`` (a name, :func:`lowcam.render_spaces.render_space`)
     when given, else the one its header names (``header``, as :func:`read_exr_and_space` gives it), else linear
     Rec.709."""
-    from .render_spaces import LINEAR_REC709, render_space
-
     if stated:
         return render_space(stated)
     return header or LINEAR_REC709
@@ -246,8 +242,6 @@ def read_render(path, layer: str | None = None, render_space: str | None = None)
     The format is told by the file's first bytes, not its name. A render in another colour space (``render_space``
     when given, else the one an OpenEXR header names: :func:`render_space_of`) is converted to linear Rec.709.
     """
-    from .render_spaces import to_camera_space
-
     path = _exists(path)
     header = None
     if _format(path) == "exr":
