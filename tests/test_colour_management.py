@@ -98,31 +98,24 @@ def test_read_render_converts_by_header_or_stated_space(tmp_path):
     assert np.abs(expected - rgba).max() > 0.05                                         # a real change
 
 
-def test_cli_render_space(tmp_path):
+def test_cli_render_space(tmp_path, capsys):
     """``lowcam apply --render-space acescg`` on a bare EXR gives the frame of the converted render; an unknown
     space is one line."""
-    import subprocess
-    import sys
-
-    from lowcam.outputs import write_image
+    from lowcam.cli import main
+    from lowcam.io import read_image
     from lowcam.pipeline import run
 
     rgba = np.zeros((480, 640, 4), np.float32)
     rgba[100:380, 150:500] = (0.5, 0.2, 0.1, 1.0)
     bare = _exr(tmp_path / "bare.exr", rgba)
-    cmd = [sys.executable, "-m", "lowcam.cli", "apply", "--render", str(bare), "--profile", "fire-i"]
-    r = subprocess.run(cmd + ["--render-space", "acescg", "-o", str(tmp_path / "a.png")], capture_output=True,
-                       text=True)
-    assert r.returncode == 0, r.stderr
-    from lowcam.io import read_image
-
+    args = ["apply", "--render", str(bare), "--profile", "fire-i"]
+    assert main(args + ["--render-space", "acescg", "-o", str(tmp_path / "a.png")]) == 0
     expected = run(to_camera_space(rgba, render_space("acescg")), "fire-i").frame
     assert np.array_equal(read_image(tmp_path / "a.png"), expected)
-    write_image(tmp_path / "plain.png", run(rgba, "fire-i").frame)
-    assert not np.array_equal(read_image(tmp_path / "plain.png"), expected)
-    r = subprocess.run(cmd + ["--render-space", "p3", "-o", str(tmp_path / "b.png")], capture_output=True, text=True)
-    assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == [
+    assert not np.array_equal(run(rgba, "fire-i").frame, expected)
+    capsys.readouterr()
+    assert main(args + ["--render-space", "p3", "-o", str(tmp_path / "b.png")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
         "lowcam apply: error: argument --render-space: unknown render colour space 'p3' (known: linear-rec709, "
         "linear-rec2020, acescg, aces2065-1, linear-p3-d65) (see lowcam apply --help)"]
 
