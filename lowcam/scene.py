@@ -34,13 +34,10 @@ def read_layers(path, layer: str, overlay_layer: str | None = None, channels: di
     """(render, overlay) premultiplied linear Rec.709 RGBA from a Blender multilayer EXR: view layer ``layer``'s
     Combined pass and, when asked, ``overlay_layer``'s. ``channels``: the file's already read; ``render_space``:
     their colour space (a :class:`~lowcam.render_spaces.RenderSpace`; None: the one the file's header names)."""
-    if render_space is None:
-        given = channels
-        channels, header = read_exr_and_space(path)
-        channels = channels if given is None else given
-        render_space = render_space_of(path, None, header)
-    elif channels is None:
-        channels = read_exr_and_space(path)[0]
+    if channels is None or render_space is None:
+        read, header = read_exr_and_space(path)
+        channels = read if channels is None else channels
+        render_space = render_space or render_space_of(path, None, header)
 
     def rgba(name, chosen):
         return check_render(to_camera_space(_rgba_from_exr(path, chosen), render_space), name)
