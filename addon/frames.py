@@ -1,7 +1,8 @@
 """From a Blender scene to the engine's inputs: render set-up, profile with the scene's settings, plate, motion.
 
-Render set-up (:func:`setup_scene`): a transparent film, the Standard view transform without dither (plates pass
-unchanged), a multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
+Render set-up (:func:`setup_scene`): a transparent film without dither (the scene's view transform and look stay
+the user's: the EXR holds the working space's linear light and names it, and the engine converts it), a
+multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
 "Lowcam Overlay" view layer that renders only that collection; the Vector pass for object motion and the Z pass
 for defocus from depth when those are on, with Cycles' own motion blur off; the scene camera gets the pinhole field
 of view the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`).
@@ -12,7 +13,7 @@ Contents
 - :func:`settings`: the scene's Lowcam settings
 - :func:`scene_profile`: the chosen profile with the scene's sharpness, saturation, object motion, defocus and clip lens
 - :func:`clip_lens`: the Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)
-- :func:`setup_render_camera`: give a scene the render camera, film and view transform the engine needs
+- :func:`setup_render_camera`: give a scene the render camera and film the engine needs
 - :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
 - :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
@@ -81,8 +82,8 @@ def clip_lens(clip) -> dict:
 
 def setup_render_camera(scene, render_width: int | None = None) -> dict:
     """Give ``scene`` the render the engine and the node group take: the pinhole field of view and size of
-    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width), a transparent film and
-    the Standard view without dither (plates pass unchanged). Returns the render camera."""
+    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width) and a transparent film
+    without dither; the scene's view transform and look are left alone. Returns the render camera."""
     from lowcam.pipeline import render_camera
 
     width = render_width or scene.render.resolution_x * scene.render.resolution_percentage // 100
@@ -91,7 +92,6 @@ def setup_render_camera(scene, render_width: int | None = None) -> dict:
     r.resolution_x, r.resolution_y, r.resolution_percentage = cam["width"], cam["height"], 100
     r.film_transparent = True
     r.dither_intensity = 0.0
-    scene.view_settings.view_transform = "Standard"
     if scene.camera is not None:
         scene.camera.data.sensor_fit = "HORIZONTAL"
         scene.camera.data.angle = math.radians(cam["hfov_deg"])
@@ -111,6 +111,7 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
     set_multilayer_exr(settings_)
     settings_.color_depth = "32"
     settings_.exr_codec = "ZIP"
+    settings_.color_management = "FOLLOW_SCENE"     # the working space's linear light, named in the header
     _setup_overlay_layer(scene, s.exclude_collection)
     layer = scene.view_layers[main_layer(scene)]
     layer.use_pass_vector = s.use_object_motion

@@ -121,6 +121,7 @@ class Shot:
     fps: float = 24.0              # the frame rate the renders' Vector pass was made at
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
     plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
+    render_space: str | None = None  # the renders' colour space (None: their header's, else linear Rec.709)
 
     def load_profile(self):
         """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
@@ -245,7 +246,7 @@ def _timed(fn, *args):
 def _read_inputs(shot: Shot, frame: int, profile):
     """(render, passes, plate) of ``frame``."""
     render, passes = read_render_and_passes(expand_pattern(shot.renders, frame), shot.layer, needed_passes(profile),
-                                            shot.fps, shot.metres_per_unit)
+                                            shot.fps, shot.metres_per_unit, shot.render_space)
     return render, passes, _read_plate(shot, frame, profile) if shot.plates else None
 
 

@@ -31,11 +31,11 @@ from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
-from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE
+from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE
 
 
 def _load_inputs(args, profile):
-    render = read_render(args.render, args.layer)
+    render = read_render(args.render, args.layer, args.render_space)
     plate = None
     if args.plate:
         c = profile.camera
@@ -66,13 +66,19 @@ def _pass_options(p, fps: bool) -> None:
                    help="the Depth pass's unit in metres (Blender's Unit Scale; default 1)")
 
 
+def _render_space_option(p) -> None:
+    p.add_argument("--render-space", type=RENDER_SPACE, metavar="SPACE",
+                   help="the renders' colour space: linear-rec709, linear-rec2020, acescg (or Blender's name); "
+                        "default: the one an OpenEXR header names, else linear-rec709")
+
+
 def cmd_apply(args) -> int:
     check_image_output(args.output)
     profile = load_profile(args.profile)
     for name, values in _pass_effects(args):
         profile = profile.with_effect(name, **dict(values))
     render, passes = read_render_and_passes(args.render, args.layer, needed_passes(profile), args.fps,
-                                            args.metres_per_unit)
+                                            args.metres_per_unit, args.render_space)
     c = profile.camera
     plate = read_plate(args.plate, c.width, c.height, channels=None if profile.is_raw else 3) if args.plate else None
     t0 = time.perf_counter()
@@ -143,7 +149,8 @@ def cmd_batch(args) -> int:
         (motion, fps), require = gyro_motion(args, frames), True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
-                _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())))
+                _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())),
+                args.render_space)
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -163,6 +170,7 @@ def add_commands(sub) -> None:
         p.add_argument("--render", type=Reads("file"), required=render_required,
                        help="premultiplied RGBA render (EXR or PNG)")
         p.add_argument("--layer", type=LAYER, help="the view layer to take from a multilayer EXR with several")
+        _render_space_option(p)
         p.add_argument("--plate", type=Reads("file"), help="the video frame (PNG/JPEG) at the camera's size")
         p.add_argument("--angular-velocity", type=angular_velocity, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                        help="camera rotation in rad/s, camera frame: x right, y down, z forward")
@@ -188,6 +196,7 @@ def add_commands(sub) -> None:
     p.add_argument("--profile", type=PROFILE, default="fire-i")
     p.add_argument("--renders", type=Reads("pattern"), required=True, help="render pattern, '#' for frame digits: renders/####.exr")
     p.add_argument("--layer", type=LAYER, help="the view layer to take from multilayer EXRs with several")
+    _render_space_option(p)
     p.add_argument("--plates", type=Reads("pattern"), help="plate pattern (plate/####.png) or one video file")
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
