@@ -3,27 +3,33 @@ runs.
 
 From views of a chessboard or ChArUco board, the poses start from OpenCV's pinhole calibration (Zhang's method);
 intrinsics, distortion and poses are then refined together by Levenberg-Marquardt on the reprojection error (the
-paper uses damped Gauss-Newton).
+paper uses damped Gauss-Newton). OpenCV's fisheye (Kannala-Brandt) model is fitted by OpenCV itself
+(``cv2.fisheye.calibrate``), whose start suits lenses far wider than a pinhole's.
 
 Contents
 --------
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
-- :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
+- :func:`fit_lens`: fit a lens ``model`` (``"fov"``, ``"opencv"`` or ``"fisheye"``) to views of a planar target
+  (sec. 4.1)
+- :class:`IllConditionedView`: ``cv2.fisheye.calibrate`` found one view's pose ill-conditioned (which one)
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 - [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
+- [Kannala2006] J. Kannala and S. S. Brandt, "A Generic Camera Model and Calibration Method for Conventional,
+  Wide-Angle, and Fish-Eye Lenses", IEEE TPAMI 28(8), 1335-1340, 2006.
 """
 from __future__ import annotations
 
+import re
 
 import cv2
 import numpy as np
 
 from .lens import LensDistortion
-from .lens_models import FovLens, OpenCVLens
+from .lens_models import FovLens, KannalaBrandtLens, OpenCVLens
 
 
 class LensFit:
@@ -50,6 +56,11 @@ class LensFit:
 
 
 def _unpack(model, p, width, height, fix_aspect):
+    if model == "fisheye":  # fx, fy, cx, cy, then k1.. as many as fitted (the rest 0)
+        ks = list(p[4:]) + [0.0] * (8 - len(p))
+        params = dict(fx_px=p[0], fy_px=p[1], cx_px=p[2], cy_px=p[3],
+                      **{f"fisheye_k{n + 1}": ks[n] for n in range(4)})
+        return KannalaBrandtLens(width, height, *p[:4], *ks), params
     if model == "fov":
         fx, cx, cy, w = p[0], p[1], p[2], p[3]
         fy = fx * width / height if fix_aspect else p[4]
@@ -61,33 +72,77 @@ def _unpack(model, p, width, height, fix_aspect):
     return OpenCVLens(width, height, f, fy, cx, cy, k1, k2, k3, p1, p2), params
 
 
-def fit_lens(object_points, image_points, image_size, model: str = "fov", fix_aspect: bool = True) -> LensFit:
-    """Fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target.
+class IllConditionedView(ValueError):
+    """``cv2.fisheye.calibrate`` (with ``CALIB_CHECK_COND``) found the pose of view ``index`` ill-conditioned: the
+    target too small, too far, or too nearly edge-on in it."""
+
+    def __init__(self, index: int):
+        super().__init__(f"view {index} is ill-conditioned")
+        self.index = index
+
+
+#: ``cv2.fisheye.calibrate``'s flags: the poses re-solved after each step of the intrinsics, no skew, and the
+#: views' conditioning checked (an ill-conditioned view is named, :class:`IllConditionedView`).
+FISHEYE_FLAGS = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW | cv2.fisheye.CALIB_CHECK_COND
+
+
+#: The fisheye's coefficients held at 0 from the highest: ``fisheye_terms`` 4 fits k1..k4, 3 holds k4, and so on.
+_FISHEYE_HOLD = {4: 0, 3: cv2.fisheye.CALIB_FIX_K4, 2: cv2.fisheye.CALIB_FIX_K4 | cv2.fisheye.CALIB_FIX_K3,
+                 1: cv2.fisheye.CALIB_FIX_K4 | cv2.fisheye.CALIB_FIX_K3 | cv2.fisheye.CALIB_FIX_K2}
+
+
+def _fisheye_start(obj, img, image_size, terms: int):
+    """OpenCV's fisheye calibration (``cv2.fisheye.calibrate``, :data:`FISHEYE_FLAGS`, k1..k``terms`` free):
+    (K, D, rvecs, tvecs). OpenCV's solve alternates between the intrinsics and the poses and stops short of the
+    least reprojection error (from the true lens it walks away from it), so it is a start only."""
+    try:
+        _, k, d, rvecs, tvecs = cv2.fisheye.calibrate(
+            [o.reshape(-1, 1, 3) for o in obj], [i.reshape(-1, 1, 2) for i in img], tuple(image_size), np.eye(3),
+            np.zeros(4), flags=FISHEYE_FLAGS | _FISHEYE_HOLD[terms],
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
+    except cv2.error as e:
+        bad = re.search(r"Ill-conditioned matrix for input array (\d+)", str(e))
+        if bad:
+            raise IllConditionedView(int(bad.group(1))) from None
+        raise
+    return k, d.ravel(), rvecs, tvecs
+
+
+def fit_lens(object_points, image_points, image_size, model: str = "fov", fix_aspect: bool = True,
+             fisheye_terms: int = 4) -> LensFit:
+    """Fit a lens ``model`` (``"fov"``, ``"opencv"`` or ``"fisheye"``) to views of a planar target.
 
     ``object_points``: per view (N, 3) target coordinates (z = 0); ``image_points``: per view (N, 2) detected
     pixels. The poses start from OpenCV's pinhole calibration; then intrinsics and poses are refined together by
     Levenberg-Marquardt on the reprojection error (the paper uses damped Gauss-Newton, sec. 4.1). ``fix_aspect``
-    ties fy to fx (square pixels).
+    ties fy to fx (square pixels). The fisheye model (k1..k``fisheye_terms`` free, the rest 0; fx and fy apart,
+    as OpenCV fits them, ``fix_aspect`` not applied) starts from OpenCV's fisheye calibration instead
+    (``cv2.fisheye.calibrate``); it raises :class:`IllConditionedView` naming a view whose pose OpenCV finds
+    ill-conditioned, and ``cv2.error`` where OpenCV's solve fails.
     """
     from scipy.optimize import least_squares
 
     width, height = image_size
     obj = [np.asarray(o, np.float64).reshape(-1, 3) for o in object_points]
     img = [np.asarray(i, np.float64).reshape(-1, 2) for i in image_points]
-    flags = cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0
-    k0 = np.array([[0.8 * width, 0, width / 2 - 0.5], [0, 0.8 * width, height / 2 - 0.5], [0, 0, 1]])
-    _, k, dist, rvecs, tvecs = cv2.calibrateCamera([o.astype(np.float32) for o in obj],
-                                                   [i.astype(np.float32) for i in img], (width, height), k0,
-                                                   None, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS)
-    if model == "fov":
-        p0 = [k[0, 0] / width, (k[0, 2] + 0.5) / width, (k[1, 2] + 0.5) / height, 0.3]
-        if not fix_aspect:
-            p0.append(k[1, 1] / height)
+    if model == "fisheye":
+        k, d, rvecs, tvecs = _fisheye_start(obj, img, image_size, fisheye_terms)
+        p0 = [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *d[:fisheye_terms]]
     else:
-        d = dist.ravel()
-        p0 = [k[0, 0], k[0, 2], k[1, 2], d[0], d[1], d[2], d[3], d[4] if len(d) > 4 else 0.0]
-        if not fix_aspect:
-            p0.append(k[1, 1])
+        flags = cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0
+        k0 = np.array([[0.8 * width, 0, width / 2 - 0.5], [0, 0.8 * width, height / 2 - 0.5], [0, 0, 1]])
+        _, k, dist, rvecs, tvecs = cv2.calibrateCamera([o.astype(np.float32) for o in obj],
+                                                       [i.astype(np.float32) for i in img], (width, height), k0,
+                                                       None, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS)
+        if model == "fov":
+            p0 = [k[0, 0] / width, (k[0, 2] + 0.5) / width, (k[1, 2] + 0.5) / height, 0.3]
+            if not fix_aspect:
+                p0.append(k[1, 1] / height)
+        else:
+            d = dist.ravel()
+            p0 = [k[0, 0], k[0, 2], k[1, 2], d[0], d[1], d[2], d[3], d[4] if len(d) > 4 else 0.0]
+            if not fix_aspect:
+                p0.append(k[1, 1])
     n_in = len(p0)
     poses = np.concatenate([np.concatenate([r.ravel(), t.ravel()]) for r, t in zip(rvecs, tvecs)])
 
