@@ -40,36 +40,54 @@ def _distinct_views(points, tolerance_px: float = 0.5) -> int:
     return len(kept)
 
 
+def _fisheye_fit_or_none(obj, img, image_size, terms):
+    """The fisheye fit, or None where OpenCV finds a view ill-conditioned or its solve fails."""
+    try:
+        return fit_lens(obj, img, image_size, "fisheye", fisheye_terms=terms)
+    except (IllConditionedView, cv2.error):
+        return None
+
+
 def _fit_fisheye(obj, img, used, image_size, source, target, notes):
-    """The fisheye fit (``cv2.fisheye.calibrate``), dropping each view whose pose OpenCV finds ill-conditioned
-    (a note says which) while three remain; where the four coefficients fold the lens over inside the frame
-    (they trade off, and beyond the views the polynomial may turn back), the highest are held at 0 (a note says
-    so). Returns (fit, image points, frames) of the views kept; refused in one line where too few views remain,
-    the solve fails, or every fit folds over inside the frame."""
+    """The fisheye fit (``cv2.fisheye.calibrate`` and the joint refinement of :func:`fit_lens`).
+
+    Where OpenCV finds a view's pose ill-conditioned, the view to leave out is the first whose absence lets the
+    fit through, tried from the one OpenCV names (the view where its check failed, which another view's wrong
+    detection can cause, through the intrinsics all views share), and a note names it; where leaving out one view does not help, or
+    fewer than three would remain, the fit is refused in one line. Where the four coefficients fold the lens over
+    inside the frame (they trade off, and beyond the views the polynomial may turn back), the highest are held at
+    0 (a note says so); refused where even k1 alone folds. Returns (fit, image points, frames) of the views kept.
+    """
     for terms in (4, 3, 2, 1):
-        while True:
-            try:
-                fit = fit_lens(obj, img, image_size, "fisheye", fisheye_terms=terms)
-                break
-            except IllConditionedView as bad:
-                notes.append(f"{used[bad.index]}: the target's pose is ill-conditioned for the fisheye fit (too "
-                             f"small, far or edge-on), frame skipped")
-                obj, img, used = (obj[:bad.index] + obj[bad.index + 1:], img[:bad.index] + img[bad.index + 1:],
-                                  used[:bad.index] + used[bad.index + 1:])
-                if _distinct_views(img) < 3:
-                    raise LowcamError(f"{source}: the fisheye fit has {len(used)} well-conditioned view(s) of the "
-                                      f"target ({target}) left, at least 3 are needed; show the board larger and "
-                                      f"less edge-on") from None
-            except cv2.error:
-                raise LowcamError(f"{source}: OpenCV's fisheye calibration fails on these {len(used)} views of the "
-                                  f"target ({target}); show the board at more angles and across the frame") from None
+        try:
+            fit = fit_lens(obj, img, image_size, "fisheye", fisheye_terms=terms)
+        except IllConditionedView as bad:
+            order = [bad.index, *(j for j in range(len(obj)) if j != bad.index)]
+            fit = left = None
+            if len(obj) > 3:
+                for left in order:
+                    fit = _fisheye_fit_or_none(obj[:left] + obj[left + 1:], img[:left] + img[left + 1:],
+                                               image_size, terms)
+                    if fit is not None:
+                        break
+            if fit is None or _distinct_views(img[:left] + img[left + 1:]) < 3:
+                raise LowcamError(f"{source}: OpenCV finds the target's pose ill-conditioned in "
+                                  f"{Path(used[bad.index]).name} (or another view spoils it) and leaving out one view "
+                                  f"does not help; show the board larger and less edge-on ({target})") from None
+            notes.append(f"{used[left]}: the target's pose makes the fisheye fit ill-conditioned (a wrong detection, "
+                         f"or the board too small, far or edge-on), frame skipped")
+            obj, img, used = obj[:left] + obj[left + 1:], img[:left] + img[left + 1:], used[:left] + used[left + 1:]
+        except cv2.error:
+            raise LowcamError(f"{source}: OpenCV's fisheye calibration fails on these {len(used)} views of the "
+                              f"target ({target}); show the board at more angles and across the frame") from None
         try:
             fit.effect()  # LensDistortion.check: the radius must rise out to the frame's corners
         except LowcamError:
             continue
         if terms < 4:
-            notes.append(f"fisheye: k{terms + 1}..k4 held at 0 (with them the fitted lens folds over inside the "
-                         f"frame: the views do not reach its corners)")
+            held = f"k{terms + 1}" + ("..k4" if terms < 3 else "")
+            notes.append(f"fisheye: {held} held at 0 (with all four the fitted lens folds over inside the frame: "
+                         f"the views do not reach its corners)")
         return fit, img, used
     raise LowcamError(f"{source}: the fisheye lens fitted to these {len(used)} views folds over inside the frame; "
                       f"show the board nearer the frame's corners")
