@@ -162,7 +162,7 @@ LENSES = [pytest.param(100.0, 11, id="diag100"),
           pytest.param(150.0, 14, id="diag150-gopro")]
 
 
-@pytest.mark.slow  # 20 views of 1280 x 960 rendered through OpenCV's inverse: about 30 s a lens
+@pytest.mark.slow  # 20 views of 1280 x 960 rendered through OpenCV's inverse: 17-35 s a lens
 @pytest.mark.parametrize("diagonal_deg, seed", LENSES)
 def test_fisheye_calibration_recovers_a_hidden_lens(tmp_path, diagonal_deg, seed):
     """Measured (20 views, 1280 x 960, the corners reaching 71-76 % of the half-diagonal): RMS 0.08-0.10 px; the
@@ -329,7 +329,7 @@ DIAGNOSED = [pytest.param(110.0, 31, (0.0, 0.0, 0.0, 0.0), id="diag110"),
 @pytest.mark.slow  # a diagnosis: tens of seconds
 @pytest.mark.parametrize("diagonal_deg, seed, start", DIAGNOSED)
 def test_radial_distortion_fits_a_hidden_fisheye(tmp_path, fire_i, diagonal_deg, seed, start):
-    """Measured (640 x 480, about 70 s each): the error 18.3 -> 1.04 (110 deg), 20.6 -> 1.06 (130 deg) and 21.1 ->
+    """Measured (640 x 480, 28-75 s each): the error 18.3 -> 1.04 (110 deg), 20.6 -> 1.06 (130 deg) and 21.1 ->
     1.06 (140 deg, from wrong coefficients); the fitted lens within 0.012, 0.035 and 0.020 px of the hidden one
     over the whole frame (7.9, 13.9 and 17.4 px median before)."""
     geo = fire_i.geometry
