@@ -292,6 +292,8 @@ class LensDistortion(Effect):
 FIT_KEYS = {
     "fov": (("fx", None), ("cx", None), ("cy", None), ("w", None)),
     "opencv": (("fx_px", None), ("cx_px", None), ("cy_px", None), ("k1", None), ("k2", None), ("k3", None)),
+    "fisheye": (("fx_px", None), ("cx_px", None), ("cy_px", None), ("fisheye_k1", None), ("fisheye_k2", None),
+                ("fisheye_k3", None), ("fisheye_k4", None)),
     "polynomial": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("k1", None),
                    ("k2", None), ("k3", None)),
     "division": (("focal_length", None), ("principal_point", 0), ("principal_point", 1), ("division_k1", None),
@@ -306,7 +308,7 @@ FIT_KEYS = {
     "ptlens": (("focal_length", None), ("lensfun_center", 0), ("lensfun_center", 1), ("lensfun_c", None),
                ("lensfun_b", None), ("lensfun_a", None)),
 }
-_TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
+_TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px"), "fisheye": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
 
 
 def range_of(model: str) -> tuple[np.ndarray, np.ndarray]:
