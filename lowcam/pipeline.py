@@ -353,6 +353,7 @@ def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0,
     _walk(state, stop=start)
     if any(effect.name == "bayer_sampling" for effect in state.applied):
         state.working = None   # read by the Bayer sampling alone: a kept token need not hold it
+        state._windows.pop("working", None)
     return state, start, plate_u8
 
 

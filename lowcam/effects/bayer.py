@@ -8,6 +8,7 @@ temporal noise in 4x4 blocks (the paper's Fig. 4).
 Contents
 --------
 - :class:`BayerSampling`: samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
+- :data:`WARPS_KEPT`: how many sets of Bayer sampling warps the process keeps
 - :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5)
 - :func:`mosaic`: interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
 - :func:`unmosaic`: split a Bayer (or mosaic-sampled RGB) frame into four planes with replicated borders
@@ -33,7 +34,7 @@ References
 """
 from __future__ import annotations
 
-import copy
+import threading
 
 import cv2
 import numpy as np
@@ -47,6 +48,17 @@ from .base import Effect, NodeStage, Param, Search
 
 #: The sensel planes (R, Gr, Gb, B) each colour reads: R, then both greens, then B.
 _COLOUR_PLANES = (slice(0, 1), slice(1, 3), slice(3, 4))
+
+
+#: How many sets of Bayer sampling warps are kept, shared by every profile in the process (a fit varies
+#: profiles by the dozen; a shot's frames reuse one set while the camera's motion is steady).
+WARPS_KEPT = 4
+_KEPT_WARPS: list = []     # (geometry, (ca_grid, sampling_offset, motion_taps) copies, (taps, warps))
+_KEPT_LOCK = threading.Lock()
+
+
+def _same(a, b) -> bool:
+    return a is None and b is None or a is not None and b is not None and a.shape == b.shape and np.array_equal(a, b)
 
 
 class BayerSampling(Effect):
@@ -72,11 +84,6 @@ class BayerSampling(Effect):
     def implausible(self) -> list[str]:
         total = sum(self.grey_weights)
         return [] if self.colour_filters or abs(total - 1.0) <= 0.05 else [f"grey weights summing to {total:.3f}"]
-
-    def __deepcopy__(self, memo):
-        """Copies share the kept warps: one immutable tuple holding everything they depend on, replaced whole
-        (so copying a profile does not copy some 30 MB of maps)."""
-        return copy.copy(self)
 
     def bake_node(self, state, bake) -> None:
         """Each mosaic pixel reads its own sensel's positions, aberration and motion taps included: one Map UV
@@ -121,19 +128,21 @@ class BayerSampling(Effect):
 
     def warps(self, state) -> tuple[int, list[WindowedRemap]]:
         """The number of taps and, per colour (R, G, B), the warp of :meth:`sample_positions` (one block per
-        sensel plane and tap). Kept for the next frame while the geometry and the aberration, offset and
-        motion-tap grids are the same (a steady camera motion)."""
+        sensel plane and tap). Kept (:data:`WARPS_KEPT`) for the next frame while the geometry and the aberration,
+        offset and motion-tap grids are the same (a steady camera motion)."""
         inputs = (state.ca_grid, state.sampling_offset, state.motion_taps)
-        cached = getattr(self, "_remap_cache", None)
-        if cached is not None and cached[0] == state.geometry and all(
-                a is None and b is None or a is not None and b is not None and a.shape == b.shape
-                and np.array_equal(a, b) for a, b in zip(cached[1], inputs)):
-            return cached[2]
+        with _KEPT_LOCK:
+            for i, (geometry, kept, result) in enumerate(_KEPT_WARPS):
+                if geometry == state.geometry and all(_same(a, b) for a, b in zip(kept, inputs)):
+                    _KEPT_WARPS.append(_KEPT_WARPS.pop(i))    # most recently used last
+                    return result
         hb, wb = state.geometry.bayer_shape
         x, y = self.sample_positions(state)
         n = x.shape[1]
         warps = [WindowedRemap(x[ks].reshape(-1, hb, wb), y[ks].reshape(-1, hb, wb), tile=8) for ks in _COLOUR_PLANES]
-        self._remap_cache = (state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, warps))
+        with _KEPT_LOCK:
+            _KEPT_WARPS.append((state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, warps)))
+            del _KEPT_WARPS[:-WARPS_KEPT]
         return n, warps
 
     def apply(self, state):

@@ -121,6 +121,12 @@ def capture_inputs(profile, capture) -> CaptureInputs:
     return CaptureInputs(ideal, plate, mask)
 
 
+def _share_plate(state, shared: np.ndarray) -> None:
+    """Point ``state`` at the capture's float plate held once for all its kept fronts (the chain only reads it)."""
+    if state.plate is not shared and state.plate.shape == shared.shape and np.array_equal(state.plate, shared):
+        state.plate = shared
+
+
 def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
                      until: str | None = None) -> np.ndarray:
     """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``); the
@@ -131,6 +137,7 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     if token is None:
         token = prepare(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, until)
     if cache is not None:  # least recently used out first: the diagnosed profile's fronts stay
+        _share_plate(token[0], cache.setdefault(("plate", id(capture)), token[0].plate))
         cache[key] = token
         while len(cache) > CACHED_FRONTS:
             try:

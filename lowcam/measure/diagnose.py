@@ -101,7 +101,7 @@ REFINE_WITHIN = 1.5
 FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
-_MEMO_ENTRIES = 160  # noise-free frames kept (one capture each, about 4 MB at 640x480)
+_MEMO_ENTRIES = 64  # noise-free frames kept (one capture each, about 4 MB at 640x480)
 #: Candidates fitted at once (threads: OpenCV and numpy release the GIL); the results do not depend on it.
 WORKERS = 2
 #: Side (px) of the image tiles of the two spatial folds, used when fewer than two captures show a candidate.
