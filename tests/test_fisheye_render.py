@@ -149,14 +149,13 @@ def test_a_fisheye_render_may_have_any_size_and_its_field_may_be_given(gopro):
 
 
 def test_the_pinhole_paths_refuse_a_fisheye_render_and_the_pinhole_choice_keeps_todays_render(gopro, fire_i):
-    """What needs a pinhole render (its field of view, its focal length for defocus from depth and object
-    motion) refuses a fisheye render in one line naming the way out; ``render_projection = "pinhole"`` gives the
+    """What needs a pinhole render (its field of view, its focal length for defocus from depth) refuses a fisheye render in one line naming the way out; ``render_projection = "pinhole"`` gives the
     pinhole render of before; a pinhole render of 180 deg is refused; every bundled profile stays a pinhole."""
     g = gopro.geometry
     with pytest.raises(LowcamError, match="needs a pinhole render, and this lens is rendered through an "
                                           r"equidistant fisheye \(16\d\.\d deg\): set render_projection"):
         render_field_of_view(gopro)
-    with pytest.raises(LowcamError, match="focal length .defocus from depth, object motion. needs a pinhole"):
+    with pytest.raises(LowcamError, match="focal length .defocus from depth. needs a pinhole"):
         gopro.effect("lens_distortion").render_focal_px(g, 512, 512)
     pinhole = gopro.with_effect("lens_distortion", render_projection="pinhole")
     cam = render_camera(pinhole, 640)
@@ -198,6 +197,96 @@ def test_the_chain_puts_a_fisheye_renders_object_where_the_lens_sees_it(gopro):
     frame = result.frame.astype(np.float64).mean(axis=-1)
     frame[frame < 0.3 * frame.max()] = 0.0
     assert np.hypot(*(centroid(frame, lambda x, y: (x, y)) - expected)) < 1.5
+
+
+
+def _kb_pixels(d, fx, cx, cy, k):
+    """Output pixels of directions ``d`` (..., 3) through a Kannala-Brandt lens (fx = fy), its formula."""
+    theta = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
+    phi = np.arctan2(d[..., 1], d[..., 0])
+    t2 = theta ** 2
+    rd = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    return cx + fx * rd * np.cos(phi), cy + fx * rd * np.sin(phi)
+
+
+def _kb_directions(u, v, fx, cx, cy, k):
+    theta = kb_angle(np.hypot((u - cx) / fx, (v - cy) / fx), k, np.radians(150))
+    phi = np.arctan2(v - cy, u - cx)
+    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+
+
+def test_the_camera_turning_is_followed_beyond_90_degrees(fire_i):
+    """The 215 deg fisheye turning at w: the motion blur's taps and the rolling shutter's offsets are where its
+    formula puts each pixel's turned ray (rotations by cv2.Rodrigues), within 1e-6 px, rays beyond 90 deg
+    included (a pinhole camera plane cannot carry them: there it is off by pixels)."""
+    from lowcam.effects.motion_blur import tap_offsets
+
+    profile = fire_i.with_effect("lens_distortion", replace=True, **WIDE).with_effect("rolling_shutter",
+                                                                                     readout_s=0.03)
+    w = np.array([0.9, -1.7, 2.3])
+    fx, cx, cy, k = 215.0, 319.5, 239.5, (WIDE["fisheye_k1"], WIDE["fisheye_k2"], 0.0, 0.0)
+    u = np.array([-0.5, 20.0, 320.0, 639.5, 600.0])
+    v = np.array([-0.5, 460.0, 240.0, 479.5, 30.0])
+    d = _kb_directions(u, v, fx, cx, cy, k)
+    assert np.degrees(np.arccos(d[:, 2])).max() > 100
+    times = (np.arange(4) + 0.5) / 4 * 0.02 - 0.01
+    turned = np.stack([d @ cv2.Rodrigues(w * t)[0].T for t in times], 1)
+    eu, ev = _kb_pixels(turned, fx, cx, cy, k)
+    expected = np.stack([eu - u[:, None], ev - v[:, None]], -1)
+    taps = tap_offsets(profile.lens, u, v, w, 0.02, 4, wide=True)
+    assert np.abs(taps - expected).max() < 1e-6
+    assert np.abs(tap_offsets(profile.lens, u, v, w, 0.02, 4) - expected).max() > 1.0      # the camera plane
+    state = lowcam.run(np.zeros((512, 512, 4), np.float32), profile, angular_velocity=w, exposure_s=0.02,
+                       stop_after="rolling_shutter").state
+    g = profile.geometry
+    from lowcam.geometry import grid_points
+    gu, gv = grid_points(g.working_extent)
+    gd = _kb_directions(gu, gv, fx, cx, cy, k)
+    rot = np.stack([cv2.Rodrigues(w * t)[0] for t in ((gv / g.height - 0.5) * 0.03).ravel()]).reshape(gu.shape + (3, 3))
+    ru, rv = _kb_pixels(np.einsum("...ij,...j->...i", rot, gd), fx, cx, cy, k)
+    shutter = np.stack([ru - gu, rv - gv], -1)
+    blur = tap_offsets(profile.lens, gu, gv, w, 0.02, 16, wide=True)
+    assert np.abs(state.motion_taps - blur.reshape(blur.shape[:2] + (-1,))).max() < 1e-3
+    assert np.abs(state.sampling_offset - shutter).max() < 1e-3                            # float32
+    assert np.degrees(np.arccos(gd[..., 2])).max() > 100
+
+
+def test_object_motion_leaves_what_the_fisheye_cameras_turning_explains(gopro):
+    """Object motion under a fisheye render: the camera's own image velocity is the equidistant one, which a
+    finite difference of Cycles' mapping (rotations by cv2.Rodrigues) gives within 1e-3 px/s; a velocity pass
+    holding just that leaves the render as it was, and one with an object's own motion smears it."""
+    from lowcam.effects.object_motion import fisheye_rotation_velocity
+    from lowcam.passes import RenderPasses
+
+    lens, g = gopro.effect("lens_distortion"), gopro.geometry
+    fov, shape, w = lens.render_fisheye_field(g), (96, 128), np.array([0.4, -1.1, 0.8])
+    velocity = fisheye_rotation_velocity(w, fov, shape)
+    rows, cols = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    a, b = (cols + 0.5) * 2 / shape[1] - 1, (rows + 0.5) * 2 / shape[0] - 1
+    theta, phi = np.hypot(a, b) * fov / 2, np.arctan2(b, a)
+    d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+    dt = 1e-4
+    ends = []
+    for t in (-dt, dt):
+        seen = d @ cv2.Rodrigues(-w * t)[0].T               # a static direction is seen at R(-t) d
+        x, y = cycles_equidistant_pixel(np.arccos(np.clip(seen[..., 2], -1, 1)),
+                                        np.arctan2(seen[..., 1], seen[..., 0]), fov, shape)
+        ends.append(np.stack([x, y], -1))
+    assert np.abs(velocity - (ends[1] - ends[0]) / (2 * dt)).max() < 1e-3
+    assert np.abs(velocity).max() > 50
+    profile = gopro.with_effect("object_motion")
+    render = np.zeros((512, 512, 4), np.float32)
+    render[200:260, 300:330] = 0.8
+    still = fisheye_rotation_velocity(w, fov, (512, 512))
+
+    def first_stage(velocity_px_s):
+        return lowcam.run(render, profile, angular_velocity=w, exposure_s=0.02, keep_stages=True,
+                          stop_after="object_motion",
+                          passes=RenderPasses(velocity_px_s=velocity_px_s)).stages["00-object_motion"]
+
+    assert np.array_equal(first_stage(still), render)
+    moving = still + np.array([400.0, 0.0], np.float32)
+    assert np.abs(first_stage(moving) - render).max() > 0.1
 
 
 def _ray_render(profile_path, folder, width=384):

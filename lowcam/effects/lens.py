@@ -301,8 +301,8 @@ class LensDistortion(Effect):
 
     def render_focal_px(self, geometry, width: int, height: int) -> float:
         """Focal length in render pixels for a pinhole render of ``width`` x ``height`` (square pixels, centred);
-        a fisheye render (:meth:`projection`) has none: refused (defocus from depth and object motion)."""
-        self._refuse_fisheye(geometry, "the render's focal length (defocus from depth, object motion)")
+        a fisheye render (:meth:`projection`) has none: refused (defocus from depth)."""
+        self._refuse_fisheye(geometry, "the render's focal length (defocus from depth)")
         half_x, need_y = self.render_field_of_view(geometry)
         focal = width / (2 * half_x)
         if height / (2 * focal) < need_y * 0.999:
