@@ -200,6 +200,27 @@ def test_the_chain_puts_a_fisheye_renders_object_where_the_lens_sees_it(gopro):
 
 
 
+
+def test_the_node_groups_lens_map_reads_the_fisheye_render(gopro):
+    """The compositor node group's Map UV image (``lens_uv``) for a 256x256 fisheye render reads, at each
+    supersampled working pixel, the render pixel of Cycles' mapping of OpenCV-free Kannala-Brandt rays (the
+    model's ``undistort_ray``): within 1e-4 of a render pixel (float32 UV)."""
+    from types import SimpleNamespace
+
+    from lowcam.node_maps import CameraBake
+
+    g = gopro.geometry
+    out = CameraBake(gopro, (256, 256), stages=["lens_distortion"])
+    gopro.effect("lens_distortion").bake_node(SimpleNamespace(geometry=g), out)   # what bake() calls
+    uv = out.images["lens_uv"]
+    u, v = g.working_pixel_centres(factor=2)
+    theta, phi = gopro.effect("lens_distortion").model_for(640, 480).undistort_ray(u[::7, ::7], v[::7, ::7])
+    ex, ey = cycles_equidistant_pixel(theta, phi, gopro.effect("lens_distortion").render_fisheye_field(g), (256, 256))
+    assert uv.shape[:2] == u.shape
+    assert np.abs(uv[::7, ::7, 0] * 256 - 0.5 - ex).max() < 1e-4
+    assert np.abs((1 - uv[::7, ::7, 1]) * 256 - 0.5 - ey).max() < 1e-4
+
+
 def _kb_pixels(d, fx, cx, cy, k):
     """Output pixels of directions ``d`` (..., 3) through a Kannala-Brandt lens (fx = fy), its formula."""
     theta = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
