@@ -16,6 +16,7 @@ Contents
 - :func:`compositor_output`: the input socket that takes the final image (Group Output / Composite)
 - :func:`eevee_engine`: the EEVEE render engine's enum
 - :func:`set_multilayer_exr`: set image settings to multilayer OpenEXR
+- :func:`working_space`: the .blend's working colour space (5.0+: one of three; 4.x: always Linear Rec.709)
 - :func:`action_fcurves`: an object's animation F-curves (slotted actions from 4.4, plain ``action.fcurves`` before)
 - :func:`path_options`: the options a blend-relative path property may declare
 - :func:`mark_asset`: mark an ID as an asset with a description and tags
@@ -108,6 +109,14 @@ def set_multilayer_exr(image_settings) -> None:
     if at_least(5, 0):
         image_settings.media_type = "MULTI_LAYER_IMAGE"
     image_settings.file_format = "OPEN_EXR_MULTILAYER"
+
+
+def working_space() -> str:
+    """The open .blend's working colour space, the space renders and the compositor hold: 5.0+
+    ``bpy.data.colorspace.working_space`` ("Linear Rec.709", "Linear Rec.2020" or "ACEScg"; set with
+    ``bpy.ops.wm.set_working_color_space``); 4.2-4.5 have no such choice: "Linear Rec.709"."""
+    colorspace = getattr(bpy.data, "colorspace", None)
+    return getattr(colorspace, "working_space", "") or "Linear Rec.709"
 
 
 def action_fcurves(animated) -> list:

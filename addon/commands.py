@@ -13,7 +13,8 @@ Contents
   (``--footage``: real phone footage with its gyro log, :mod:`addon.footage`)
 - :data:`FOOTAGE_DEFAULT`: where ``--footage`` looks without a folder, beside the repository
 - :func:`cmd_render`: ``lowcam render``: render frames of a .blend and write their degraded composites
-- :func:`cmd_motion`: ``lowcam motion``: each frame's camera motion from a .blend as motion.json
+- :func:`cmd_motion`: ``lowcam motion``: each frame's camera motion as motion.json, from a .blend or from a gyro
+  log (``--gyro``: a Gyroflow ``.gcsv`` or ``.gyroflow`` file, or Lowcam's CSV; no Blender needed)
 - :func:`cmd_node_asset`: ``lowcam node-asset``: the node group as an asset .blend
 - :func:`add_commands`: add the Blender-driving sub-commands to the ``lowcam`` parser (the entry point)
 """
@@ -28,6 +29,7 @@ from pathlib import Path
 
 from lowcam.arguments import Reads, Writes, angular_velocity, bounded_int, seed
 from lowcam.cli import FRAMES, PROFILE
+from lowcam.cli.frames import gyro_options
 from tqdm import tqdm
 
 
@@ -167,15 +169,29 @@ def cmd_render(args) -> int:
 
 
 def cmd_motion(args) -> int:
+    """``lowcam motion``: each frame's camera motion as motion.json, from a .blend's camera (Blender) or from a
+    gyro log (``--gyro``: the engine alone, no Blender)."""
     from lowcam.batch import parse_frames
+    from lowcam.cli.frames import gyro_motion
     from lowcam.errors import LowcamError
+    from lowcam.motion import write_motion_json
     from lowcam.outputs import check_output
 
+    if (args.blend is None) == (args.gyro is None):
+        raise LowcamError("--gyro: give either a .blend (its camera's motion) or --gyro LOG (a gyro log's), not "
+                          + ("both" if args.blend else "neither"))
+    if args.blend is not None and (args.fps is not None or args.exposure_s is not None):
+        raise LowcamError(f"{'--fps' if args.fps is not None else '--exposure-s'}: for --gyro only (a .blend's "
+                          f"frame rate and exposure are its scene's)")
     if not args.output.lower().endswith(".json"):
         raise LowcamError(f"{args.output}: the motion is written as a .json file")
     check_output(args.output)
-    path = _side("addon.render").write_motion(args.blend, parse_frames(args.frames), args.output)
-    print(f"{path}: camera motion of {len(parse_frames(args.frames))} frames")
+    frames = parse_frames(args.frames)
+    if args.gyro is not None:
+        path = write_motion_json(args.output, *gyro_motion(args, frames))
+    else:
+        path = _side("addon.render").write_motion(args.blend, frames, args.output)
+    print(f"{path}: camera motion of {len(frames)} frames")
     return 0
 
 
@@ -217,8 +233,11 @@ def add_commands(sub) -> None:
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("motion", help="write a .blend scene's camera motion as motion.json (for lowcam batch)")
-    p.add_argument("blend", type=Reads("file"), help="the .blend file (its Lowcam motion source and exposure are used)")
+    p = sub.add_parser("motion", help="write the camera motion of a .blend scene or of a gyro log as motion.json "
+                                      "(for lowcam batch)")
+    p.add_argument("blend", type=Reads("file"), nargs="?",
+                   help="the .blend file (its Lowcam motion source and exposure are used); or give --gyro")
+    gyro_options(p)
     p.add_argument("--frames", type=FRAMES, required=True, help="frames: 1-10, 1-10,15, 1-240x2")
     p.add_argument("-o", "--output", type=Writes("file", (".json",)), required=True, help="the motion.json to write")
     p.set_defaults(func=cmd_motion)

@@ -59,7 +59,6 @@ def build_footage_scene(hfov_deg: float, width: int, height: int, samples: int =
     r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
     r.film_transparent = True
     r.use_compositing = False
-    scene.view_settings.view_transform = "Standard"
     settings = r.image_settings
     if hasattr(settings, "media_type"):
         settings.media_type = "IMAGE"

@@ -1,7 +1,8 @@
 """From a Blender scene to the engine's inputs: render set-up, profile with the scene's settings, plate, motion.
 
-Render set-up (:func:`setup_scene`): a transparent film, the Standard view transform without dither (plates pass
-unchanged), a multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
+Render set-up (:func:`setup_scene`): a transparent film without dither (the scene's view transform and look stay
+the user's: the EXR holds the working space's linear light and names it, and the engine converts it), a
+multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
 "Lowcam Overlay" view layer that renders only that collection; the Vector pass for object motion and the Z pass
 for defocus from depth when those are on, with Cycles' own motion blur off; the scene camera gets the field of view
 the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`): a pinhole one, or for a lens
@@ -15,7 +16,7 @@ Contents
 - :func:`clip_lens`: the Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)
 - :data:`ENGINE_NAMES`: Blender's render engines by their identifiers, as the user sees them
 - :func:`aim_render_camera`: give Blender camera data the projection and field of view of the render camera
-- :func:`setup_render_camera`: give a scene the render camera, film and view transform the engine needs
+- :func:`setup_render_camera`: give a scene the render camera and film the engine needs
 - :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
 - :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
@@ -104,9 +105,9 @@ def aim_render_camera(data, cam: dict) -> None:
 
 def setup_render_camera(scene, render_width: int | None = None) -> dict:
     """Give ``scene`` the render the engine and the node group take: the projection, field of view and size of
-    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width; a fisheye's square),
-    a transparent film and the Standard view without dither (plates pass unchanged). Returns the render camera.
-    A lens rendered through a fisheye needs Cycles (EEVEE has no panoramic camera): refused otherwise."""
+    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width; a fisheye's square)
+    and a transparent film without dither; the scene's view transform and look are left alone. Returns the render
+    camera. A lens rendered through a fisheye needs Cycles (EEVEE has no panoramic camera): refused otherwise."""
     from lowcam.pipeline import render_camera
 
     width = render_width or scene.render.resolution_x * scene.render.resolution_percentage // 100
@@ -120,7 +121,6 @@ def setup_render_camera(scene, render_width: int | None = None) -> dict:
     r.resolution_x, r.resolution_y, r.resolution_percentage = cam["width"], cam["height"], 100
     r.film_transparent = True
     r.dither_intensity = 0.0
-    scene.view_settings.view_transform = "Standard"
     if scene.camera is not None:
         aim_render_camera(scene.camera.data, cam)
     return cam
@@ -138,6 +138,7 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
     set_multilayer_exr(settings_)
     settings_.color_depth = "32"
     settings_.exr_codec = "ZIP"
+    settings_.color_management = "FOLLOW_SCENE"     # the working space's linear light, named in the header
     _setup_overlay_layer(scene, s.exclude_collection)
     layer = scene.view_layers[main_layer(scene)]
     layer.use_pass_vector = s.use_object_motion
@@ -206,7 +207,8 @@ _MOTION_FILE_CACHE: dict = {}
 
 def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
     """The camera's angular velocity over ``frame``'s exposure from the chosen motion source."""
-    from lowcam.motion import gyro_to_motion, read_gyro_csv, read_motion_json
+    from lowcam.gyro_logs import read_gyro_log
+    from lowcam.motion import gyro_to_motion, read_motion_json
 
     from .motion import camera_motion
 
@@ -222,7 +224,7 @@ def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
     is_json = path.lower().endswith(".json")
     key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
     if key not in _MOTION_FILE_CACHE:                   # read once, not once per frame
-        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_csv(path)
+        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_log(path).samples
     data = _MOTION_FILE_CACHE[key]
     if is_json:
         if frame not in data:

@@ -2,7 +2,7 @@
 
 Contents
 --------
-- :class:`LOWCAM_OT_setup_scene`: transparent film, Standard view, multilayer EXR output and the render camera
+- :class:`LOWCAM_OT_setup_scene`: transparent film, multilayer EXR output and the render camera
 - :func:`render_and_degrade`: render a frame to a temporary multilayer EXR and write its degraded composite
 - :class:`LOWCAM_OT_apply`: render the current frame and apply the camera; the result opens as "Lowcam Result"
 - :class:`LOWCAM_OT_add_camera_node`: add a "Lowcam Camera" node to the scene's compositor, with its render camera
@@ -18,11 +18,12 @@ import bpy
 from lowcam.errors import LowcamError
 
 from .. import blender_compat as compat
+from ..nodes.build import set_code_view
 from . import frames
 
 
 class LOWCAM_OT_setup_scene(bpy.types.Operator):
-    """Transparent film, Standard view, multilayer EXR output and the render camera's field of view"""
+    """Transparent film, multilayer EXR output and the render camera's field of view"""
 
     bl_idname = "lowcam.setup_scene"
     bl_label = "Set Up Scene"
@@ -94,6 +95,7 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         scene.render.use_compositing = True
+        set_code_view(scene.render.image_settings)   # the output's own Standard view; the scene's is the user's
         tree = compat.compositor_tree(scene)
         layers = next((n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers"), None) or \
             tree.nodes.new("CompositorNodeRLayers")

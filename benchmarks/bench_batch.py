@@ -1,7 +1,9 @@
 """Benchmark: shot throughput in frames/s, serial and on a 2-worker Dask LocalCluster, at the paper's sizes.
 
 Renders are 3000x2250 RGBA float32 OpenEXR files (ZIP-compressed, as Blender writes them), plates 640x480 PNG,
-outputs 640x480 PNG: the whole job per frame, reading and writing included. Prints frames/s, the scaling ratio
+outputs 640x480 PNG: the whole job per frame, reading and writing included. Prints frames/s, each frame's median
+read / simulate / write split, the floor (reading the same renders and plates alone, one after another), the
+serial run with one frame at a time (no reading ahead or writing behind) as the baseline, the scaling ratio
 (target >= 1.7x on 2 cores) and the peak memory per worker.
 
     .venv/bin/python benchmarks/bench_batch.py [--frames 16]
@@ -52,25 +54,44 @@ def main() -> None:
 
     from lowcam.batch import local_cluster
 
+    from lowcam.batch import _read_inputs, process_frame
+
+    s = shot("floor")
+    profile = s.load_profile()
+    _read_inputs(s, 1, profile)
+    t = time.perf_counter()
+    for f in frames:
+        _read_inputs(s, f, profile)
+    floor = len(frames) / (time.perf_counter() - t)
+    print(f"{'reading alone':18s} {floor:6.2f} frames/s  (the floor: renders and plates, one after another)",
+          flush=True)
+
+    def one_at_a_time(s, frames, force=False, quiet=True):
+        return [process_frame(s, f, force) for f in frames]
+
     rates = {}
     with local_cluster(2) as cluster:
         # A farm job starts its workers once: both sides are warmed up (imports, lens maps) on the first four
         # frames, then the whole shot is timed.
-        for label, kwargs in (("serial 1 thread", {}), ("serial", {}),
-                              ("2 Dask workers", {"scheduler": cluster.scheduler_address})):
+        for label, run, kwargs in (("one at a time", one_at_a_time, {}), ("serial 1 thread", run_shot, {}),
+                                   ("serial", run_shot, {}),
+                                   ("2 Dask workers", run_shot, {"scheduler": cluster.scheduler_address})):
             cv2.setNumThreads(1 if label == "serial 1 thread" else cv2.getNumberOfCPUs())
             s = shot(label.replace(" ", "-"))
-            run_shot(s, frames[:4], quiet=True, **kwargs)
+            run(s, frames[:4], quiet=True, **kwargs)
             t = time.perf_counter()
-            results = run_shot(s, frames, force=True, quiet=True, **kwargs)
+            results = run(s, frames, force=True, quiet=True, **kwargs)
             elapsed = time.perf_counter() - t
             assert all(r.status == "written" for r in results)
             rates[label] = len(frames) / elapsed
-            per_frame = np.median([r.seconds for r in results]) * 1e3
-            print(f"{label:18s} {rates[label]:6.2f} frames/s  ({elapsed:5.1f} s wall, median {per_frame:.0f} "
-                  f"ms/frame in the worker)", flush=True)
+            split = " / ".join(f"{np.median([getattr(r, k) for r in results]) * 1e3:.0f}"
+                               for k in ("read_s", "simulate_s", "write_s"))
+            print(f"{label:18s} {rates[label]:6.2f} frames/s  ({elapsed:5.1f} s wall; per frame, median ms: read / "
+                  f"simulate / write {split})", flush=True)
         with Client(cluster) as client:
             peaks = client.run(peak_mb)
+    print(f"serial: {rates['serial'] / rates['one at a time']:.2f}x one frame at a time, "
+          f"{floor / rates['serial']:.2f}x the floor's time (target <= 1.3x)")
     ratio = rates["2 Dask workers"] / rates["serial"]
     print(f"scaling with 2 workers: {ratio:.2f}x over the serial run (target >= 1.7x on 2 cores), "
           f"{rates['2 Dask workers'] / rates['serial 1 thread']:.2f}x over a serial run on one core")

@@ -24,6 +24,7 @@ Contents
 - :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB, the file opened once per shot
 - :func:`close_videos`: release the video files :func:`read_video_frame` keeps open
 - :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
+- :data:`READ_AHEAD`: how many frames a serial shot reads ahead of the one it simulates
 - :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
 - :func:`full_disk_stop`: the one line that ends a shot at its first write to a full disk, with how to resume
 - :data:`QUIET_LOGGERS`: the loggers of Dask and the libraries under it, kept to critical messages
@@ -33,11 +34,15 @@ Contents
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import os
 import re
 import signal
+import sys
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -116,6 +121,7 @@ class Shot:
     fps: float = 24.0              # the frame rate the renders' Vector pass was made at
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
     plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
+    render_space: str | None = None  # the renders' colour space (None: their header's, else linear Rec.709)
 
     def load_profile(self):
         """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
@@ -128,10 +134,18 @@ class Shot:
 
 @dataclass
 class FrameResult:
+    """One frame's outcome; its time split into reading (render, passes, plate), simulating and writing (s)."""
+
     frame: int
     status: str  # "written", "skipped" or "failed"
     message: str = ""
-    seconds: float = 0.0
+    read_s: float = 0.0
+    simulate_s: float = 0.0
+    write_s: float = 0.0
+
+    @property
+    def seconds(self) -> float:
+        return self.read_s + self.simulate_s + self.write_s
 
 
 _PROFILES: dict = {}
@@ -217,30 +231,115 @@ def _read_plate(shot: Shot, frame: int, profile):
     return read_plate(expand_pattern(shot.plates, frame), c.width, c.height, None if profile.is_raw else 3)
 
 
+def _frame_motion(shot: Shot, frame: int) -> FrameMotion:
+    motion = shot.motion.get(frame)
+    if motion is None and shot.require_motion:
+        raise LowcamError(f"{shot.motion_source}: no entry for this frame")
+    return motion or FrameMotion((0.0, 0.0, 0.0))
+
+
+def _timed(fn, *args):
+    t = time.perf_counter()
+    return fn(*args), time.perf_counter() - t
+
+
+def _read_inputs(shot: Shot, frame: int, profile):
+    """(render, passes, plate) of ``frame``."""
+    render, passes = read_render_and_passes(expand_pattern(shot.renders, frame), shot.layer, needed_passes(profile),
+                                            shot.fps, shot.metres_per_unit, shot.render_space)
+    return render, passes, _read_plate(shot, frame, profile) if shot.plates else None
+
+
+def _simulate_inputs(shot: Shot, frame: int, profile, motion: FrameMotion, inputs):
+    render, passes, plate = inputs
+    return simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame, passes)
+
+
+def _failed(frame: int, error: LowcamError, read_s: float = 0.0, simulate_s: float = 0.0) -> FrameResult:
+    return FrameResult(frame, "failed", " ".join(str(error).splitlines()), read_s, simulate_s)  # one line
+
+
 def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
     """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead. A full disk
     (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot."""
-    t = time.perf_counter()
     out = shot.output_path(frame)
     if out.exists() and not force:
         return FrameResult(frame, "skipped")
+    read_s = simulate_s = 0.0
     try:
         profile = shot.load_profile()
-        motion = shot.motion.get(frame)
-        if motion is None and shot.require_motion:
-            raise LowcamError(f"{shot.motion_source}: no entry for this frame")
-        motion = motion or FrameMotion((0.0, 0.0, 0.0))
-        render, passes = read_render_and_passes(expand_pattern(shot.renders, frame), shot.layer,
-                                                needed_passes(profile), shot.fps, shot.metres_per_unit)
-        plate = _read_plate(shot, frame, profile) if shot.plates else None
-        image = simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame,
-                         passes)
-        write_image(out, image)
+        motion = _frame_motion(shot, frame)
+        inputs, read_s = _timed(_read_inputs, shot, frame, profile)
+        image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs)
+        _, write_s = _timed(write_image, out, image)
     except DiskFull:
         raise  # every later frame would fail alike: the shot stops (run_shot)
     except LowcamError as e:
-        return FrameResult(frame, "failed", " ".join(str(e).splitlines()), time.perf_counter() - t)  # one line
-    return FrameResult(frame, "written", "", time.perf_counter() - t)
+        return _failed(frame, e, read_s, simulate_s)
+    return FrameResult(frame, "written", "", read_s, simulate_s, write_s)
+
+
+#: How many frames a serial shot reads ahead of the one it simulates (each a render, its passes and a plate in
+#: memory); one frame is written behind it.
+READ_AHEAD = 2
+
+
+def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
+    """A serial shot with its reading, simulation and writing overlapped: renders and plates are read on one thread
+    up to :data:`READ_AHEAD` frames ahead, each frame is written on another while the next is simulated on this
+    one. ``done(result)`` is called for each frame in order. The bytes are those of :func:`process_frame` frame
+    after frame; a full disk raises :class:`~lowcam.errors.DiskFull` once the frames before it are reported."""
+    profile = shot.load_profile()
+    with ThreadPoolExecutor(1, thread_name_prefix="lowcam-read") as reader, \
+            ThreadPoolExecutor(1, thread_name_prefix="lowcam-write") as writer:
+        def start(frame):
+            if shot.output_path(frame).exists() and not force:
+                return FrameResult(frame, "skipped")
+            try:
+                motion = _frame_motion(shot, frame)
+            except LowcamError as e:
+                return _failed(frame, e)
+            return motion, reader.submit(_timed, _read_inputs, shot, frame, profile)
+
+        def finish(frame, write, read_s, simulate_s):
+            try:
+                _, write_s = write.result()
+            except DiskFull:
+                raise
+            except LowcamError as e:
+                return _failed(frame, e, read_s, simulate_s)
+            return FrameResult(frame, "written", "", read_s, simulate_s, write_s)
+
+        upcoming = iter(frames)
+        queue = deque((f, start(f)) for f in itertools.islice(upcoming, READ_AHEAD))
+        writing = None
+        try:
+            while queue:
+                frame, started = queue.popleft()
+                following = next(upcoming, None)
+                if following is not None:
+                    queue.append((following, start(following)))
+                if isinstance(started, FrameResult):
+                    done(started)
+                    continue
+                motion, read = started
+                try:
+                    inputs, read_s = read.result()
+                    image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs)
+                except LowcamError as e:
+                    done(_failed(frame, e))
+                    continue
+                del inputs
+                if writing is not None:
+                    done(finish(*writing))
+                writing = (frame, writer.submit(_timed, write_image, shot.output_path(frame), image), read_s,
+                           simulate_s)
+            if writing is not None:
+                done(finish(*writing))
+        finally:
+            for _, started in queue:   # a full disk or Ctrl-C: reads not begun are dropped
+                if not isinstance(started, FrameResult):
+                    started[1].cancel()
 
 
 def check_shot_outputs(output: str, renders: str, plates: str | None, frames: list[int], inputs=()) -> None:
@@ -258,11 +357,23 @@ def check_shot_outputs(output: str, renders: str, plates: str | None, frames: li
             check_image_output(out, sources + ([video] if video else []) + list(inputs))
 
 
+@contextlib.contextmanager
 def _progress(total: int, quiet: bool):
-
-    # on a terminal only (None): a log file gets the summary, not a stream of carriage returns
-    return tqdm(total=total, unit="frame", disable=True if quiet else None, dynamic_ncols=True,
-                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} frames [{elapsed}<{remaining}, {rate_fmt}]")
+    """A progress bar on a terminal only (a log file gets the summary, not a stream of carriage returns). It writes
+    to its own copy of stderr, so a reader thread keeping a codec's messages off descriptor 2 (:func:`quiet_stderr`)
+    does not hide it."""
+    try:
+        stream = os.fdopen(os.dup(sys.stderr.fileno()), "w")
+    except (AttributeError, OSError, ValueError):  # no descriptor behind stderr (a test's capture, a detached process)
+        stream = None
+    bar = tqdm(total=total, unit="frame", disable=True if quiet else None, dynamic_ncols=True, file=stream,
+               bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} frames [{elapsed}<{remaining}, {rate_fmt}]")
+    try:
+        yield bar
+    finally:
+        bar.close()
+        if stream is not None:
+            stream.close()
 
 
 def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 0, scheduler: str | None = None,
@@ -283,32 +394,37 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
 
     remove_temporaries_of_the_dead()
     results: list[FrameResult] = []
-    bar = _progress(len(frames), quiet)
     try:
-        if not workers and not scheduler:
-            for f in frames:
-                results.append(process_frame(shot, f, force))
+        with _progress(len(frames), quiet) as bar:
+            def done(result):
+                results.append(result)
                 bar.update()
-        else:
-            with _dask_client(workers, scheduler) as client:
-                client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
-                futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
-                           for f in frames]
-                from dask.distributed import as_completed
 
-                try:
-                    for future in as_completed(futures):
-                        results.append(future.result())
-                        bar.update()
-                except DiskFull:
-                    client.cancel(futures)  # frames not started are not tried
-                    raise
+            if workers or scheduler:
+                _run_on_dask(shot, frames, force, workers, scheduler, done)
+            else:
+                _run_overlapped(shot, frames, force, done)
     except DiskFull as e:
         raise full_disk_stop(e, shot, frames, sum(r.status == "written" for r in results)) from None
     finally:
-        bar.close()
         remove_temporaries_of_the_dead()  # a worker killed mid-write left its temporary
     return sorted(results, key=lambda r: r.frame)
+
+
+def _run_on_dask(shot: Shot, frames: list[int], force: bool, workers: int, scheduler: str | None, done) -> None:
+    """Each frame a :func:`process_frame` task on Dask; ``done(result)`` as each finishes."""
+    with _dask_client(workers, scheduler) as client:
+        client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
+        futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
+                   for f in frames]
+        from dask.distributed import as_completed
+
+        try:
+            for future in as_completed(futures):
+                done(future.result())
+        except DiskFull:
+            client.cancel(futures)  # frames not started are not tried
+            raise
 
 
 def full_disk_stop(error: DiskFull, shot: Shot, frames: list[int], written: int) -> DiskFull:

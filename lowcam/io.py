@@ -8,8 +8,10 @@ Contents
 --------
 - :func:`quiet_stderr`: keep C libraries' messages off the terminal for a while
 - :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
+- :func:`read_exr_and_space`: :func:`read_exr` and the colour space its header names (None when it names none)
+- :func:`render_space_of`: the space a render is in: the one stated, else its header's, else linear Rec.709
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
-- :func:`read_render`: read a render as premultiplied linear RGBA float32 (H, W, 4)
+- :func:`read_render`: read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4)
 - :data:`RENDER_MAX`: the largest render value accepted
 - :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
 - :func:`check_render_window`: :func:`check_render`, and the window around the render's non-zero pixels
@@ -21,11 +23,13 @@ Contents
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -33,6 +37,7 @@ import numpy as np
 
 from .errors import LowcamError
 from .parallel import row_strips, thread_map
+from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
 from .window import nonzero_window
 
 
@@ -59,22 +64,27 @@ def quiet_stderr(stdout: bool = False):
     fds = (1, 2) if stdout else (2,)
     sys.stdout.flush()
     sys.stderr.flush()
-    try:
-        saved = [os.dup(fd) for fd in fds]
-    except OSError:  # no such descriptor (a detached process): nothing to keep quiet
-        yield said
-        return
-    with tempfile.TemporaryFile() as capture:
+    with _QUIET:
         try:
-            for fd in fds:
-                os.dup2(capture.fileno(), fd)
+            saved = [os.dup(fd) for fd in fds]
+        except OSError:  # no such descriptor (a detached process): nothing to keep quiet
             yield said
-        finally:
-            for fd, old in zip(fds, saved):
-                os.dup2(old, fd)
-                os.close(old)
-            capture.seek(0)
-            said["text"] = capture.read(4096).decode(errors="replace")
+            return
+        with tempfile.TemporaryFile() as capture:
+            try:
+                for fd in fds:
+                    os.dup2(capture.fileno(), fd)
+                yield said
+            finally:
+                for fd, old in zip(fds, saved):
+                    os.dup2(old, fd)
+                    os.close(old)
+                capture.seek(0)
+                said["text"] = capture.read(4096).decode(errors="replace")
+
+
+#: One thread at a time moves descriptors 1 and 2 (a shot reads its next frame while it simulates this one).
+_QUIET = threading.RLock()
 
 
 #: File signatures: the format is told by the bytes, not the name (an EXR named .png is still an EXR).
@@ -106,14 +116,18 @@ def _exr_core_too_old() -> bool:
         return False
 
 
-_CHILD_READ = ("import sys, numpy as np\nfrom lowcam.errors import LowcamError\nfrom lowcam.io import read_exr\n"
-               "try:\n    np.savez(sys.argv[2], **read_exr(sys.argv[1]))\n"
-               "except LowcamError as e:\n    sys.exit(str(e))\n")
+_CHILD_READ = ("import sys, json, numpy as np\nfrom lowcam.errors import LowcamError\n"
+               "from lowcam.io import _read_exr_tagged\n"
+               "try:\n    channels, tags = _read_exr_tagged(sys.argv[1])\n"
+               "    np.savez(sys.argv[2], **channels, **{_TAGS: np.array(json.dumps(tags))})\n"
+               "except LowcamError as e:\n    sys.exit(str(e))\n").replace("_TAGS", repr("lowcam:colour tags"))
+#: The header attributes that name a render's colour space.
+_COLOUR_TAGS = ("colorInteropID", "chromaticities")
 
 
-def _read_exr_in_child(path: Path) -> dict[str, np.ndarray]:
-    """:func:`read_exr` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is too old
-    for the OpenEXR wheel); the channels come back through a temporary ``.npz``."""
+def _read_exr_in_child(path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`_read_exr_tagged` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is
+    too old for the OpenEXR wheel); the channels and tags come back through a temporary ``.npz``."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     with tempfile.TemporaryDirectory(prefix="lowcam-exr-") as folder:
         out = Path(folder) / "channels.npz"
@@ -125,13 +139,43 @@ def _read_exr_in_child(path: Path) -> dict[str, np.ndarray]:
             raise LowcamError(last if last.startswith(str(path)) else
                               f"{path}: reading it in a child Python failed ({last})")
         with np.load(out) as z:
-            return {k: z[k] for k in z.files}
+            channels = {k: z[k] for k in z.files}
+        return channels, json.loads(str(channels.pop("lowcam:colour tags")))
+
+
+def _float32(pixels: np.ndarray) -> np.ndarray:
+    """A channel's pixels as float32; half floats through OpenCV (exact, and 4x numpy's conversion)."""
+    if pixels.dtype == np.float16 and pixels.ndim <= 3 and pixels.size:
+        return cv2.convertFp16(np.ascontiguousarray(pixels).view(np.int16))
+    return np.asarray(pixels, np.float32)
 
 
 def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays). In a process that holds an older libOpenEXRCore (Debian's
     Blender) the file is read in a child Python."""
+    return _read_exr_tagged(path)[0]
+
+
+def read_exr_and_space(path):
+    """``(channels, space)``: :func:`read_exr`'s channels and the colour space the file's header names
+    (:func:`lowcam.render_spaces.header_space`: Blender 5's ``colorInteropID`` or the ``chromaticities``), None
+    when it names none."""
+    channels, tags = _read_exr_tagged(path)
+    return channels, header_space(tags, path)
+
+
+def render_space_of(path, stated=None, header=None):
+    """The colour space of the render at ``path``: ``stated`` (a name, :func:`lowcam.render_spaces.render_space`)
+    when given, else the one its header names (``header``, as :func:`read_exr_and_space` gives it), else linear
+    Rec.709."""
+    if stated:
+        return render_space(stated)
+    return header or LINEAR_REC709
+
+
+def _read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list)."""
     path = _exists(path)
     if _exr_core_too_old():
         return _read_exr_in_child(path)
@@ -143,8 +187,10 @@ def read_exr(path) -> dict[str, np.ndarray]:
     with quiet_stderr(stdout=True) as said:
         try:
             with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer
-                parts = [(part.name(), {n: np.asarray(c.pixels, np.float32) for n, c in part.channels.items()})
+                parts = [(part.name(), {n: _float32(c.pixels) for n, c in part.channels.items()})
                          for part in f.parts]
+                header = f.parts[0].header if f.parts else {}
+                tags = {k: header[k] for k in _COLOUR_TAGS if header.get(k) is not None}
         except Exception as e:
             parts, reason = None, (str(e).splitlines()[0] if str(e) else type(e).__name__)
     complaint = sorted(said["text"].strip().splitlines(), key=lambda line: "EXR_ERR" not in line)
@@ -159,7 +205,11 @@ def read_exr(path) -> dict[str, np.ndarray]:
             raise LowcamError(f"{path}: part '{part_name}' holds channel '{twice[0]}' again; write one part per "
                               "view layer, with the layer in the channel names")
         channels.update(part_channels)
-    return channels
+    if "chromaticities" in tags:
+        tags["chromaticities"] = [float(v) for v in np.ravel(np.asarray(tags["chromaticities"], float))]
+    if isinstance(tags.get("colorInteropID"), bytes):
+        tags["colorInteropID"] = tags["colorInteropID"].decode(errors="replace")
+    return channels, tags
 
 
 #: The view layer of excluded objects that the add-on adds ("Lowcam Overlay"); never taken for the render.
@@ -196,17 +246,20 @@ def _rgba_from_exr(path, channels: dict[str, np.ndarray], layer: str | None = No
     raise LowcamError(f"{path}: no RGBA layer found (channels: {', '.join(sorted(channels))})")
 
 
-def read_render(path, layer: str | None = None) -> np.ndarray:
-    """Read a render as premultiplied linear RGBA float32 (H, W, 4).
+def read_render(path, layer: str | None = None, render_space: str | None = None) -> np.ndarray:
+    """Read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4).
 
     OpenEXR (single-layer ``RGBA``, a Blender multilayer file's one ``*.Combined`` layer, or view layer ``layer``)
     is taken as premultiplied, as Blender writes it. PNG and TIFF are straight alpha (as Blender writes them) and
     are premultiplied here; 8- and 16-bit code values are scaled to 0..1, float TIFF values are used as they are.
-    The format is told by the file's first bytes, not its name.
+    The format is told by the file's first bytes, not its name. A render in another colour space (``render_space``
+    when given, else the one an OpenEXR header names: :func:`render_space_of`) is converted to linear Rec.709.
     """
     path = _exists(path)
+    header = None
     if _format(path) == "exr":
-        rgba = _rgba_from_exr(path, read_exr(path), layer)
+        channels, header = read_exr_and_space(path)
+        rgba = _rgba_from_exr(path, channels, layer)
     else:
         img = _decode(path)
         if img.ndim != 3 or img.shape[2] != 4:
@@ -214,7 +267,7 @@ def read_render(path, layer: str | None = None) -> np.ndarray:
         scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
         rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
         rgba[..., :3] *= rgba[..., 3:]
-    return check_render(rgba, path)
+    return check_render(to_camera_space(rgba, render_space_of(path, render_space, header)), path)
 
 
 #: The largest render value accepted: half-float's maximum (no real render is brighter; larger finite values

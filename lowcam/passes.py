@@ -36,7 +36,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import LowcamError
-from .io import OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_render
+from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_exr_and_space,
+                 read_render, render_space_of)
+from .render_spaces import to_camera_space
 
 
 #: Each kind of pass: its :class:`RenderPasses` field and the Blender pass that holds it.
@@ -168,15 +170,17 @@ def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: fl
 
 
 def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps: float,
-                           metres_per_unit: float = 1.0):
-    """``(render, passes)``: the render (:func:`lowcam.io.read_render`) and, when ``needs`` names passes, its view
-    layer's passes (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A
-    render that is not an OpenEXR file has no passes: asking for them is a one-line error."""
+                           metres_per_unit: float = 1.0, render_space: str | None = None):
+    """``(render, passes)``: the render (:func:`lowcam.io.read_render`, in linear Rec.709 from ``render_space`` or
+    the space its header names) and, when ``needs`` names passes, its view layer's passes
+    (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A render that is
+    not an OpenEXR file has no passes: asking for them is a one-line error."""
     if not needs:
-        return read_render(path, layer), None
+        return read_render(path, layer, render_space), None
     if _format(_exists(path)) != "exr":
         raise LowcamError(f"{path}: a {needs[0]} pass is needed and only an OpenEXR render holds one; render a "
                           f"multilayer OpenEXR ({PASS_HELP[needs[0]]})")
-    channels = read_exr(path)
-    render = check_render(_rgba_from_exr(path, channels, layer), path)
+    channels, header = read_exr_and_space(path)
+    render = check_render(to_camera_space(_rgba_from_exr(path, channels, layer),
+                                          render_space_of(path, render_space, header)), path)
     return render, read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)

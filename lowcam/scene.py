@@ -20,29 +20,37 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr
+from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_and_space, render_space_of
 from .outputs import write_image
 from .passes import RenderPasses, needed_passes, read_blender_passes
 from .pipeline import run
 from .profile import load_profile
+from .render_spaces import to_camera_space
 
 
 
-def read_layers(path, layer: str, overlay_layer: str | None = None,
-                channels: dict | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """(render, overlay) premultiplied RGBA from a Blender multilayer EXR: view layer ``layer``'s Combined pass
-    and, when asked, ``overlay_layer``'s. ``channels``: the file's already read."""
-    channels = read_exr(path) if channels is None else channels
+def read_layers(path, layer: str, overlay_layer: str | None = None, channels: dict | None = None,
+                render_space=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(render, overlay) premultiplied linear Rec.709 RGBA from a Blender multilayer EXR: view layer ``layer``'s
+    Combined pass and, when asked, ``overlay_layer``'s. ``channels``: the file's already read; ``render_space``:
+    their colour space (a :class:`~lowcam.render_spaces.RenderSpace`; None: the one the file's header names)."""
+    if channels is None or render_space is None:
+        read, header = read_exr_and_space(path)
+        channels = read if channels is None else channels
+        render_space = render_space or render_space_of(path, None, header)
+
+    def rgba(name, chosen):
+        return check_render(to_camera_space(_rgba_from_exr(path, chosen), render_space), name)
 
     def combined(name):
         key = f"{name}.Combined"
         if key not in channels:
             layers = sorted({k.split(".")[0] for k in channels if "." in k})
             raise LowcamError(f"{path}: no view layer '{name}' (layers: {', '.join(layers) or 'none'})")
-        return check_render(_rgba_from_exr(path, {key: channels[key]}), f"{path} layer {name}")
+        return rgba(f"{path} layer {name}", {key: channels[key]})
 
     if not any("." in k for k in channels):  # a single-layer file: the whole render
-        return check_render(_rgba_from_exr(path, channels), path), None
+        return rgba(path, channels), None
     return combined(layer), (combined(overlay_layer) if overlay_layer else None)
 
 
@@ -73,13 +81,16 @@ def over_frame(frame: np.ndarray, overlay: np.ndarray) -> np.ndarray:
 
 def degrade_frame(render_path, output_path, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
                   exposure_s=None, seed: int = 0, frame: int = 0, layer: str = "ViewLayer",
-                  overlay_layer: str | None = None, fps: float = 24.0, metres_per_unit: float = 1.0) -> Path:
+                  overlay_layer: str | None = None, fps: float = 24.0, metres_per_unit: float = 1.0,
+                  render_space: str | None = None) -> Path:
     """Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite (atomically).
     The view layer's Vector and Depth passes (a scene at ``fps``, ``metres_per_unit``) feed the effects that
-    need them (``object_motion``, ``depth_of_field``)."""
+    need them (``object_motion``, ``depth_of_field``). The render's colour space is ``render_space`` (a name) when
+    given, else the one the file's header names (Blender 5's working space), else linear Rec.709."""
     profile = load_profile(profile)
-    channels = read_exr(render_path)
-    render, overlay = read_layers(render_path, layer, overlay_layer, channels)
+    channels, header = read_exr_and_space(render_path)
+    space = render_space_of(render_path, render_space, header)
+    render, overlay = read_layers(render_path, layer, overlay_layer, channels, space)
     needs = needed_passes(profile)
     passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)
     result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes)

@@ -8,8 +8,13 @@ nodes (matrices, quantisation, YUV, blending). The images come from :mod:`lowcam
 Which effects have a node, its label, what its sockets carry and its recipe are the effects' own declarations
 (``Effect.node``); this module only knows recipes.
 
-Units inside the group: the working image is the render (premultiplied, linear); from Bayer sampling on values
-are DN / 255; the group's output is linear light that the Standard view transform turns back into those codes.
+Units inside the group: the working image is the render (premultiplied, linear Rec.709); from Bayer sampling on
+values are DN / 255; the group's output is linear light that the Standard view transform turns back into those
+codes. In a .blend whose working space is not Linear Rec.709 (Blender 5: Linear Rec.2020, ACEScg), the group turns
+its Image and Plate inputs into linear Rec.709 first and its output back into the working space, with the engine's
+matrices (:func:`lowcam.render_spaces.to_rec709_matrix`), so its frame is the engine's. The file it is written to
+needs the Standard view on an sRGB display, without look: :func:`set_code_view` gives an output its own colour
+management so, leaving the scene's view alone.
 
 Sensor noise is Gaussian, by the Box-Muller transform [Box1958] of two White Noise values per sensel and frame.
 
@@ -29,6 +34,7 @@ Contents
 - :func:`build_stage_group`: the node group of one stage (default "Lowcam <Stage>"), its images ``<name>: <what>``
 - :func:`group_stages`: the group's stages in order: the profile's, less those baked into others, plus the plate blend
 - :func:`build_camera_group`: build "Lowcam Camera" from a bake: Image, Plate, Seed and Noise in; Image out
+- :func:`set_code_view`: image output settings that write the group's output as its codes (Standard, no look)
 
 References
 ----------
@@ -45,7 +51,7 @@ import numpy as np
 from lowcam.effects.yuv import RGB_TO_YUV, YUV_TO_RGB
 from lowcam.node_maps import CameraBake, node_stages
 
-from ..blender_compat import has_node, node_type
+from ..blender_compat import has_node, node_type, working_space
 
 PREFIX = "Lowcam"
 #: The stage after the effects: the YUV difference added to the plate.
@@ -455,6 +461,35 @@ def group_stages(camera: CameraBake) -> list[str]:
     return [s for s in camera.stages if not declared[s].baked_into] + [PLATE_BLEND]
 
 
+def _working_to_rec709():
+    """The working space's RGB -> linear Rec.709 matrix (3x3), None when the working space is linear Rec.709."""
+    from lowcam.render_spaces import LINEAR_REC709, render_space, to_rec709_matrix
+
+    space = render_space(working_space())
+    return None if space == LINEAR_REC709 else to_rec709_matrix(space)
+
+
+def _convert(t, image, m):
+    """``image``'s colour times the 3x3 matrix ``m``, alpha kept."""
+    parts = t.separate(image)
+    return t.combine(*t.matrix(np.asarray(m, float).ravel().tolist(), parts[:3]), parts[3])
+
+
+def set_code_view(image_settings) -> None:
+    """Image output settings (a render's or a File Output node's) that write the group's output as its 8-bit
+    codes whatever the scene's view: their own colour management, the Standard view without look, exposure 0,
+    gamma 1, no curves. The scene's view transform and look stay the user's."""
+    image_settings.color_management = "OVERRIDE"
+    image_settings.display_settings.display_device = "sRGB"
+    view = image_settings.view_settings
+    view.view_transform = "Standard"
+    view.look = "None"
+    view.exposure, view.gamma = 0.0, 1.0
+    view.use_curve_mapping = False
+    if hasattr(view, "use_white_balance"):     # 4.5+
+        view.use_white_balance = False
+
+
 def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: str | None = None):
     """Build "Lowcam Camera" from a :func:`lowcam.node_maps.bake`: inputs Image (the render, premultiplied), Plate,
     Seed, Noise; output Image.
@@ -469,17 +504,22 @@ def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: s
                                  ("Seed", "NodeSocketFloat"), ("Noise", "NodeSocketFloat")],
                           [("Image", "NodeSocketColor")])
     group.interface.items_tree["Noise"].default_value = 1.0
-    current = {"Image": t.inp.outputs["Image"]}
+    to_rec709 = _working_to_rec709()
+    inputs = {"Image": t.inp.outputs["Image"], "Plate": t.inp.outputs["Plate"]}
+    if to_rec709 is not None:                   # the engine's colour works in linear Rec.709
+        inputs = {k: _convert(t, v, to_rec709) for k, v in inputs.items()}
+    current = {"Image": inputs["Image"]}
     for i, stage in enumerate(stages):
         node = t.nodes.new("CompositorNodeGroup")
         node.node_tree = build_stage_group(stage, camera, f"{name}: {stage_label(stage)}")
         node.location = (200 * (i + 1), 0)
         for name, _ in stage_sockets(stage)[0]:
-            source = {"Plate": t.inp.outputs["Plate"], "Seed": t.inp.outputs["Seed"],
+            source = {"Plate": inputs["Plate"], "Seed": t.inp.outputs["Seed"],
                       "Strength": t.inp.outputs["Noise"]}.get(name, current.get(name))
             t.links.new(source, node.inputs[name])
         current = {name: node.outputs[name] for name, _ in stage_sockets(stage)[1]}
-    t.links.new(current["Image"], t.out.inputs["Image"])
+    out = current["Image"] if to_rec709 is None else _convert(t, current["Image"], np.linalg.inv(to_rec709))
+    t.links.new(out, t.out.inputs["Image"])
     t.out.location = (200 * (len(stages) + 1), 0)
     group["lowcam_stages"] = stages
     group["lowcam_profile"] = str(camera.profile.source)

@@ -27,7 +27,7 @@ from lowcam.pipeline import run
 from lowcam.profile import load_profile
 
 from ..blender_compat import compositor_output, compositor_tree
-from .build import PLATE_BLEND, build_camera_group, group_stages, image_from_array
+from .build import PLATE_BLEND, build_camera_group, group_stages, image_from_array, set_code_view
 
 
 def _engine_stage(state, stage: str, frame: np.ndarray | None) -> np.ndarray:
@@ -54,7 +54,6 @@ def _compositor_scene(width: int, height: int):
     scene.render.resolution_percentage = 100
     scene.render.engine = "CYCLES"
     scene.cycles.samples = 1
-    scene.view_settings.view_transform = "Standard"
     scene.render.dither_intensity = 0.0
     scene.render.film_transparent = True
     return scene
@@ -81,6 +80,7 @@ def render_group(group, inputs: dict, shape, path: Path) -> np.ndarray:
         settings.file_format, settings.color_depth, settings.color_mode = "OPEN_EXR", "32", "RGBA"
     else:
         settings.file_format, settings.color_depth, settings.color_mode = "PNG", "8", "RGB"
+    set_code_view(settings)             # the output's own view: Standard, whatever the scene's
     scene.render.filepath = str(path)
     with bpy.context.temp_override(scene=scene):
         bpy.ops.render.render(write_still=True, scene=scene.name)

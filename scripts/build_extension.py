@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "build" / "wheel-cache"
 #: What the engine imports at run time (the loop's fits, plots, progress and DNG tags included): their own
 #: requirements are added by :func:`runtime_pins`.
-RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile")
+RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile",
+           "rapidfuzz")
 #: Every Blender embeds these: never bundled.
 WITH_BLENDER = {"numpy"}
 SHIPPED = ("__init__.py", "blender_compat.py", "blender_manifest.toml", "LICENSE", "README.md", "addon", "nodes",

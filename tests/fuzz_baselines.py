@@ -449,15 +449,18 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
     ("render",): Baseline(
         {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/####.png"]}, ("scene.blend",), 6.0,
         bpy=True),
+    # the gyro form runs without Blender; the .blend form is Blender-side (_BPY_OPTIONS)
     ("motion",): Baseline(
-        {"blend": ["{in}/scene.blend"], "frames": ["1"], "output": ["{out}/motion.json"]}, ("scene.blend",), 3.5,
-        bpy=True),
+        {"gyro": ["{in}/gyro.csv"], "fps": ["24"], "exposure_s": ["0.02"], "frames": ["1"],
+         "output": ["{out}/motion.json"]}, ("gyro.csv",), 0.2,
+        companions={"blend": {"gyro": None, "fps": None, "exposure_s": None, "blend": ["{in}/scene.blend"]}},
+        option_costs={"blend": 3.5}),
     ("node-asset",): Baseline({"output": ["{out}/asset.blend"], "render_width": ["64"], "profile": [P]}, (), 10.0,
                               bpy=True, caps={"render_width": 256}),
 }
 
-# demo --footage and --footage-frames run Blender (addon.footage imports bpy)
-_BPY_OPTIONS = {("demo",): ("footage", "footage_frames")}
+# demo --footage and --footage-frames run Blender (addon.footage imports bpy), and so does motion's .blend
+_BPY_OPTIONS = {("demo",): ("footage", "footage_frames"), ("motion",): ("blend",)}
 
 
 def baseline_for(command: tuple[str, ...], dest: str) -> Baseline | None:

@@ -31,8 +31,8 @@ ROOT = ENGINE.parent  # the repository: also the Blender extension's package (lo
 LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
                  "lowcam.io", "lowcam.outputs", "lowcam.registration", "lowcam.reports", "lowcam.captures",
-                 "lowcam.motion", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate", "lowcam.arguments",
-                 "lowcam.node_images")),
+                 "lowcam.motion", "lowcam.gyro_logs", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate",
+                 "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb", "lowcam.gyroflow")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam.batch import Shot, expand_pattern, parse_frames, run_shot
+from lowcam.batch import Shot, expand_pattern, parse_frames, process_frame, run_shot
 from lowcam.motion import FrameMotion, read_motion_json, write_motion_json
 from lowcam.outputs import write_exr
 from lowcam.sample import sample_plate
@@ -113,6 +113,65 @@ def test_a_corrupt_frame_is_reported_by_name_and_the_others_are_written(shot_dir
     assert f"frame 9: {bad / '0009.exr'}: no such file" in r.stderr
     written = sorted(p.name for p in (tmp_path / "out").glob("*.png"))
     assert written == [f"{f:04d}.png" for f in FRAMES if f not in (6, 9)]
+
+
+def test_a_serial_shot_reads_ahead_and_writes_behind_with_the_bytes_of_one_frame_at_a_time(shot_dir, tmp_path):
+    """The overlapped serial run (reading, simulating and writing on three threads) against process_frame called
+    frame after frame: the same bytes, the same failures and skips, in frame order, each frame's time split."""
+    renders = tmp_path / "renders"
+    renders.mkdir()
+    for f in FRAMES[:6]:
+        os.symlink(shot_dir / "renders" / f"{f:04d}.exr", renders / f"{f:04d}.exr")
+    (renders / "0004.exr").unlink()
+    (renders / "0004.exr").write_bytes((shot_dir / "renders" / "0004.exr").read_bytes()[:300])
+    motion = read_motion_json(shot_dir / "motion.json")
+    del motion[5]   # no motion for frame 5: failed before its render is read
+
+    def shot(out):
+        return Shot("fire-i", str(renders / "####.exr"), str(tmp_path / out / "####.png"),
+                    str(shot_dir / "plates/####.png"), motion, True)
+
+    one_at_a_time = [process_frame(shot("single"), f) for f in FRAMES[:6]]
+    (tmp_path / "overlapped").mkdir()
+    (tmp_path / "overlapped" / "0002.png").write_bytes(b"done before")
+    overlapped = run_shot(shot("overlapped"), FRAMES[:6], quiet=True)
+    assert [r.status for r in one_at_a_time] == ["written", "written", "written", "failed", "failed", "written"]
+    assert [r.status for r in overlapped] == ["written", "skipped", "written", "failed", "failed", "written"]
+    assert [r.message for r in overlapped] == [r.message for r in one_at_a_time]
+    assert "not a readable OpenEXR file" in overlapped[3].message and "no entry" in overlapped[4].message
+    single, both = frame_bytes(tmp_path / "single"), frame_bytes(tmp_path / "overlapped")
+    assert both.pop("0002.png") == b"done before" and single.pop("0002.png")
+    assert both == single and len(both) == 3
+    for r in overlapped:
+        assert (r.read_s > 0 and r.simulate_s > 0 and r.write_s > 0) == (r.status == "written")
+
+
+def test_a_serial_shot_shows_its_progress_on_a_terminal(shot_dir, tmp_path):
+    """The bar is drawn while a reader thread keeps the codecs' messages off descriptor 2."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    parent, child = pty.openpty()
+    fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a terminal 100 columns wide
+    proc = subprocess.Popen([sys.executable, "-m", "lowcam.cli", "batch", "--renders",
+                             str(shot_dir / "renders/####.exr"), "--frames", "1-6", "-o", str(tmp_path / "####.png")],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=child)
+    os.close(child)
+    said = b""
+    while True:
+        try:
+            chunk = os.read(parent, 4096)
+        except OSError:   # the child closed the terminal
+            break
+        if not chunk:
+            break
+        said += chunk
+    os.close(parent)
+    assert proc.wait(timeout=300) == 0
+    text = said.decode(errors="replace")
+    assert "6/6 frames" in text and any(f" {k}/6 frames" in text for k in range(1, 6)), text
 
 
 def test_plates_from_one_video_file(shot_dir, tmp_path, fire_i):

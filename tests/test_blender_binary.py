@@ -6,7 +6,8 @@ with bpy 5.2 for the same Python 3.13). These tests drive it from here with ``ch
 - the linux-x64 extension zip installs in Blender 4.3 with ``package_install_files``; the installed add-on builds
   the sample scene; ``blender -b scene.blend -a`` and ``-f 1`` write every frame's render and degraded composite;
   the composites keep the plate outside what the graphics reach and carry seeded sensor noise inside;
-- bpy 5.2 (cp313) runs the Blender tests of tests/test_blender.py and tests/test_render_passes.py on this checkout:
+- bpy 5.2 (cp313) runs the Blender tests of tests/test_blender.py, tests/test_render_passes.py and
+  tests/test_colour_management.py on this checkout:
   the render handler's composites, 4:1:1 chroma, 6-bit levels, object motion, the node group against the engine;
 - the UI, seen: ``scripts/screenshots.py`` under Xvfb shows the Lowcam panel, the compositor node and the Add >
   Lowcam menu, each different from the same window without the add-on; the committed docs/ pictures exist.
@@ -122,9 +123,9 @@ def test_installed_addon_renders_every_frame_with_the_camera(trixie, scene):
 
 def test_bpy_52_runs_the_blender_tier(trixie, work):
     """The bpy 5.2 wheel (cp313) under the root's Python 3.13 runs this checkout's add-on and node group: every
-    Blender test of tests/test_blender.py and tests/test_render_passes.py passes there (the render handler's
-    composites, 4:1:1 chroma, 6-bit levels, object motion from the Vector pass, the node group against the
-    engine ...)."""
+    Blender test of tests/test_blender.py, tests/test_render_passes.py and tests/test_colour_management.py
+    passes there (the render handler's composites, 4:1:1 chroma, 6-bit levels, object motion from the Vector
+    pass, the node group against the engine, every working space ...)."""
     copy = work / "repo" / "lowcam_blender"        # the checkout as the package lowcam_blender, as pip maps it
     copy.mkdir(parents=True)
     skip = {".git", ".cache", ".venv", "build", "dist", "__pycache__", "demo-output", ".pytest_cache"}
@@ -137,7 +138,8 @@ def test_bpy_52_runs_the_blender_tier(trixie, work):
     inside = trixie.inside(copy)
     t0 = time.monotonic()
     r = trixie.run("sh", "-c", 'cd "$0" && exec /opt/bpy52/bin/python -m pytest -p no:cacheprovider -q '
-                   '-W ignore::DeprecationWarning -m blender tests/test_blender.py tests/test_render_passes.py',
+                   '-W ignore::DeprecationWarning -m blender tests/test_blender.py tests/test_render_passes.py '
+                   'tests/test_colour_management.py',
                    inside, env={"PYTHONPATH": f"{trixie.inside(copy.parent)}:{inside}"}, timeout=1200)
     print(f"\nbpy 5.2 Blender tier: {time.monotonic() - t0:.0f} s")
     passed = re.search(r"(\d+) passed", r.stdout)

@@ -8,7 +8,7 @@ import pytest
 
 import lowcam
 from lowcam import LowcamError
-from lowcam.io import read_render
+from lowcam.io import read_exr, read_render
 from lowcam.outputs import write_exr, write_png
 
 
@@ -154,3 +154,18 @@ def test_an_exr_read_in_a_child_python_gives_the_same_channels_and_the_same_erro
     with pytest.raises(LowcamError, match=r"bad\.exr: not a readable OpenEXR file") as e:
         io.read_exr(tmp_path / "bad.exr")
     assert "\n" not in str(e.value)
+
+
+def test_a_half_float_render_reads_as_exactly_its_float32_values(tmp_path):
+    """Every half-float bit pattern (NaN aside) read through OpenEXR comes back as numpy's exact float32 value."""
+
+
+    every_half = np.arange(65536, dtype=np.uint16).view(np.float16).reshape(128, 128, 4)
+    path = tmp_path / "half.exr"
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"RGBA": every_half}).write(str(path))
+    pixels = read_exr(path)["RGBA"]
+    expected = every_half.astype(np.float32)
+    assert pixels.dtype == np.float32 and pixels.shape == (128, 128, 4)
+    assert np.array_equal(pixels, expected, equal_nan=True)
+    assert np.array_equal(np.signbit(pixels), np.signbit(expected))    # -0.0 stays -0.0

@@ -172,10 +172,11 @@ def test_provenance_names_the_lens_and_the_base(tmp_path, capsys):
 def test_search_lists_matching_lenses_with_their_calibrations(capsys):
     assert main(["profile", "search", "powershot", "g12"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[-1] == "1 lens"
-    assert out[0].startswith("Canon | Canon PowerShot G12 & compatibles (Standard) | rectilinear | canonG12 | "
-                             "6.1-30.5 mm")
-    assert "distortion poly5, TCA poly3, -" in out[0]
+    assert out[-1] == "1 lens, 1 camera"
+    lens = next(row for row in out if " | rectilinear | " in row)
+    assert lens.startswith("Canon | Canon PowerShot G12 & compatibles (Standard) | rectilinear | canonG12 | "
+                           "6.1-30.5 mm")
+    assert "distortion poly5, TCA poly3, -" in lens
     assert main(["profile", "search", "FC2103"]) == 0
     assert "distortion ptlens, TCA poly3, vignetting (2)" in capsys.readouterr().out
 
@@ -188,12 +189,12 @@ def test_search_filters_by_type_and_focal_length_and_corrects_a_typo(capsys):
         captured = capsys.readouterr()
         return captured.out.splitlines()[:-1], captured.err
 
-    every, _ = rows("Sony")
-    fisheyes, _ = rows("Sony", "--type", "fisheye")
+    every, _ = rows("Sony", "--limit", "0")
+    fisheyes, _ = rows("Sony", "--type", "fisheye", "--limit", "0")
     assert fisheyes and len(fisheyes) < len(every)
     assert all(row.split(" | ")[2].startswith("fisheye") for row in fisheyes)
     assert {row.split(" | ")[2] for row in rows("Samyang", "--type", "fisheye")[0]} >= {"fisheye stereographic"}
-    at_16, _ = rows("Sony", "--focal-mm", "16")
+    at_16, _ = rows("Sony", "--focal-mm", "16", "--limit", "0")
     assert at_16 and len(at_16) < len(every)
     for row in at_16:
         focal = row.split(" | ")[4].removesuffix(" mm").split("-")
@@ -212,7 +213,7 @@ def test_a_lens_not_in_the_database_is_one_line_with_the_nearest_names(tmp_path,
     assert "not in the lensfun database" in err and "'Canon PowerShot G16 & compatibles'" in err
     assert not (tmp_path / "x.toml").exists()
     assert main(["profile", "search", "Zorki", "nonexistent"]) == 2
-    assert "no lens of the lensfun database matches" in capsys.readouterr().err
+    assert "nothing in the lensfun database matches 'Zorki nonexistent'" in capsys.readouterr().err
 
 
 def test_bad_settings_are_one_line_errors(tmp_path, capsys):
@@ -231,6 +232,7 @@ def test_missing_lensfunpy_says_how_to_install(tmp_path, capsys, monkeypatch):
 
     lensdb._database.cache_clear()
     lensdb.lens_entries.cache_clear()
+    lensdb.camera_entries.cache_clear()
     monkeypatch.setitem(sys.modules, "lensfunpy", None)  # import lensfunpy -> ImportError
     code = main(["profile", "search", "G12"])
     err = capsys.readouterr().err
@@ -288,11 +290,14 @@ def test_the_new_profile_is_named_after_its_lens_unless_named(tmp_path):
 
 
 def test_a_lens_that_folds_on_the_frame_is_named_with_its_setting(tmp_path, capsys):
-    """The Samsung Galaxy S21 ultrawide (a phone lens of the database) folds over inside fire-i's frame at its own
-    crop factor: one line naming the lens, the focal length, the crop factor and the frame, not the base's file."""
-    code = main(["profile", "from-lensfun", "--maker", "Samsung", "--model", "Galaxy S21 ultrawide", "--focal-mm",
-                 "2.2", "--base", "fire-i", "-o", str(tmp_path / "s21.toml")])
+    """The Olympus 14-42 at 14 mm (its poly3 stops rising 8 % short of its own frame's corner: the corners have no
+    ray, tests/test_lensfun_fisheye.py shows it with lensfun's own numbers) folds over inside fire-i's frame at its
+    own crop factor: one line naming the lens, the focal length, the crop factor and the frame, not the base's
+    file."""
+    code = main(["profile", "from-lensfun", "--maker", "Olympus", "--model",
+                 "Olympus M.Zuiko Digital ED 14-42mm f/3.5-5.6",
+                 "--focal-mm", "14", "--base", "fire-i", "-o", str(tmp_path / "olympus.toml")])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1, err
-    assert "Samsung Galaxy S21 ultrawide at 2.2 mm, crop factor 6, on fire-i's 640x480 frame" in err, err
-    assert "folds over" in err and "fire-i.toml" not in err and not (tmp_path / "s21.toml").exists()
+    assert "Olympus M.Zuiko Digital ED 14-42mm f/3.5-5.6 at 14 mm, crop factor 2, on fire-i's 640x480 frame" in err, err
+    assert "folds over" in err and "fire-i.toml" not in err and not (tmp_path / "olympus.toml").exists()

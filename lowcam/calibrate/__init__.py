@@ -15,7 +15,7 @@ Contents
 --------
 - :class:`Texture`: a fitted texture for an effect's path parameter, written beside the profile
 - :class:`Calibration`: one calibration's outcome: summary, fitted values, textures, numbers and figures
-- :func:`calibrate_lens`: FOV and Brown-Conrady lenses from chessboard or ChArUco views (sec. 4.1)
+- :func:`calibrate_lens`: FOV, Brown-Conrady or fisheye lenses from chessboard or ChArUco views (sec. 4.1)
 - :func:`calibrate_vignetting`: the vignetting texture from flat fields (sec. 4.1)
 - :func:`calibrate_chromatic_aberration`: the lateral-colour grid from frames of the noise field (sec. 4.1)
 - :func:`calibrate_noise`: both noise laws from a stack of frames of a static scene (sec. 4.3)
@@ -244,10 +244,13 @@ _SETTING = Number(0, 255, low_open=True, what="a camera setting")
 
 #: Every calibration by name, in the order a manifest runs them.
 CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
-    Calibrator("lens", calibrate_lens, "FOV and Brown-Conrady from checkerboard or ChArUco frames",
+    Calibrator("lens", calibrate_lens, "FOV and Brown-Conrady (or OpenCV's fisheye) from checkerboard or ChArUco "
+               "frames",
                (_FRAMES, Option("target", str, "checkerboard:9x6:0.025",
                                 help="checkerboard:COLSxROWS:SQUARE_M or charuco"),
-                Option("model", str, "both", choices=("fov", "opencv", "both"))),
+                Option("model", str, "both", choices=("fov", "opencv", "both", "fisheye"),
+                       help="the lens model fitted: both (FOV and Brown-Conrady, the closer one kept) or one; "
+                            "fisheye: OpenCV's Kannala-Brandt model, by cv2.fisheye.calibrate")),
                lambda o, base, plots: calibrate_lens(o["frames"], o["target"], _lens_models(o["model"]), plots)),
     Calibrator("vignetting", calibrate_vignetting, "from flat-field frames", (_FRAMES,),
                lambda o, base, plots: calibrate_vignetting(o["frames"], plots)),

@@ -4,8 +4,8 @@ a report's outputs and the progress lines.
 Contents
 --------
 - :class:`Parser`: an argument parser whose errors are one line
-- :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`: declared
-  arguments several commands share
+- :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`,
+  :data:`RENDER_SPACE`: declared arguments several commands share
 - :func:`check_report_outputs`: check ``--json`` and ``--report`` of compare and diagnose before any work
 - :func:`progress_line`: one fitting step's progress on stderr (rewritten in place on a terminal)
 - :func:`end_progress_lines`: end an open progress line and close any progress bar
@@ -18,6 +18,7 @@ import sys
 from ..arguments import Number, Reads, Text
 from ..batch import parse_frames
 from ..outputs import check_output, check_output_folder
+from ..render_spaces import render_space
 
 
 class Parser(argparse.ArgumentParser):
@@ -40,6 +41,8 @@ EXPOSURE_S = Number(0, 10, low_open=True, what="exposure time in s")
 METRES_PER_UNIT = Number(0, 1e5, low_open=True, what="metres per scene unit")
 PROFILE = Reads("profile")
 LAYER = Text(what="view layer")
+#: A render's colour space (:func:`lowcam.render_spaces.render_space`: acescg, linear-rec2020, Blender's names).
+RENDER_SPACE = Text(what="colour space", check=render_space)
 
 
 def _check_frames(spec: str) -> None:

@@ -6,6 +6,8 @@ Contents
 - :func:`cmd_apply`: ``lowcam apply``: simulate the camera on one render
 - :func:`save_stages`: write each stage's picture as PNG (the working image premultiplied over black)
 - :func:`cmd_stages`: ``lowcam stages``: every stage's intermediate output as an image
+- :func:`gyro_motion`: each frame's motion from ``--gyro`` and its options, and the frame rate (batch and motion)
+- :func:`gyro_options`: add ``--gyro`` and its options to a command
 - :func:`cmd_batch`: ``lowcam batch``: run the camera over a shot, resumable, optionally on Dask
 - :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
 """
@@ -22,17 +24,18 @@ from ..batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
 from ..effects import trusted_modules
 from ..errors import LowcamError
 from ..io import read_plate, read_render
-from ..motion import gyro_to_motion, read_gyro_csv, read_motion_json
+from ..gyro_logs import gyro_log_motion
+from ..motion import read_motion_json
 from ..outputs import IMAGE_SUFFIXES, check_image_output, check_output_folder, make_output_folder, write_image, write_png
 from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
-from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE
+from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE
 
 
 def _load_inputs(args, profile):
-    render = read_render(args.render, args.layer)
+    render = read_render(args.render, args.layer, args.render_space)
     plate = None
     if args.plate:
         c = profile.camera
@@ -63,13 +66,19 @@ def _pass_options(p, fps: bool) -> None:
                    help="the Depth pass's unit in metres (Blender's Unit Scale; default 1)")
 
 
+def _render_space_option(p) -> None:
+    p.add_argument("--render-space", type=RENDER_SPACE, metavar="SPACE",
+                   help="the renders' colour space: linear-rec709, linear-rec2020, acescg (or Blender's name); "
+                        "default: the one an OpenEXR header names, else linear-rec709")
+
+
 def cmd_apply(args) -> int:
     check_image_output(args.output)
     profile = load_profile(args.profile)
     for name, values in _pass_effects(args):
         profile = profile.with_effect(name, **dict(values))
     render, passes = read_render_and_passes(args.render, args.layer, needed_passes(profile), args.fps,
-                                            args.metres_per_unit)
+                                            args.metres_per_unit, args.render_space)
     c = profile.camera
     plate = read_plate(args.plate, c.width, c.height, channels=None if profile.is_raw else 3) if args.plate else None
     t0 = time.perf_counter()
@@ -106,22 +115,42 @@ def cmd_stages(args) -> int:
     return 0
 
 
+def gyro_motion(args, frames) -> tuple[dict, float]:
+    """Each frame's motion from ``--gyro`` (a Gyroflow ``.gcsv`` log or ``.gyroflow`` project, or Lowcam's CSV),
+    ``--fps`` (or the project's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion),
+    and the frame rate used."""
+    if args.exposure_s is None:
+        raise LowcamError(f"{args.gyro}: a gyro log needs --exposure-s (and --fps unless it is a Gyroflow project "
+                          f"that states it)")
+    return gyro_log_motion(args.gyro, frames, args.fps, args.exposure_s, args.gyro_t0, args.gyro_first_frame)
+
+
+def gyro_options(p) -> None:
+    """``--gyro``, ``--fps``, ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion)."""
+    p.add_argument("--gyro", type=Reads("file"),
+                   help="gyro log integrated over each frame's exposure: a Gyroflow .gcsv log or .gyroflow project "
+                        "(axes and sync offsets from the file), or a CSV of t, wx, wy, wz (rad/s, camera frame)")
+    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro (default: a .gyroflow project's) and the "
+                                           "renders' Vector pass (default 24)")
+    p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
+    p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0,
+                   help="time (s, the log's clock; a project's: the video's) at which --gyro-first-frame starts")
+    p.add_argument("--gyro-first-frame", type=frame_number, default=1)
+
+
 def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
-    motion, require = {}, False
+    motion, require, fps = {}, False, args.fps or 24.0
     if args.motion:
         motion, require = read_motion_json(args.motion), True
     elif args.gyro:
-        if not args.fps or args.exposure_s is None:
-            raise LowcamError(f"{args.gyro}: a gyro log needs --fps and --exposure-s")
-        motion = gyro_to_motion(read_gyro_csv(args.gyro), frames, args.fps, args.exposure_s, args.gyro_t0,
-                                args.gyro_first_frame, source=args.gyro)
-        require = True
+        (motion, fps), require = gyro_motion(args, frames), True
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
-                _pass_effects(args), args.fps or 24.0, args.metres_per_unit, tuple(sorted(trusted_modules())))
+                _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())),
+                args.render_space)
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -141,6 +170,7 @@ def add_commands(sub) -> None:
         p.add_argument("--render", type=Reads("file"), required=render_required,
                        help="premultiplied RGBA render (EXR or PNG)")
         p.add_argument("--layer", type=LAYER, help="the view layer to take from a multilayer EXR with several")
+        _render_space_option(p)
         p.add_argument("--plate", type=Reads("file"), help="the video frame (PNG/JPEG) at the camera's size")
         p.add_argument("--angular-velocity", type=angular_velocity, default=(0.0, 0.0, 0.0), metavar="WX,WY,WZ",
                        help="camera rotation in rad/s, camera frame: x right, y down, z forward")
@@ -166,15 +196,12 @@ def add_commands(sub) -> None:
     p.add_argument("--profile", type=PROFILE, default="fire-i")
     p.add_argument("--renders", type=Reads("pattern"), required=True, help="render pattern, '#' for frame digits: renders/####.exr")
     p.add_argument("--layer", type=LAYER, help="the view layer to take from multilayer EXRs with several")
+    _render_space_option(p)
     p.add_argument("--plates", type=Reads("pattern"), help="plate pattern (plate/####.png) or one video file")
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
     p.add_argument("--motion", type=Reads("file"), help="motion.json: per-frame angular velocity and exposure")
-    p.add_argument("--gyro", type=Reads("file"), help="gyro CSV (t, wx, wy, wz) integrated over each frame's exposure")
-    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro and the renders' Vector pass (default 24)")
-    p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
-    p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0, help="gyro time (s) at which --gyro-first-frame starts")
-    p.add_argument("--gyro-first-frame", type=frame_number, default=1)
+    gyro_options(p)
     p.add_argument("--frames", type=FRAMES, required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
     p.add_argument("-o", "--output", type=Writes("pattern", IMAGE_SUFFIXES), required=True,
                    help="output pattern: out/####.png")

@@ -5,7 +5,8 @@ Contents
 --------
 - :func:`cmd_profiles`: ``lowcam profiles [NAME]``: list the profiles, or one profile's provenance
 - :func:`cmd_profile_from_lensfun`: ``lowcam profile from-lensfun``: a base profile with a lensfun database lens
-- :func:`cmd_profile_search`: ``lowcam profile search TEXT``: lenses of the lensfun database that match
+- :data:`SEARCH_LIMIT`: the rows ``lowcam profile search`` shows by default
+- :func:`cmd_profile_search`: ``lowcam profile search TEXT``: lenses, cameras and Gyroflow profiles that match
 - :func:`cmd_profile_from_gyroflow`: ``lowcam profile from-gyroflow``: a profile's lens from a Gyroflow lens profile
 - :func:`cmd_profile_from_dng`: ``lowcam profile from-dng``: a profile's sensor from a DNG file's metadata
 - :func:`add_commands`: add this module's commands to the ``lowcam`` sub-parsers
@@ -16,12 +17,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..arguments import Number, Reads, Text, Writes
+from ..arguments import Number, Reads, Text, Writes, bounded_int
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
 from ..gyroflow import profile_from_gyroflow
-from ..lensdb import (corrected_search, is_of_type, lens_entries, lens_types, nearest_names, profile_from_lensfun,
-                      require_lensfunpy, search_lenses)
+from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, nearest_maker,
+                      nearest_names, profile_from_lensfun, require_lensfunpy, search)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
 from .common import PROFILE, Parser
@@ -76,28 +77,89 @@ def cmd_profile_from_lensfun(args) -> int:
     return 0
 
 
+#: Rows ``lowcam profile search`` shows unless ``--limit`` says otherwise.
+SEARCH_LIMIT = 20
+
+
+def _counted(found) -> str:
+    """``"3 lenses, 1 camera, 2 Gyroflow profiles"``: the kinds of the matches, counted."""
+    kinds = [m.kind for m in found]
+    words = (("lens", "lenses"), ("camera", "cameras"), ("gyroflow", None))
+    out = []
+    for kind, plural in words:
+        n = kinds.count(kind)
+        if n and kind == "gyroflow":
+            out.append(f"{n} Gyroflow profile{'s' if n > 1 else ''}")
+        elif n:
+            out.append(f"{n} {kind if n == 1 else plural}")
+    return ", ".join(out)
+
+
+def _search_maker(maker: str | None, folder, lensfun: bool) -> str | None:
+    """The ``--maker`` to filter by: as given where a maker contains it, else the nearest maker
+    (:func:`~lowcam.lensdb.nearest_maker`, said on stderr), else a one-line error with the nearest makers."""
+    if not maker:
+        return maker
+    known = makers(folder, lensfun)
+    if any(maker.strip().lower() in m.lower() for m in known):
+        return maker
+    best = nearest_maker(maker, known)
+    if best is None:
+        raise LowcamError(f"--maker {maker}: no lens, camera or Gyroflow profile of that maker; nearest: "
+                          f"{nearest_names(maker, known)}")
+    print(f"no maker is '{maker}'; showing '{best}'", file=sys.stderr)
+    return best
+
+
 def cmd_profile_search(args) -> int:
-    """``lowcam profile search TEXT``: the matching lenses, one a line (maker | model | type | mounts | focal range |
-    crop factor | calibrations), filtered by ``--type`` and ``--focal-mm``. A mistyped word is replaced by the
-    nearest word of the database, said on stderr; no match at all is a one-line error with the nearest names."""
+    """``lowcam profile search TEXT``: the lenses and cameras of the lensfun database and the Gyroflow lens
+    profiles of a folder (``--gyroflow`` or ``LOWCAM_GYROFLOW_PROFILES``) that match, best first, one a line
+    (lenses: maker | model | type | mounts | focal range | crop factor | calibrations; cameras: maker | model |
+    camera | mount | crop factor | command; Gyroflow: brand | model | Gyroflow model | lens | mode | frame |
+    command), filtered by ``--maker``, ``--type`` and ``--focal-mm``; at most ``--limit`` rows, then a line saying
+    how many more. Mistyped words are matched by rapidfuzz, said on stderr; no match at all is a one-line error
+    with the nearest names."""
     text = " ".join(args.text)
-    if args.type is not None and not any(is_of_type(t, args.type) for t in lens_types()):
-        raise LowcamError(f"--type {args.type}: no such lens type; the database has {', '.join(lens_types())}")
-    found = search_lenses(text, args.type, args.focal_mm)
-    corrected = None if found else corrected_search(text)
-    if corrected:
-        found = search_lenses(corrected, args.type, args.focal_mm)
+    if not text.strip() and not args.maker:
+        raise LowcamError("give words of the name to look for, or --maker")
+    folder = gyroflow_folder(args.gyroflow)
+    lensfun = True
+    try:
+        require_lensfunpy()
+    except LowcamError:
+        if folder is None:
+            raise
+        lensfun = False
+        print("lensfun's database needs lensfunpy (pip install lowcam[lensfun]): searching the Gyroflow profiles "
+              "only", file=sys.stderr)
+    if args.type is not None:
+        types = sorted(set(lens_types() if lensfun else ()) | {"fisheye", "rectilinear"})
+        if not any(is_of_type(t, args.type) for t in types):
+            raise LowcamError(f"--type {args.type}: no such lens type; the database has {', '.join(types)}")
+    maker = _search_maker(args.maker, folder, lensfun)
+    found = search(text, maker, args.type, args.focal_mm, folder, lensfun)
+    if folder is not None and gyroflow_entries(folder)[1]:
+        print(f"{folder}: {gyroflow_entries(folder)[1]} .json files are no Gyroflow lens profile Lowcam reads "
+              "(another lens model, or damaged): not listed", file=sys.stderr)
+    where = "the lensfun database" + (f" or {folder}" if folder is not None else "") if lensfun else str(folder)
     if not found:
-        if search_lenses(corrected or text):
-            raise LowcamError(f"no lens matching '{corrected or text}' is of the type and focal length asked for "
-                              "(without --type and --focal-mm: lowcam profile search TEXT)")
-        names = sorted({e.name for e in lens_entries()})
-        raise LowcamError(f"no lens of the lensfun database matches '{text}'; nearest: {nearest_names(text, names)}")
-    if corrected:
-        print(f"no lens matches '{text}'; showing '{corrected}'", file=sys.stderr)
-    for e in found:
-        print(e.row())
-    print(f"{len(found)} lens{'es' if len(found) > 1 else ''}")
+        if (maker or args.type or args.focal_mm) and search(text, gyroflow=folder, lensfun=lensfun):
+            raise LowcamError(f"nothing matching '{text}' is of the maker, type and focal length asked for "
+                              "(without --maker, --type and --focal-mm: lowcam profile search TEXT)")
+        names = sorted({m.entry.name for m in search("", gyroflow=folder, lensfun=lensfun)})
+        raise LowcamError(f"nothing in {where} matches '{text}'; nearest: {nearest_names(text, names)}")
+    if found[0].typos:
+        print(f"no name holds {', '.join(repr(w) for w, _ in found[0].typos)} as typed; showing "
+              f"{', '.join(repr(near) for _, near in found[0].typos)}", file=sys.stderr)
+    shown = found[:args.limit] if args.limit else found
+    for m in shown:
+        print(m.entry.row())
+    if len(shown) < len(found):
+        print(f"{len(shown)} of {len(found)} shown ({_counted(found)}); --limit 0 shows all, or narrow with more "
+              "words, --maker, --type or --focal-mm")
+    else:
+        print(_counted(found))
+    sys.stdout.flush()  # a reader that left (| head -1) is seen here, inside the command's error boundary
     return 0
 
 
@@ -160,13 +222,21 @@ def add_commands(sub) -> None:
                    help="the new camera's name (default: the lens and focal length)")
     q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="the new profile (.toml)")
     q.set_defaults(func=cmd_profile_from_lensfun)
-    q = psub.add_parser("search", help="list lenses of the lensfun database whose maker and model contain TEXT")
-    q.add_argument("text", nargs="+", type=Text(what="TEXT"), help="words of the lens's maker and model")
+    q = psub.add_parser("search", help="find lenses and cameras of the lensfun database, and Gyroflow lens profiles "
+                        "(--gyroflow), by maker and model; mistyped words are allowed")
+    q.add_argument("text", nargs="*", type=Text(what="TEXT"), help="words of the maker and model")
+    q.add_argument("--maker", type=Text(what="maker"), default=None,
+                   help="only lenses, cameras and Gyroflow profiles of this maker (or brand)")
     q.add_argument("--type", type=Text(what="lens type"),
                    help="only lenses of this type: rectilinear, fisheye (any fisheye projection), fisheye_equisolid, "
-                        "...")
+                        "... (no cameras)")
     q.add_argument("--focal-mm", type=Number(0, 5000, low_open=True, what="focal length in mm"),
-                   help="only lenses whose focal range holds this focal length (mm)")
+                   help="only lensfun lenses whose focal range holds this focal length (mm)")
+    q.add_argument("--gyroflow", type=Reads("folder"), default=None, metavar="FOLDER",
+                   help="a copy of Gyroflow's lens profiles (https://github.com/gyroflow/lens_profiles) to search "
+                        f"too (default: the folder ${GYROFLOW_ENV} names, if any)")
+    q.add_argument("--limit", type=bounded_int(0, 10 ** 6, "a number of rows"), default=SEARCH_LIMIT,
+                   help=f"show at most this many rows, best first (default {SEARCH_LIMIT}; 0: all)")
     q.set_defaults(func=cmd_profile_search)
     q = psub.add_parser("from-gyroflow", help="the lens (OpenCV fisheye or standard), rolling shutter and frame rate "
                         "of a Gyroflow lens profile (.json) on a base profile")

@@ -3,21 +3,27 @@ runs.
 
 From views of a chessboard or ChArUco board, the poses start from OpenCV's pinhole calibration (Zhang's method);
 intrinsics, distortion and poses are then refined together by Levenberg-Marquardt on the reprojection error (the
-paper uses damped Gauss-Newton).
+paper uses damped Gauss-Newton). OpenCV's fisheye (Kannala-Brandt) model is fitted by OpenCV itself
+(``cv2.fisheye.calibrate``), which starts from an equidistant lens and reaches the least reprojection error.
 
 Contents
 --------
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
-- :func:`fit_lens`: fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target (sec. 4.1)
+- :func:`fit_lens`: fit a lens ``model`` (``"fov"``, ``"opencv"`` or ``"fisheye"``) to views of a planar target
+  (sec. 4.1)
+- :class:`IllConditionedView`: ``cv2.fisheye.calibrate``'s conditioning check failed at one view (which one)
 
 References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
 - [Zhang2000] Z. Zhang, "A Flexible New Technique for Camera Calibration", IEEE TPAMI 22(11), 1330-1334, 2000.
+- [Kannala2006] J. Kannala and S. S. Brandt, "A Generic Camera Model and Calibration Method for Conventional,
+  Wide-Angle, and Fish-Eye Lenses", IEEE TPAMI 28(8), 1335-1340, 2006.
 """
 from __future__ import annotations
 
+import re
 
 import cv2
 import numpy as np
@@ -61,19 +67,67 @@ def _unpack(model, p, width, height, fix_aspect):
     return OpenCVLens(width, height, f, fy, cx, cy, k1, k2, k3, p1, p2), params
 
 
-def fit_lens(object_points, image_points, image_size, model: str = "fov", fix_aspect: bool = True) -> LensFit:
-    """Fit a lens ``model`` (``"fov"`` or ``"opencv"``) to views of a planar target.
+class IllConditionedView(ValueError):
+    """``cv2.fisheye.calibrate``'s conditioning check (``CALIB_CHECK_COND``) failed at the pose of view ``index``:
+    the target too small, far or edge-on in it, or the intrinsics spoilt by another view's wrong detection."""
+
+    def __init__(self, index: int):
+        super().__init__(f"view {index} is ill-conditioned")
+        self.index = index
+
+
+#: ``cv2.fisheye.calibrate``'s flags: the poses re-solved after each step of the intrinsics, no skew, and the
+#: views' conditioning checked (where it fails, :class:`IllConditionedView`).
+FISHEYE_FLAGS = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW | cv2.fisheye.CALIB_CHECK_COND
+
+
+#: The fisheye's coefficients held at 0 from the highest: ``fisheye_terms`` 4 fits k1..k4, 3 holds k4, and so on.
+_FISHEYE_HOLD = {4: 0, 3: cv2.fisheye.CALIB_FIX_K4, 2: cv2.fisheye.CALIB_FIX_K4 | cv2.fisheye.CALIB_FIX_K3,
+                 1: cv2.fisheye.CALIB_FIX_K4 | cv2.fisheye.CALIB_FIX_K3 | cv2.fisheye.CALIB_FIX_K2}
+
+
+def _fit_fisheye(obj, img, image_size, terms: int) -> LensFit:
+    """OpenCV's fisheye calibration (``cv2.fisheye.calibrate``, :data:`FISHEYE_FLAGS`, k1..k``terms`` free, fx and
+    fy apart). Its solve reaches the least reprojection error (a joint Levenberg-Marquardt refinement from it
+    moved no parameter by 1e-4 on the tests' views), so it is the fit."""
+    try:
+        _, k, d, rvecs, tvecs = cv2.fisheye.calibrate(
+            [o.reshape(-1, 1, 3) for o in obj], [i.reshape(-1, 1, 2) for i in img], tuple(image_size), np.eye(3),
+            np.zeros(4), flags=FISHEYE_FLAGS | _FISHEYE_HOLD[terms],
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
+    except cv2.error as e:
+        bad = re.search(r"Ill-conditioned matrix for input array (\d+)", str(e))
+        if bad:
+            raise IllConditionedView(int(bad.group(1))) from None
+        raise
+    d = d.ravel()
+    params = dict(fx_px=k[0, 0], fy_px=k[1, 1], cx_px=k[0, 2], cy_px=k[1, 2],
+                  **{f"fisheye_k{n + 1}": d[n] for n in range(4)})
+    res = [cv2.fisheye.projectPoints(o.reshape(-1, 1, 3), r, t, k, d)[0].reshape(-1, 2) - i
+           for o, i, r, t in zip(obj, img, rvecs, tvecs)]
+    return LensFit("fisheye", {key: float(v) for key, v in params.items()}, res, [r.ravel() for r in rvecs],
+                   [t.ravel() for t in tvecs], image_size)
+
+
+def fit_lens(object_points, image_points, image_size, model: str = "fov", fix_aspect: bool = True,
+             fisheye_terms: int = 4) -> LensFit:
+    """Fit a lens ``model`` (``"fov"``, ``"opencv"`` or ``"fisheye"``) to views of a planar target.
 
     ``object_points``: per view (N, 3) target coordinates (z = 0); ``image_points``: per view (N, 2) detected
     pixels. The poses start from OpenCV's pinhole calibration; then intrinsics and poses are refined together by
     Levenberg-Marquardt on the reprojection error (the paper uses damped Gauss-Newton, sec. 4.1). ``fix_aspect``
-    ties fy to fx (square pixels).
+    ties fy to fx (square pixels). The fisheye model (k1..k``fisheye_terms`` free, the rest 0; fx and fy apart,
+    as OpenCV fits them, ``fix_aspect`` not applied) is OpenCV's own fisheye calibration
+    (``cv2.fisheye.calibrate``); it raises :class:`IllConditionedView` naming the view where OpenCV's
+    conditioning check failed, and ``cv2.error`` where OpenCV's solve fails.
     """
     from scipy.optimize import least_squares
 
     width, height = image_size
     obj = [np.asarray(o, np.float64).reshape(-1, 3) for o in object_points]
     img = [np.asarray(i, np.float64).reshape(-1, 2) for i in image_points]
+    if model == "fisheye":
+        return _fit_fisheye(obj, img, image_size, fisheye_terms)
     flags = cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0
     k0 = np.array([[0.8 * width, 0, width / 2 - 0.5], [0, 0.8 * width, height / 2 - 0.5], [0, 0, 1]])
     _, k, dist, rvecs, tvecs = cv2.calibrateCamera([o.astype(np.float32) for o in obj],

@@ -28,6 +28,10 @@ Models
     as it is: ``focal_length`` (mm), ``crop_factor`` (the camera's), ``calibration_crop_factor`` and
     ``calibration_aspect_ratio`` (the lens entry's ``cropfactor`` and ``aspect-ratio``), ``lensfun_center`` and
     ``lensfun_k1`` / ``lensfun_k1, lensfun_k2`` / ``lensfun_a, lensfun_b, lensfun_c`` (see :class:`LensfunLens`).
+    ``lensfun_geometry`` is the lens's projection, lensfun's lens type: ``rectilinear`` (the default),
+    ``fisheye`` (equidistant), ``fisheye_equisolid``, ``fisheye_stereographic``, ``fisheye_orthographic`` or
+    ``fisheye_thoby``; the distortion acts on the radius the projection gives, as in lensfun's geometry
+    conversion, and the fisheyes see rays beyond 90 degrees (:meth:`LensModel.undistort_ray`).
 
 Contents
 --------
@@ -40,7 +44,11 @@ Contents
 - :data:`FULL_FRAME_HALF_DIAGONAL_MM`: half the diagonal of a 36 x 24 mm frame, the crop factors' reference
 - :func:`lensfun_frame`: lensfun's normalised unit (px) and distortion centre on a frame (shared by TCA and
   vignetting)
-- :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models, normalised as lensfun does
+- :data:`LENSFUN_GEOMETRIES`: lensfun's lens geometries (lens types) :class:`LensfunLens` projects
+- :func:`lensfun_projection`, :func:`lensfun_projection_angle`: a ray's image radius in focal lengths through
+  one of them, and back
+- :func:`lensfun_projection_limit`: the largest ray angle a lensfun geometry maps one to one
+- :class:`LensfunLens`: lensfun's poly3, poly5 and ptlens models on its lens geometries, normalised as lensfun does
 - :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :data:`MODEL_KEYS`, :data:`BLENDER_MODELS`, :data:`BLENDER_KEYS`, :data:`LENSFUN_MODELS`, :data:`LENSFUN_KEYS`: the
   models' names and each model's parameters
@@ -55,8 +63,9 @@ References
 - [Klein2007] G. Klein and D. Murray, "Parallel Tracking and Mapping for Small AR Workspaces", ISMAR 2007 (PTAM).
 - [Brown1966] D. C. Brown, "Decentering Distortion of Lenses", Photogrammetric Engineering 32(3), 444-462, 1966.
 - [Lensfun] A. Zabolotny et al., lensfun 0.3.4, ``libs/lensfun/modifier.cpp`` (the ``lfModifier`` constructor:
-  normalisation and crop factors) and ``libs/lensfun/mod-coord.cpp`` (``ModifyCoord_Dist_Poly3/Poly5/PTLens``),
-  https://github.com/lensfun/lensfun (tag v0.3.4).
+  normalisation and crop factors; ``Initialize``: the geometry's focal length) and ``libs/lensfun/mod-coord.cpp``
+  (``ModifyCoord_Dist_Poly3/Poly5/PTLens``; ``AddCoordCallbackGeometry`` and ``ModifyCoord_Geom_*``: the lens
+  geometries), https://github.com/lensfun/lensfun (tag v0.3.4).
 - [Kannala2006] J. Kannala and S. S. Brandt, "A Generic Camera Model and Calibration Method for Conventional,
   Wide-Angle, and Fish-Eye Lenses", IEEE TPAMI 28(8), 1335-1340, 2006; OpenCV's ``cv2.fisheye`` module.
 - [Dersch] H. Dersch, Panorama Tools (``a, b, c`` radial polynomial, the ``ptlens`` form), and lensfun's
@@ -459,8 +468,64 @@ def lensfun_frame(width, height, crop_factor=1.0, calibration_crop_factor=1.0, c
     return unit_px, 0.5 * (width - 1.0) + center[0] * half, 0.5 * (height - 1.0) + center[1] * half
 
 
+#: Lensfun's lens geometries (its ``lfLensType`` names, lower case) that :class:`LensfunLens` projects.
+LENSFUN_GEOMETRIES = ("rectilinear", "fisheye", "fisheye_equisolid", "fisheye_stereographic", "fisheye_orthographic",
+                      "fisheye_thoby")
+#: Thoby's fisheye, ``r = K1 f sin(K2 theta)`` (lensfun's ``THOBY_K1_PARM``, ``THOBY_K2_PARM``).
+THOBY_K1, THOBY_K2 = 1.47, 0.713
+
+
+def lensfun_projection(geometry: str, theta):
+    """Image radius, in focal lengths, of a ray ``theta`` rad from the axis through lensfun's lens ``geometry``
+    (lensfun 0.3.4 ``mod-coord.cpp``, ``ModifyCoord_Geom_*``): ``tan theta`` (rectilinear), ``theta`` (fisheye,
+    equidistant), ``2 sin(theta / 2)`` (equisolid), ``2 tan(theta / 2)`` (stereographic), ``sin theta``
+    (orthographic), ``K1 sin(K2 theta)`` (Thoby)."""
+    t = np.asarray(theta, np.float64)
+    if geometry == "rectilinear":
+        return np.tan(t)
+    if geometry == "fisheye":
+        return t
+    if geometry == "fisheye_equisolid":
+        return 2.0 * np.sin(t / 2.0)
+    if geometry == "fisheye_stereographic":
+        return 2.0 * np.tan(t / 2.0)
+    if geometry == "fisheye_orthographic":
+        return np.sin(t)
+    if geometry == "fisheye_thoby":
+        return THOBY_K1 * np.sin(THOBY_K2 * t)
+    raise ValueError(f"unknown lensfun geometry {geometry!r}")
+
+
+def lensfun_projection_angle(geometry: str, radius):
+    """The ray's angle (rad) from the axis of an image radius in focal lengths: :func:`lensfun_projection`'s
+    inverse, out to :func:`lensfun_projection_limit` (radii beyond give the limit)."""
+    r = np.maximum(np.asarray(radius, np.float64), 0.0)
+    if geometry == "rectilinear":
+        return np.arctan(r)
+    if geometry == "fisheye":
+        return np.minimum(r, np.pi)
+    if geometry == "fisheye_equisolid":
+        return 2.0 * np.arcsin(np.minimum(r / 2.0, 1.0))
+    if geometry == "fisheye_stereographic":
+        return 2.0 * np.arctan(r / 2.0)
+    if geometry == "fisheye_orthographic":
+        return np.arcsin(np.minimum(r, 1.0))
+    if geometry == "fisheye_thoby":
+        return np.arcsin(np.minimum(r / THOBY_K1, 1.0)) / THOBY_K2
+    raise ValueError(f"unknown lensfun geometry {geometry!r}")
+
+
+def lensfun_projection_limit(geometry: str) -> float:
+    """The largest ray angle (rad) a lensfun geometry maps one to one: where its radius stops rising (90 degrees
+    for the orthographic fisheye, ``90 / K2`` degrees for Thoby's), else 180 degrees (90, never reached, for the
+    rectilinear)."""
+    return {"rectilinear": np.pi / 2, "fisheye_orthographic": np.pi / 2,
+            "fisheye_thoby": np.pi / 2 / THOBY_K2}.get(geometry, np.pi)
+
+
 class LensfunLens(LensModel):
-    """Lensfun's distortion models (``poly3``, ``poly5``, ``ptlens``), normalised as lensfun 0.3 does.
+    """Lensfun's distortion models (``poly3``, ``poly5``, ``ptlens``) on its lens geometries, normalised as lensfun
+    0.3 does.
 
     ``Rd = Ru (1 - k1 + k1 Ru^2)`` (poly3), ``Rd = Ru (1 + k1 Ru^2 + k2 Ru^4)`` (poly5) and
     ``Rd = Ru (a Ru^3 + b Ru^2 + c Ru + 1 - a - b - c)`` (ptlens), with the radii in lensfun's normalised unit:
@@ -470,16 +535,27 @@ class LensfunLens(LensModel):
     constructor: ``NormScale = 2 / size * coordinate_correction``; crop factors are ratios of sensor
     diagonals). The distortion centre is the frame centre ``((W - 1) / 2, (H - 1) / 2)`` moved by ``center``
     (lensfun's ``CenterX, CenterY``) in units of half the frame's shorter side (``size / 2``, not corrected).
-    The undistorted radius is ``focal_length`` (mm) times the camera-plane radius, over the unit in mm:
-    ``hypot(36, 24) / 2 / calibration_crop_factor / sqrt(1 + calibration_aspect_ratio^2)`` (lensfun's
-    ``NormalizedInMillimeters``; as lensfun and Hugin do for poly3 and ptlens, the focal length is the one of
-    the undistorted coordinates, so the centre's scale is ``1 - k1`` or ``1 - a - b - c`` of it).
+    The undistorted radius is ``Ru = F g(theta)`` for a ray ``theta`` from the axis, with ``g`` the lens's
+    ``geometry`` (:func:`lensfun_projection`: ``tan theta`` for a rectilinear lens, so ``Ru = F r`` on the
+    camera plane; ``theta`` for lensfun's ``fisheye``, the equidistant one; equisolid, stereographic,
+    orthographic, Thoby) and ``F`` ``focal_length`` (mm) over the unit in mm: ``hypot(36, 24) / 2 /
+    calibration_crop_factor / sqrt(1 + calibration_aspect_ratio^2)`` (lensfun's ``NormalizedInMillimeters``;
+    as lensfun and Hugin do for poly3 and ptlens, the focal length is the one of the undistorted coordinates, so
+    the centre's scale is ``1 - k1`` or ``1 - a - b - c`` of it). Lensfun's geometry conversion
+    (``lfModifier::AddCoordCallbackGeometry``) is this ``Ru`` of the ray of the rectilinear pixel.
+
+    Beyond the radius where ``Rd`` stops rising with ``Ru`` the model has no inverse: pixels there see the ray at
+    that radius (:meth:`ru_max`), as :class:`OpenCVLens` does. :meth:`undistort_ray` gives rays beyond 90
+    degrees for the fisheyes; the camera plane of :meth:`undistort` stops just short of 90 degrees.
     """
 
     def __init__(self, width, height, model, terms, focal_length, crop_factor=1.0, calibration_crop_factor=1.0,
-                 calibration_aspect_ratio=1.5, center=(0.0, 0.0)):
+                 calibration_aspect_ratio=1.5, center=(0.0, 0.0), geometry="rectilinear"):
         super().__init__(width, height)
         self.model, self.terms = model, tuple(float(t) for t in terms)
+        if geometry not in LENSFUN_GEOMETRIES:
+            raise ValueError(f"unknown lensfun geometry {geometry!r}")
+        self.geometry = geometry
         a = float(np.sqrt(1.0 + calibration_aspect_ratio ** 2))
         self.unit_px, self.u0, self.v0 = lensfun_frame(width, height, crop_factor, calibration_crop_factor,
                                                        calibration_aspect_ratio, center)
@@ -512,15 +588,83 @@ class LensfunLens(LensModel):
         a, b, c = t
         return ((4.0 * a * ru + 3.0 * b) * ru + 2.0 * c) * ru + 1.0 - a - b - c
 
+    def ru_max(self) -> float:
+        """The largest normalised undistorted radius the lens maps one to one: where ``Rd`` stops rising with
+        ``Ru`` (the slope's first positive zero), at most the geometry's radius at
+        :func:`lensfun_projection_limit` (infinite for a rectilinear lens whose ``Rd`` always rises)."""
+        t = self.terms
+        if self.model == "poly3":
+            slope = [3.0 * t[0], 0.0, 1.0 - t[0]]
+        elif self.model == "poly5":
+            slope = [5.0 * t[1], 0.0, 3.0 * t[0], 0.0, 1.0]
+        else:
+            slope = [4.0 * t[0], 3.0 * t[1], 2.0 * t[2], 1.0 - t[0] - t[1] - t[2]]
+        peaks = [z.real for z in np.roots(slope) if abs(z.imag) < 1e-12 and z.real > 0] if any(slope[:-1]) else []
+        limit = lensfun_projection_limit(self.geometry)
+        reach = np.inf if self.geometry == "rectilinear" else self.scale * float(lensfun_projection(self.geometry,
+                                                                                                    limit))
+        return float(min(peaks + [reach]))
+
+    def rd_max(self) -> float:
+        """The normalised distorted radius at :meth:`ru_max`: the frame must lie within it."""
+        ru = self.ru_max()
+        return float(ru * self.factor(ru)) if np.isfinite(ru) else np.inf
+
+    def _ru(self, rd):
+        """The normalised undistorted radius of each distorted radius ``rd`` (Newton's method,
+        :func:`_solve_rising`); beyond :meth:`rd_max`, :meth:`ru_max`."""
+        ru_max = self.ru_max()
+        ru = np.full_like(rd, ru_max)
+        active = np.flatnonzero(rd < self.rd_max())
+        target = rd.ravel()[active]
+        ru.ravel()[active] = _solve_rising(lambda r: r * self.factor(r), self._slope, target,
+                                           target / max(self.factor(0.0), 1e-6), ru_max)
+        return ru
+
     def distort(self, x, y):
+        if self.geometry != "rectilinear":
+            x = np.asarray(x, np.float64)
+            y = np.asarray(y, np.float64)
+            return self.distort_ray(np.arctan(np.hypot(x, y)), np.arctan2(y, x))
         xn = self.scale * np.asarray(x, np.float64)
         yn = self.scale * np.asarray(y, np.float64)
         f = self.factor(np.hypot(xn, yn)) * self.unit_px
         return self.u0 + f * xn, self.v0 + f * yn
 
-    def undistort(self, u, v):
+    def distort_ray(self, theta, phi):
+        """The output pixel of the ray (theta, phi): ``Ru = F g(theta)`` through the distortion; for the
+        fisheyes, rays beyond 90 degrees too."""
+        if self.geometry == "rectilinear":
+            return super().distort_ray(theta, phi)
+        ru = self.scale * lensfun_projection(self.geometry, theta)
+        rd = ru * self.factor(ru) * self.unit_px
+        return self.u0 + rd * np.cos(phi), self.v0 + rd * np.sin(phi)
+
+    def undistort_ray(self, u, v):
+        """The ray of each pixel (theta, phi), out to :meth:`ru_max` (beyond 90 degrees for the fisheyes that
+        see so far)."""
         xd = (np.asarray(u, np.float64) - self.u0) / self.unit_px
         yd = (np.asarray(v, np.float64) - self.v0) / self.unit_px
+        if self.geometry == "rectilinear":
+            x, y = self._undistort_rectilinear(xd, yd)
+            return np.arctan(np.hypot(x, y)), np.arctan2(y, x)
+        theta = lensfun_projection_angle(self.geometry, self._ru(np.hypot(xd, yd)) / self.scale)
+        return theta, np.arctan2(yd, xd)
+
+    def undistort(self, u, v):
+        """The camera plane's point of each pixel; for the fisheyes, rays at 90 degrees and beyond give the ray
+        just short of 90 degrees (as :class:`KannalaBrandtLens`)."""
+        xd = (np.asarray(u, np.float64) - self.u0) / self.unit_px
+        yd = (np.asarray(v, np.float64) - self.v0) / self.unit_px
+        if self.geometry == "rectilinear":
+            return self._undistort_rectilinear(xd, yd)
+        theta, phi = self.undistort_ray(u, v)
+        r = np.tan(np.minimum(theta, np.pi / 2 - 1e-3))
+        return r * np.cos(phi), r * np.sin(phi)
+
+    def _undistort_rectilinear(self, xd, yd):
+        """Normalised distorted (xd, yd) -> camera plane, for a rectilinear lens: Newton on Ru(Rd), as lensfun's
+        ``ModifyCoord_UnDist_*``; beyond :meth:`rd_max`, :meth:`ru_max`."""
         rd = np.hypot(xd, yd)
         ru = rd / max(self.factor(0.0), 1e-6)
         for _ in range(50):  # Newton on Ru (Rd), as lensfun's ModifyCoord_UnDist_*
@@ -528,6 +672,9 @@ class LensfunLens(LensModel):
             ru = np.maximum(ru - step, 0.0)
             if np.abs(step).max(initial=0.0) < 1e-13:
                 break
+        rd_max = self.rd_max()
+        if np.isfinite(rd_max):
+            ru = np.where(rd >= rd_max, self.ru_max(), ru)  # no inverse beyond the peak: the peak's ray
         g = np.where(rd > 0, ru / np.maximum(rd, 1e-300), 1.0 / max(self.factor(0.0), 1e-6)) / self.scale
         return xd * g, yd * g
 
@@ -547,7 +694,7 @@ MODEL_KEYS = {
 BLENDER_MODELS = ("polynomial", "division", "nuke", "brown")
 LENSFUN_MODELS = ("poly3", "poly5", "ptlens")
 LENSFUN_KEYS = ("focal_length", "crop_factor", "calibration_crop_factor", "calibration_aspect_ratio",
-                 "lensfun_center")
+                 "lensfun_center", "lensfun_geometry")
 BLENDER_KEYS = ("focal_length", "sensor_width", "principal_point", "pixel_aspect")
 
 

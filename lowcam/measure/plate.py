@@ -59,7 +59,7 @@ from ..captures import expand_paths, load_frames
 from ..effects import known_effects
 from ..errors import LowcamError, NotFitted
 from ..io import quiet_stderr
-from ..motion import read_gyro_csv
+from ..gyro_logs import read_gyro_log
 from ..pipeline import render_camera, simulate
 from ..plate_estimate import PlateEstimate, PlateProbe
 from ..profile import load_profile
@@ -121,8 +121,8 @@ def _natural_key(p: Path):
 
 def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 2000) -> Footage:
     """Read a shot: a video file (OpenCV's VideoCapture), a folder of frames (PNG/JPEG/TIFF, in natural name
-    order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro` or a gyro CSV,
-    :func:`lowcam.motion.read_gyro_csv`). Every problem is one line naming the file: missing, unreadable, too few
+    order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro`). Every problem is
+    one line naming the file: missing, unreadable, too few
     frames, mismatched sizes, video data the decoder reports damaged (it would conceal it with grey blocks)."""
     p = Path(path)
     name = str(path)
@@ -183,18 +183,19 @@ _VIDEO_DAMAGE = re.compile(r"damaged|corrupt|conceal|error|invalid|missing|trunc
 
 
 def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
-    """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a gyro CSV with a
-    header (:func:`lowcam.motion.read_gyro_csv`) or the phone format: whitespace-separated rows ``wx wy wz t``
-    (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``) giving each frame's start time (s).
-    Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s") are converted to seconds. The axes
-    are kept as logged: a phone's gyro axes need not be Lowcam's camera axes (x right, y down, z forward)."""
+    """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a log with a header
+    (Lowcam's CSV, Gyroflow's ``.gcsv`` or project: :func:`lowcam.gyro_logs.read_gyro_log`) or the phone format:
+    whitespace-separated rows ``wx wy wz t`` (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``)
+    giving each frame's start time (s). Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s")
+    are converted to seconds. The phone format's axes are kept as logged: a phone's gyro axes need not be Lowcam's
+    camera axes (x right, y down, z forward)."""
     path = Path(path)
     if not path.is_file():
         raise LowcamError(f"{path}: no such gyro log")
     text = path.read_text(errors="replace")
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
-    if first and not _numeric_row(first):  # a header: the CSV of lowcam.motion
-        return read_gyro_csv(path), None
+    if first and not _numeric_row(first):  # a header: Lowcam's CSV or Gyroflow's
+        return read_gyro_log(path).samples, None
     try:
         rows = np.loadtxt(path, delimiter="," if "," in first else None, ndmin=2)
     except ValueError as e:
