@@ -17,13 +17,13 @@ Contents
 """
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
 import bpy
 import numpy as np
 
+from .frames import aim_render_camera
 from .render import render_still
 
 #: Lowcam's world axes (the first frame's camera: x right, y down, z forward) to Blender's (x right, y forward, z up).
@@ -44,10 +44,11 @@ def _material(name, colour, metallic=0.0, roughness=0.4):
     return m
 
 
-def build_footage_scene(hfov_deg: float, width: int, height: int, samples: int = 8):
+def build_footage_scene(hfov_deg: float, width: int, height: int, samples: int = 8, projection: str = "pinhole"):
     """A fresh Cycles scene (CPU, ``samples`` samples, transparent film, single-layer float EXR output) with a
     sphere and a cube standing about 25 m ahead and up-left of the first frame's view, lit by a sun; returns
-    (scene, camera). The camera's horizontal field is ``hfov_deg`` (the render the profile needs)."""
+    (scene, camera). The camera's horizontal field is ``hfov_deg`` in ``projection`` (the render the profile needs,
+    :func:`lowcam.pipeline.render_camera`)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     r = scene.render
@@ -83,20 +84,19 @@ def build_footage_scene(hfov_deg: float, width: int, height: int, samples: int =
 
     bpy.ops.object.camera_add(location=(0.0, 0.0, 0.0))
     camera = bpy.context.object
-    camera.data.sensor_fit = "HORIZONTAL"
-    camera.data.angle = math.radians(hfov_deg)
+    aim_render_camera(camera.data, {"projection": projection, "hfov_deg": hfov_deg})
     camera.data.clip_start, camera.data.clip_end = 0.1, 1000.0
     scene.camera = camera
     return scene, camera
 
 
 def render_footage(rotations, folder, hfov_deg: float, width: int, height: int, samples: int = 8,
-                   progress=None) -> list[Path]:
+                   progress=None, projection: str = "pinhole") -> list[Path]:
     """Render one float EXR per camera-to-world rotation (Lowcam axes, (n, 3, 3)) into ``folder``; returns the
     paths. The camera's Blender matrix is ``WORLD_FROM_LOWCAM @ R @ diag(1, -1, -1)``."""
     from mathutils import Matrix
 
-    scene, camera = build_footage_scene(hfov_deg, width, height, samples)
+    scene, camera = build_footage_scene(hfov_deg, width, height, samples, projection)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     out = []
@@ -144,7 +144,7 @@ def run_footage_demo(footage_dir, out: Path, base_profile, frames: int = 24, fir
     t0 = time.perf_counter()
     tick = lambda i: print(f"      frame {i + 1}/{frames} rendered", flush=True)  # noqa: E731
     exrs = render_footage(camera_rotations(clip), out / "render", cam["hfov_deg"], render_width, height, samples,
-                          progress=tick)
+                          progress=tick, projection=cam["projection"])
     print(f"      rendered in {time.perf_counter() - t0:.1f} s", flush=True)
     say(3)
     pairs, rates = [], []

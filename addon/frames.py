@@ -4,8 +4,9 @@ Render set-up (:func:`setup_scene`): a transparent film without dither (the scen
 the user's: the EXR holds the working space's linear light and names it, and the engine converts it), a
 multilayer EXR per frame holding the graphics' view layer and, when a collection is excluded, the
 "Lowcam Overlay" view layer that renders only that collection; the Vector pass for object motion and the Z pass
-for defocus from depth when those are on, with Cycles' own motion blur off; the scene camera gets the pinhole field
-of view the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`).
+for defocus from depth when those are on, with Cycles' own motion blur off; the scene camera gets the field of view
+the engine needs (wider than the real camera's, :func:`lowcam.pipeline.render_camera`): a pinhole one, or for a lens
+that sees wider than a pinhole render covers, Cycles' equidistant fisheye (EEVEE has none: refused).
 
 Contents
 --------
@@ -13,6 +14,8 @@ Contents
 - :func:`settings`: the scene's Lowcam settings
 - :func:`scene_profile`: the chosen profile with the scene's sharpness, saturation, object motion, defocus and clip lens
 - :func:`clip_lens`: the Movie Clip's tracking camera as lowcam ``lens_distortion`` values (Blender's own model)
+- :data:`ENGINE_NAMES`: Blender's render engines by their identifiers, as the user sees them
+- :func:`aim_render_camera`: give Blender camera data the projection and field of view of the render camera
 - :func:`setup_render_camera`: give a scene the render camera and film the engine needs
 - :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
@@ -80,22 +83,46 @@ def clip_lens(clip) -> dict:
                 **values)
 
 
+#: Blender's render engines by their identifiers, as the user sees them (for the fisheye's refusal).
+ENGINE_NAMES = {"BLENDER_EEVEE": "EEVEE", "BLENDER_EEVEE_NEXT": "EEVEE", "BLENDER_WORKBENCH": "Workbench"}
+
+
+def aim_render_camera(data, cam: dict) -> None:
+    """Give Blender camera data ``data`` the projection and field of view of ``cam``
+    (:func:`lowcam.pipeline.render_camera`): a perspective camera of horizontal field ``hfov_deg``, or Cycles'
+    equidistant fisheye (``PANO``, ``FISHEYE_EQUIDISTANT``) whose ``fisheye_fov`` spans the render's width and
+    height; no shift."""
+    if cam["projection"] == "fisheye_equidistant":
+        data.type = "PANO"
+        data.panorama_type = "FISHEYE_EQUIDISTANT"
+        data.fisheye_fov = math.radians(cam["hfov_deg"])
+    else:
+        data.type = "PERSP"
+        data.sensor_fit = "HORIZONTAL"
+        data.angle = math.radians(cam["hfov_deg"])
+    data.shift_x = data.shift_y = 0.0
+
+
 def setup_render_camera(scene, render_width: int | None = None) -> dict:
-    """Give ``scene`` the render the engine and the node group take: the pinhole field of view and size of
-    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width) and a transparent film
-    without dither; the scene's view transform and look are left alone. Returns the render camera."""
+    """Give ``scene`` the render the engine and the node group take: the projection, field of view and size of
+    :func:`lowcam.pipeline.render_camera` (at ``render_width``, default the scene's width; a fisheye's square)
+    and a transparent film without dither; the scene's view transform and look are left alone. Returns the render
+    camera. A lens rendered through a fisheye needs Cycles (EEVEE has no panoramic camera): refused otherwise."""
     from lowcam.pipeline import render_camera
 
     width = render_width or scene.render.resolution_x * scene.render.resolution_percentage // 100
     cam = render_camera(scene_profile(scene), width)
+    if cam["projection"] != "pinhole" and scene.render.engine != "CYCLES":
+        engine = ENGINE_NAMES.get(scene.render.engine, scene.render.engine)
+        raise LowcamError(f"{engine} has no panoramic camera, and this profile's lens sees wider than a pinhole "
+                          f"render covers: it renders through Cycles' fisheye ({cam['hfov_deg']:.1f} deg); set the "
+                          f"render engine to Cycles")
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = cam["width"], cam["height"], 100
     r.film_transparent = True
     r.dither_intensity = 0.0
     if scene.camera is not None:
-        scene.camera.data.sensor_fit = "HORIZONTAL"
-        scene.camera.data.angle = math.radians(cam["hfov_deg"])
-        scene.camera.data.shift_x = scene.camera.data.shift_y = 0.0
+        aim_render_camera(scene.camera.data, cam)
     return cam
 
 

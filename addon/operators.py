@@ -35,7 +35,9 @@ class LOWCAM_OT_setup_scene(bpy.types.Operator):
         except LowcamError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"render {cam['width']}x{cam['height']}, horizontal field {cam['hfov_deg']:.1f} deg")
+        fisheye = "" if cam["projection"] == "pinhole" else " (Cycles' equidistant fisheye)"
+        self.report({"INFO"}, f"render {cam['width']}x{cam['height']}, horizontal field {cam['hfov_deg']:.1f} deg"
+                              f"{fisheye}")
         return {"FINISHED"}
 
 

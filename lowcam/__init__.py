@@ -13,7 +13,8 @@ Contents
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA render over a plate (sec. 5.2)
 - :func:`run`: the same as a :class:`Result`, optionally with every stage's output
 - :class:`Result`: one simulated frame, its footprint, stages and final state
-- :func:`render_camera`: the pinhole camera (field of view, sensor fit, resolution) a renderer must use
+- :func:`render_camera`: the camera (pinhole or equidistant fisheye, field of view, sensor fit, resolution) a
+  renderer must use
 - :func:`render_field_of_view`: pinhole half-extents (X, Y) the render must cover
 - :class:`Profile`: a validated camera profile: the frame and its ordered chain of effects
 - :func:`load_profile`: load a profile by bundled name (``"fire-i"``) or path

@@ -17,7 +17,8 @@ Contents
 - :class:`Result`: one simulated frame: ``frame``, ``footprint``, ``stages`` when asked for, and the final state
 - :func:`render_field_of_view`: pinhole half-extents (X, Y) the render must cover
 - :func:`render_focal_px`: focal length in render pixels for a render of ``width`` x ``height``
-- :func:`render_camera`: the pinhole camera a renderer must use: field of view (deg), sensor fit and resolution
+- :func:`render_camera`: the camera a renderer must use: projection (pinhole or equidistant fisheye), field of
+  view (deg), sensor fit and resolution
 - :data:`BYTES_PER_WORKING_PIXEL`: peak memory of the chain per working-grid pixel
 - :func:`memory_needed`: the chain's peak memory for one frame of a profile
 - :func:`available_memory`: the bytes this machine can give a new allocation now
@@ -191,18 +192,27 @@ def render_focal_px(profile: Profile, width: int, height: int) -> float:
 
 
 def render_camera(profile, width: int | None = None, height: int | None = None) -> dict:
-    """The pinhole camera a renderer must use: horizontal field of view (deg), sensor fit and resolution.
+    """The camera a renderer must use: ``projection`` ("pinhole" or "fisheye_equidistant", :meth:`LensDistortion.
+    projection <lowcam.effects.LensDistortion.projection>`), horizontal field of view ``hfov_deg`` (a fisheye's
+    spans the render's width and its height: Cycles' ``fisheye_fov``), sensor fit and resolution (a fisheye's
+    square unless ``height`` is given) and ``focal_px`` (a fisheye's: render pixels per radian at the centre).
 
     >>> cam = render_camera("fire-i", 3000, 2250)
     >>> round(cam["hfov_deg"]) > 90
     True
     """
     profile = load_profile(profile)
-    half_x, _ = render_field_of_view(profile)
+    lens = profile.effect("lens_distortion")
     width = width or 3000
+    if lens.projection(profile.geometry) == "fisheye_equidistant":
+        field = lens.render_fisheye_field(profile.geometry)
+        return {"projection": "fisheye_equidistant", "hfov_deg": float(np.degrees(field)),
+                "sensor_fit": "HORIZONTAL", "width": width, "height": height or width, "focal_px": width / field}
+    half_x, _ = render_field_of_view(profile)
     height = height or int(round(width * profile.camera.height / profile.camera.width))
-    return {"hfov_deg": float(np.degrees(2 * np.arctan(half_x))), "sensor_fit": "HORIZONTAL",
-            "width": width, "height": height, "focal_px": render_focal_px(profile, width, height)}
+    return {"projection": "pinhole", "hfov_deg": float(np.degrees(2 * np.arctan(half_x))),
+            "sensor_fit": "HORIZONTAL", "width": width, "height": height,
+            "focal_px": render_focal_px(profile, width, height)}
 
 
 def _prepare_plate(profile: Profile, plate) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -26,14 +26,15 @@ from .build import build_camera_group
 def write_asset(path, profile="fire-i", render_width: int = 1600, angular_velocity=(0.0, 0.0, 0.0),
                 exposure_s: float | None = None) -> Path:
     """Write the asset .blend to ``path`` (atomically) and return it. The group's input Image is a render
-    ``render_width`` wide at the field of view :func:`lowcam.pipeline.render_camera` gives."""
+    ``render_width`` wide at the projection and field of view :func:`lowcam.pipeline.render_camera` gives."""
     profile = load_profile(profile)
     cam = render_camera(profile, render_width)
     camera = bake(profile, (cam["height"], cam["width"]), angular_velocity, exposure_s)
     group = build_camera_group(camera, f"Lowcam Camera ({profile.name})")
     mark_asset(group, (
         f"{profile.camera.name}: Klein & Murray's low-cost camera model for a {cam['width']}x{cam['height']} "
-        f"render with a {cam['hfov_deg']:.2f} deg horizontal field of view, camera rotation "
+        f"render with a {cam['hfov_deg']:.2f} deg horizontal field of view"
+        f"{'' if cam['projection'] == 'pinhole' else ' through Cycles equidistant fisheye camera'}, camera rotation "
         f"{tuple(angular_velocity)} rad/s. Inputs: the render (premultiplied), the plate, seed, noise strength."),
         ("lowcam", "camera", profile.name))
     path = Path(path).resolve()

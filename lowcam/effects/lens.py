@@ -1,7 +1,7 @@
 """The lens-distortion stage (Klein & Murray 2010, sec. 5.2 step 1) and its diagnosis candidate.
 
-:class:`LensDistortion` warps the pinhole render through the profile's lens model (:mod:`.lens_models`) into the
-working grid, 2x2 supersampled.
+:class:`LensDistortion` warps the render, a pinhole one or for the widest lenses Cycles' equidistant fisheye, through
+the profile's lens model (:mod:`.lens_models`) into the working grid, 2x2 supersampled.
 
 Diagnosis (the ``radial_distortion`` candidate, :func:`fit_radial_distortion`): the lens is fitted to where the
 optical flow says the measured frames look, by robust least squares (Cauchy's loss) with walls against a lens that
@@ -10,6 +10,9 @@ Conrady, FOV, Panorama Tools' ptlens [Dersch]).
 
 Contents
 --------
+- :data:`RENDER_PROJECTIONS`: the render's projections (pinhole, Cycles' equidistant fisheye, or automatic)
+- :data:`PINHOLE_FIELD_LIMIT_DEG`: the widest field an automatic projection renders through a pinhole
+- :func:`ray_angle_needed`: the widest ray angle the border of a region of the frame sees through a lens
 - :func:`lens_model_from`: the lens model of a dict of :class:`LensDistortion` parameters, unvalidated (a fit's
   trial values)
 - :class:`LensDistortion`: warps the pinhole render through the lens into the working grid, 2x2 supersampled (sec.
@@ -47,6 +50,26 @@ from .lens_models import (BLENDER_KEYS, BLENDER_MODELS, FULL_FRAME_HALF_DIAGONAL
                           lensfun_projection, lensfun_projection_limit)
 
 
+#: The render's projections (``render_projection``): ``auto`` picks one per lens (:meth:`LensDistortion.projection`).
+RENDER_PROJECTIONS = ("auto", "pinhole", "fisheye_equidistant")
+
+#: The widest field (deg, across the frame's diagonal) ``auto`` renders through a pinhole: beyond it a pinhole
+#: render spends most of its pixels on the border (its scale there grows as 1 / cos^2 of the ray's angle, 15x at
+#: 75 deg) and at 180 deg it sees nothing more.
+PINHOLE_FIELD_LIMIT_DEG = 150.0
+
+
+def ray_angle_needed(lens: LensModel, extent) -> float:
+    """The widest angle (rad) from the optical axis that the border of ``extent`` (u0, v0, u1, v1; output pixels)
+    sees through ``lens`` (:meth:`LensModel.undistort_ray`: may pass 90 deg)."""
+    u0, v0, u1, v1 = extent
+    t = np.linspace(0.0, 1.0, 257)
+    u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
+    v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
+    theta, _ = lens.undistort_ray(u, v)
+    return float(np.max(theta))
+
+
 def lens_model_from(values: dict, width: int, height: int) -> LensModel:
     """The lens model of ``values`` (:class:`LensDistortion`'s parameters, missing ones at their defaults) for an
     output frame of ``width`` x ``height`` pixels. The values are not validated (a fit's trial values may fold
@@ -77,10 +100,13 @@ class LensDistortion(Effect):
     supersampled image is never held (:class:`~lowcam.effects.half_sampling.HalfSampling` adds the box's
     enlargement).
 
-    The render covers a pinhole field of view of ``render_hfov_deg`` horizontally (square pixels, centred); with
+    The render is a pinhole one or an equidistant fisheye one (``render_projection``, see :meth:`projection`).
+    A pinhole render covers a field of view of ``render_hfov_deg`` horizontally (square pixels, centred); with
     0 the engine picks the field that just covers the working grid (frame plus margin) for a render of the
-    frame's aspect ratio (see :meth:`render_field_of_view`). The maps are exact per pixel and
-    computed once per render size.
+    frame's aspect ratio (see :meth:`render_field_of_view`). A fisheye render is Cycles' equidistant fisheye
+    camera: ``render_hfov_deg`` is its field across the render's width and across its height (the image circle
+    touches all four sides; a square render has square pixels), 0 for the working grid's field plus 2 %
+    (:meth:`render_fisheye_field`). The maps are exact per pixel and computed once per render size.
     """
 
     name = "lens_distortion"
@@ -136,14 +162,17 @@ class LensDistortion(Effect):
         "lensfun_c": Param(0.0, low=-10.0, high=10.0, doc="lensfun ptlens c"),
         "lensfun_geometry": Param("rectilinear", str, choices=LENSFUN_GEOMETRIES,
                                   doc="lensfun models: the lens's projection (lensfun's lens type)"),
-        "render_hfov_deg": Param(0.0, low=0.0, high=179.0, unit="deg",
-                                 doc="0: automatic; a given field must cover the frame"),
+        "render_hfov_deg": Param(0.0, low=0.0, high=360.0, unit="deg",
+                                 doc="0: automatic; a given field must cover the frame (a pinhole's under 180)"),
+        "render_projection": Param("auto", str, choices=RENDER_PROJECTIONS,
+                                   doc="the render's projection; auto: an equidistant fisheye where the frame "
+                                       f"sees wider than {PINHOLE_FIELD_LIMIT_DEG:g} deg, else a pinhole"),
     }
 
     @staticmethod
     def keys_of(model: str) -> set[str]:
         """The parameter names that belong to a lens ``model``."""
-        allowed = {"model", "render_hfov_deg", *MODEL_KEYS.get(model, ())}
+        allowed = {"model", "render_hfov_deg", "render_projection", *MODEL_KEYS.get(model, ())}
         if model in BLENDER_MODELS:
             allowed.update(BLENDER_KEYS)
         if model in LENSFUN_MODELS:
@@ -169,14 +198,16 @@ class LensDistortion(Effect):
     def check(self):
         if self.model == "fisheye":
             # every pixel of the frame the principal point centres (2 cx + 1 by 2 cy + 1 px) must see a ray the
-            # model maps one to one (theta_d still rising)
+            # model maps one to one (theta_d still rising) and the render holds: short of 90 deg in a pinhole
+            # render, out to theta_rising in a fisheye one
             lens = self.model_for(2, 2)
             fx, fy, cx, cy = lens.pinhole_intrinsics()
             corners = [np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, self.cx_px * 2 + 0.5)
                        for v in (-0.5, self.cy_px * 2 + 0.5)]
-            if lens.theta_d(lens.theta_max()) < max(corners):
+            limit = lens.theta_max() if self.render_projection == "pinhole" else lens.theta_rising()
+            if lens.theta_d(limit) < max(corners):
                 raise self.error(f"the fisheye distortion folds over inside the frame (its radius stops rising at "
-                                 f"{np.degrees(lens.theta_max()):.1f} deg from the axis, before the corner): check "
+                                 f"{np.degrees(limit):.1f} deg from the axis, before the corner): check "
                                  "the coefficients and the intrinsics")
         if self.model in LENSFUN_MODELS:
             # The frame's corner in lensfun's normalised distorted radius (the crop factors are ratios of
@@ -212,6 +243,44 @@ class LensDistortion(Effect):
         model = self.model_for(geometry.width, geometry.height)
         return model if self.enabled else model.pinhole()
 
+    def projection(self, geometry) -> str:
+        """The render's projection: ``render_projection``, or with ``auto`` an equidistant fisheye where the frame
+        sees wider than :data:`PINHOLE_FIELD_LIMIT_DEG` (or a given ``render_hfov_deg`` is 180 deg or more), else
+        a pinhole."""
+        if self.render_projection != "auto":
+            return self.render_projection
+        key = ("projection", geometry, self.enabled, repr(self.values()))
+        if key not in self._maps:
+            wide = (self.render_hfov_deg >= 180.0 or
+                    2 * np.degrees(ray_angle_needed(self.lens_model(geometry), geometry.frame_extent))
+                    > PINHOLE_FIELD_LIMIT_DEG)
+            self._maps[key] = "fisheye_equidistant" if wide else "pinhole"
+        return self._maps[key]
+
+    def _refuse_fisheye(self, geometry, needs: str):
+        if self.projection(geometry) != "pinhole":
+            raise LowcamError(f"{self.source}: {needs} needs a pinhole render, and this lens is rendered through an "
+                              f"equidistant fisheye ({np.degrees(self.render_fisheye_field(geometry)):.1f} deg): set "
+                              f"render_projection = \"pinhole\" (fields under 180 deg)")
+
+    def render_fisheye_field(self, geometry) -> float:
+        """The field (rad) an equidistant fisheye render spans across its width and its height: the given
+        ``render_hfov_deg``, which must cover the frame, or with 0 the widest ray the working grid's border sees
+        (:func:`ray_angle_needed`) plus 2 %, at most 360 deg."""
+        key = ("fisheye", geometry, self.enabled, repr(self.values()))
+        if key not in self._maps:
+            lens = self.lens_model(geometry)
+            if self.render_hfov_deg > 0:
+                field = float(np.radians(self.render_hfov_deg))
+                need = 2 * ray_angle_needed(lens, geometry.frame_extent)
+                if field < need:
+                    raise LowcamError(f"{self.source}: render_hfov_deg = {self.render_hfov_deg} is narrower than "
+                                      f"the {np.degrees(need):.1f} deg the frame sees")
+            else:
+                field = min(2 * 1.02 * ray_angle_needed(lens, geometry.working_extent), 2 * np.pi)
+            self._maps[key] = field
+        return self._maps[key]
+
     def render_field_of_view(self, geometry) -> tuple[float, float]:
         """Pinhole half-extents (X, Y) = (tan of half the horizontal, vertical field) that the render must cover.
 
@@ -219,11 +288,15 @@ class LensDistortion(Effect):
         margin) for a render of the frame's aspect ratio, plus 2 %. A given ``render_hfov_deg`` (a render made
         already, e.g. a capture's ideal) must cover the frame; where it does not reach into the margin around
         the frame, the margin reads as transparent. Returns the extent the engine maps the render's width onto
-        (X) and the least vertical extent it needs (Y).
+        (X) and the least vertical extent it needs (Y). A fisheye render (:meth:`projection`) has none: refused.
         """
+        self._refuse_fisheye(geometry, "a pinhole field of view")
         key = ("fov", geometry, self.enabled, repr(self.values()))
         if key not in self._maps:
             lens = self.lens_model(geometry)
+            if self.render_hfov_deg >= 180:
+                raise LowcamError(f"{self.source}: render_hfov_deg = {self.render_hfov_deg}: a pinhole render's "
+                                  f"field is under 180 deg")
             if self.render_hfov_deg > 0:
                 need_x, need_y = field_needed(lens, geometry.frame_extent)
                 half_x = float(np.tan(np.radians(self.render_hfov_deg) / 2))
@@ -237,7 +310,9 @@ class LensDistortion(Effect):
         return self._maps[key]
 
     def render_focal_px(self, geometry, width: int, height: int) -> float:
-        """Focal length in render pixels for a render of ``width`` x ``height`` (square pixels, centred)."""
+        """Focal length in render pixels for a pinhole render of ``width`` x ``height`` (square pixels, centred);
+        a fisheye render (:meth:`projection`) has none: refused (defocus from depth)."""
+        self._refuse_fisheye(geometry, "the render's focal length (defocus from depth)")
         half_x, need_y = self.render_field_of_view(geometry)
         focal = width / (2 * half_x)
         if height / (2 * focal) < need_y * 0.999:
@@ -247,9 +322,19 @@ class LensDistortion(Effect):
 
     def render_pixel_coordinates(self, geometry, u, v, render_shape) -> tuple[np.ndarray, np.ndarray]:
         """Where output-frame points (u, v) (output pixels, through the lens) lie in a render of ``render_shape``
-        (rows, cols): float32 render pixel coordinates, centres at integers (cv2.remap maps)."""
-        x, y = self.lens_model(geometry).undistort(u, v)
+        (rows, cols): float32 render pixel coordinates, centres at integers (cv2.remap maps).
+
+        A fisheye render: the ray (theta, phi) of :meth:`LensModel.undistort_ray` lies at ``rho = theta /
+        (field / 2)`` of the half-width and half-height from the render's centre (Cycles' equidistant fisheye,
+        ``fisheye_to_direction``: x right, y down on the image as written)."""
         hr, wr = render_shape
+        lens = self.lens_model(geometry)
+        if self.projection(geometry) == "fisheye_equidistant":
+            theta, phi = lens.undistort_ray(u, v)
+            rho = theta / (self.render_fisheye_field(geometry) / 2)
+            return (((1 + rho * np.cos(phi)) * wr / 2.0 - 0.5).astype(np.float32),
+                    ((1 + rho * np.sin(phi)) * hr / 2.0 - 0.5).astype(np.float32))
+        x, y = lens.undistort(u, v)
         focal = self.render_focal_px(geometry, wr, hr)
         return (focal * x + wr / 2.0 - 0.5).astype(np.float32), (focal * y + hr / 2.0 - 0.5).astype(np.float32)
 
@@ -523,11 +608,16 @@ def fit_radial_distortion(ctx, effect: str, rounds: int = 4):
     if not subset:
         raise NotFitted("no capture has the texture to show the lens's geometry")
     geometry = p.geometry
+    if lens.projection(geometry) != "pinhole":
+        raise NotFitted("the candidate fits a lens seen through a pinhole render, and this one's render is an "
+                        "equidistant fisheye: set render_projection = \"pinhole\" to fit it (fields under 180 deg)")
     half_x, _ = lens.render_field_of_view(geometry)
     hfov = lens.render_hfov_deg or float(np.degrees(2 * np.arctan(half_x)))
     limit_x = 0.998 * np.tan(np.radians(hfov) / 2)  # a lens must see the frame inside the given render
     limit_y = limit_x * geometry.height / geometry.width
     values = dict(lens.values(), render_hfov_deg=hfov)
+    if hfov > PINHOLE_FIELD_LIMIT_DEG:  # the render stays a pinhole while trial lenses see wider
+        values["render_projection"] = "pinhole"
 
     def theta_of(vals):
         return np.array([vals[k] if i is None else vals[k][i] for k, i in FIT_KEYS[vals["model"]]], np.float64)

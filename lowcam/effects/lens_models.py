@@ -340,8 +340,9 @@ class KannalaBrandtLens(LensModel):
         return self.pinhole_distort(rd * np.cos(phi), rd * np.sin(phi))
 
     def _theta(self, rd, t_max):
-        """The angle whose distorted radius is ``rd``: Newton's method on ``theta_d(theta) = rd`` from ``theta =
-        rd`` (:func:`_solve_rising`); beyond ``t_max``, ``t_max``."""
+        """The angle whose distorted radius is ``rd``: Newton's method on ``theta_d(theta) = rd``
+        (:func:`_solve_rising`) from ``theta = rd``, or where that stalls, from just below the root; beyond ``t_max``,
+        ``t_max``."""
         k1, k2, k3, k4 = self.k
 
         def slope(t):
@@ -351,7 +352,18 @@ class KannalaBrandtLens(LensModel):
         theta = np.full_like(rd, t_max)
         active = np.flatnonzero(rd < self.theta_d(t_max))
         target = rd.ravel()[active]
-        theta.ravel()[active] = _solve_rising(self.theta_d, slope, target, target, t_max)
+        solved = _solve_rising(self.theta_d, slope, target, target, t_max)
+        # From rd itself, past the peak of theta_d (slope 0 there), Newton stalls at t_max for radii just short of
+        # the peak's: those start again just below their root, found by bisection to t_max / 2^24
+        stalled = np.flatnonzero(np.abs(self.theta_d(solved) - target) > 1e-9)
+        if stalled.size:
+            low, high = np.zeros(stalled.size), np.full(stalled.size, t_max)
+            for _ in range(24):
+                mid = 0.5 * (low + high)
+                below = self.theta_d(mid) < target[stalled]
+                low, high = np.where(below, mid, low), np.where(below, high, mid)
+            solved[stalled] = _solve_rising(self.theta_d, slope, target[stalled], low, t_max)
+        theta.ravel()[active] = solved
         return theta
 
     def undistort(self, u, v):

@@ -8,6 +8,8 @@ these exact projections at the midpoints of equal slices of the exposure, on a 2
 Contents
 --------
 - :func:`rotation_matrices`: rotations ``exp([w]x t)`` for a constant body rate at ``times``
+- :func:`ray_directions`: unit directions of the rays output pixels see through a lens (beyond 90 deg too)
+- :func:`direction_pixels`: the output pixels where a lens puts directions
 - :func:`tap_offsets`: where pixel (u, v) looks in the mid-exposure image at each tap of the exposure
 - :func:`shutter_s`: the exposure (s) the motion effects integrate over: the frame's, the effect's or the camera's
 - :func:`gyro_motion_from_plate`: angular velocity per frame from the footage's gyro log (its plate probe)
@@ -39,16 +41,35 @@ def rotation_matrices(angular_velocity, times) -> np.ndarray:
     return np.stack([cv2.Rodrigues(w * t)[0] for t in np.asarray(times, np.float64)])
 
 
-def tap_offsets(lens, u, v, angular_velocity, exposure_s: float, taps: int) -> np.ndarray:
+def ray_directions(lens, u, v) -> np.ndarray:
+    """Unit directions (..., 3) (x right, y down, z forward) of the rays output pixels (u, v) see through
+    ``lens`` (:meth:`~lowcam.effects.lens_models.LensModel.undistort_ray`: at 90 deg and beyond too)."""
+    theta, phi = lens.undistort_ray(u, v)
+    s = np.sin(theta)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], -1)
+
+
+def direction_pixels(lens, d) -> tuple[np.ndarray, np.ndarray]:
+    """The output pixels (u, v) where ``lens`` puts directions ``d`` (..., 3)
+    (:meth:`~lowcam.effects.lens_models.LensModel.distort_ray`)."""
+    theta = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
+    return lens.distort_ray(theta, np.arctan2(d[..., 1], d[..., 0]))
+
+
+def tap_offsets(lens, u, v, angular_velocity, exposure_s: float, taps: int, wide: bool = False) -> np.ndarray:
     """Where pixel (u, v) looks in the mid-exposure image at each of ``taps`` instants of the exposure.
 
     Pixel p at time t sees the ray ``R(t) d_p`` of the mid-exposure camera, ``R(t) = exp([w]x t)``, so its
     value is the render's value at ``pi(R(t) d_p)``. Times are the midpoints of ``taps`` equal slices of
     ``[-T/2, T/2]``. Returns offsets of shape ``u.shape + (taps, 2)`` in output pixels; rays that turn behind
-    the camera get a far-away offset (they sample transparency).
+    the camera get a far-away offset (they sample transparency). ``wide`` (a lens rendered through a fisheye):
+    the rays are unit directions (:func:`ray_directions`, :func:`direction_pixels`), at 90 deg and beyond too.
     """
     t = ((np.arange(taps) + 0.5) / taps - 0.5) * exposure_s
     rot = rotation_matrices(angular_velocity, t)
+    if wide:
+        u2, v2 = direction_pixels(lens, np.einsum("kij,...j->...ki", rot, ray_directions(lens, u, v)))
+        return np.stack([u2 - u[..., None], v2 - v[..., None]], -1)
     x, y = lens.undistort(u, v)
     d = np.stack([x, y, np.ones_like(x)], -1)
     d2 = np.einsum("kij,...j->...ki", rot, d)
@@ -147,7 +168,8 @@ class MotionBlur(Effect):
         if not np.any(w) or exposure <= 0:
             return
         u, v = grid_points(state.geometry.working_extent, tuple(int(c) for c in self.grid))
-        off = tap_offsets(state.lens, u, v, w, exposure, self.taps)
+        wide = state.profile.effect("lens_distortion").projection(state.geometry) != "pinhole"
+        off = tap_offsets(state.lens, u, v, w, exposure, self.taps, wide)
         state.motion_taps = off.reshape(off.shape[:2] + (-1,)).astype(np.float32)
         gaps = np.linalg.norm(np.diff(off, axis=2), axis=-1).max(axis=2)
         state.motion_tap_spacing = np.minimum(gaps, 1e3).astype(np.float32)

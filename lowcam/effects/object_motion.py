@@ -3,7 +3,8 @@
 This goes beyond the paper, which blurs camera rotation only (its Fig. 15 lists this as a drawback).
 
 The renderer's velocity pass (:class:`lowcam.passes.RenderPasses`) gives each pixel's image velocity. The part a
-static scene would have under the camera's angular velocity, :func:`rotation_velocity`, is left to
+static scene would have under the camera's angular velocity, :func:`rotation_velocity` (a pinhole render) or
+:func:`fisheye_rotation_velocity` (an equidistant fisheye render), is left to
 :class:`~lowcam.effects.MotionBlur`; what remains is spread over the exposure here, in the render's pixel grid
 before the lens. The two blurs are applied one after the other, so a moving object seen by a turning camera gets
 the convolution of both streaks: its extent is right, its profile a trapezoid instead of a box.
@@ -11,6 +12,7 @@ the convolution of both streaks: its extent is right, its profile a trapezoid in
 Contents
 --------
 - :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s) of a static scene under a turning pinhole camera
+- :func:`fisheye_rotation_velocity`: the same under a turning equidistant fisheye (Cycles' panoramic camera)
 - :func:`splat_along`: spread each pixel of a premultiplied RGBA image evenly along its path over the exposure
 - :func:`edge_velocity_from_cover`: partly covered pixels take the velocity of their most covered neighbour
 - :class:`ObjectMotion`: blur along each pixel's velocity minus the camera rotation's (needs a velocity pass)
@@ -41,6 +43,34 @@ def rotation_velocity(angular_velocity, focal_px: float, shape) -> np.ndarray:
     y = ((np.arange(rows) - rows / 2 + 0.5) / focal_px)[:, None]
     dx, dy, dz = -(wy - wz * y), -(wz * x - wx), -(wx * y - wy * x)
     return (focal_px * np.stack(np.broadcast_arrays(dx - x * dz, dy - y * dz), -1)).astype(np.float32)
+
+
+def fisheye_rotation_velocity(angular_velocity, field_rad: float, shape) -> np.ndarray:
+    """(rows, cols, 2) image velocity (px/s, x right, y down) of a static scene seen by an equidistant fisheye
+    render (Cycles': ``field_rad`` across its width and its height, ``shape`` = (rows, cols)) turning at
+    ``angular_velocity`` (rad/s, camera frame).
+
+    The pixel at ``rho`` of the half-width and half-height from the centre sees the ray ``theta = rho field / 2``;
+    its direction ``d`` moves at ``d' = -w x d`` (as in :func:`rotation_velocity`), which turns the ray by
+    ``theta' = s' cos theta - sin theta d'_z`` (``s`` the direction's distance from the axis) and about the axis
+    by ``phi' = (d'_y cos phi - d'_x sin phi) / sin theta``.
+    """
+    wx, wy, wz = (float(c) for c in angular_velocity)
+    rows, cols = shape
+    a, b = np.broadcast_arrays(((np.arange(cols) + 0.5) * 2 / cols - 1)[None, :],
+                               ((np.arange(rows) + 0.5) * 2 / rows - 1)[:, None])
+    rho = np.hypot(a, b)
+    cos_phi = np.where(rho > 0, a / np.maximum(rho, 1e-300), 1.0)
+    sin_phi = np.where(rho > 0, b / np.maximum(rho, 1e-300), 0.0)
+    theta = rho * field_rad / 2
+    s, z = np.sin(theta), np.cos(theta)
+    x, y = s * cos_phi, s * sin_phi
+    dx, dy, dz = -(wy * z - wz * y), -(wz * x - wx * z), -(wx * y - wy * x)
+    theta_rate = (cos_phi * dx + sin_phi * dy) * z - s * dz
+    turn = np.where(s > 1e-12, theta / np.maximum(s, 1e-300), 1.0) * (cos_phi * dy - sin_phi * dx)  # theta phi'
+    scale = 2 / field_rad
+    return np.stack([cols / 2 * scale * (theta_rate * cos_phi - turn * sin_phi),
+                     rows / 2 * scale * (theta_rate * sin_phi + turn * cos_phi)], -1).astype(np.float32)
 
 
 def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0.5) -> np.ndarray:
@@ -127,6 +157,11 @@ class ObjectMotion(Effect):
         exposure = shutter_s(state)
         if exposure <= 0:
             return
-        camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), state.render.shape[:2])
+        lens, shape = state.profile.effect("lens_distortion"), state.render.shape[:2]
+        if lens.projection(state.geometry) == "fisheye_equidistant":
+            camera = fisheye_rotation_velocity(state.angular_velocity, lens.render_fisheye_field(state.geometry),
+                                               shape)
+        else:
+            camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), shape)
         velocity = edge_velocity_from_cover(velocity, state.render[..., 3])
         state.render = splat_along(state.render, (velocity - camera) * exposure, self.min_shift_px)

@@ -2,7 +2,8 @@
 
 Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with the camera turning at
 ``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches (``readout_s``: the time from the
-first row to the last). The effect adds sampling offsets on the 24x18-cell grid to every sensel's position.
+first row to the last). The effect adds sampling offsets on the 24x18-cell grid to every sensel's position; for a
+lens rendered through a fisheye, the rays are unit directions (at 90 deg and beyond too).
 
 Contents
 --------
@@ -20,6 +21,7 @@ import numpy as np
 
 from ..geometry import grid_points
 from .base import Effect, Param, Search
+from .motion_blur import direction_pixels, ray_directions
 
 
 class RollingShutter(Effect):
@@ -43,10 +45,13 @@ class RollingShutter(Effect):
         g = state.geometry
         u, v = grid_points(g.working_extent)
         t = (v / g.height - 0.5) * self.readout_s
-        x, y = state.lens.undistort(u, v)
-        d = np.stack([x, y, np.ones_like(x)], -1)
         rot = np.stack([cv2.Rodrigues(w * tt)[0] for tt in t.ravel()]).reshape(t.shape + (3, 3))
-        d2 = np.einsum("...ij,...j->...i", rot, d)
-        u2, v2 = state.lens.distort(d2[..., 0] / d2[..., 2], d2[..., 1] / d2[..., 2])
+        if state.profile.effect("lens_distortion").projection(g) != "pinhole":   # rays at 90 deg and beyond too
+            u2, v2 = direction_pixels(state.lens, np.einsum("...ij,...j->...i", rot, ray_directions(state.lens, u, v)))
+        else:
+            x, y = state.lens.undistort(u, v)
+            d = np.stack([x, y, np.ones_like(x)], -1)
+            d2 = np.einsum("...ij,...j->...i", rot, d)
+            u2, v2 = state.lens.distort(d2[..., 0] / d2[..., 2], d2[..., 1] / d2[..., 2])
         offset = np.stack([u2 - u, v2 - v], -1).astype(np.float32)
         state.sampling_offset = offset if state.sampling_offset is None else state.sampling_offset + offset
