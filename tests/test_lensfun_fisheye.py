@@ -307,3 +307,18 @@ def test_a_rectilinear_profile_is_written_as_before(tmp_path):
     make(tmp_path, "fire-i", "DJI", "FC2103", 4.5, name="dji.toml")
     assert "lensfun_geometry" not in (tmp_path / "dji.toml").read_text()
     assert "lensfun_geometry" in make(tmp_path, "fire-i", "GoPro", "HERO4", 3.0).effect("lens_distortion").values()
+
+
+def test_a_fisheyes_steep_vignetting_imports_as_lensfun_gives_it(tmp_path):
+    """Lensfun's fisheyes fall off steeply: the Canon 8-15 at 8 mm has k3 = -15.2 in the pa model (-27.1 at f/5.7).
+    On an APS-C body (crop 1.6) it imports with lensfun's terms as they are."""
+    profile = make(tmp_path, "fire-i", "Canon", "Canon EF 8-15mm f/4L Fisheye USM", 8, crop=1.6)
+    lens = lensdb.find_lens("Canon", "Canon EF 8-15mm f/4L Fisheye USM")
+    terms = lensdb.lens_setting(lens, 8.0).effects()["vignetting"]["lensfun_terms"]
+    assert min(terms) < -10 and list(profile.effect("vignetting").lensfun_terms) == pytest.approx(terms)
+    steepest = lensdb.lens_setting(lens, 8.0, 5.7).effects()["vignetting"]["lensfun_terms"]
+    assert main(["profile", "from-lensfun", "--maker", "Canon", "--model",
+                 "Canon EF 8-15mm f/4L Fisheye USM", "--focal-mm", "8", "--aperture", "5.7", "--crop-factor", "1.6",
+                 "--base", "fire-i", "-o", str(tmp_path / "f57.toml")]) == 0
+    assert min(steepest) < -27
+    assert list(load_profile(tmp_path / "f57.toml").effect("vignetting").lensfun_terms) == pytest.approx(steepest)

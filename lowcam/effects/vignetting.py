@@ -92,8 +92,9 @@ class Vignetting(Effect):
         "k2": Param(0.0, low=-10.0, high=10.0),
         "k4": Param(0.0, low=-10.0, high=10.0),
         "model": Param("radial", str, choices=("radial", "lensfun_pa"), doc="without a texture: the model"),
-        "lensfun_terms": Param([0.0, 0.0, 0.0], "vector", length=3, low=-10.0, high=10.0,
-                               doc="lensfun pa model: [k1, k2, k3] of 1 + k1 r^2 + k2 r^4 + k3 r^6"),
+        "lensfun_terms": Param([0.0, 0.0, 0.0], "vector", length=3, low=-50.0, high=50.0,
+                               doc="lensfun pa model: [k1, k2, k3] of 1 + k1 r^2 + k2 r^4 + k3 r^6 (lensfun's "
+                                   "fisheyes reach 27)"),
         **LENSFUN_FRAME_PARAMS,
     }
 
