@@ -287,8 +287,9 @@ READ_AHEAD = 2
 def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
     """A serial shot with its reading, simulation and writing overlapped: renders and plates are read on one thread
     up to :data:`READ_AHEAD` frames ahead, each frame is written on another while the next is simulated on this
-    one. ``done(result)`` is called for each frame in order. The bytes are those of :func:`process_frame` frame
-    after frame; a full disk raises :class:`~lowcam.errors.DiskFull` once the frames before it are reported."""
+    one. ``done(result)`` is called once per frame (a failed or skipped frame may be reported before the write of
+    the one before it). The bytes are those of :func:`process_frame` frame after frame; a full disk raises
+    :class:`~lowcam.errors.DiskFull` once the frames before it are reported."""
     profile = shot.load_profile()
     with ThreadPoolExecutor(1, thread_name_prefix="lowcam-read") as reader, \
             ThreadPoolExecutor(1, thread_name_prefix="lowcam-write") as writer:
@@ -323,11 +324,13 @@ def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
                     done(started)
                     continue
                 motion, read = started
+                read_s = 0.0
                 try:
                     inputs, read_s = read.result()
+                    del read, started   # the frame's inputs go as soon as it is simulated
                     image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs)
                 except LowcamError as e:
-                    done(_failed(frame, e))
+                    done(_failed(frame, e, read_s))
                     continue
                 del inputs
                 if writing is not None:

@@ -8,7 +8,7 @@ Contents
 --------
 - :func:`quiet_stderr`: keep C libraries' messages off the terminal for a while
 - :func:`read_exr`: all channels of an OpenEXR file as ``{name: float32 array}``, layers grouped as (H, W, C)
-- :func:`read_exr_and_space`: :func:`read_exr` and the colour space its header names (None when it names none)
+- :func:`read_exr_tagged`: :func:`read_exr` and its header's colour tags
 - :func:`render_space_of`: the space a render is in: the one stated, else its header's, else linear Rec.709
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
 - :func:`read_render`: read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4)
@@ -59,7 +59,8 @@ def _exists(path) -> Path:
 def quiet_stderr(stdout: bool = False):
     """Keep C libraries' messages (libpng, libjpeg, ffmpeg; Blender's with ``stdout``) off the terminal: file
     descriptor 2 (and 1) goes to a temporary file for the duration. Yields a dict whose ``"text"`` holds what
-    they said, once the block ends."""
+    they said, once the block ends. The descriptors are the process's: whatever another thread writes to them
+    meanwhile is kept off the terminal too (a shot's progress bar writes to its own copy of stderr)."""
     said = {"text": ""}
     fds = (1, 2) if stdout else (2,)
     sys.stdout.flush()
@@ -117,8 +118,8 @@ def _exr_core_too_old() -> bool:
 
 
 _CHILD_READ = ("import sys, json, numpy as np\nfrom lowcam.errors import LowcamError\n"
-               "from lowcam.io import _read_exr_tagged\n"
-               "try:\n    channels, tags = _read_exr_tagged(sys.argv[1])\n"
+               "from lowcam.io import read_exr_tagged\n"
+               "try:\n    channels, tags = read_exr_tagged(sys.argv[1])\n"
                "    np.savez(sys.argv[2], **channels, **{_TAGS: np.array(json.dumps(tags))})\n"
                "except LowcamError as e:\n    sys.exit(str(e))\n").replace("_TAGS", repr("lowcam:colour tags"))
 #: The header attributes that name a render's colour space.
@@ -126,7 +127,7 @@ _COLOUR_TAGS = ("colorInteropID", "chromaticities")
 
 
 def _read_exr_in_child(path: Path) -> tuple[dict[str, np.ndarray], dict]:
-    """:func:`_read_exr_tagged` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is
+    """:func:`read_exr_tagged` in a child Python on the same ``sys.path`` (the process's own libOpenEXRCore is
     too old for the OpenEXR wheel); the channels and tags come back through a temporary ``.npz``."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     with tempfile.TemporaryDirectory(prefix="lowcam-exr-") as folder:
@@ -146,7 +147,7 @@ def _read_exr_in_child(path: Path) -> tuple[dict[str, np.ndarray], dict]:
 def _float32(pixels: np.ndarray) -> np.ndarray:
     """A channel's pixels as float32; half floats through OpenCV (exact, and 4x numpy's conversion)."""
     if pixels.dtype == np.float16 and pixels.ndim <= 3 and pixels.size:
-        return cv2.convertFp16(np.ascontiguousarray(pixels).view(np.int16))
+        return cv2.convertFp16(np.ascontiguousarray(pixels).view(np.int16)).reshape(pixels.shape)
     return np.asarray(pixels, np.float32)
 
 
@@ -154,28 +155,22 @@ def read_exr(path) -> dict[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays). In a process that holds an older libOpenEXRCore (Debian's
     Blender) the file is read in a child Python."""
-    return _read_exr_tagged(path)[0]
+    return read_exr_tagged(path)[0]
 
 
-def read_exr_and_space(path):
-    """``(channels, space)``: :func:`read_exr`'s channels and the colour space the file's header names
-    (:func:`lowcam.render_spaces.header_space`: Blender 5's ``colorInteropID`` or the ``chromaticities``), None
-    when it names none."""
-    channels, tags = _read_exr_tagged(path)
-    return channels, header_space(tags, path)
-
-
-def render_space_of(path, stated=None, header=None):
+def render_space_of(path, stated=None, tags=None):
     """The colour space of the render at ``path``: ``stated`` (a name, :func:`lowcam.render_spaces.render_space`)
-    when given, else the one its header names (``header``, as :func:`read_exr_and_space` gives it), else linear
-    Rec.709."""
+    when given, else the one its header's colour ``tags`` name (:func:`read_exr_tagged`,
+    :func:`lowcam.render_spaces.header_space`), else linear Rec.709. A stated space overrides a header Lowcam
+    cannot read."""
     if stated:
         return render_space(stated)
-    return header or LINEAR_REC709
+    return header_space(tags or {}, path) or LINEAR_REC709
 
 
-def _read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
-    """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list)."""
+def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list), for
+    :func:`render_space_of`."""
     path = _exists(path)
     if _exr_core_too_old():
         return _read_exr_in_child(path)
@@ -256,9 +251,9 @@ def read_render(path, layer: str | None = None, render_space: str | None = None)
     when given, else the one an OpenEXR header names: :func:`render_space_of`) is converted to linear Rec.709.
     """
     path = _exists(path)
-    header = None
+    tags = None
     if _format(path) == "exr":
-        channels, header = read_exr_and_space(path)
+        channels, tags = read_exr_tagged(path)
         rgba = _rgba_from_exr(path, channels, layer)
     else:
         img = _decode(path)
@@ -267,7 +262,7 @@ def read_render(path, layer: str | None = None, render_space: str | None = None)
         scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
         rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
         rgba[..., :3] *= rgba[..., 3:]
-    return check_render(to_camera_space(rgba, render_space_of(path, render_space, header)), path)
+    return check_render(to_camera_space(rgba, render_space_of(path, render_space, tags)), path)
 
 
 #: The largest render value accepted: half-float's maximum (no real render is brighter; larger finite values

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import LowcamError
-from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_exr_and_space,
+from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_exr_tagged,
                  read_render, render_space_of)
 from .render_spaces import to_camera_space
 
@@ -180,7 +180,7 @@ def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps:
     if _format(_exists(path)) != "exr":
         raise LowcamError(f"{path}: a {needs[0]} pass is needed and only an OpenEXR render holds one; render a "
                           f"multilayer OpenEXR ({PASS_HELP[needs[0]]})")
-    channels, header = read_exr_and_space(path)
+    channels, tags = read_exr_tagged(path)
     render = check_render(to_camera_space(_rgba_from_exr(path, channels, layer),
-                                          render_space_of(path, render_space, header)), path)
+                                          render_space_of(path, render_space, tags)), path)
     return render, read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)

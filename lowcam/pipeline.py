@@ -361,8 +361,9 @@ def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0,
     state, plate_u8 = _start(render, profile, plate, angular_velocity, exposure_s, 0, 0, passes)
     start = deterministic_prefix(state.profile, until)
     _walk(state, stop=start)
-    if any(effect.name == "bayer_sampling" for effect in state.applied):
-        state.working = None   # read by the Bayer sampling alone: a kept token need not hold it
+    if any(effect.name == "bayer_sampling" for effect in state.applied) and all(
+            type(effect).__module__.startswith("lowcam.") for effect in state.profile.effects[start:]):
+        state.working = None   # of Lowcam's effects, the Bayer sampling alone reads it: a kept token need not hold it
         state._windows.pop("working", None)
     return state, start, plate_u8
 

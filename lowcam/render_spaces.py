@@ -73,14 +73,20 @@ def render_space(name: str) -> RenderSpace:
     return space
 
 
-def space_from_chromaticities(values) -> RenderSpace:
+def space_from_chromaticities(values, path="render") -> RenderSpace:
     """The space of an OpenEXR ``chromaticities`` attribute (red, green, blue, white xy: 8 numbers): the known
-    space it matches (within 5e-4, the attribute being float32), else one named by its numbers."""
+    space it matches (within 5e-4, the attribute being float32), else one named by its numbers. Numbers that
+    make no RGB space (not finite, y <= 0, primaries on one line) are a one-line :class:`LowcamError` naming
+    ``path``."""
     xy = np.asarray(values, float).reshape(4, 2)
     for space, _ in RENDER_SPACES.values():
         if np.allclose(xy, np.array([*space.primaries, space.white]), atol=5e-4):
             return space
     name = "chromaticities " + " ".join(f"{v:.4f}" for v in xy.ravel())
+    if not np.isfinite(xy).all() or (xy[:, 1] <= 0).any() or abs(np.linalg.det(
+            np.stack([_xyz(p) for p in xy[:3]], axis=1))) < 1e-9:
+        raise LowcamError(f"{path}: its {name} make no RGB colour space; name the render's space with "
+                          "--render-space")
     return RenderSpace(name, tuple(map(tuple, xy[:3])), tuple(xy[3]))
 
 
@@ -94,7 +100,7 @@ def header_space(header: dict, path="render") -> RenderSpace | None:
         if interop.lower() in _BY_NAME:
             return _BY_NAME[interop.lower()]
     if header.get("chromaticities") is not None:
-        return space_from_chromaticities(header["chromaticities"])
+        return space_from_chromaticities(header["chromaticities"], path)
     if interop:
         raise LowcamError(f"{path}: rendered in colour space '{interop}', which Lowcam cannot convert; render in "
                           "Linear Rec.709, Linear Rec.2020 or ACEScg, or name the space with --render-space")

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_and_space, render_space_of
+from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_tagged, render_space_of
 from .outputs import write_image
 from .passes import RenderPasses, needed_passes, read_blender_passes
 from .pipeline import run
@@ -35,9 +35,9 @@ def read_layers(path, layer: str, overlay_layer: str | None = None, channels: di
     Combined pass and, when asked, ``overlay_layer``'s. ``channels``: the file's already read; ``render_space``:
     their colour space (a :class:`~lowcam.render_spaces.RenderSpace`; None: the one the file's header names)."""
     if channels is None or render_space is None:
-        read, header = read_exr_and_space(path)
+        read, tags = read_exr_tagged(path)
         channels = read if channels is None else channels
-        render_space = render_space or render_space_of(path, None, header)
+        render_space = render_space or render_space_of(path, None, tags)
 
     def rgba(name, chosen):
         return check_render(to_camera_space(_rgba_from_exr(path, chosen), render_space), name)
@@ -88,8 +88,8 @@ def degrade_frame(render_path, output_path, profile, plate=None, angular_velocit
     need them (``object_motion``, ``depth_of_field``). The render's colour space is ``render_space`` (a name) when
     given, else the one the file's header names (Blender 5's working space), else linear Rec.709."""
     profile = load_profile(profile)
-    channels, header = read_exr_and_space(render_path)
-    space = render_space_of(render_path, render_space, header)
+    channels, tags = read_exr_tagged(render_path)
+    space = render_space_of(render_path, render_space, tags)
     render, overlay = read_layers(render_path, layer, overlay_layer, channels, space)
     needs = needed_passes(profile)
     passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)

@@ -6,7 +6,7 @@ import OpenEXR
 import pytest
 
 from lowcam.errors import LowcamError
-from lowcam.io import read_exr_and_space, read_render
+from lowcam.io import read_exr_tagged, read_render, render_space_of
 from lowcam.render_spaces import (LINEAR_REC709, RENDER_SPACES, header_space, render_space, space_from_chromaticities,
                                   to_camera_space, to_rec709_matrix)
 
@@ -89,7 +89,7 @@ def test_read_render_converts_by_header_or_stated_space(tmp_path):
                                                             0.33767))
     bare = _exr(tmp_path / "bare.exr", rgba)
     rec709 = _exr(tmp_path / "709.exr", rgba, colorInteropID="lin_rec709_scene")
-    assert read_exr_and_space(by_id)[1] is ap1
+    assert render_space_of(by_id, None, read_exr_tagged(by_id)[1]) is ap1
     assert np.array_equal(read_render(by_id), expected)
     assert np.array_equal(read_render(by_xy), expected)
     assert np.array_equal(read_render(bare), rgba)
@@ -97,6 +97,15 @@ def test_read_render_converts_by_header_or_stated_space(tmp_path):
     assert np.array_equal(read_render(bare, render_space="acescg"), expected)
     assert np.array_equal(read_render(by_id, render_space="linear-rec709"), rgba)      # stated wins
     assert np.abs(expected - rgba).max() > 0.05                                         # a real change
+    odd_id = _exr(tmp_path / "odd.exr", rgba, colorInteropID="srgb_tx")
+    with pytest.raises(LowcamError, match=r"odd\.exr: rendered in colour space 'srgb_tx'"):
+        read_render(odd_id)
+    assert np.array_equal(read_render(odd_id, render_space="acescg"), expected)       # as the refusal advises
+    for name, xy in (("flat", (0.3, 0.3) * 4), ("y0", (0.7, 0.0, 0.2, 0.7, 0.15, 0.05, 0.3127, 0.329))):
+        bad = _exr(tmp_path / f"{name}.exr", rgba, chromaticities=xy)
+        with pytest.raises(LowcamError, match=rf"^{bad}: its chromaticities .* make no RGB colour space; name"):
+            read_render(bad)
+        assert np.array_equal(read_render(bad, render_space="linear-rec709"), rgba)
 
 
 def test_cli_render_space(tmp_path, capsys):
@@ -212,11 +221,11 @@ def test_every_working_space_gives_the_rec709_frame(renders_by_space):
 
     names_space = bpy.app.version >= (5, 0, 0)
     frame709, exr709, _ = renders_by_space["Linear Rec.709"]
-    raw709 = read_exr_and_space(exr709)[0]["ViewLayer.Combined"]
+    raw709 = read_exr_tagged(exr709)[0]["ViewLayer.Combined"]
     render709 = read_render(exr709, "ViewLayer")
     for space, (frame, exr, _) in renders_by_space.items():
-        channels, named = read_exr_and_space(exr)
-        assert named is (render_space(space) if names_space else None)        # 4.x writes no colour attribute
+        channels, tags = read_exr_tagged(exr)
+        assert header_space(tags, exr) is (render_space(space) if names_space else None)        # 4.x writes no colour attribute
         assert np.abs(read_render(exr, "ViewLayer") - render709).max() < 1e-5, space
         diff = np.abs(frame.astype(int) - frame709.astype(int))
         assert diff.max() <= 4 and (diff > 1).mean() < 1e-4, (space, diff.max(), (diff > 1).mean())

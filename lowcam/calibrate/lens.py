@@ -82,7 +82,9 @@ def _fit_fisheye(obj, img, used, image_size, source, target, notes):
                               f"target ({target}); show the board at more angles and across the frame") from None
         try:
             fit.effect()  # LensDistortion.check: the radius must rise out to the frame's corners
-        except LowcamError:
+        except LowcamError as e:
+            if "folds over" not in str(e):
+                raise
             continue
         if terms < 4:
             held = f"k{terms + 1}" + ("..k4" if terms < 3 else "")

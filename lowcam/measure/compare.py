@@ -39,6 +39,7 @@ Contents
 from __future__ import annotations
 
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -121,6 +122,10 @@ def capture_inputs(profile, capture) -> CaptureInputs:
     return CaptureInputs(ideal, plate, mask)
 
 
+#: Each capture's float plate, held once for all its kept fronts (by the capture's id; weakly, so it goes with them).
+_SHARED_PLATES: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
 def _share_plate(state, shared: np.ndarray) -> None:
     """Point ``state`` at the capture's float plate held once for all its kept fronts (the chain only reads it)."""
     if state.plate is not shared and state.plate.shape == shared.shape and np.array_equal(state.plate, shared):
@@ -137,7 +142,7 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     if token is None:
         token = prepare(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, until)
     if cache is not None:  # least recently used out first: the diagnosed profile's fronts stay
-        _share_plate(token[0], cache.setdefault(("plate", id(capture)), token[0].plate))
+        _share_plate(token[0], _SHARED_PLATES.setdefault(id(capture), token[0].plate))
         cache[key] = token
         while len(cache) > CACHED_FRONTS:
             try:
