@@ -12,6 +12,7 @@ Contents
 --------
 - :func:`rotation_velocity`: (rows, cols, 2) image velocity (px/s) of a static scene under a turning pinhole camera
 - :func:`splat_along`: spread each pixel of a premultiplied RGBA image evenly along its path over the exposure
+- :func:`painted`: the pixels of an image with a non-zero channel
 - :func:`path_kernel`: the weights one pixel leaves along its path (a group on one path is filtered with them)
 - :func:`edge_velocity_from_cover`: partly covered pixels take the velocity of their most covered neighbour
 - :class:`ObjectMotion`: blur along each pixel's velocity minus the camera rotation's (needs a velocity pass)
@@ -61,41 +62,57 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
     it differs from spreading pixel by pixel (float64 sums) by at most 1e-6 of the local brightness. Pixels
     whose path no large group shares, and all of them with ``by_pixel``, are spread one by one as before.
     """
-    length = np.hypot(shift_px[..., 0], shift_px[..., 1])
-    ys, xs = np.nonzero(length >= min_shift_px)
-    keep = (np.abs(image[ys, xs]) > 0).any(axis=-1)      # a transparent black pixel spreads nothing
-    ys, xs = ys[keep], xs[keep]
-    if not len(ys):
+    ys, xs = np.nonzero(painted(image))                 # a transparent black pixel spreads nothing
+    shifts = shift_px[ys, xs]
+    length = np.hypot(shifts[:, 0], shifts[:, 1])
+    moving = length >= min_shift_px
+    if not moving.any():
         return image
+    ys, xs, shifts = ys[moving], xs[moving], np.ascontiguousarray(shifts[moving])
     rows, cols, channels = image.shape
-    longest = float(length[ys, xs].max())
+    longest = float(length[moving].max())
     reach = int(np.ceil(longest / 2)) + 2               # a canvas the paths stay inside, cropped to the image later
     y0, x0 = ys.min() - reach, xs.min() - reach
     h, w = ys.max() + reach + 1 - y0, xs.max() + reach + 1 - x0
     taps = max(2, int(np.ceil(longest)) + 1)
-    acc = np.zeros((h, w, channels), np.float64)
-    shifts = np.ascontiguousarray(shift_px[ys, xs])
+    grouped = None                                      # float32 (h, w, channels): the groups' deposits
     alone = np.ones(len(ys), bool)
     if not by_pixel:
         paths, group_of, counts = np.unique(shifts.view(np.uint64).ravel(), return_inverse=True,
                                             return_counts=True)
         for g in np.nonzero(counts >= _MIN_GROUP_PX)[0]:
             members = np.nonzero(group_of.ravel() == g)[0] if len(paths) > 1 else slice(None)
-            if _spread_group(acc, image, ys[members], xs[members], shifts[members][0], taps, y0, x0):
+            if grouped is None:
+                grouped = np.zeros((h, w, channels), np.float32)
+            if _spread_group(grouped, image, ys[members], xs[members], shifts[members][0], taps, y0, x0):
                 alone[members] = False
     if alone.any():
-        one_by_one = np.zeros((channels, h * w), np.float64)
-        _spread_pixels(one_by_one, image, ys[alone], xs[alone], shifts[alone].astype(np.float64), taps, y0, x0, w)
-        acc += one_by_one.T.reshape(h, w, channels)
-    spread = (acc / taps).astype(np.float32)
-    spread /= np.maximum(spread[..., 3:], 1.0)         # paths that cross add up; keep alpha <= 1
+        acc = np.zeros((channels, h * w), np.float64)
+        _spread_pixels(acc, image, ys[alone], xs[alone], shifts[alone].astype(np.float64), taps, y0, x0, w)
+        acc = acc.T.reshape(h, w, channels)
+        spread = ((acc if grouped is None else acc + grouped) / taps).astype(np.float32)
+    else:
+        spread = grouped / np.float32(taps)
+    if spread[..., 3].max() > 1:
+        spread /= np.maximum(spread[..., 3:], 1.0)     # paths that cross add up; keep alpha <= 1
     out = image.astype(np.float32)                      # a copy
     out[ys, xs] = 0.0                                   # the moving pixels leave
     top, left = max(y0, 0), max(x0, 0)
     bottom, right = min(y0 + h, rows), min(x0 + w, cols)
     spread = spread[top - y0:bottom - y0, left - x0:right - x0]
-    out[top:bottom, left:right] = spread + (1.0 - spread[..., 3:]) * out[top:bottom, left:right]
+    under = (1.0 - spread[..., 3:]) * out[top:bottom, left:right]
+    under += spread                                     # premultiplied over
+    out[top:bottom, left:right] = under
     return out
+
+
+def painted(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``image`` (H, W, C) with a non-zero channel (-0.0 counts as zero)."""
+    nonzero = image != 0
+    if image.shape[-1] == 4:                            # the four bools of a pixel read as one 32-bit word
+        return np.ascontiguousarray(nonzero).view(np.uint32)[..., 0] != 0
+    return nonzero.any(axis=-1)
+
 
 _MIN_GROUP_PX = 64          # fewer pixels on one path are cheaper to spread one by one
 
@@ -141,7 +158,7 @@ def _kernel_pieces(kernel: np.ndarray, most: int = 49):
 
 
 def _spread_group(acc, image, ys, xs, shift, taps, y0, x0) -> bool:
-    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc`` (h, w, channels;
+    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc`` (float32 h, w, channels;
     origin ``(y0, x0)`` in the image): their convolution with :func:`path_kernel`. False (nothing added) where
     filtering the group's box would cost more than spreading its pixels one by one."""
     import cv2
@@ -197,13 +214,19 @@ def edge_velocity_from_cover(velocity: np.ndarray, alpha: np.ndarray, radius: in
     ys, xs = np.nonzero((alpha > 0) & (alpha < 1))
     if not len(ys):
         return velocity
+    import cv2
+
     rows, cols = alpha.shape
-    best_alpha, best_y, best_x = alpha[ys, xs].copy(), ys.copy(), xs.copy()
-    for dy in range(-radius, radius + 1):
+    size = 2 * radius + 1
+    most = cv2.dilate(np.ascontiguousarray(alpha), np.ones((size, size), np.uint8))[ys, xs]   # within radius
+    best_y, best_x = ys.copy(), xs.copy()
+    todo = np.nonzero(most > alpha[ys, xs])[0]          # the rest are the most covered themselves
+    for dy in range(-radius, radius + 1):               # the first most covered neighbour in this order
         for dx in range(-radius, radius + 1):
-            y, x = np.clip(ys + dy, 0, rows - 1), np.clip(xs + dx, 0, cols - 1)
-            better = alpha[y, x] > best_alpha
-            best_alpha[better], best_y[better], best_x[better] = alpha[y, x][better], y[better], x[better]
+            y, x = np.clip(ys[todo] + dy, 0, rows - 1), np.clip(xs[todo] + dx, 0, cols - 1)
+            found = alpha[y, x] == most[todo]
+            best_y[todo[found]], best_x[todo[found]] = y[found], x[found]
+            todo = todo[~found]
     out = velocity.copy()
     out[ys, xs] = velocity[best_y, best_x]
     return out
@@ -236,10 +259,10 @@ class ObjectMotion(Effect):
         near = grow_window(window, 2, shape)
         camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), shape, near)
         shift = (edge_velocity_from_cover(velocity[near], render[near][..., 3]) - camera) * exposure
-        painted = (np.abs(render[near]) > 0).any(axis=-1)
-        if not painted.any():
+        lit = painted(render[near])
+        if not lit.any():
             return
-        longest = float(np.hypot(shift[painted, 0], shift[painted, 1]).max())
+        longest = float(np.hypot(shift[lit, 0], shift[lit, 1]).max())
         reach = grow_window(window, int(np.ceil(longest / 2)) + 2, shape)     # splat_along's canvas lies inside
         paths = np.zeros(render[reach].shape[:2] + (2,), np.float32)
         paths[near[0].start - reach[0].start:near[0].stop - reach[0].start,
