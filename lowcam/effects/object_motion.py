@@ -24,6 +24,7 @@ References
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..window import grow_window
@@ -62,12 +63,20 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
     it differs from spreading pixel by pixel (float64 sums) by at most 1e-6 of the local brightness. Pixels
     whose path no large group shares, and all of them with ``by_pixel``, are spread one by one as before.
     """
+    spread = _spread(image, shift_px, min_shift_px, by_pixel)
+    return image if spread is None else _lay_over(image.astype(np.float32), *spread)
+
+
+def _spread(image, shift_px, min_shift_px, by_pixel):
+    """:func:`splat_along`'s deposits: ``(ys, xs, spread, y0, x0)``, the moving pixels and the float32 canvas of
+    what they leave (``spread``, its origin ``(y0, x0)`` in ``image``, reaching past its edges), or None when
+    nothing moves."""
     ys, xs = np.nonzero(painted(image))                 # a transparent black pixel spreads nothing
     shifts = shift_px[ys, xs]
     length = np.hypot(shifts[:, 0], shifts[:, 1])
     moving = length >= min_shift_px
     if not moving.any():
-        return image
+        return None
     ys, xs, shifts = ys[moving], xs[moving], np.ascontiguousarray(shifts[moving])
     rows, cols, channels = image.shape
     longest = float(length[moving].max())
@@ -95,7 +104,14 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
         spread = grouped / np.float32(taps)
     if spread[..., 3].max() > 1:
         spread /= np.maximum(spread[..., 3:], 1.0)     # paths that cross add up; keep alpha <= 1
-    out = image.astype(np.float32)                      # a copy
+    return ys, xs, spread, y0, x0
+
+
+def _lay_over(out, ys, xs, spread, y0, x0):
+    """``out`` (float32, changed in place) with pixels ``(ys, xs)`` gone and ``spread`` (origin ``(y0, x0)``,
+    cropped to ``out``) laid over it (premultiplied "over")."""
+    rows, cols = out.shape[:2]
+    h, w = spread.shape[:2]
     out[ys, xs] = 0.0                                   # the moving pixels leave
     top, left = max(y0, 0), max(x0, 0)
     bottom, right = min(y0 + h, rows), min(x0 + w, cols)
@@ -158,11 +174,9 @@ def _kernel_pieces(kernel: np.ndarray, most: int = 49):
 
 
 def _spread_group(acc, image, ys, xs, shift, taps, y0, x0) -> bool:
-    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc`` (float32 h, w, channels;
-    origin ``(y0, x0)`` in the image): their convolution with :func:`path_kernel`. False (nothing added) where
+    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc``
+    (float32 h, w, channels; origin ``(y0, x0)`` in the image): their convolution with :func:`path_kernel`. False (nothing added) where
     filtering the group's box would cost more than spreading its pixels one by one."""
-    import cv2
-
     kernel, dy0, dx0 = path_kernel(shift.astype(np.float64), taps)
     pieces = _kernel_pieces(kernel)
     top, left = ys.min(), xs.min()
@@ -214,8 +228,6 @@ def edge_velocity_from_cover(velocity: np.ndarray, alpha: np.ndarray, radius: in
     ys, xs = np.nonzero((alpha > 0) & (alpha < 1))
     if not len(ys):
         return velocity
-    import cv2
-
     rows, cols = alpha.shape
     size = 2 * radius + 1
     most = cv2.dilate(np.ascontiguousarray(alpha), np.ones((size, size), np.uint8))[ys, xs]   # within radius
@@ -259,15 +271,13 @@ class ObjectMotion(Effect):
         near = grow_window(window, 2, shape)
         camera = rotation_velocity(state.angular_velocity, state.render_focal_px(), shape, near)
         shift = (edge_velocity_from_cover(velocity[near], render[near][..., 3]) - camera) * exposure
-        lit = painted(render[near])
-        if not lit.any():
+        spread = _spread(render[near], shift, self.min_shift_px, False)
+        if spread is None:
             return
-        longest = float(np.hypot(shift[lit, 0], shift[lit, 1]).max())
-        reach = grow_window(window, int(np.ceil(longest / 2)) + 2, shape)     # splat_along's canvas lies inside
-        paths = np.zeros(render[reach].shape[:2] + (2,), np.float32)
-        paths[near[0].start - reach[0].start:near[0].stop - reach[0].start,
-              near[1].start - reach[1].start:near[1].stop - reach[1].start] = shift
-        out = render.copy()
-        out[reach] = splat_along(render[reach], paths, self.min_shift_px)
-        state.render = out
-        state.keep_window("render", reach, self)
+        ys, xs, canvas, y0, x0 = spread
+        top, left = near[0].start, near[1].start
+        state.render = _lay_over(render.astype(np.float32), ys + top, xs + left, canvas, y0 + top, x0 + left)
+        (rows, cols), (h, w) = window, canvas.shape[:2]      # the non-zero pixels: the render's and the canvas's
+        y0, x0 = y0 + top, x0 + left
+        state.keep_window("render", (slice(max(min(rows.start, y0), 0), min(max(rows.stop, y0 + h), shape[0])),
+                                     slice(max(min(cols.start, x0), 0), min(max(cols.stop, x0 + w), shape[1]))), self)
