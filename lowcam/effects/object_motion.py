@@ -57,11 +57,14 @@ def splat_along(image: np.ndarray, shift_px: np.ndarray, min_shift_px: float = 0
     Pixels that move less than ``min_shift_px`` stay as they are; the moving ones are spread with bilinear
     weights at taps at most 1 px apart and laid over the still ones (premultiplied "over").
 
-    Pixels that share one path (an object that translates across the image) are spread together: their
-    deposits are the convolution of those pixels with the path's tap kernel (:func:`path_kernel`), applied as a
-    few small float32 filters (OpenCV) instead of one deposit per pixel and tap. A sum of float32 products,
-    it differs from spreading pixel by pixel (float64 sums) by at most 1e-6 of the local brightness. Pixels
-    whose path no large group shares, and all of them with ``by_pixel``, are spread one by one as before.
+    Pixels that share one path exactly (an object translating across the image under a still camera) are
+    spread together: their deposits are the convolution of those pixels with the path's tap kernel
+    (:func:`path_kernel`), applied as a few small float32 filters of under 50 weights each (OpenCV sums those
+    directly, so nothing lands where no tap reaches) instead of one deposit per pixel and tap. Summed in float32,
+    each value differs from spreading pixel by pixel (float64 sums) by at most 4e-6 of itself (1.4e-6 measured;
+    the 8-bit frames of ``benchmarks/bench_passes.py`` are the same). Pixels whose path fewer than 64 others
+    share, or whose group's box is cheaper to spread pixel by pixel, and every pixel with ``by_pixel``, get one
+    bilinear deposit per tap (``np.bincount``).
     """
     spread = _spread(image, shift_px, min_shift_px, by_pixel)
     return image if spread is None else _lay_over(image.astype(np.float32), *spread)
@@ -84,22 +87,17 @@ def _spread(image, shift_px, min_shift_px, by_pixel):
     y0, x0 = ys.min() - reach, xs.min() - reach
     h, w = ys.max() + reach + 1 - y0, xs.max() + reach + 1 - x0
     taps = max(2, int(np.ceil(longest)) + 1)
-    grouped = None                                      # float32 (h, w, channels): the groups' deposits
+    grouped = np.zeros((h, w, channels), np.float32) if not by_pixel else None   # the groups' deposits
     alone = np.ones(len(ys), bool)
     if not by_pixel:
-        paths, group_of, counts = np.unique(shifts.view(np.uint64).ravel(), return_inverse=True,
-                                            return_counts=True)
-        for g in np.nonzero(counts >= _MIN_GROUP_PX)[0]:
-            members = np.nonzero(group_of.ravel() == g)[0] if len(paths) > 1 else slice(None)
-            if grouped is None:
-                grouped = np.zeros((h, w, channels), np.float32)
-            if _spread_group(grouped, image, ys[members], xs[members], shifts[members][0], taps, y0, x0):
+        for members in _groups(shifts.view(np.uint64).ravel()):             # the same path, bit for bit
+            if _spread_group(grouped, image, ys[members], xs[members], shifts[members[0]], taps, y0, x0):
                 alone[members] = False
     if alone.any():
         acc = np.zeros((channels, h * w), np.float64)
         _spread_pixels(acc, image, ys[alone], xs[alone], shifts[alone].astype(np.float64), taps, y0, x0, w)
         acc = acc.T.reshape(h, w, channels)
-        spread = ((acc if grouped is None else acc + grouped) / taps).astype(np.float32)
+        spread = ((acc if grouped is None or not (~alone).any() else acc + grouped) / taps).astype(np.float32)
     else:
         spread = grouped / np.float32(taps)
     if spread[..., 3].max() > 1:
@@ -131,6 +129,13 @@ def painted(image: np.ndarray) -> np.ndarray:
 
 
 _MIN_GROUP_PX = 64          # fewer pixels on one path are cheaper to spread one by one
+
+
+def _groups(keys: np.ndarray) -> list:
+    """Indices of ``keys`` that hold the same key, ascending, for each key at least ``_MIN_GROUP_PX`` hold."""
+    order = np.argsort(keys, kind="stable")
+    _, starts, counts = np.unique(keys[order], return_index=True, return_counts=True)
+    return [order[start:start + count] for start, count in zip(starts, counts) if count >= _MIN_GROUP_PX]
 
 
 def path_kernel(shift_px, taps: int):
