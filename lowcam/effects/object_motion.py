@@ -179,9 +179,9 @@ def _kernel_pieces(kernel: np.ndarray, most: int = 49):
 
 
 def _spread_group(acc, image, ys, xs, shift, taps, y0, x0) -> bool:
-    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc``
-    (float32 h, w, channels; origin ``(y0, x0)`` in the image): their convolution with :func:`path_kernel`. False (nothing added) where
-    filtering the group's box would cost more than spreading its pixels one by one."""
+    """Add the deposits of pixels ``(ys, xs)`` of ``image``, all on path ``shift``, to ``acc`` (float32 h, w,
+    channels; origin ``(y0, x0)`` in the image): their convolution with :func:`path_kernel`. False (nothing
+    added) where filtering the group's box would cost more than spreading its pixels one by one."""
     kernel, dy0, dx0 = path_kernel(shift.astype(np.float64), taps)
     pieces = _kernel_pieces(kernel)
     top, left = ys.min(), xs.min()
