@@ -3,14 +3,19 @@
 Makes the standard set (Fire-i, every bundled scene, 5 frames, a tone curve of gamma 2.0 hidden), then diagnoses
 it with every candidate ``--repeats`` times. Prints the median total, the median and range per candidate
 (screening, fitting and error together) and the number of noise-free and noisy capture simulations; then, as the
-baseline in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``).
+baseline in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``); and the
+command line's wall time and peak memory (``lowcam diagnose SET --json``, a fresh process each run, imports
+included) beside the in-process figure.
 
     .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
 """
 from __future__ import annotations
 
 import argparse
+import resource
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -53,6 +58,13 @@ def main() -> None:
                 per[c.effect].append(c.seconds)
             print(f"run {k + 1}: {totals[-1]:.1f} s, {d.summary()}; simulations: "
                   + ", ".join(f"{n} {v}" for n, v in counts.items()), flush=True)
+        walls, peaks = [], []
+        for _ in range(args.repeats):
+            started = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "lowcam.cli", "diagnose", str(folder), "--profile", "fire-i",
+                            "--json", str(Path(tmp) / "d.json")], check=True, capture_output=True)
+            walls.append(time.perf_counter() - started)
+            peaks.append(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)  # the largest child's, MB
         workers, diagnosis.WORKERS = diagnosis.WORKERS, 1
         serial = []
         for _ in range(args.repeats):
@@ -65,6 +77,8 @@ def main() -> None:
     ratio = statistics.median(totals) / statistics.median(serial)
     print(f"one candidate at a time, same run: median {statistics.median(serial):.1f} s "
           f"(min {min(serial):.1f}, max {max(serial):.1f}); ratio {ratio:.2f}")
+    print(f"the command line (lowcam diagnose, imports included): median {statistics.median(walls):.1f} s wall "
+          f"(min {min(walls):.1f}, max {max(walls):.1f}), peak memory {max(peaks):.0f} MB")
     print("per candidate (screening, fitting and error together): median (min-max) over the runs")
     for name, times in sorted(per.items(), key=lambda kv: -statistics.median(kv[1])):
         print(f"  {name:32s} {statistics.median(times):6.2f} s  ({min(times):.2f}-{max(times):.2f})")

@@ -106,3 +106,37 @@ def diagnose_set(tmp_path, profile, only, rounds=2, **kw):
 
     folder = make_set(profile, tmp_path / "set", **kw)
     return diagnose(load_set(folder, profile), profile, only=only, workdir=tmp_path / "work", rounds=rounds)
+
+
+def film_through_mapping(folder, profile, mapping, margin, focal_px, hfov, seed, frames, fine, scene_names):
+    """A measurement set whose frames look through a lens given by ``mapping`` ((rows, cols, 2): for each output
+    pixel of the frame and a ``margin`` around it, the pinhole pixel of the same ray, centred, focal ``focal_px``).
+    Each ideal render of ``scene_names`` (for ``profile``, a pinhole of that focal, its render ``hfov`` deg wide) is
+    warped at ``fine`` times its resolution: fine render pixel -> output pixel of the pinhole profile -> the pinhole
+    pixel of that ray -> render pixel; then filmed through ``profile``."""
+    import cv2
+
+    from lowcam.measure.sets import write_set
+    from lowcam.measure.synth import scenes
+    from lowcam.pipeline import simulate
+
+    geo = profile.geometry
+    cx, cy = (geo.width - 1) / 2, (geo.height - 1) / 2
+    captures = []
+    for name, (ideal, omega) in scenes(profile).items():
+        if name not in scene_names:
+            continue
+        hr, wr = ideal.shape[:2]
+        f_render = wr / (2 * np.tan(np.radians(hfov) / 2))
+        yy, xx = np.mgrid[0:hr * fine, 0:wr * fine].astype(np.float64)
+        u = cx + focal_px * ((xx + 0.5) / fine - 0.5 - wr / 2 + 0.5) / f_render + margin
+        v = cy + focal_px * ((yy + 0.5) / fine - 0.5 - hr / 2 + 0.5) / f_render + margin
+        mu, mv = (cv2.remap(mapping[..., c].astype(np.float32), u.astype(np.float32), v.astype(np.float32),
+                            cv2.INTER_LINEAR) for c in (0, 1))
+        sx = f_render * (mu - cx) / focal_px + wr / 2 - 0.5
+        sy = f_render * (mv - cy) / focal_px + hr / 2 - 0.5
+        warped = cv2.remap(ideal, sx.astype(np.float32), sy.astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+        shots = [simulate(warped, profile, None, omega, None, seed, n) for n in range(frames)]
+        captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
+    return write_set(folder, captures)

@@ -18,6 +18,8 @@ from lowcam.measure.sets import load_set, write_set
 from lowcam.measure.synth import scenes
 from lowcam.pipeline import simulate
 
+from helpers import film_through_mapping
+
 lensfunpy = pytest.importorskip("lensfunpy")
 
 SCENES = ("chart", "noise-field")
@@ -73,29 +75,7 @@ def real_lens_set(folder, profile, lens, focal_px, seed, frames=4, margin=24, fi
     pinhole of focal ``focal_px``) are warped through lensfun's mapping at ``fine`` times their resolution."""
     geo = profile.geometry
     mapping, _ = lens_mapping(lens, geo.width, geo.height, margin)
-    cx, cy = (geo.width - 1) / 2, (geo.height - 1) / 2
-    captures = []
-    for name, (ideal, omega) in scenes(profile).items():
-        if name not in SCENES:
-            continue
-        hr, wr = ideal.shape[:2]
-        f_render = wr / (2 * np.tan(np.radians(hfov) / 2))
-        # fine render pixel -> output pixel of the pinhole profile -> undistorted pixel (lensfun) -> render pixel
-        yy, xx = np.mgrid[0:hr * fine, 0:wr * fine].astype(np.float64)
-        rx, ry = (xx + 0.5) / fine - 0.5, (yy + 0.5) / fine - 0.5
-        u = cx + focal_px * (rx - wr / 2 + 0.5) / f_render
-        v = cy + focal_px * (ry - hr / 2 + 0.5) / f_render
-        mu = cv2.remap(mapping[..., 0].astype(np.float32), (u + margin).astype(np.float32),
-                       (v + margin).astype(np.float32), cv2.INTER_LINEAR)
-        mv = cv2.remap(mapping[..., 1].astype(np.float32), (u + margin).astype(np.float32),
-                       (v + margin).astype(np.float32), cv2.INTER_LINEAR)
-        sx = f_render * (mu - cx) / focal_px + wr / 2 - 0.5
-        sy = f_render * (mv - cy) / focal_px + hr / 2 - 0.5
-        warped = cv2.remap(ideal, sx.astype(np.float32), sy.astype(np.float32), cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
-        shots = [simulate(warped, profile, None, omega, None, seed, k) for k in range(frames)]
-        captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
-    return write_set(folder, captures)
+    return film_through_mapping(folder, profile, mapping, margin, focal_px, hfov, seed, frames, fine, SCENES)
 
 
 def pinhole_profile(fire_i, focal_px, model, hfov=HFOV_DEG, **values):

@@ -26,10 +26,10 @@ from lowcam.effects.lens_fit import IllConditionedView, fit_lens
 from lowcam.effects.lens_models import KannalaBrandtLens
 from lowcam.errors import LowcamError
 from lowcam.measure.diagnose import diagnose
-from lowcam.measure.sets import load_set, write_set
-from lowcam.measure.synth import scenes
-from lowcam.pipeline import simulate
+from lowcam.measure.sets import load_set
 from lowcam.profile import load_profile
+
+from helpers import film_through_mapping
 
 WIDTH, HEIGHT = 1280, 960
 COLS, ROWS, SQUARE_M = 9, 6, 0.025  # inner corners, as the target "checkerboard:9x6:0.025"
@@ -317,24 +317,8 @@ def fisheye_set(folder, profile, k, d, focal_px, hfov, seed, frames=4, fine=3, m
     pin = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1.0]])
     mapping = cv2.fisheye.undistortPoints(np.stack([pu, pv], -1).reshape(-1, 1, 2), k, d, P=pin).reshape(
         pu.shape + (2,))
-    captures = []
-    for name, (ideal, omega) in scenes(profile).items():
-        if name not in ("chart", "noise-field"):
-            continue
-        hr, wr = ideal.shape[:2]
-        f_render = wr / (2 * np.tan(np.radians(hfov) / 2))
-        yy, xx = np.mgrid[0:hr * fine, 0:wr * fine].astype(np.float64)
-        u = cx + focal_px * ((xx + 0.5) / fine - 0.5 - wr / 2 + 0.5) / f_render + margin
-        v = cy + focal_px * ((yy + 0.5) / fine - 0.5 - hr / 2 + 0.5) / f_render + margin
-        mu, mv = (cv2.remap(mapping[..., c].astype(np.float32), u.astype(np.float32), v.astype(np.float32),
-                            cv2.INTER_LINEAR) for c in (0, 1))
-        sx = f_render * (mu - cx) / focal_px + wr / 2 - 0.5
-        sy = f_render * (mv - cy) / focal_px + hr / 2 - 0.5
-        warped = cv2.remap(ideal, sx.astype(np.float32), sy.astype(np.float32), cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
-        shots = [simulate(warped, profile, None, omega, None, seed, n) for n in range(frames)]
-        captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
-    return write_set(folder, captures), mapping[margin:-margin, margin:-margin]
+    return (film_through_mapping(folder, profile, mapping, margin, focal_px, hfov, seed, frames, fine,
+                                 ("chart", "noise-field")), mapping[margin:-margin, margin:-margin])
 
 
 # (diagonal field of view, deg; seed; the diagnosed profile's k1..k4): from an equidistant lens (no coefficients),
