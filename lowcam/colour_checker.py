@@ -134,13 +134,20 @@ def find_chart(image: np.ndarray) -> np.ndarray | None:
             found = segmenter_default(work, additional_data=True, **settings)
         except (cv2.error, ValueError, IndexError):
             return None
-    if len(found.rectangles) == 0:
+    centres = np.array([np.asarray(c, np.float64).reshape(-1, 2).mean(axis=0) for c in found.swatches])
+    if len(found.rectangles):
+        rect = np.asarray(found.rectangles[0], np.float64).reshape(4, 2)
+    elif len(centres) >= COLUMNS * ROWS // 2:
+        # no cluster of the chart's aspect (a steep view): the patches' own rectangle, centre to centre 5 x 3
+        # cells, grown to the grid's 6 x 4
+        (cx, cy), (w, h), angle = cv2.minAreaRect(centres.astype(np.float32))
+        grow = (COLUMNS / (COLUMNS - 1), ROWS / (ROWS - 1)) if w >= h else (ROWS / (ROWS - 1), COLUMNS / (COLUMNS - 1))
+        rect = cv2.boxPoints(((cx, cy), (w * grow[0], h * grow[1]), angle)).astype(np.float64)
+    else:
         return None
     # the rectangle's corners in the order of the grid's (0, 0), (6, 0), (6, 4), (0, 4), the long side first
-    rect = np.asarray(found.rectangles[0], np.float64).reshape(4, 2)
     if np.linalg.norm(rect[1] - rect[0]) < np.linalg.norm(rect[2] - rect[1]):
         rect = np.roll(rect, -1, axis=0)
-    centres = np.array([np.asarray(c, np.float64).reshape(-1, 2).mean(axis=0) for c in found.swatches])
     quad = _fit_grid(rect, centres)
     return None if quad is None else _orient(image, quad * scale)
 
@@ -173,13 +180,14 @@ def _fit_grid(quad: np.ndarray, centres: np.ndarray) -> np.ndarray | None:
 
 
 def _orient(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
-    """The quadrilateral turned (0 or 180 degrees; 90 where the chart stands on its side) so that the patches'
-    brightness follows the reference's best (log brightness, correlated): the neutral row at the bottom."""
+    """The quadrilateral turned (0 or 180 degrees; 90 where the chart stands on its side; its corners' order
+    reversed if need be) so that the patches' brightness follows the reference's best (log brightness,
+    correlated): the neutral row at the bottom."""
     ref = np.log(reference_colours().mean(axis=1))
     best, best_score = None, -np.inf
     img = np.asarray(image, np.float64)
-    for turn in range(4):
-        q = np.roll(quad, -turn, axis=0)
+    for turn in range(8):  # four turns, and mirrored (a corner order the other way round)
+        q = np.roll(quad if turn < 4 else quad[::-1], -turn, axis=0)
         means = _cell_means(img, q)
         if means is None:
             continue
