@@ -35,6 +35,7 @@ References
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -122,8 +123,6 @@ def find_chart(image: np.ndarray) -> np.ndarray | None:
     except ImportError:  # pragma: no cover - a dependency
         raise LowcamError("ColorChecker targets need colour-checker-detection "
                           "(pip install colour-checker-detection)") from None
-    import warnings
-
     img = _detection_image(image)
     settings = dict(SETTINGS_SEGMENTATION_COLORCHECKER_CLASSIC)
     scale = img.shape[1] / settings["working_width"]
