@@ -9,7 +9,8 @@ between the patches); its quadrilateral is turned so that the neutral row (patch
 puts it, judged by brightness, so a camera's colour matrix cannot mislead the orientation.
 
 Each patch is read over the inner :data:`INNER` of its cell (away from the edges, the gaps and the chart's own
-blur), after the chart is rectified at about one rectified pixel per frame pixel. Its noise is the spread of the
+blur), centred on the patch as found (a lens bends the grid, which one homography cannot follow), rectified at
+about one pixel per frame pixel. Its noise is the spread of the
 means of 4x4 blocks over that area (the noise of the patch mean, spatially correlated noise such as a
 demosaic's included), divided by the square root of the block count.
 
@@ -22,8 +23,10 @@ Contents
 - :func:`reference_colours`: the 24 patches' colours, linear Rec.709 D65 render values (24, 3)
 - :class:`PatchReading`: the patches' means, the noise of each mean, the pixels read and the clipped ones
 - :func:`find_chart`: the chart's four corners (pixels) in a frame, or None
-- :func:`read_patches`: each patch's mean and noise in a frame from the chart's corners
+- :func:`locate_patches`: the chart's corners and each patch's centre (pixels) in a frame, or None
+- :func:`read_patches`: each patch's mean and noise in a frame from the chart's corners (and patch centres)
 - :func:`patch_cells`: each patch's cell corners (pixels) from the chart's corners
+- :func:`patch_areas`: the area read of each patch (pixels), moved onto the patch's own centre
 - :func:`read_colour_checker`: the patches of the chart in frames (the mean frame), every problem naming a frame
 
 References
@@ -96,6 +99,7 @@ class PatchReading:
     pixels: np.ndarray
     clipped: np.ndarray
     corners: np.ndarray
+    centres: np.ndarray | None = None
     notes: list = field(default_factory=list)
 
 
@@ -110,12 +114,21 @@ def _detection_image(image: np.ndarray) -> np.ndarray:
 
 
 def find_chart(image: np.ndarray) -> np.ndarray | None:
-    """The ColorChecker's four corners (4, 2), pixels in ``image`` (H, W, 3; any units, linear or encoded): the
-    outer corners of its patch grid, top-left (patch 1's corner) first, then clockwise. None when not found.
+    """The ColorChecker's four corners (4, 2), pixels in ``image``, or None (:func:`locate_patches`)."""
+    found = locate_patches(image)
+    return None if found is None else found[0]
 
-    ``colour-checker-detection``'s segmenter finds the patches and the chart's bounding rectangle; the corners
-    are then the homography that puts the grid's cell centres on the patches found (a perspective view is not a
-    rectangle), and the orientation the one whose brightness follows the reference (:func:`_orient`)."""
+
+def locate_patches(image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ColorChecker in ``image`` (H, W, 3; any units, linear or encoded): its four corners (4, 2), pixels, the
+    outer corners of its patch grid, top-left (patch 1's corner) first, then clockwise; and each patch's centre
+    (24, 2), pixels, as found (a lens's distortion bends the grid). None when not found.
+
+    ``colour-checker-detection``'s segmenter finds the patches (and, in a view not too steep, the chart's
+    bounding rectangle); grids are tried from that rectangle and from the patches' own lattice, each refined to
+    the homography that puts its cell centres on the patches found (a perspective view is not a rectangle), and
+    the grid and orientation kept are those whose brightness follows the reference best with the most patches
+    found at their cells' centres (:func:`_orient`)."""
     try:
         from colour_checker_detection.detection.common import reformat_image
         from colour_checker_detection.detection.segmentation import (SETTINGS_SEGMENTATION_COLORCHECKER_CLASSIC,
@@ -134,21 +147,71 @@ def find_chart(image: np.ndarray) -> np.ndarray | None:
         except (cv2.error, ValueError, IndexError):
             return None
     centres = np.array([np.asarray(c, np.float64).reshape(-1, 2).mean(axis=0) for c in found.swatches])
-    if len(found.rectangles):
+    quads = []
+    if len(found.rectangles):  # the detector's rectangle, its long side first
         rect = np.asarray(found.rectangles[0], np.float64).reshape(4, 2)
-    elif len(centres) >= COLUMNS * ROWS // 2:
-        # no cluster of the chart's aspect (a steep view): the patches' own rectangle, centre to centre 5 x 3
-        # cells, grown to the grid's 6 x 4
-        (cx, cy), (w, h), angle = cv2.minAreaRect(centres.astype(np.float32))
-        grow = (COLUMNS / (COLUMNS - 1), ROWS / (ROWS - 1)) if w >= h else (ROWS / (ROWS - 1), COLUMNS / (COLUMNS - 1))
-        rect = cv2.boxPoints(((cx, cy), (w * grow[0], h * grow[1]), angle)).astype(np.float64)
-    else:
-        return None
-    # the rectangle's corners in the order of the grid's (0, 0), (6, 0), (6, 4), (0, 4), the long side first
-    if np.linalg.norm(rect[1] - rect[0]) < np.linalg.norm(rect[2] - rect[1]):
-        rect = np.roll(rect, -1, axis=0)
-    quad = _fit_grid(rect, centres)
-    return None if quad is None else _orient(image, quad * scale)
+        quads.append(rect if np.linalg.norm(rect[1] - rect[0]) >= np.linalg.norm(rect[2] - rect[1])
+                     else np.roll(rect, -1, axis=0))
+    quads += _lattice_quads(centres)
+    best, best_score = None, -np.inf
+    for quad in quads:
+        oriented, score = _orient(image, _fit_grid(quad, centres) * scale, centres * scale)
+        if oriented is not None and score > best_score:
+            best, best_score = oriented, score
+    return None if best is None else (best, _patch_centres(best, centres * scale))
+
+
+def _lattice_quads(centres: np.ndarray) -> list:
+    """Grids that the patches found could be on (working pixels): their own lattice (the direction and spacing of
+    neighbours), as many cells as they span, in every place within the 6 x 4 grid where patches are
+    missing at its sides."""
+    if len(centres) < 6:
+        return []
+    mean = centres.mean(axis=0)
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    np.fill_diagonal(dist, np.inf)
+    pitch = float(np.median(dist.min(axis=1)))
+    # the lattice's direction: the neighbours' directions folded to 90 degrees (a square lattice)
+    step = centres[np.argmin(dist, axis=1)] - centres
+    theta = np.angle(np.exp(4j * np.arctan2(step[:, 1], step[:, 0])).mean()) / 4
+    u = np.array([np.cos(theta), np.sin(theta)])
+    v = np.array([-u[1], u[0]])
+    s, t = (centres - mean) @ u, (centres - mean) @ v
+    out = []
+    for (su, sv, n_u, n_v) in ((u, v, COLUMNS, ROWS), (v, -u, COLUMNS, ROWS)):  # the chart lying or standing
+        a_, b_ = (s, t) if su is u else (t, -s)
+        span_a, span_b = np.ptp(a_), np.ptp(b_)
+        na = int(np.clip(round(span_a / pitch) + 1, 1, n_u))
+        nb = int(np.clip(round(span_b / pitch) + 1, 1, n_v))
+        pa = span_a / (na - 1) if na > 1 else pitch
+        pb = span_b / (nb - 1) if nb > 1 else pitch
+        for i in range(n_u - na + 1):
+            for j in range(n_v - nb + 1):
+                o = mean + su * (a_.min() - (i + 0.5) * pa) + sv * (b_.min() - (j + 0.5) * pb)
+                big_u, big_v = su * n_u * pa, sv * n_v * pb
+                out.append(np.array([o, o + big_u, o + big_u + big_v, o + big_v]))
+    return out
+
+
+def _patch_centres(corners: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """(24, 2): each patch's centre, pixels: the patch found nearest its cell's centre (within 0.45 of a cell)
+    where there is one, else the cell's centre moved as its found neighbours are (a lens bends the grid, which a
+    homography cannot follow)."""
+    h = _grid_homography(corners)
+    grid = np.array([[k % COLUMNS + 0.5, k // COLUMNS + 0.5] for k in range(COLUMNS * ROWS)], np.float32)
+    predicted = cv2.perspectiveTransform(grid[None], h)[0].astype(np.float64)
+    offsets = np.full((len(grid), 2), np.nan)
+    if len(found):
+        uv = cv2.perspectiveTransform(np.asarray(found, np.float32)[None], np.linalg.inv(h))[0]
+        for k, g in enumerate(grid):
+            d = np.abs(uv - g).max(axis=1)
+            if d.min() < 0.45:
+                offsets[k] = found[int(np.argmin(d))] - predicted[k]
+    known = np.isfinite(offsets[:, 0])
+    for k in np.nonzero(~known)[0]:
+        near = known & (np.abs(grid - grid[k]).max(axis=1) < 1.5)
+        offsets[k] = offsets[near].mean(axis=0) if near.any() else 0.0
+    return predicted + offsets
 
 
 def _grid_homography(quad: np.ndarray):
@@ -178,11 +241,17 @@ def _fit_grid(quad: np.ndarray, centres: np.ndarray) -> np.ndarray | None:
     return quad
 
 
-def _orient(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
+def _orient(image: np.ndarray, quad: np.ndarray, found: np.ndarray) -> tuple[np.ndarray | None, float]:
     """The quadrilateral turned (0 or 180 degrees; 90 where the chart stands on its side; its corners' order
     reversed if need be) so that the patches' brightness follows the reference's best (log brightness,
-    correlated): the neutral row at the bottom."""
+    correlated): the neutral row at the bottom; and its score, that correlation plus the share of the patches
+    ``found`` (pixels) that sit at their cells' centres (within 0.2 of a cell)."""
     ref = np.log(reference_colours().mean(axis=1))
+    h = _grid_homography(quad)
+    uv = cv2.perspectiveTransform(np.asarray(found, np.float32)[None], np.linalg.inv(h))[0] if len(found) else \
+        np.zeros((0, 2))
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < COLUMNS) & (uv[:, 1] >= 0) & (uv[:, 1] < ROWS)
+    centred = float(np.mean(inside & (np.abs(uv - np.floor(uv) - 0.5).max(axis=1) < 0.2))) if len(found) else 0.0
     best, best_score = None, -np.inf
     img = np.asarray(image, np.float64)
     for turn in range(8):  # four turns, and mirrored (a corner order the other way round)
@@ -194,7 +263,7 @@ def _orient(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
         score = float(np.corrcoef(level, ref)[0, 1]) if np.ptp(level) > 0 else -np.inf
         if score > best_score:
             best, best_score = q, score
-    return best
+    return best, best_score + centred
 
 
 def patch_cells(corners: np.ndarray, inner: float = 1.0) -> np.ndarray:
@@ -211,51 +280,61 @@ def patch_cells(corners: np.ndarray, inner: float = 1.0) -> np.ndarray:
     return np.array(out, np.float64)
 
 
-def _rectified(image: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, int] | None:
-    """The chart rectified (nearest pixel, so values are the frame's own) at about one pixel per frame pixel, and
-    its cell size in pixels; None where the cells are under 8 pixels."""
+def patch_areas(corners: np.ndarray, centres: np.ndarray | None = None, inner: float = INNER) -> np.ndarray:
+    """(24, 4, 2): the area read of each patch, pixels: ``inner`` of its cell (per side) from the chart's
+    ``corners``, moved onto the patch's own centre where ``centres`` (24, 2) are given."""
+    cells = patch_cells(corners, inner)
+    if centres is None:
+        return cells
+    return cells + (np.asarray(centres, np.float64) - cells.mean(axis=1))[:, None, :]
+
+
+def _cell_size(corners: np.ndarray) -> int:
     c = np.asarray(corners, np.float64)
     width = max(np.linalg.norm(c[1] - c[0]), np.linalg.norm(c[2] - c[3]))
     height = max(np.linalg.norm(c[3] - c[0]), np.linalg.norm(c[2] - c[1]))
-    cell = int(round(min(width / COLUMNS, height / ROWS)))
+    return int(round(min(width / COLUMNS, height / ROWS)))
+
+
+def _areas(image: np.ndarray, corners: np.ndarray, centres=None, inner: float = INNER):
+    """Each patch's area read, rectified (nearest pixel, so values are the frame's own) at about one pixel per
+    frame pixel: (side, side, C) arrays, NaN outside the frame; None where the cells are under 8 pixels."""
+    cell = _cell_size(corners)
     if cell < 8:
         return None
-    dst = np.array([[0, 0], [COLUMNS * cell, 0], [COLUMNS * cell, ROWS * cell], [0, ROWS * cell]], np.float32)
-    h = cv2.getPerspectiveTransform(c.astype(np.float32), dst)
+    side = max(int(round(cell * inner)), 2)
     img = np.asarray(image, np.float32)
     if img.ndim == 2:
         img = img[..., None]
-    out = cv2.warpPerspective(img, h, (COLUMNS * cell, ROWS * cell), flags=cv2.INTER_NEAREST,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return (out if out.ndim == 3 else out[..., None]), cell
-
-
-def _patch_areas(rect: np.ndarray, cell: int, inner: float = INNER):
-    """Each patch's inner area of the rectified chart, (H', W', C) arrays."""
-    margin = int(round(cell * (1 - inner) / 2))
-    for k in range(COLUMNS * ROWS):
-        y, x = (k // COLUMNS) * cell, (k % COLUMNS) * cell
-        yield rect[y + margin:y + cell - margin, x + margin:x + cell - margin]
+    dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
+    out = []
+    for quad in patch_areas(corners, centres, inner):
+        h = cv2.getPerspectiveTransform(quad.astype(np.float32), dst)
+        a = cv2.warpPerspective(img, h, (side, side), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                                borderValue=np.nan)
+        out.append(a if a.ndim == 3 else a[..., None])
+    return out
 
 
 def _cell_means(image: np.ndarray, corners: np.ndarray) -> np.ndarray | None:
-    found = _rectified(image, corners)
-    if found is None:
+    areas = _areas(image, corners)
+    if areas is None:
         return None
-    means = np.array([np.nanmean(a.reshape(-1, a.shape[-1]), axis=0) for a in _patch_areas(*found)])
+    means = np.array([a.reshape(-1, a.shape[-1]).mean(axis=0) for a in areas])  # NaN: off the frame
     return None if not np.isfinite(means).all() else means
 
 
-def read_patches(image: np.ndarray, corners: np.ndarray, floor: float = 0.0, ceiling: float = 255.0) -> PatchReading:
+def read_patches(image: np.ndarray, corners: np.ndarray, floor: float = 0.0, ceiling: float = 255.0,
+                 centres: np.ndarray | None = None) -> PatchReading:
     """Each patch's mean and the noise of that mean over the inner :data:`INNER` of its cell (module docstring)
-    in ``image`` (H, W, 3), from the chart's ``corners``; a patch with any pixel at ``floor`` or ``ceiling`` (the
-    frames' range) is marked clipped. Raises :class:`LowcamError` where the chart is too small or leaves the frame."""
-    found = _rectified(image, corners)
-    if found is None:
+    in ``image`` (H, W, 3), from the chart's ``corners`` (and each patch's ``centres`` where found); a patch with
+    any pixel at ``floor`` or ``ceiling`` (the frames' range) is marked clipped. Raises :class:`LowcamError`
+    where the chart is too small or leaves the frame."""
+    areas = _areas(image, corners, centres)
+    if areas is None:
         raise LowcamError("the ColorChecker's patches are under 8 pixels across (move closer)")
-    rect, cell = found
     means, noise, pixels, clipped = [], [], [], []
-    for area in _patch_areas(rect, cell):
+    for area in areas:
         if not np.isfinite(area).all():
             raise LowcamError("the ColorChecker runs off the frame (frame the whole chart)")
         h, w, c = area.shape
@@ -267,7 +346,8 @@ def read_patches(image: np.ndarray, corners: np.ndarray, floor: float = 0.0, cei
         pixels.append(h * w)
         clipped.append(bool(((area <= floor) | (area >= ceiling)).any()))
     return PatchReading(np.array(means, np.float64), np.array(noise, np.float64), np.array(pixels),
-                        np.array(clipped), np.asarray(corners, np.float64))
+                        np.array(clipped), np.asarray(corners, np.float64),
+                        centres=None if centres is None else np.asarray(centres, np.float64))
 
 
 def read_colour_checker(frames, names, floor: float = 0.0, ceiling: float = 255.0,
@@ -275,24 +355,25 @@ def read_colour_checker(frames, names, floor: float = 0.0, ceiling: float = 255.
     """The ColorChecker's patches in frames of one static view: the chart found in each frame (a frame where it
     is not found is one line naming that frame), the patches read on the mean frame (its noise is the mean's)."""
     frames = [np.asarray(f) for f in frames]
-    corners = []
+    located = []
     for f, n in zip(frames, names):
-        c = find_chart(f)
-        if c is None:
+        found = locate_patches(f)
+        if found is None:
             raise LowcamError(f"{n}: no ColorChecker found in the frame ({what}: the whole chart, its 24 patches "
                               f"and the dark gaps between them, must be in view)")
-        corners.append(c)
-    spread = max(float(np.abs(c - corners[0]).max()) for c in corners)
-    if spread > 3.0:
-        moved = names[int(np.argmax([np.abs(c - corners[0]).max() for c in corners]))]
-        raise LowcamError(f"{moved}: the ColorChecker moved by {spread:.1f} px against {names[0]} (a {what} "
-                          f"capture is one static view; give moving views as separate captures)")
+        located.append(found)
+    moved = [float(np.abs(c - located[0][0]).max()) for c, _ in located]
+    if max(moved) > 3.0:
+        raise LowcamError(f"{names[int(np.argmax(moved))]}: the ColorChecker moved by {max(moved):.1f} px against "
+                          f"{names[0]} (a {what} capture is one static view; give moving views as separate captures)")
+    corners = np.mean([c for c, _ in located], axis=0)
+    centres = np.mean([p for _, p in located], axis=0)
     mean = np.mean([f.astype(np.float64) for f in frames], axis=0)
     try:
-        reading = read_patches(mean, np.mean(corners, axis=0), floor, ceiling)
+        reading = read_patches(mean, corners, floor, ceiling, centres)
     except LowcamError as e:
         raise LowcamError(f"{names[0]}: {e}") from None
     # a patch clipped in any frame is clipped
     for f in frames:
-        reading.clipped |= read_patches(f.astype(np.float64), reading.corners, floor, ceiling).clipped
+        reading.clipped |= read_patches(f.astype(np.float64), corners, floor, ceiling, centres).clipped
     return reading

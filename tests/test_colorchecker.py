@@ -276,3 +276,44 @@ def test_real_colorchecker_raw():
           f"neutral channel spread {np.round(100 * (spread - 1), 1)} %")
     assert (spread < 1.15).all()
     assert cal.numbers["fit_error"] < 100 and cal.numbers["rms_residual_dn"] < 25
+
+
+def colorchecker_set(folder, hidden, rng, captures: int = 2, frames: int = 4):
+    """A measurement set of ``target = "colorchecker"`` captures filmed by the profile ``hidden``: the chart in
+    perspective at random places, exposures and backgrounds, rendered at twice the output size."""
+    from lowcam.outputs import write_png
+    from lowcam.pipeline import simulate
+
+    entries = []
+    (folder / "frames").mkdir(parents=True, exist_ok=True)
+    for c in range(captures):
+        corners = np.array([[400, 330], [880, 330], [880, 650], [400, 650]], float) + rng.uniform(-40, 40, (4, 2))
+        ideal = np.ones((960, 1280, 4), np.float32)
+        ideal[..., :3] = render_chart(reference_colours() * rng.uniform(0.5, 0.8), size=(1280, 960), corners=corners,
+                                      background=rng.uniform(0.1, 0.3))
+        for i in range(frames):
+            write_png(folder / "frames" / f"cc{c}-{i:03d}.png", simulate(ideal, hidden, None, seed=7 + c, frame=i))
+        entries.append(f'[[capture]]\nname = "cc{c}"\ntarget = "colorchecker"\nframes = ["frames/cc{c}-*.png"]\n')
+    (folder / "set.toml").write_text("\n".join(entries))
+    return folder
+
+
+@pytest.mark.slow  # diagnosis of two candidates on two captures: about a minute
+def test_diagnose_finds_a_missing_colour_matrix_on_the_chart(tmp_path):
+    """Two ColorChecker captures through the Fire-i with a hidden crosstalk from colour-science's camera data:
+    diagnosis ranks ``colour_matrix`` first and its fitted crosstalk is the hidden one within 2 %."""
+    from lowcam.measure.diagnose import diagnose
+    from lowcam.measure.sets import load_set
+    from lowcam.profile import load_profile
+
+    rng = np.random.default_rng(1)
+    base = load_profile("fire-i")
+    k, about = camera_matrix(rng)
+    folder = colorchecker_set(tmp_path / "set", base.with_effect("crosstalk", matrix=k.tolist(), extra_mixing=0.0),
+                              rng)
+    d = diagnose(load_set(folder, base), base, only=["colour_matrix", "tone_curve"], workdir=tmp_path / "work")
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    print(f"{about}: error {d.error:.2f}, {ranking}")
+    assert d.error > 3 and d.candidates[0].effect == "colour_matrix", ranking
+    fitted = d.candidates[0].profile.effect("crosstalk").total_matrix()
+    assert relative_error(fitted, k) < 0.02, (fitted, k)

@@ -49,15 +49,17 @@ Contents
 - :func:`render_board_view`: a pinhole render (premultiplied RGBA, opaque on the paper) of a chessboard at a pose
 - :func:`board_pose`: a ``target`` capture's board description and pose (through the profile's lens)
 - :func:`fit_target`: a ``target`` capture's pose and nuisances, with one render-then-simulate pass
+- :data:`COMPARED`: the share of a ColorChecker patch's cell compared
 - :func:`colour_checker_view`: (ideal render, plate, mask) for a ``target = "colorchecker"`` capture
 - :func:`ideal_from_target`: (ideal render, plate, mask) for a ``target`` capture, the board's pose and nuisances fitted
 
 A ``colorchecker`` capture (:func:`colour_checker_view`) is rendered from the chart found in its frames
 (:mod:`lowcam.colour_checker`): each patch's cell filled with its reference colour (linear Rec.709, D65) times one
-exposure per capture, placed through the profile's lens, the frames' own mean around it; only the inner half of
-each patch is compared (the mask), so the patches are the measurements. The exposure is fitted on the neutral
-patches in the profile's flat-equivalent domain (as the board's white), so the profile's tone curve and gains
-stay the camera's and a missing colour matrix or tone curve shows on the patches.
+exposure per capture, placed through the profile's lens; around it a grey at the frames' own flat-equivalent
+level, so the model's noise covers the whole frame as the camera's does (the row-noise family is whole-frame).
+Only the inner 40 % of each patch is compared (the mask), so the patches are the measurements. The exposure is
+fitted on the neutral patches in the profile's flat-equivalent domain (as the board's white; then corrected by
+one render-then-simulate pass), so the profile's tone curve and gains stay the camera's and a missing colour matrix or tone curve shows on the patches.
 """
 from __future__ import annotations
 
@@ -68,8 +70,8 @@ import cv2
 import numpy as np
 
 from ..captures import detect_target, parse_target
-from ..colour_checker import (COLUMNS, INNER, NEUTRALS, ROWS, patch_cells, read_colour_checker, read_patches,
-                              reference_colours)
+from ..colour_checker import (COLUMNS, NEUTRALS, ROWS, patch_areas, patch_cells, read_colour_checker,
+                              read_patches, reference_colours)
 from ..errors import LowcamError
 from ..pipeline import prefix_key, prepare, render_field_of_view, resume
 
@@ -83,6 +85,9 @@ OUTLIER_LEVEL = 0.08
 OUTLIER_SIGMAS = 5.0
 _RESPONSES: OrderedDict = OrderedDict()
 _CHECKERS: OrderedDict = OrderedDict()  # id(frames) -> (frames, the ColorChecker read from them)
+#: The share of a ColorChecker patch's cell (per side) compared: less than the calibration reads
+#: (:data:`~lowcam.colour_checker.INNER`), since the lens bends the patches and the chain blurs their edges.
+COMPARED = 0.4
 
 
 #: The illumination polynomial's terms after the constant, as exponents (i, j) of ``s^i t^j``: the bilinear ones
@@ -552,7 +557,7 @@ def _colour_checker_reading(capture):
         except LowcamError as e:  # the mean of a moving chart: name the frames
             raise LowcamError(f"{capture.where}: the mean of the frames: {str(e).partition(': ')[2]}") from None
         for f in frames:
-            reading.clipped |= read_patches(f.astype(np.float64), reading.corners).clipped
+            reading.clipped |= read_patches(f.astype(np.float64), reading.corners, centres=reading.centres).clipped
     _CHECKERS[id(frames)] = (frames, reading)
     while len(_CHECKERS) > 16:
         _CHECKERS.popitem(last=False)
@@ -563,12 +568,13 @@ def colour_checker_view(profile, capture, width: int | None = None) -> tuple[np.
     """(ideal render, plate, mask) for a ``target = "colorchecker"`` capture (module docstring): the chart found
     in the frames (a frame without it is refused, naming it), its cells filled with the reference colours times
     the exposure fitted on the neutral patches, placed in a render ``width`` wide (default twice the output's)
-    through the profile's lens; the mask keeps the inner :data:`~lowcam.colour_checker.INNER` of each patch whose
+    through the profile's lens, opaque grey around it at the frames' level; the mask keeps the inner
+    :data:`COMPARED` of each patch whose
     reference colour is inside the working space's gamut (the cyan's red is below 0 in Rec.709)."""
     reading = _colour_checker_reading(capture)
     ref = reference_colours()
     h, w = profile.camera.height, profile.camera.width
-    centres = patch_cells(reading.corners, 0.0)[:, 0]  # (24, 2) output pixels
+    centres = reading.centres if reading.centres is not None else patch_cells(reading.corners, 0.0)[:, 0]
     # exposure: the neutral patches' flat-equivalent render values against their reference (least squares)
     table = flat_response(profile)
     xy = np.clip(np.round(centres).astype(int), 0, [w - 1, h - 1])
@@ -597,13 +603,27 @@ def colour_checker_view(profile, capture, width: int | None = None) -> tuple[np.
     to_grid = np.diag([1.0 / cell, 1.0 / cell, 1.0])
     shift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])  # pixel centres
     m = hom @ to_grid @ shift
-    out = np.zeros((height, width, 4), np.float32)
-    out[..., :3] = cv2.warpPerspective(chart, m, (width, height), flags=cv2.INTER_NEAREST, borderValue=0)
-    out[..., 3] = cv2.warpPerspective(np.ones(chart.shape[:2], np.float32), m, (width, height),
-                                      flags=cv2.INTER_LINEAR, borderValue=0)
-    out[..., :3] *= out[..., 3:4]
+    # around the chart, the scene is grey at the frames' own flat-equivalent level (never compared: the mask),
+    # so the simulated frames carry the camera's noise there as the measured ones do (the row noise is whole-frame)
+    around, _ = _invert_response(table.reshape(len(table), -1), capture.mean.mean(axis=2).ravel().astype(np.float32))
+    around = cv2.resize(around.reshape(h, w).astype(np.float32), (width, height), interpolation=cv2.INTER_LINEAR)
+    cover = cv2.warpPerspective(np.ones(chart.shape[:2], np.float32), m, (width, height), flags=cv2.INTER_LINEAR,
+                                borderValue=0)[..., None]
+    out = np.ones((height, width, 4), np.float32)
+    out[..., :3] = cv2.warpPerspective(chart, m, (width, height), flags=cv2.INTER_NEAREST, borderValue=0) * cover + \
+        np.clip(around, 0.0, None)[..., None] * (1.0 - cover)
+    # one render-then-simulate pass: the neutral patches of the quiet profile's frame of this render, against
+    # the measured ones (both flat-equivalent), correct the exposure for what the chain does between them
+    quiet = profile.quiet()
+    sim = read_patches(resume(prepare(out, quiet), 0, 0, quiet).astype(np.float64), reading.corners,
+                       centres=reading.centres)
+    v_sim, ok_sim = _invert_response(column, sim.mean.mean(axis=1).astype(np.float32))
+    again = use & ok_sim & (v_sim > 0)
+    if again.sum() >= 2:
+        gain = float((value[again] * v_sim[again]).sum() / (v_sim[again] ** 2).sum())
+        out[..., :3] = np.where(cover > 0, out[..., :3] * gain, out[..., :3])
     mask = np.zeros((h, w), np.uint8)
-    for k, poly in enumerate(patch_cells(reading.corners, INNER)):
+    for k, poly in enumerate(patch_areas(reading.corners, reading.centres, COMPARED)):
         if (ref[k] > 0).all() and not reading.clipped[k]:
             cv2.fillConvexPoly(mask, np.round(poly).astype(np.int32), 1)
     u8 = np.clip(np.rint(capture.mean), 0, 255).astype(np.uint8)
