@@ -17,7 +17,7 @@ Targets:
 
 - :data:`DICTIONARY`: the ArUco dictionary of the chart's ChArUco board
 - :func:`charuco_board`: the ChArUco board of the chart (:mod:`lowcam.chart`); sizes in metres
-- :func:`parse_target`: ``"checkerboard:9x6:0.025"`` or ``"charuco"`` to a target description
+- :func:`parse_target`: ``"checkerboard:9x6:0.025"``, ``"charuco"`` or ``"colorchecker"`` to a target description
 - :func:`detect_target`: the target's object points (metres) and image points (pixels) in one frame, or None
 - :func:`read_chart_layout`: the chart layout JSON's board and patches, every value checked
 - :func:`chart_patch_colours`: the chart's patch colours, ideal and measured, from frames of it
@@ -113,8 +113,9 @@ def charuco_board(squares=(7, 5), square_mm: float = 30.0, marker_mm: float = 22
 
 
 def parse_target(spec: str, where: str = ""):
-    """``"checkerboard:9x6:0.025"`` (inner corners, square in metres) or ``"charuco"`` (the chart's board).
-    ``where`` starts the messages (the file and key that gave ``spec``).
+    """``"checkerboard:9x6:0.025"`` (inner corners, square in metres), ``"charuco"`` (the chart's board) or
+    ``"colorchecker"`` (a ColorChecker Classic, :mod:`lowcam.colour_checker`). ``where`` starts the messages (the
+    file and key that gave ``spec``).
 
     >>> parse_target("checkerboard:9x6:0.025")
     ('checkerboard', (9, 6), 0.025)
@@ -135,13 +136,18 @@ def parse_target(spec: str, where: str = ""):
         return ("checkerboard", (cols, rows), schema.number(square, here, "square", 1e-4, 10.0, "m"))
     if kind == "charuco":
         return ("charuco", None, None)
-    raise LowcamError(f"{here}: unknown (use checkerboard:9x6:0.025 or charuco)")
+    if kind in ("colorchecker", "colourchecker") and not rest:
+        return ("colorchecker", None, None)
+    raise LowcamError(f"{here}: unknown (use checkerboard:9x6:0.025, charuco or colorchecker)")
 
 
 def detect_target(image: np.ndarray, target) -> tuple[np.ndarray, np.ndarray] | None:
     """(object points (N, 3) in metres, image points (N, 2) in pixels) of the target in one frame, or None."""
-    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     kind, size, square = target
+    if kind == "colorchecker":
+        raise LowcamError("colorchecker: a ColorChecker gives colours, not points (use a checkerboard or charuco "
+                          "target for the lens)")
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     if kind == "checkerboard":
         ok, corners = cv2.findChessboardCorners(grey, size, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
         if not ok:

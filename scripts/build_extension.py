@@ -36,7 +36,9 @@ CACHE = ROOT / "build" / "wheel-cache"
 #: What the engine imports at run time (the loop's fits, plots, progress and DNG tags included): their own
 #: requirements are added by :func:`runtime_pins`.
 RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile",
-           "rapidfuzz")
+           "rapidfuzz", "colour-science", "colour-checker-detection")
+#: Requirements another runtime wheel provides (the same ``cv2`` module): never bundled beside it.
+PROVIDED = {"opencv-python": "opencv-contrib-python-headless"}
 #: Every Blender embeds these: never bundled.
 WITH_BLENDER = {"numpy"}
 SHIPPED = ("__init__.py", "blender_compat.py", "blender_manifest.toml", "LICENSE", "README.md", "addon", "nodes",
@@ -86,7 +88,7 @@ def runtime_pins(platform: str, python: tuple[int, int]) -> list[tuple[str, str 
     pins, todo = {}, list(RUNTIME)
     while todo:
         name = canonicalize_name(todo.pop())
-        if name in pins or name in WITH_BLENDER:
+        if name in pins or name in WITH_BLENDER or name in PROVIDED:
             continue
         try:
             pins[name], requires = metadata.version(name), metadata.requires(name) or []

@@ -23,7 +23,11 @@ fi
 [ -x .venv/bin/python ] || "$py" -m venv .venv
 echo "setup: installing Lowcam and its dependencies into .venv (bpy is large: the first time takes a few minutes)"
 log=.venv/pip-install.log
-if ! .venv/bin/python -m pip install --disable-pip-version-check -e ".[test]" >"$log" 2>&1; then
+# colour-checker-detection (ColorChecker targets) asks for opencv-python, whose cv2 would replace the
+# opencv-contrib build's: it is installed without its requirements (the others are Lowcam's own)
+if ! { .venv/bin/python -m pip install --disable-pip-version-check -e ".[test]" &&
+       .venv/bin/python -m pip install --disable-pip-version-check --no-deps "colour-checker-detection==0.2.1"; } \
+     >"$log" 2>&1; then
   grep -E "ERROR|error:" "$log" | tail -20 >&2
   echo "setup: pip install failed; the whole log is in $log" >&2
   exit 1

@@ -32,7 +32,7 @@ LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
                  "lowcam.io", "lowcam.outputs", "lowcam.registration", "lowcam.reports", "lowcam.captures",
                  "lowcam.motion", "lowcam.gyro_logs", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate",
-                 "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces")),
+                 "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces", "lowcam.colour_checker")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb", "lowcam.gyroflow")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",
@@ -63,6 +63,8 @@ LAZY = {
     "lensfunpy": "optional extra 'lensfun': lowcam profile from-lensfun",
     "matplotlib": "heavy (1-2 s to import): report figures, the chart's PDF",
     "scipy": "heavy (scipy.optimize, scipy.stats: 0.5-2 s): fits only",
+    "colour": "heavy (colour-science: about 1 s to import): ColorChecker targets only",
+    "colour_checker_detection": "heavy (imports colour-science): ColorChecker targets only",
 }
 
 

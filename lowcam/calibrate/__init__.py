@@ -48,7 +48,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..arguments import Number, Reads, Text
-from ..captures import chart_patch_colours, expand_paths, read_patches_csv
+from ..captures import chart_patch_colours, expand_paths, load_frames, parse_target, read_patches_csv
+from ..colour_checker import read_colour_checker, reference_colours
 from ..effects import known_effects
 from ..errors import LowcamError
 from ..outputs import make_output_folder
@@ -222,17 +223,29 @@ def _lens_models(model: str) -> tuple[str, ...]:
 
 
 def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
-    notes = None
+    notes, noise, tone, usable = None, None, None, None
     if o["patches"]:
         source = str(o["patches"])
         ideal, measured = read_patches_csv(o["patches"])
+    elif o["frames"] and o["target"]:
+        parse_target(o["target"], "--target")  # a name it does not know is refused there
+        if o["target"] != "colorchecker":
+            raise LowcamError(f"--target {o['target']}: the colour calibration reads a colorchecker target")
+        source = source_name(o["frames"])
+        frames, names = load_frames(o["frames"], 1, "colour calibration")
+        reading = read_colour_checker(frames, names, what="colour calibration")
+        ideal, measured, noise, usable = reference_colours() * 255.0, reading.mean, reading.noise, ~reading.clipped
+        curve = base.effect("tone_curve")
+        if curve is not None and curve.enabled:  # fitted along, its black and white levels kept
+            tone = {k: getattr(curve, k) for k in ("gamma", "toe_break", "black_dn", "white_dn")}
     elif o["frames"] and o["chart"]:
         source = source_name(o["frames"])
         ideal, measured, notes = chart_patch_colours(o["frames"], o["chart"])
     else:
-        raise LowcamError("colour calibration needs --patches CSV, or frames of the chart with --chart chart.json "
-                          "(in a manifest: patches, or frames and chart)")
-    cal = calibrate_colour(ideal, measured, o["saturation"], plot_dir, source)
+        raise LowcamError("colour calibration needs --patches CSV, frames of the chart with --chart chart.json, or "
+                          "frames of a ColorChecker with --target colorchecker (in a manifest: patches, or frames "
+                          "and chart or target)")
+    cal = calibrate_colour(ideal, measured, o["saturation"], plot_dir, source, noise, tone, usable)
     if notes is not None:
         cal.numbers["skipped"] = notes
     return cal
@@ -273,6 +286,8 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
     Calibrator("colour", calibrate_colour, "crosstalk from the chart's colour patches (or a table of patch colours)",
                (Option("frames", "frames", positional=True, help="frames showing the whole chart"),
                 Option("chart", "path", help="the chart's layout JSON (written by lowcam chart)"),
+                Option("target", str, help="instead of --chart: colorchecker (a ColorChecker Classic, 24 patches, "
+                                           "found in the frames)"),
                 Option("patches", "path",
                        help="instead: CSV ideal_r,ideal_g,ideal_b,measured_r,measured_g,measured_b"),
                 Option("saturation", _SETTING, 65.0, help="the camera's saturation setting")),
@@ -328,6 +343,7 @@ def run_manifest(path, plot_dir: Path | None = None):
         [blur]                 frames = ["edges/*.png"]
         [sharpening]           soft = ["soft/*.png"], sharp = ["sharp/*.png"], sharpness = 80
         [colour]               patches = "patches.csv", saturation = 90   # or frames = [...], chart = "chart.json"
+                                                                  # or frames = [...], target = "colorchecker"
     """
     path = Path(path)
     doc = read_toml(path, "manifest")

@@ -15,7 +15,9 @@ A folder holds ``set.toml``::
 
 Instead of ``ideal``, ``target = "checkerboard:9x6:0.025"`` makes Lowcam find the board in the frames, estimate
 its pose with the profile's lens, and render the board's ideal view itself (its white and black are taken from
-the frames); everything off the board is compared against the frames' own mean.
+the frames); everything off the board is compared against the frames' own mean. ``target = "colorchecker"`` (a
+ColorChecker Classic) compares the inner half of its 24 patches against their reference colours times an
+exposure fitted on the neutral patches (:func:`lowcam.measure.targets.colour_checker_view`).
 
 Contents
 --------
@@ -102,8 +104,8 @@ def load_set(folder, profile=None) -> MeasurementSet:
             raise LowcamError(f"{where}: give exactly one of 'ideal' and 'target'")
         files = {k: schema.existing_file(entry[k], where, k, folder) for k in ("ideal", "plate", "mask") if k in entry}
         target = entry.get("target")
-        if target is not None and parse_target(target, f"{where}: 'target'")[0] != "checkerboard":
-            raise LowcamError(f"{where}: 'target': only checkerboard targets can be rendered so far")
+        if target is not None and parse_target(target, f"{where}: 'target'")[0] not in ("checkerboard", "colorchecker"):
+            raise LowcamError(f"{where}: 'target': only checkerboard targets and colorchecker can be rendered so far")
         w = schema.numbers(entry.get("angular_velocity", [0.0, 0.0, 0.0]), where, "angular_velocity", 3,
                            -MAX_RATE, MAX_RATE, "rad/s")
         exposure_s = entry.get("exposure_s")

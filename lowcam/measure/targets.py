@@ -49,7 +49,17 @@ Contents
 - :func:`render_board_view`: a pinhole render (premultiplied RGBA, opaque on the paper) of a chessboard at a pose
 - :func:`board_pose`: a ``target`` capture's board description and pose (through the profile's lens)
 - :func:`fit_target`: a ``target`` capture's pose and nuisances, with one render-then-simulate pass
+- :data:`COMPARED`: the share of a ColorChecker patch's cell compared
+- :func:`colour_checker_view`: (ideal render, plate, mask) for a ``target = "colorchecker"`` capture
 - :func:`ideal_from_target`: (ideal render, plate, mask) for a ``target`` capture, the board's pose and nuisances fitted
+
+A ``colorchecker`` capture (:func:`colour_checker_view`) is rendered from the chart found in its frames
+(:mod:`lowcam.colour_checker`): each patch's cell filled with its reference colour (linear Rec.709, D65) times one
+exposure per capture, placed through the profile's lens; around it a grey at the frames' own flat-equivalent
+level, so the model's noise covers the whole frame as the camera's does (the row-noise family is whole-frame).
+Only the inner 40 % of each patch is compared (the mask), so the patches are the measurements. The exposure is
+fitted on the neutral patches in the profile's flat-equivalent domain (as the board's white; then corrected by
+one render-then-simulate pass), so the profile's tone curve and gains stay the camera's and a missing colour matrix or tone curve shows on the patches.
 """
 from __future__ import annotations
 
@@ -60,6 +70,8 @@ import cv2
 import numpy as np
 
 from ..captures import detect_target, parse_target
+from ..colour_checker import (COLUMNS, NEUTRALS, ROWS, patch_areas, patch_cells, read_colour_checker,
+                              read_patches, reference_colours)
 from ..errors import LowcamError
 from ..pipeline import prefix_key, prepare, render_field_of_view, resume
 
@@ -72,6 +84,10 @@ OUTLIER_LEVEL = 0.08
 #: ... and by this many robust sigmas of the fit's departures (:func:`_board_outliers`).
 OUTLIER_SIGMAS = 5.0
 _RESPONSES: OrderedDict = OrderedDict()
+_CHECKERS: OrderedDict = OrderedDict()  # id(frames) -> (frames, the ColorChecker read from them)
+#: The share of a ColorChecker patch's cell (per side) compared: less than the calibration reads
+#: (:data:`~lowcam.colour_checker.INNER`), since the lens bends the patches and the chain blurs their edges.
+COMPARED = 0.4
 
 
 #: The illumination polynomial's terms after the constant, as exponents (i, j) of ``s^i t^j``: the bilinear ones
@@ -525,12 +541,104 @@ def fit_target(profile, capture):
     return spec, rvec, tvec, fitted
 
 
+def _colour_checker_reading(capture):
+    """The ColorChecker read from a capture's mean frame (found there once per capture and kept), a patch clipped
+    in any frame marked so; a mean without the chart is refused naming the capture's frames."""
+    frames = capture.frames
+    for key in list(_CHECKERS):
+        if _CHECKERS[key][0] is frames:
+            return _CHECKERS[key][1]
+    names = capture.frame_names or [capture.where]
+    if len(frames) == 1:
+        reading = read_colour_checker(frames, names[:1], what=f"target colorchecker of {capture.where}")
+    else:
+        try:
+            reading = read_colour_checker([capture.mean], [names[0]], what=f"target colorchecker of {capture.where}")
+        except LowcamError as e:  # the mean of a moving chart: name the frames
+            raise LowcamError(f"{capture.where}: the mean of the frames: {str(e).partition(': ')[2]}") from None
+        for f in frames:
+            reading.clipped |= read_patches(f.astype(np.float64), reading.corners, centres=reading.centres).clipped
+    _CHECKERS[id(frames)] = (frames, reading)
+    while len(_CHECKERS) > 16:
+        _CHECKERS.popitem(last=False)
+    return reading
+
+
+def colour_checker_view(profile, capture, width: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ideal render, plate, mask) for a ``target = "colorchecker"`` capture (module docstring): the chart found
+    in the frames (a frame without it is refused, naming it), its cells filled with the reference colours times
+    the exposure fitted on the neutral patches, placed in a render ``width`` wide (default twice the output's)
+    through the profile's lens, opaque grey around it at the frames' level; the mask keeps the inner
+    :data:`COMPARED` of each patch whose
+    reference colour is inside the working space's gamut (the cyan's red is below 0 in Rec.709)."""
+    reading = _colour_checker_reading(capture)
+    ref = reference_colours()
+    h, w = profile.camera.height, profile.camera.width
+    centres = reading.centres if reading.centres is not None else patch_cells(reading.corners, 0.0)[:, 0]
+    # exposure: the neutral patches' flat-equivalent render values against their reference (least squares)
+    table = flat_response(profile)
+    xy = np.clip(np.round(centres).astype(int), 0, [w - 1, h - 1])
+    column = table[:, xy[:, 1], xy[:, 0]]  # (K, 24)
+    value, ok = _invert_response(column, reading.mean.mean(axis=1).astype(np.float32))
+    neutral = np.zeros(len(ref), bool)
+    neutral[list(NEUTRALS)] = True
+    use = neutral & ok & ~reading.clipped
+    if use.sum() < 2:
+        raise LowcamError(f"{capture.where}: fewer than 2 of the ColorChecker's neutral patches are unclipped "
+                          f"(lower the exposure)")
+    level = ref.mean(axis=1)
+    exposure = float((value[use] * level[use]).sum() / (level[use] ** 2).sum())
+    # the render: cells in the pinhole view, the grid placed by a homography fitted to the undistorted centres
+    width = width or 2 * w
+    height = width * h // w
+    half_x, _ = render_field_of_view(profile)
+    f = width / (2 * half_x)
+    x, y = profile.lens.undistort(centres[:, 0], centres[:, 1])
+    render_xy = np.column_stack([np.asarray(x) * f + width / 2 - 0.5, np.asarray(y) * f + height / 2 - 0.5])
+    grid = np.array([[k % COLUMNS + 0.5, k // COLUMNS + 0.5] for k in range(len(ref))], np.float32)
+    hom, _ = cv2.findHomography(grid, render_xy.astype(np.float32))
+    cell = 32
+    colours = np.clip(ref * exposure, 0.0, None).astype(np.float32)
+    chart = np.repeat(np.repeat(colours.reshape(ROWS, COLUMNS, 3), cell, axis=0), cell, axis=1)
+    to_grid = np.diag([1.0 / cell, 1.0 / cell, 1.0])
+    shift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])  # pixel centres
+    m = hom @ to_grid @ shift
+    # around the chart, the scene is grey at the frames' own flat-equivalent level (never compared: the mask),
+    # so the simulated frames carry the camera's noise there as the measured ones do (the row noise is whole-frame)
+    around, _ = _invert_response(table.reshape(len(table), -1), capture.mean.mean(axis=2).ravel().astype(np.float32))
+    around = cv2.resize(around.reshape(h, w).astype(np.float32), (width, height), interpolation=cv2.INTER_LINEAR)
+    cover = cv2.warpPerspective(np.ones(chart.shape[:2], np.float32), m, (width, height), flags=cv2.INTER_LINEAR,
+                                borderValue=0)[..., None]
+    out = np.ones((height, width, 4), np.float32)
+    out[..., :3] = cv2.warpPerspective(chart, m, (width, height), flags=cv2.INTER_NEAREST, borderValue=0) * cover + \
+        np.clip(around, 0.0, None)[..., None] * (1.0 - cover)
+    # one render-then-simulate pass: the neutral patches of the quiet profile's frame of this render, against
+    # the measured ones (both flat-equivalent), correct the exposure for what the chain does between them
+    quiet = profile.quiet()
+    sim = read_patches(resume(prepare(out, quiet), 0, 0, quiet).astype(np.float64), reading.corners,
+                       centres=reading.centres)
+    v_sim, ok_sim = _invert_response(column, sim.mean.mean(axis=1).astype(np.float32))
+    again = use & ok_sim & (v_sim > 0)
+    if again.sum() >= 2:
+        gain = float((value[again] * v_sim[again]).sum() / (v_sim[again] ** 2).sum())
+        out[..., :3] = np.where(cover > 0, out[..., :3] * gain, out[..., :3])
+    mask = np.zeros((h, w), np.uint8)
+    for k, poly in enumerate(patch_areas(reading.corners, reading.centres, COMPARED)):
+        if (ref[k] > 0).all() and not reading.clipped[k]:
+            cv2.fillConvexPoly(mask, np.round(poly).astype(np.int32), 1)
+    u8 = np.clip(np.rint(capture.mean), 0, 255).astype(np.uint8)
+    return out, u8, mask > 0
+
+
 def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(ideal render, plate, mask of compared pixels or None) for a ``target`` capture: the board's pose from the
     frames through the profile's lens (:func:`board_pose`), its nuisances fitted (:func:`fit_board_nuisances`;
     ``nuisances=False``: a one-square white border and the 95th/5th percentiles of the green mean inside the
     corners' hull as white and black, the former behaviour, kept for comparison, and no mask), the frames' own mean
-    as the plate around the paper, and the mask: False on the board fit's outliers (None when there are none)."""
+    as the plate around the paper, and the mask: False on the board fit's outliers (None when there are none).
+    A ``colorchecker`` capture is :func:`colour_checker_view`'s."""
+    if parse_target(capture.target)[0] == "colorchecker":
+        return colour_checker_view(profile, capture)
     spec, rvec, tvec, u8 = board_pose(profile, capture)
     if nuisances:
         _, rvec, tvec, fitted = fit_target(profile, capture)
