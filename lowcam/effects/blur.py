@@ -36,6 +36,7 @@ import numpy as np
 
 from ..geometry import grid_points, sample_texture
 from ..node_images import gaussian_blur_kernel
+from ..parallel import row_strips, thread_map
 from ..window import grow_window
 from .base import Effect, NodeStage, Param, Search
 
@@ -108,7 +109,35 @@ def gaussian_reach(sigma_grid: np.ndarray) -> int:
 
 
 def _blend_levels(image: np.ndarray, levels) -> np.ndarray:
-    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`)."""
+    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`).
+
+    ``cv2.GaussianBlur`` runs on one core, so the rows are cut into one strip per thread, each blurred with a
+    halo of rows beyond the widest kernel's radius and cropped: every output pixel reads the same neighbours in
+    the same order as in one call over the image, so the result is the same, bit for bit."""
+    rows = image.shape[0]
+    widest = max(s for s, _ in levels)
+    halo = _kernel_radius(widest) + 1 if widest > 0 else 0
+    strips = row_strips(rows, min_rows=max(64, 4 * halo))
+    if len(strips) < 2:
+        return _blend_strip(image, levels)
+    out = np.empty_like(image)
+
+    def strip(part: slice) -> None:
+        top, bottom = max(0, part.start - halo), min(rows, part.stop + halo)
+        blended = _blend_strip(image[top:bottom], [(s, None if m is None else m[top:bottom]) for s, m in levels])
+        out[part] = blended[part.start - top:part.stop - top]
+
+    thread_map(strip, strips)
+    return out
+
+
+def _kernel_radius(sigma: float) -> int:
+    """The radius (px) of ``cv2.GaussianBlur``'s float32 kernel for ``sigma``: size round(8 sigma + 1) | 1."""
+    return (int(np.floor(8 * sigma + 1 + 0.5)) | 1) // 2
+
+
+def _blend_strip(image: np.ndarray, levels) -> np.ndarray:
+    """:func:`_blend_levels` of one piece of the image, in the calling thread."""
     out = out_weight = None
     for s, wmap in levels:
         level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image
