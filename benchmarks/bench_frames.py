@@ -9,7 +9,7 @@ Cases (RGBA float32 renders, w = (0.05, 0.8, 0.1) rad/s so motion blur does real
 Each side (``new``: this checkout; ``old``: ``--base``, default the merge base with ``main``, unpacked with
 ``git archive``) runs in its own long-lived process; the frames alternate between them (old, new, then new,
 old, ...), so a shared, noisy machine slows both alike. Prints per case the median ms/frame of each side and
-their ratio, the per-stage medians (``_start``, every effect's ``apply``, ``_finish``), and whether the two
+their ratio, the median CPU time of a frame (all its threads), the per-stage medians (``_start``, every effect's ``apply``, ``_finish``), and whether the two
 sides' frames are the same bytes.
 
     .venv/bin/python benchmarks/bench_frames.py [--frames 9] [--cases sparse full hd] [--base REF]
@@ -60,35 +60,38 @@ def child(case: str, folder: str) -> None:
     name, width, height = CASES[case]
     profiles = Path(lowcam.__file__).resolve().parent.parent / "profiles"
     profile = load_profile(hd_profile(Path(tempfile.mkdtemp(dir=folder)), profiles) if name == "hd" else name)
-    cache = Path(folder) / f"{case}.npz"  # render and plate made once, by whichever side comes first
-    if cache.exists():
-        data = np.load(cache)
-        render, plate = data["render"], data["plate"]
-    else:
+    cache = Path(folder) / f"{case}.npz"  # render and plate made once, before either side starts
+    if not cache.exists():
         render = sample_render(profile, width, height)
         if case != "sparse":
             render = render + np.float32(BACKGROUND) * (1 - render[..., 3:])
-        plate = sample_plate(profile)
-        np.savez(cache.with_suffix(".tmp.npz"), render=render, plate=plate)
-        os.replace(cache.with_suffix(".tmp.npz"), cache)
+        np.savez(cache, render=render, plate=sample_plate(profile))
+        return
+    data = np.load(cache)
+    render, plate = data["render"], data["plate"]
     print(json.dumps({"lowcam": lowcam.__file__, "threads": cv2.getNumThreads()}), flush=True)
     for line in sys.stdin:
         frame = int(line)
+        c0 = time.process_time()
         t0 = time.perf_counter()
         state, plate_u8 = _start(render, profile, plate, OMEGA, None, 0, frame, None)
         stages = {"_start": time.perf_counter() - t0}
+        cpu = {"_start": time.process_time() - c0}
         for effect in state.profile.effects:  # as lowcam.pipeline._walk
             if not effect.enabled and not effect.always_runs:
                 continue
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             effect.apply(state)
             state.applied.append(effect)
             stages[effect.name] = time.perf_counter() - t
-        t = time.perf_counter()
+            cpu[effect.name] = time.process_time() - c
+        t, c = time.perf_counter(), time.process_time()
         out, _ = _finish(state, plate_u8)
         stages["_finish"] = time.perf_counter() - t
+        cpu["_finish"] = time.process_time() - c
         total = time.perf_counter() - t0
-        print(json.dumps({"total_ms": 1e3 * total, "stages": {k: 1e3 * v for k, v in stages.items()},
+        print(json.dumps({"total_ms": 1e3 * total, "cpu_ms": 1e3 * (time.process_time() - c0), "stages": {k: 1e3 * v for k, v in stages.items()},
+                          "stage_cpu": {k: 1e3 * v for k, v in cpu.items()},
                           "sha256": hashlib.sha256(np.ascontiguousarray(out).tobytes()).hexdigest()}), flush=True)
 
 
@@ -137,6 +140,8 @@ def main() -> None:
           f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}", flush=True)
     results = {}
     for case in args.cases:
+        subprocess.run([sys.executable, __file__, "--child", case, str(folder)], check=True,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)), cwd=str(folder))  # the render and plate
         procs = {side: start(code, case, folder) for side, code in sides.items()}
         runs = {side: [] for side in procs}
         for frame in range(args.frames + 1):
@@ -153,15 +158,18 @@ def main() -> None:
         name, width, height = CASES[case]
         print(f"\n{case}: {width}x{height} render -> {'1920x1080' if name == 'hd' else '640x480'}, "
               f"{args.frames} frames per side; same bytes: {'yes' if same else 'NO'}")
-        print(f"  {'stage':22s}{'old ms':>10s}{'new ms':>10s}{'new/old':>9s}")
+        print(f"  {'stage':22s}{'old ms':>10s}{'new ms':>10s}{'new/old':>9s}{'old CPU':>10s}{'new CPU':>10s}")
         for stage in runs["new"][0]["stages"]:
-            o = statistics.median(r["stages"].get(stage, 0.0) for r in runs["old"])
-            n = statistics.median(r["stages"][stage] for r in runs["new"])
+            o, n, oc, nc = (statistics.median(r[key].get(stage, 0.0) for r in runs[side])
+                            for key in ("stages", "stage_cpu") for side in ("old", "new"))
             if max(o, n) >= 0.5:
-                print(f"  {stage:22s}{o:10.1f}{n:10.1f}{n / o if o else float('nan'):9.2f}")
-        print(f"  {'frame (median)':22s}{med['old']:10.1f}{med['new']:10.1f}{med['new'] / med['old']:9.2f}",
+                print(f"  {stage:22s}{o:10.1f}{n:10.1f}{n / o if o else float('nan'):9.2f}{oc:10.1f}{nc:10.1f}")
+        cpu = {side: statistics.median(r["cpu_ms"] for r in runs[side]) for side in runs}
+        print(f"  {'frame (median)':22s}{med['old']:10.1f}{med['new']:10.1f}{med['new'] / med['old']:9.2f}")
+        print(f"  {'CPU time, all threads':22s}{cpu['old']:10.1f}{cpu['new']:10.1f}{cpu['new'] / cpu['old']:9.2f}",
               flush=True)
         results[case] = {"old_ms": med["old"], "new_ms": med["new"], "ratio": med["new"] / med["old"],
+                         "old_cpu_ms": cpu["old"], "new_cpu_ms": cpu["new"],
                          "same_bytes": same, "runs": runs}
     out = ROOT / "benchmarks" / "results"
     out.mkdir(exist_ok=True)

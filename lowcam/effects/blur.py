@@ -36,8 +36,7 @@ import numpy as np
 
 from ..geometry import grid_points, sample_texture
 from ..node_images import gaussian_blur_kernel
-from ..parallel import row_strips, thread_map
-from ..window import grow_window
+from ..window import filter_in_strips, grow_window
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -109,26 +108,16 @@ def gaussian_reach(sigma_grid: np.ndarray) -> int:
 
 
 def _blend_levels(image: np.ndarray, levels) -> np.ndarray:
-    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`).
-
-    ``cv2.GaussianBlur`` runs on one core, so the rows are cut into one strip per thread, each blurred with a
-    halo of rows beyond the widest kernel's radius and cropped: every output pixel reads the same neighbours in
-    the same order as in one call over the image, so the result is the same, bit for bit."""
-    rows = image.shape[0]
+    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`), one strip of rows
+    per thread (:func:`~lowcam.window.filter_in_strips`: ``cv2.GaussianBlur`` runs on one core), same result."""
     widest = max(s for s, _ in levels)
     halo = _kernel_radius(widest) + 1 if widest > 0 else 0
-    strips = row_strips(rows, min_rows=max(64, 4 * halo))
-    if len(strips) < 2:
-        return _blend_strip(image, levels)
-    out = np.empty_like(image)
 
-    def strip(part: slice) -> None:
-        top, bottom = max(0, part.start - halo), min(rows, part.stop + halo)
-        blended = _blend_strip(image[top:bottom], [(s, None if m is None else m[top:bottom]) for s, m in levels])
-        out[part] = blended[part.start - top:part.stop - top]
+    def blend(piece, *piece_maps):  # the weight maps cut alongside, in the order of the levels that have one
+        cut = iter(piece_maps)
+        return _blend_strip(piece, [(s, None if m is None else next(cut)) for s, m in levels])
 
-    thread_map(strip, strips)
-    return out
+    return filter_in_strips(blend, image, halo, *(m for _, m in levels if m is not None))
 
 
 def _kernel_radius(sigma: float) -> int:
