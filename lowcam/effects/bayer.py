@@ -340,8 +340,9 @@ class Demosaic(Effect):
 
     def apply(self, state):
         fn = DEMOSAICERS[self.method]
-        state.rgb = fn(state.bayer, state.geometry)
-        state.rgb_alpha = fn(state.bayer_alpha, state.geometry)
+        # colour and alpha side by side (numpy and OpenCV release the GIL)
+        state.rgb, state.rgb_alpha = thread_map(lambda planes: fn(planes, state.geometry),
+                                                (state.bayer, state.bayer_alpha))
 
 
 # --- demosaic identification (sec. 4.4.1, Fig. 4): noise covariances in 4x4 blocks --------------------------------
