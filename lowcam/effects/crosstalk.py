@@ -30,7 +30,6 @@ import cv2
 import numpy as np
 
 from ..errors import NotFitted
-from ..window import filter_in_strips
 from .base import Effect, NodeStage, Param, Search
 from .saturation import SATURATION_LUMA, colour_matrix_problems, saturation_matrix
 
@@ -125,9 +124,7 @@ class Crosstalk(Effect):
         t = np.eye(4, dtype=np.float64)
         t[:3, :3] = self.total_matrix()
         window = state.window("working")  # a matrix keeps zeros zero
-        m = t.astype(np.float32)
-        # per pixel, so one strip of rows per thread gives the same bytes (cv2.transform runs on one core)
-        state.working = filter_in_strips(lambda piece: cv2.transform(piece, m), state.working, 0)
+        state.working = cv2.transform(state.working, t.astype(np.float32))
         state.keep_window("working", window, self)
 
 
