@@ -11,14 +11,14 @@ Contents
 - :func:`nonzero_window`: the smallest (rows, cols) window holding every non-zero element of an image
 - :func:`grow_window`: a window grown by a margin, within an image
 - :class:`WindowedRemap`: ``cv2.remap`` with fixed maps that computes only what can be non-zero
-- :func:`filter_in_strips`: a neighbourhood filter of an image run on one strip of rows per thread, same result
+- :func:`filter_in_strips`: a neighbourhood filter of an image run in strips of rows on every thread, same result
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from .parallel import row_strips, thread_map
+from .parallel import row_strips, thread_map, threads
 
 
 def nonzero_window(image: np.ndarray, block: int = 32) -> tuple[slice, slice] | None:
@@ -86,12 +86,15 @@ def grow_window(window: tuple[slice, slice], margin: int, shape) -> tuple[slice,
             slice(max(0, cols.start - margin), min(shape[1], cols.stop + margin)))
 
 
-def filter_in_strips(filter_rows, image: np.ndarray, halo: int, *also: np.ndarray) -> np.ndarray:
-    """``filter_rows(image, *also)`` (an array of the image's shape and type) computed on one strip of rows per thread (OpenCV's linear filters run on one
-    core), each strip read with ``halo`` rows beyond it on either side and cropped. For a filter whose output row
-    reads input rows at most ``halo`` away (and the image's own top and bottom border as usual), every output
-    pixel reads the same values in the same order as in one call, so the result is the same, bit for bit.
-    ``also`` are arrays of the image's rows cut alongside it (e.g. per-pixel weights).
+def filter_in_strips(filter_rows, image: np.ndarray, halo: int, *also: np.ndarray,
+                     strip_bytes: int = 8 << 20) -> np.ndarray:
+    """``filter_rows(image, *also)`` (an array of the image's shape and type) computed in strips of rows shared
+    out among the threads (OpenCV's linear filters run on one core), each strip read with ``halo`` rows beyond it
+    on either side and cropped. For a filter whose output row reads input rows at most ``halo`` away (and the
+    image's own top and bottom border as usual), every output pixel reads the same values in the same order as
+    in one call, so the result is the same, bit for bit. ``also`` are arrays of the image's rows cut alongside it
+    (e.g. per-pixel weights). A strip holds about ``strip_bytes`` of the image (at least one strip per thread, and
+    four halos), so its pieces are reused from the heap rather than fresh pages for every call.
 
     >>> a = np.random.default_rng(0).random((300, 40), dtype=np.float32)
     >>> blur = lambda x: cv2.GaussianBlur(x, (0, 0), 1.5)
@@ -99,16 +102,18 @@ def filter_in_strips(filter_rows, image: np.ndarray, halo: int, *also: np.ndarra
     True
     """
     rows = image.shape[0]
-    strips = row_strips(rows, min_rows=max(64, 4 * halo))
-    if len(strips) < 2:
+    n = threads()
+    if n < 2 or rows < 2 * max(64, 4 * halo):
         return filter_rows(image, *also)
+    step = max(64, 4 * halo, min(-(-rows // n), strip_bytes // max(1, image[0].nbytes)))
     out = np.empty_like(image)
 
-    def strip(part: slice) -> None:
-        top, bottom = max(0, part.start - halo), min(rows, part.stop + halo)
-        out[part] = filter_rows(image[top:bottom], *(a[top:bottom] for a in also))[part.start - top:part.stop - top]
+    def strip(start: int) -> None:
+        stop = min(rows, start + step)
+        top, bottom = max(0, start - halo), min(rows, stop + halo)
+        out[start:stop] = filter_rows(image[top:bottom], *(a[top:bottom] for a in also))[start - top:stop - top]
 
-    thread_map(strip, strips)
+    thread_map(strip, range(0, rows, step))
     return out
 
 

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..node_images import stmap
-from ..window import filter_in_strips, grow_window
+from ..window import grow_window
 from .base import Effect, NodeStage, Param
 
 
@@ -58,7 +58,6 @@ class HalfSampling(Effect):
             return
         k = np.array([e, 1 - 2 * e, e], np.float32)
         rows, cols = grow_window(window, 1, state.working.shape)  # the kernel of zeros is zero
-        # one strip of rows per thread (a 3-tap filter reads one row either side), the same bytes as one call
-        state.working[rows, cols] = filter_in_strips(
-            lambda piece: cv2.sepFilter2D(piece, -1, k, k, borderType=cv2.BORDER_CONSTANT), state.working[rows, cols], 2)
+        state.working[rows, cols] = cv2.sepFilter2D(state.working[rows, cols], -1, k, k,
+                                                    borderType=cv2.BORDER_CONSTANT)
         state.keep_window("working", (rows, cols), self)
