@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .parallel import row_strips, thread_map
+from .parallel import thread_map
 from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
 from .window import nonzero_window
 
@@ -308,9 +308,11 @@ def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tu
         return rgba, None
     # One pass over the window: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
     # limits below) make it at least as strict; only a render it refuses is checked again for the exact error.
+    # Strips of about 3 MB, shared out among the threads, keep each mask in cache until it is counted.
     inside = rgba[window]
+    step = int(np.clip((3 << 20) // max(1, inside.shape[1] * 16), 16, 256))
     passed = thread_map(lambda rows: cv2.countNonZero(cv2.inRange(inside[rows], *_RENDER_BOUNDS)),
-                        row_strips(inside.shape[0]))
+                        [slice(top, top + step) for top in range(0, inside.shape[0], step)])
     if sum(passed) == inside.shape[0] * inside.shape[1]:
         return rgba, window
     if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once

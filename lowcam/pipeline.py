@@ -54,6 +54,7 @@ from .geometry import grid_points, sample_texture
 from .io import check_plate, check_render_window
 from .passes import RenderPasses, check_passes
 from .profile import Profile, load_profile
+from .parallel import row_strips, thread_map
 from .window import nonzero_window
 
 
@@ -239,14 +240,19 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
 def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
     effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order."""
-    if state.delta_yuv is not None:
-        out = cv2.add(state.plate, yuv_to_rgb(state.delta_yuv))
-        footprint = _any_nonzero(state.delta_yuv)
-    else:
-        out = state.plate * (1 - state.rgb_alpha) + state.rgb
-        footprint = _any_nonzero(state.rgb_alpha)
     frame = plate_u8.copy()
-    cv2.copyTo(_to_u8(out), footprint.astype(np.uint8), frame)
+    footprint = np.empty(plate_u8.shape[:2], bool)
+
+    def blend(part: slice) -> None:  # per pixel: one strip of rows per thread gives the same bytes
+        if state.delta_yuv is not None:
+            out = cv2.add(state.plate[part], yuv_to_rgb(state.delta_yuv[part]))
+            footprint[part] = _any_nonzero(state.delta_yuv[part])
+        else:
+            out = state.plate[part] * (1 - state.rgb_alpha[part]) + state.rgb[part]
+            footprint[part] = _any_nonzero(state.rgb_alpha[part])
+        cv2.copyTo(_to_u8(out), footprint[part].astype(np.uint8), frame[part])
+
+    thread_map(blend, row_strips(frame.shape[0], min_rows=256))
     for effect in state.applied:
         frame, footprint = effect.finish(state, frame, footprint)
     return frame, footprint

@@ -11,13 +11,14 @@ Contents
 - :func:`nonzero_window`: the smallest (rows, cols) window holding every non-zero element of an image
 - :func:`grow_window`: a window grown by a margin, within an image
 - :class:`WindowedRemap`: ``cv2.remap`` with fixed maps that computes only what can be non-zero
+- :func:`filter_in_strips`: a neighbourhood filter of an image run in strips of rows on every thread, same result
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from .parallel import row_strips, thread_map
+from .parallel import row_strips, thread_map, threads
 
 
 def nonzero_window(image: np.ndarray, block: int = 32) -> tuple[slice, slice] | None:
@@ -85,6 +86,37 @@ def grow_window(window: tuple[slice, slice], margin: int, shape) -> tuple[slice,
             slice(max(0, cols.start - margin), min(shape[1], cols.stop + margin)))
 
 
+def filter_in_strips(filter_rows, image: np.ndarray, halo: int, *also: np.ndarray,
+                     strip_bytes: int = 8 << 20) -> np.ndarray:
+    """``filter_rows(image, *also)`` (an array of the image's shape and type) computed in strips of rows shared
+    out among the threads (OpenCV's linear filters run on one core), each strip read with ``halo`` rows beyond it
+    on either side and cropped. For a filter whose output row reads input rows at most ``halo`` away (and the
+    image's own top and bottom border as usual), every output pixel reads the same values in the same order as
+    in one call, so the result is the same, bit for bit. ``also`` are arrays of the image's rows cut alongside it
+    (e.g. per-pixel weights). A strip holds about ``strip_bytes`` of the image (at least one strip per thread, and
+    four halos), so its pieces are reused from the heap rather than fresh pages for every call.
+
+    >>> a = np.random.default_rng(0).random((300, 40), dtype=np.float32)
+    >>> blur = lambda x: cv2.GaussianBlur(x, (0, 0), 1.5)
+    >>> np.array_equal(filter_in_strips(blur, a, 8), blur(a))
+    True
+    """
+    rows = image.shape[0]
+    n = threads()
+    if n < 2 or rows < 2 * max(64, 4 * halo):
+        return filter_rows(image, *also)
+    step = max(64, 4 * halo, min(-(-rows // n), strip_bytes // max(1, image[0].nbytes)))
+    out = np.empty_like(image)
+
+    def strip(start: int) -> None:
+        stop = min(rows, start + step)
+        top, bottom = max(0, start - halo), min(rows, stop + halo)
+        out[start:stop] = filter_rows(image[top:bottom], *(a[top:bottom] for a in also))[start - top:stop - top]
+
+    thread_map(strip, range(0, rows, step))
+    return out
+
+
 class WindowedRemap:
     """Bilinear ``cv2.remap`` (constant 0 border) of ``blocks`` stacked outputs through fixed maps, computing only
     the output pixels whose source neighbourhood meets a window (:func:`nonzero_window`) of the source.
@@ -130,10 +162,11 @@ class WindowedRemap:
         rect = None if window is None else self.output_rect(window)
         return None if rect is None else (slice(rect[0], rect[1]), slice(rect[2], rect[3]))
 
-    def halved(self, src: np.ndarray, window: tuple[slice, slice] | None, strip: int = 256) -> np.ndarray:
+    def halved(self, src: np.ndarray, window: tuple[slice, slice] | None, strip: int = 32) -> np.ndarray:
         """The warp of ``src`` (one block of even rows and cols) halved by its 2x2 box means: ``cv2.resize(self(src,
         window), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)``, bit for bit, computed ``strip`` rows at a
-        time so the full-size warp is never held."""
+        time (even), the strips shared out among the threads: the full-size warp is never held, and each strip
+        is halved while it is still in cache."""
         m1, m2 = self.maps
         out = np.zeros((self.rows // 2, self.cols // 2) + src.shape[2:], np.float32)
         rect = None if window is None else self.output_rect(window)
@@ -141,43 +174,52 @@ class WindowedRemap:
             return out
         r0, c0 = 2 * (rect[0] // 2), 2 * (rect[2] // 2)
         r1, c1 = min(self.rows, 2 * -(-rect[1] // 2)), min(self.cols, 2 * -(-rect[3] // 2))
-        buffer = np.empty((strip, c1 - c0) + src.shape[2:], np.float32)
-        for top in range(r0, r1, strip):
+        strip += strip % 2
+
+        def halve(top: int) -> None:
             bottom = min(r1, top + strip)
-            warped = buffer[:bottom - top]
-            cv2.remap(src, m1[top:bottom, c0:c1], m2[top:bottom, c0:c1], cv2.INTER_LINEAR, dst=warped,
-                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            warped = cv2.remap(src, m1[top:bottom, c0:c1], m2[top:bottom, c0:c1], cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             half = out[top // 2:bottom // 2, c0 // 2:c1 // 2]
             cv2.resize(warped, half.shape[1::-1], dst=half, interpolation=cv2.INTER_AREA)
+
+        thread_map(halve, range(r0, r1, strip))
         return out
 
     def mean(self, src: np.ndarray, window: tuple[slice, slice] | None, taps: int) -> np.ndarray:
         """The mean of every run of ``taps`` consecutive blocks of the warp of ``src``, as (blocks / taps, rows,
         cols[, channels]): equal to ``self(src, window).reshape(-1, taps, ...).mean(axis=1)`` (the taps added in
-        order in float32), without holding every tap at once where the graphics cover less than 3/4 of it."""
+        order in float32), computed in strips of rows on every thread (:meth:`mean_jobs`)."""
+        out = np.zeros((self.blocks // taps, self.rows, self.cols) + src.shape[2:], np.float32)
+        thread_map(lambda job: job(), self.mean_jobs(src, window, taps, out))
+        return out
+
+    def mean_jobs(self, src: np.ndarray, window: tuple[slice, slice] | None, taps: int, out: np.ndarray,
+                  strip: int = 32) -> list:
+        """Independent calls that, run in any order on any threads, write :meth:`mean` into ``out`` (zero, of its
+        shape): one per run of taps and strip of ``strip`` output rows, each adding its taps in order in float32
+        (a strip stays in cache over the taps, and is small enough that OpenCV does not split it again)."""
         m1, m2 = self.maps
         rect = None if window is None else self.output_rect(window)
-        if rect is not None and (rect[1] - rect[0]) * (rect[3] - rect[2]) > 0.75 * self.rows * self.cols:
-            # most of the plane: one call for every tap, then the mean
-            warped = self(src, window).reshape((-1, taps, self.rows, self.cols) + src.shape[2:])
-            return warped.mean(axis=1) if taps > 1 else warped[:, 0]
-        out = np.zeros((self.blocks // taps, self.rows, self.cols) + src.shape[2:], np.float32)
         if rect is None:
-            return out
+            return []
         r0, r1, c0, c1 = rect
-        tap = np.empty((r1 - r0, c1 - c0) + src.shape[2:], np.float32)
-        for group in range(out.shape[0]):
-            total = out[group, r0:r1, c0:c1]
+
+        def job(group: int, top: int, bottom: int) -> None:
+            total = out[group, top:bottom, c0:c1]
+            tap = np.empty(total.shape, np.float32)
             for k in range(taps):
                 first_row = (group * taps + k) * self.rows
-                part = slice(first_row + r0, first_row + r1), slice(c0, c1)
+                part = slice(first_row + top, first_row + bottom), slice(c0, c1)
                 cv2.remap(src, m1[part], m2[part], cv2.INTER_LINEAR, dst=total if k == 0 else tap,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                 if k:
                     cv2.add(total, tap, dst=total)  # in place, like np.add but faster on a strided block
             if taps > 1:
                 np.true_divide(total, np.float32(taps), out=total)
-        return out
+
+        return [lambda g=group, a=top: job(g, a, min(r1, a + strip))
+                for group in range(out.shape[0]) for top in range(r0, r1, strip)]
 
     def __call__(self, src: np.ndarray, window: tuple[slice, slice] | None) -> np.ndarray:
         """The warp of ``src`` (rows, cols[, channels]) as (blocks * rows, cols[, channels]); ``window`` holds

@@ -89,3 +89,39 @@ def test_a_forked_child_runs_its_own_threads(opencv_threads):
     if child.exitcode is None:
         child.kill()
     assert child.exitcode == 0 and queue.get(timeout=5) == sum(range(1, 101))
+
+
+#: SHA-256 of frame 1 of the full-frame case below, as the chain gave it before its stages were cut into strips.
+FULL_FRAME_SHA256 = "a40a7b09b9ff5d0b90101b3e748a2786306f52fd6d065c87d2376dc711ba546d"
+
+
+def test_a_full_frame_keeps_its_bytes_on_one_thread_and_on_four(opencv_threads):
+    """Every render pixel opaque (a virtual set): the warps, the blurs and the render check run in strips on
+    every thread, each pixel computed as in one call, so the frame is the bytes it always was."""
+    profile = lowcam.load_profile("fire-i")
+    render = sample_render(profile, 1200)
+    render = render + np.float32([0.3, 0.4, 0.5, 1.0]) * (1 - render[..., 3:])
+    plate = sample_plate(profile)
+    for n in (1, 4):
+        opencv_threads(n)
+        assert frame_digest(profile, render, plate, 1) == FULL_FRAME_SHA256, n
+
+
+@pytest.mark.parametrize("shape", [(600, 500, 4), (257, 130, 2), (90, 70)])
+def test_filters_in_strips_are_the_filters_of_the_whole_image(opencv_threads, shape):
+    """A wide Gaussian (reflected border), a 3-tap filter with a zero border, and a blend with weight maps."""
+    from lowcam.window import filter_in_strips
+
+    rng = np.random.default_rng(3)
+    image = rng.uniform(-1, 2, shape).astype(np.float32)
+    weights = rng.uniform(0, 1, shape[:2]).astype(np.float32)
+    k = np.float32([0.05, 0.9, 0.05])
+    filters = [(lambda a: cv2.GaussianBlur(a, (0, 0), 4.0), 18),
+               (lambda a: cv2.sepFilter2D(a, -1, k, k, borderType=cv2.BORDER_CONSTANT), 2),
+               (lambda a, w: cv2.blendLinear(a, cv2.GaussianBlur(a, (0, 0), 1.0), w, 1 - w), 6)]
+    opencv_threads(4)
+    for fn, halo in filters:
+        also = (weights,) if fn.__code__.co_argcount == 2 else ()
+        assert np.array_equal(filter_in_strips(fn, image, halo, *also), fn(image, *also))
+    # too short a halo shows: the test sees the strips' seams
+    assert not np.array_equal(filter_in_strips(filters[0][0], image, 2), filters[0][0](image)) or shape[0] < 256

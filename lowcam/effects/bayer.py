@@ -161,11 +161,13 @@ class BayerSampling(Effect):
                 cv2.merge([grey, state.working[..., 3]], pair)
         state.bayer = np.empty((4, hb, wb), np.float32)
         state.bayer_alpha = np.empty((4, hb, wb), np.float32)
-        # the colours side by side (each one's taps added in order, as alone); green, with two planes, first
-        order = sorted(range(3), key=lambda c: -warps[c].blocks)
-        for c, sampled in zip(order, thread_map(lambda c: warps[c].mean(pairs[c], window, n), order)):
-            state.bayer[_COLOUR_PLANES[c]] = sampled[..., 0]
-            state.bayer_alpha[_COLOUR_PLANES[c]] = sampled[..., 1]
+        # every colour's strips of rows side by side (each one's taps added in order, as alone)
+        sampled = [np.zeros((warps[c].blocks // n, hb, wb, 2), np.float32) for c in range(3)]
+        thread_map(lambda job: job(), [job for c in range(3) for job in warps[c].mean_jobs(pairs[c], window, n,
+                                                                                           sampled[c])])
+        for c in range(3):
+            state.bayer[_COLOUR_PLANES[c]] = sampled[c][..., 0]
+            state.bayer_alpha[_COLOUR_PLANES[c]] = sampled[c][..., 1]
         state.bayer *= np.float32(255.0 / self.render_white)
 
 
@@ -347,8 +349,9 @@ class Demosaic(Effect):
 
     def apply(self, state):
         fn = DEMOSAICERS[self.method]
-        state.rgb = fn(state.bayer, state.geometry)
-        state.rgb_alpha = fn(state.bayer_alpha, state.geometry)
+        # colour and alpha side by side (numpy and OpenCV release the GIL)
+        state.rgb, state.rgb_alpha = thread_map(lambda planes: fn(planes, state.geometry),
+                                                (state.bayer, state.bayer_alpha))
 
 
 # --- demosaic identification (sec. 4.4.1, Fig. 4): noise covariances in 4x4 blocks --------------------------------

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..geometry import grid_points, sample_texture
 from ..node_images import gaussian_blur_kernel
-from ..window import grow_window
+from ..window import filter_in_strips, grow_window
 from .base import Effect, NodeStage, Param, Search
 
 
@@ -108,7 +108,25 @@ def gaussian_reach(sigma_grid: np.ndarray) -> int:
 
 
 def _blend_levels(image: np.ndarray, levels) -> np.ndarray:
-    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`)."""
+    """Blend the uniform blurs of ``image`` with their weight maps (:func:`blur_level_maps`), one strip of rows
+    per thread (:func:`~lowcam.window.filter_in_strips`: ``cv2.GaussianBlur`` runs on one core), same result."""
+    widest = max(s for s, _ in levels)
+    halo = _kernel_radius(widest) + 1 if widest > 0 else 0
+
+    def blend(piece, *piece_maps):  # the weight maps cut alongside, in the order of the levels that have one
+        cut = iter(piece_maps)
+        return _blend_strip(piece, [(s, None if m is None else next(cut)) for s, m in levels])
+
+    return filter_in_strips(blend, image, halo, *(m for _, m in levels if m is not None))
+
+
+def _kernel_radius(sigma: float) -> int:
+    """The radius (px) of ``cv2.GaussianBlur``'s float32 kernel for ``sigma``: size round(8 sigma + 1) | 1."""
+    return (int(np.floor(8 * sigma + 1 + 0.5)) | 1) // 2
+
+
+def _blend_strip(image: np.ndarray, levels) -> np.ndarray:
+    """:func:`_blend_levels` of one piece of the image, in the calling thread."""
     out = out_weight = None
     for s, wmap in levels:
         level = cv2.GaussianBlur(image, (0, 0), s) if s > 0 else image

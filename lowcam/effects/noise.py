@@ -58,6 +58,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import LowcamError, NotFitted
+from ..parallel import thread_map
 from ..plate_estimate import PlateEstimate, PlateProbe, pair_starts, register_footage
 from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
 from .base import Effect, NodeStage, Param
@@ -149,8 +150,11 @@ class Noise(Effect):
         z = rng.standard_normal(state.bayer.shape, dtype=np.float32)
         alpha = state.bayer_alpha
         mean = state.bayer / np.maximum(alpha, 1e-6)
-        for k, channel in enumerate(("red", "green", "green", "blue")):
+
+        def add(k: int, channel: str) -> None:  # one sensel plane; the planes side by side
             state.bayer[k] += z[k] * np.clip(alpha[k], 0.0, 1.0) * self.sigma(channel, mean[k]).astype(np.float32)
+
+        thread_map(lambda kc: add(*kc), enumerate(("red", "green", "green", "blue")))
 
 
 #: A noise law is fitted only to a stack showing this many distinct brightness levels (:func:`brightness_levels`):
