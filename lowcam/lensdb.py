@@ -275,13 +275,18 @@ def gyroflow_entries(folder: Path) -> tuple[tuple[GyroflowEntry, ...], int]:
 
 def gyroflow_folder(given: str | None) -> Path | None:
     """The folder of Gyroflow lens profiles to search: ``given`` (``--gyroflow``), else the one
-    :data:`GYROFLOW_ENV` names, else None. One that is no folder is a one-line :class:`LowcamError` naming where
-    it came from."""
+    :data:`GYROFLOW_ENV` names, else None. One that is no folder, or holds no lens profile Lowcam reads, is a
+    one-line :class:`LowcamError` naming where it came from."""
     where, text = ("--gyroflow", given) if given else (GYROFLOW_ENV, os.environ.get(GYROFLOW_ENV, ""))
     if not text:
         return None
     if not Path(text).is_dir():
         raise LowcamError(f"{where} {text}: not a folder (give a copy of https://github.com/gyroflow/lens_profiles)")
+    entries, skipped = gyroflow_entries(Path(text))
+    if not entries:
+        raise LowcamError(f"{where} {text}: no Gyroflow lens profile Lowcam reads in it ({skipped} .json file"
+                          f"{'s' * (skipped != 1)} of other kinds); give a copy of "
+                          "https://github.com/gyroflow/lens_profiles")
     return Path(text)
 
 

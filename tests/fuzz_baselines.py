@@ -179,6 +179,12 @@ def _gyroflow(path: Path) -> None:
                            "distortion_coeffs": [0.048, 0.014, 0.015, -0.017]}}))
 
 
+def _gyroflow_profiles(path: Path) -> None:
+    """A folder of Gyroflow lens profiles (one, :func:`_gyroflow`'s), as a copy of Gyroflow's database."""
+    path.mkdir(parents=True)
+    _gyroflow(path / "GoPro_HERO_fisheye.json")
+
+
 def _dng(path: Path) -> None:
     """A 32x24 raw DNG (PiDNG): RGGB, levels 64..1023, a D65 colour matrix, an as-shot neutral, a noise profile."""
     from pidng.core import RAW2DNG
@@ -320,6 +326,7 @@ INPUTS = {
     "footage": _footage,
     "cam.dng": _dng,
     "gyroflow.json": _gyroflow,
+    "gyroflow-profiles": _gyroflow_profiles,
     "patches.csv": _patches,
     "lens": _lens,
     "flat": _flat,
@@ -435,7 +442,8 @@ BASELINES: dict[tuple[str, ...], Baseline] = {
          "output": ["{out}/lens.toml"]}, (), 0.5,
         companions={"camera_maker": {"camera_model": ["PowerShot G12"]},
                     "camera_model": {"camera_maker": ["Canon"]}}),
-    ("profile", "search"): Baseline({"text": ["G12"]}, (), 0.2),
+    ("profile", "search"): Baseline({"text": ["G12"]}, ("gyroflow-profiles",), 0.2,
+                                    companions={"gyroflow": {"gyroflow": ["{in}/gyroflow-profiles"]}}),
     ("profile", "from-gyroflow"): Baseline(
         {"lens_profile": ["{in}/gyroflow.json"], "base": [P], "output": ["{out}/gyroflow.toml"]}, ("gyroflow.json",),
         0.2),

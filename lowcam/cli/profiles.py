@@ -121,7 +121,7 @@ def cmd_profile_search(args) -> int:
     with the nearest names."""
     text = " ".join(args.text)
     if not text.strip() and not args.maker:
-        raise LowcamError("give words of the name to look for, or --maker")
+        raise LowcamError("text: give words of the name to look for, or --maker")
     folder = gyroflow_folder(args.gyroflow)
     lensfun = True
     try:
