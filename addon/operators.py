@@ -136,8 +136,6 @@ class LOWCAM_OT_viewport_look(bpy.types.Operator):
         if not any(n.bl_idname == "LowcamCameraNode" for n in tree.nodes):
             if bpy.ops.lowcam.add_camera_node() != {"FINISHED"}:
                 return {"CANCELLED"}
-        if hasattr(scene, "use_nodes"):          # Blender 4.x: the compositor must be switched on
-            scene.use_nodes = True
         unsupported = viewport.unsupported_in_viewport(tree)
         if unsupported:
             self.report({"ERROR"}, "the viewport compositor cannot run these nodes of the scene's compositor: "
