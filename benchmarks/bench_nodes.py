@@ -9,7 +9,10 @@ times a pass-through compositor (the render straight to the output), so the grou
 Prints the first composite (which includes loading the group's maps and, on the GPU device, compiling its shaders)
 and the median of the following ones, in ms.
 
-    .venv/bin/python benchmarks/bench_nodes.py [--repeats 5] [--device CPU GPU] [--profile fire-i]
+    .venv/bin/python benchmarks/bench_nodes.py [--repeats 5] [--device CPU GPU] [--profile fire-i] [--stages]
+
+``--stages`` instead times the chain cut after each stage (``build_camera_group(until=...)``) at the profile's
+size, so each stage's share is the step from the one before.
 
 Runs in whatever Blender imports as ``bpy`` (the bpy module 5.0 in the project's venv; a real binary with
 ``blender -b --python benchmarks/bench_nodes.py -- ARGS``). ``--device GPU`` uses Blender's GPU compositor, which
@@ -28,6 +31,7 @@ def _args(argv):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--device", nargs="+", default=["CPU"], choices=["CPU", "GPU"])
     parser.add_argument("--profile", default="fire-i")
+    parser.add_argument("--stages", action="store_true", help="time the chain cut after each stage")
     return parser.parse_args(argv)
 
 
@@ -90,6 +94,20 @@ def main(argv=None) -> None:
     plate = parity.plate_image(sample_plate(profile))
     sizes = [(profile.camera.height, profile.camera.width),
              (round(1920 * profile.camera.height / profile.camera.width), 1920)]
+    if args.stages:
+        h, w = sizes[0]
+        render = build.image_from_array(f"bench render {w}x{h}", sample_render(profile, w, h))
+        render.alpha_mode = "PREMUL"
+        camera = bake(profile, (h, w))
+        print(f"Blender {bpy.app.version_string}, {args.device[0]} {w}x{h}, the chain cut after each stage, "
+              f"median of {args.repeats} (ms):")
+        last = _composite_times(_scene(None, render, plate, (h, w), args.device[0]), args.repeats)[1]
+        for stage in build.group_stages(camera):
+            group = build.build_camera_group(camera, name=f"bench until {stage}", until=stage)
+            ms = _composite_times(_scene(group, render, plate, (h, w), args.device[0]), args.repeats)[1]
+            print(f"{stage:20s} {ms:8.0f} (+{ms - last:.0f})")
+            last = ms
+        return
     print(f"Blender {bpy.app.version_string}, profile {args.profile}, first composite and median of "
           f"{args.repeats} (ms):")
     for device in args.device:
