@@ -6,6 +6,7 @@ Contents
 - :func:`render_and_degrade`: render a frame to a temporary multilayer EXR and write its degraded composite
 - :class:`LOWCAM_OT_apply`: render the current frame and apply the camera; the result opens as "Lowcam Result"
 - :class:`LOWCAM_OT_add_camera_node`: add a "Lowcam Camera" node to the scene's compositor, with its render camera
+- :class:`LOWCAM_OT_viewport_look`: the camera look in the 3D viewport (the viewport compositor) on or off
 - :data:`classes`: the operator classes, for registration
 """
 from __future__ import annotations
@@ -113,4 +114,42 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (LOWCAM_OT_setup_scene, LOWCAM_OT_apply, LOWCAM_OT_add_camera_node)
+class LOWCAM_OT_viewport_look(bpy.types.Operator):
+    """Show the camera look in the 3D viewport (the viewport compositor runs the scene's compositor), or give the
+    3D views back their own Compositor setting"""
+
+    bl_idname = "lowcam.viewport_look"
+    bl_label = "Viewport Look"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        from ..nodes import viewport
+
+        scene = context.scene
+        spaces = viewport.view3d_spaces(bpy.data.screens)
+        if viewport.is_on(scene):
+            viewport.switch_off(scene, spaces)
+            self.report({"INFO"}, "viewport look off: the 3D views have their own Compositor setting back")
+            return {"FINISHED"}
+        if not compat.at_least(5, 0):
+            self.report({"ERROR"}, viewport.BEFORE_5_0)
+            return {"CANCELLED"}
+        tree = compat.compositor_tree(scene)
+        if not any(n.bl_idname == "LowcamCameraNode" for n in tree.nodes):
+            if bpy.ops.lowcam.add_camera_node() != {"FINISHED"}:
+                return {"CANCELLED"}
+        unsupported = viewport.unsupported_in_viewport(tree)
+        if unsupported:
+            self.report({"ERROR"}, "the viewport compositor cannot run these nodes of the scene's compositor: "
+                        + ", ".join(unsupported) + "; render the frame instead (Apply Camera)")
+            return {"CANCELLED"}
+        if not spaces:
+            self.report({"WARNING"}, "no 3D viewport to show the look in")
+            return {"CANCELLED"}
+        viewport.switch_on(scene, spaces)
+        self.report({"INFO"}, f"viewport look on in {len(spaces)} 3D view(s); best seen through the camera "
+                    "(Numpad 0)")
+        return {"FINISHED"}
+
+
+classes = (LOWCAM_OT_setup_scene, LOWCAM_OT_apply, LOWCAM_OT_add_camera_node, LOWCAM_OT_viewport_look)

@@ -51,6 +51,8 @@ def draw_settings(layout, scene):
     row = layout.row(align=True)
     row.operator("lowcam.setup_scene")
     row.operator("lowcam.apply")
+    on = "lowcam_viewport" in scene                 # nodes.viewport.SAVED: the look is on
+    layout.operator("lowcam.viewport_look", text="Viewport Look", icon="NODE_COMPOSITING", depress=on)
 
 
 class _OutputProperties:
