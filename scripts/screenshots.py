@@ -32,7 +32,9 @@ MODULE = "bl_ext.user_default.lowcam"
 GEOMETRY = {"panel": (720, 1500), "compositor": (1600, 1000), "menu": (1600, 1000), "viewport": (1200, 900)}
 #: the pictures each shot makes -> the docs/ file name
 DOCS = {"panel": "lowcam-panel.png", "compositor": "lowcam-compositor.png", "group": "lowcam-group.png",
-        "menu": "lowcam-add-menu.png", "viewport": "lowcam-viewport.png"}
+        "menu": "lowcam-add-menu.png"}
+#: the viewport compositor's picture (``--viewport-only``: it needs a Blender 5.0+ binary that draws a 3D view)
+VIEWPORT_DOCS = {"viewport": "lowcam-viewport.png"}
 TIMES: dict[str, float] = {}
 #: The Match loop's pictures -> the docs/ file name; its X screen (the Properties editor with the Match panel alone).
 MATCH_DOCS = {"match-before": "lowcam-match-before.png", "match-diagnosed": "lowcam-match-diagnosed.png",
@@ -269,7 +271,7 @@ def main(argv=None) -> int:
             image = cv2.imread(str(path))
             pictures[name] = (image, image)
         for name, (on, off) in pictures.items():
-            path = out / {**DOCS, **MATCH_DOCS}[name]
+            path = out / {**DOCS, **VIEWPORT_DOCS, **MATCH_DOCS}[name]
             ok, data = cv2.imencode(".png", crop_for_docs(name, on, off), [cv2.IMWRITE_PNG_COMPRESSION, 9])
             tmp = path.with_suffix(".png.part")
             tmp.write_bytes(data.tobytes())
