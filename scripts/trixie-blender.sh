@@ -23,7 +23,7 @@ BPY_SPEC='bpy==5.2.*'
 # itself is put on PYTHONPATH rather than pip-installed here).
 # OpenCV as the extension bundles it (pyproject.toml: <4.12); numpy is whatever bpy 5.2 takes (2.x).
 RUNTIME_DEPS=("opencv-contrib-python-headless>=4.8,<4.12" "OpenEXR>=3.3" scipy scikit-image matplotlib tomli-w tqdm
-  pytest)
+  tifffile rapidfuzz "colour-science>=0.4.4,<0.5" pytest)
 
 skip() { echo "trixie-blender: skipped: $*" >&2; exit 77; }
 
