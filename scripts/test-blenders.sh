@@ -32,13 +32,17 @@ venv_for() {
   local part=$1
   if [ "$part" = bpy50 ]; then bash scripts/setup.sh >&2 || return 1; echo .venv; return 0; fi
   local dir=.venv-$part spec="bpy==${BPY[$part]}" py
-  local want; want="$(sha256sum pyproject.toml | cut -d' ' -f1) $spec"
+  # as scripts/setup.sh: the ColorChecker detector without its opencv-python requirement
+  local detector="colour-checker-detection==0.2.1"
+  local want; want="$(sha256sum pyproject.toml | cut -d' ' -f1) $spec $detector"
   if [ ! -f "$dir/.lowcam-installed" ] || [ "$(cat "$dir/.lowcam-installed")" != "$want" ]; then
     py=$(python311) || return 1
     [ -x "$dir/bin/python" ] || "$py" -m venv "$dir" || return 1
     echo "test-blenders: installing $spec and Lowcam into $dir (bpy is large: minutes the first time)" >&2
-    if ! "$dir/bin/python" -m pip install --disable-pip-version-check -q "$spec" -e . pytest pytest-timeout \
-        pillow packaging >"$dir/pip-install.log" 2>&1; then
+    if ! { "$dir/bin/python" -m pip install --disable-pip-version-check -q "$spec" -e . pytest pytest-timeout \
+             pillow packaging &&
+           "$dir/bin/python" -m pip install --disable-pip-version-check -q --no-deps "$detector"; } \
+        >"$dir/pip-install.log" 2>&1; then
       echo "test-blenders: pip install failed; the log is in $dir/pip-install.log" >&2
       return 1
     fi
