@@ -52,7 +52,6 @@ Contents
 - :func:`read_dng`: the sensor tags of a DNG file (tifffile)
 - :data:`ILLUMINANT_TEMPERATURE_K`: the nominal colour temperature of each CalibrationIlluminant code
 - :func:`xy_to_cct`: the correlated colour temperature (K) of a chromaticity (McCamy 1992)
-- :func:`bradford`: the Bradford chromatic adaptation matrix between two whites (xy)
 - :func:`noise_laws`: the per-channel ``variance_linear`` laws ``[a, b]`` (8-bit DN) from NoiseProfile
 - :func:`as_shot_white`: the as-shot white (xy) from AsShotNeutral or AsShotWhiteXY (DNG spec ch. 6)
 - :func:`colour_matrices`: the sensor's crosstalk K and the processor's colour correction C (see above)
@@ -80,15 +79,13 @@ import tifffile
 
 from .errors import LowcamError
 from .profile import check_provenance
+from .render_spaces import D65_XY, bradford, xy_to_xyz
 
 #: Linear sRGB (D65) to XYZ [sRGB].
 SRGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
                         [0.2126729, 0.7151522, 0.0721750],
                         [0.0193339, 0.1191920, 0.9503041]])
-#: The Bradford cone-response matrix [Bradford].
-BRADFORD = np.array([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]])
 D50_XY = (0.3457, 0.3585)
-D65_XY = (0.3127, 0.3290)
 
 #: Nominal colour temperature (K) of each DNG CalibrationIlluminant code (EXIF LightSource values; the CIE
 #: illuminants' own temperatures, fluorescent classes at their nominal centres).
@@ -294,18 +291,6 @@ def xy_to_cct(xy) -> float:
     return float(449.0 * n ** 3 + 3525.0 * n ** 2 + 6823.3 * n + 5520.33)
 
 
-def _xyz(xy) -> np.ndarray:
-    x, y = xy
-    return np.array([x / y, 1.0, (1.0 - x - y) / y])
-
-
-def bradford(src_xy, dst_xy) -> np.ndarray:
-    """The Bradford (von Kries in Bradford cone space) adaptation matrix from white ``src_xy`` to ``dst_xy``:
-    ``XYZ_dst = M XYZ_src`` [Bradford]."""
-    s, d = BRADFORD @ _xyz(src_xy), BRADFORD @ _xyz(dst_xy)
-    return np.linalg.inv(BRADFORD) @ np.diag(d / s) @ BRADFORD
-
-
 def _weight(sensor: DngSensor, xy) -> float:
     """The weight of the first calibration's matrices at white ``xy``: linear in inverse colour temperature
     between the two calibration illuminants, clipped (DNG spec ch. 6)."""
@@ -364,7 +349,7 @@ def colour_matrices(sensor: DngSensor) -> dict:
     path = sensor.path
     xy, _ = as_shot_white(sensor)
     m = _invertible(_xyz_to_camera(sensor, xy), path, "the colour matrix at the as-shot white")
-    xyz_w = _xyz(xy)
+    xyz_w = xy_to_xyz(xy)
     n = m @ xyz_w
     if np.any(n <= 0):
         raise DngError(f"{path}: the colour matrix gives a non-positive response to white {n.round(4)}")

@@ -16,6 +16,9 @@ Contents
 - :func:`render_space`: the space for a name: a ``--render-space`` value, Blender's name or an OpenEXR colorInteropID
 - :func:`space_from_chromaticities`: the space of an OpenEXR ``chromaticities`` attribute (a known one when it matches)
 - :func:`header_space`: the space an OpenEXR header names (colorInteropID, else chromaticities), or None
+- :data:`D65_XY`, :data:`BRADFORD`: the D65 white, the Bradford cone response matrix
+- :func:`xy_to_xyz`: a chromaticity's XYZ (Y = 1)
+- :func:`bradford`: the Bradford chromatic adaptation matrix between two whites (xy)
 - :func:`rgb_to_xyz`: a space's RGB -> CIE XYZ matrix (its white maps to Y = 1)
 - :func:`to_rec709_matrix`: a space's RGB -> linear Rec.709 matrix (Bradford adaptation between the whites)
 - :func:`to_camera_space`: a premultiplied RGBA render from its space to linear Rec.709 (Rec.709: the same array)
@@ -34,10 +37,11 @@ import numpy as np
 
 from .errors import LowcamError
 
-_D65 = (0.3127, 0.3290)
+#: CIE 1931 xy of the D65 white.
+D65_XY = (0.3127, 0.3290)
 _ACES_WHITE = (0.32168, 0.33767)
-#: Bradford cone response matrix (XYZ -> sharpened cone space).
-_BRADFORD = np.array([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]])
+#: Bradford cone response matrix (XYZ -> sharpened cone space) [Lam1985].
+BRADFORD = np.array([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]])
 
 
 @dataclass(frozen=True)
@@ -48,17 +52,17 @@ class RenderSpace:
     white: tuple[float, float]
 
 
-LINEAR_REC709 = RenderSpace("Linear Rec.709", ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06)), _D65)
+LINEAR_REC709 = RenderSpace("Linear Rec.709", ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06)), D65_XY)
 #: ``--render-space`` value -> (the space, its other names: Blender's and OpenColorIO's interop IDs).
 RENDER_SPACES = {
     "linear-rec709": (LINEAR_REC709, ("Linear Rec.709", "lin_rec709_scene", "lin_rec709", "lin_srgb", "rec709")),
-    "linear-rec2020": (RenderSpace("Linear Rec.2020", ((0.708, 0.292), (0.170, 0.797), (0.131, 0.046)), _D65),
+    "linear-rec2020": (RenderSpace("Linear Rec.2020", ((0.708, 0.292), (0.170, 0.797), (0.131, 0.046)), D65_XY),
                        ("Linear Rec.2020", "lin_rec2020_scene", "lin_rec2020", "rec2020")),
     "acescg": (RenderSpace("ACEScg", ((0.713, 0.293), (0.165, 0.830), (0.128, 0.044)), _ACES_WHITE),
                ("ACEScg", "lin_ap1_scene", "lin_ap1")),
     "aces2065-1": (RenderSpace("ACES2065-1", ((0.7347, 0.2653), (0.0, 1.0), (0.0001, -0.0770)), _ACES_WHITE),
                    ("ACES2065-1", "lin_ap0_scene", "lin_ap0")),
-    "linear-p3-d65": (RenderSpace("Linear DCI-P3 D65", ((0.680, 0.320), (0.265, 0.690), (0.150, 0.060)), _D65),
+    "linear-p3-d65": (RenderSpace("Linear DCI-P3 D65", ((0.680, 0.320), (0.265, 0.690), (0.150, 0.060)), D65_XY),
                       ("Linear DCI-P3 D65", "lin_p3d65_scene", "lin_p3d65")),
 }
 _BY_NAME = {alias.lower(): space for key, (space, aliases) in RENDER_SPACES.items() for alias in (key, *aliases)}
@@ -84,7 +88,7 @@ def space_from_chromaticities(values, path="render") -> RenderSpace:
             return space
     name = "chromaticities " + " ".join(f"{v:.4f}" for v in xy.ravel())
     if not np.isfinite(xy).all() or (xy[:, 1] <= 0).any() or abs(np.linalg.det(
-            np.stack([_xyz(p) for p in xy[:3]], axis=1))) < 1e-9:
+            np.stack([xy_to_xyz(p) for p in xy[:3]], axis=1))) < 1e-9:
         raise LowcamError(f"{path}: its {name} make no RGB colour space; name the render's space with "
                           "--render-space")
     return RenderSpace(name, tuple(map(tuple, xy[:3])), tuple(xy[3]))
@@ -107,25 +111,32 @@ def header_space(header: dict, path="render") -> RenderSpace | None:
     return None
 
 
-def _xyz(xy) -> np.ndarray:
+def xy_to_xyz(xy) -> np.ndarray:
+    """The XYZ (Y = 1) of chromaticity ``xy``."""
     x, y = xy
     return np.array([x / y, 1.0, (1.0 - x - y) / y])
+
+
+def bradford(src_xy, dst_xy) -> np.ndarray:
+    """The Bradford (von Kries in Bradford cone space) adaptation matrix from white ``src_xy`` to ``dst_xy``:
+    ``XYZ_dst = M XYZ_src`` [Lam1985]."""
+    s, d = BRADFORD @ xy_to_xyz(src_xy), BRADFORD @ xy_to_xyz(dst_xy)
+    return np.linalg.inv(BRADFORD) @ np.diag(d / s) @ BRADFORD
 
 
 def rgb_to_xyz(space: RenderSpace) -> np.ndarray:
     """``space``'s RGB -> CIE XYZ matrix (3x3, float64): the primaries scaled so that RGB (1, 1, 1) is the white
     with Y = 1 [SMPTE RP 177]."""
-    primaries = np.stack([_xyz(p) for p in space.primaries], axis=1)
-    return primaries * np.linalg.solve(primaries, _xyz(space.white))
+    primaries = np.stack([xy_to_xyz(p) for p in space.primaries], axis=1)
+    return primaries * np.linalg.solve(primaries, xy_to_xyz(space.white))
 
 
 def to_rec709_matrix(space: RenderSpace) -> np.ndarray:
     """``space``'s RGB -> linear Rec.709 matrix (3x3, float64), with the Bradford adaptation from its white to D65
     when they differ."""
     m = rgb_to_xyz(space)
-    if not np.allclose(space.white, _D65, atol=1e-6):
-        source, target = _BRADFORD @ _xyz(space.white), _BRADFORD @ _xyz(_D65)
-        m = np.linalg.solve(_BRADFORD, np.diag(target / source) @ _BRADFORD) @ m
+    if not np.allclose(space.white, D65_XY, atol=1e-6):
+        m = bradford(space.white, D65_XY) @ m
     return np.linalg.solve(rgb_to_xyz(LINEAR_REC709), m)
 
 
