@@ -29,13 +29,13 @@ def main() -> None:
 
     import lowcam
     import lowcam.measure.diagnose as diagnosis
-    import lowcam.pipeline as pipeline
+    import lowcam.measure.compare as comparison
     from lowcam.measure.diagnose import diagnose
     from lowcam.measure.sets import load_set
     from lowcam.measure.synth import synthesise
 
     counts = defaultdict(int)
-    prepare, resume = pipeline.prepare, pipeline.resume
+    prepare, resume = comparison.prepare, comparison.resume  # the chain as diagnosis calls it
 
     def counted(name, fn):
         def wrapper(*a, **k):
@@ -43,7 +43,7 @@ def main() -> None:
             return fn(*a, **k)
         return wrapper
 
-    pipeline.prepare, pipeline.resume = counted("chain fronts", prepare), counted("chain tails", resume)
+    comparison.prepare, comparison.resume = counted("chain fronts", prepare), counted("chain tails", resume)
     profile = lowcam.load_profile("fire-i")
     with tempfile.TemporaryDirectory() as tmp:
         folder = synthesise(profile, Path(tmp) / "set", add=[("tone_curve", {"gamma": 2.0})], frames=5)
