@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .parallel import thread_map
+from .parallel import thread_map, threads
 from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
 from .window import nonzero_window
 
@@ -179,6 +179,8 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     # OpenEXR raises bare RuntimeErrors for some corrupt files; of others (a truncated one) its C core only
     # complains on file descriptors 1 and 2 and hands back no channels: that complaint is the reason, kept off the
     # terminal
+    if OpenEXR.global_thread_count() != threads():  # decode on the engine's threads (the default is one)
+        OpenEXR.set_global_thread_count(threads())
     with quiet_stderr(stdout=True) as said:
         try:
             with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer

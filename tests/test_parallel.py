@@ -125,3 +125,22 @@ def test_filters_in_strips_are_the_filters_of_the_whole_image(opencv_threads, sh
         assert np.array_equal(filter_in_strips(fn, image, halo, *also), fn(image, *also))
     # too short a halo shows: the test sees the strips' seams
     assert not np.array_equal(filter_in_strips(filters[0][0], image, 2), filters[0][0](image)) or shape[0] < 256
+
+
+def test_exr_renders_decode_on_the_engines_threads_with_the_same_pixels(opencv_threads, tmp_path):
+    """OpenEXR decodes on one thread unless told otherwise; a render is read on the engine's threads (one in a Dask
+    worker, which sets OpenCV to one), and its pixels do not depend on how many."""
+    import OpenEXR
+
+    from lowcam.io import read_render
+
+    render = sample_render("fire-i", 1000)
+    path = tmp_path / "render.exr"
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"RGBA": render}).write(str(path))
+    read = {}
+    for n in (1, 3):
+        opencv_threads(n)
+        read[n] = read_render(path)
+        assert OpenEXR.global_thread_count() == n
+    assert np.array_equal(read[1], read[3]) and np.array_equal(read[1], render)
