@@ -111,6 +111,12 @@ class LowcamSettings(bpy.types.PropertyGroup):
                                            "webcam lens: about 1 mm)")
     use_clip_lens: BoolProperty(name="Clip Lens", default=False,
                                 description="Use the Movie Clip's tracking camera lens model instead of the profile's")
+    render_depth: EnumProperty(name="Render Depth", items=[
+        ("32", "Float (32-bit)", "Renders written as Cycles or EEVEE computes them (OpenEXR, ZIP)"),
+        ("16", "Half Float (16-bit)", "Renders in about a sixth of the disk and read faster; the composites differ "
+                                      "slightly from a 32-bit render's (docs/blender.md). Depth and Vector passes "
+                                      "stay 32-bit")],
+        default="32", description="How the renders the camera degrades are written (OpenEXR, ZIP)")
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
                            options=path_options(),
                            description="Degraded composites; #### is the frame number")

@@ -1,12 +1,13 @@
 """Benchmark: shot throughput in frames/s, serial and on a 2-worker Dask LocalCluster, at the paper's sizes.
 
-Renders are 3000x2250 RGBA float32 OpenEXR files (ZIP-compressed, as Blender writes them), plates 640x480 PNG,
+Renders are 3000x2250 RGBA float32 OpenEXR files (ZIP-compressed, as Blender writes them; half float with
+``--depth 16``), plates 640x480 PNG,
 outputs 640x480 PNG: the whole job per frame, reading and writing included. Prints frames/s, each frame's median
 read / simulate / write split, the floor (reading the same renders and plates alone, one after another), the
 serial run with one frame at a time (no reading ahead or writing behind) as the baseline, the scaling ratio
 (target >= 1.7x on 2 cores) and the peak memory per worker.
 
-    .venv/bin/python benchmarks/bench_batch.py [--frames 16]
+    .venv/bin/python benchmarks/bench_batch.py [--frames 16] [--depth 16]
 """
 from __future__ import annotations
 
@@ -28,6 +29,8 @@ def peak_mb() -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=24)
+    parser.add_argument("--depth", choices=("32", "16"), default="32",
+                        help="the renders' float depth: 32-bit (Blender's default) or half float, both ZIP")
     args = parser.parse_args()
 
     from lowcam.batch import Shot, run_shot
@@ -37,11 +40,11 @@ def main() -> None:
 
     tmp = Path(tempfile.mkdtemp())
     frames = list(range(1, args.frames + 1))
-    print(f"making a {len(frames)}-frame shot of 3000x2250 EXR renders in {tmp} ...", flush=True)
+    print(f"making a {len(frames)}-frame shot of 3000x2250 {args.depth}-bit EXR renders in {tmp} ...", flush=True)
     render = sample_render("fire-i", 3000)
     plate = cv2.cvtColor(sample_plate("fire-i"), cv2.COLOR_RGB2BGR)
     for f in frames:
-        write_exr(tmp / "renders" / f"{f:04d}.exr", np.roll(render, 8 * f, axis=1))
+        write_exr(tmp / "renders" / f"{f:04d}.exr", np.roll(render, 8 * f, axis=1), half=args.depth == "16")
         (tmp / "plates").mkdir(exist_ok=True)
         cv2.imwrite(str(tmp / "plates" / f"{f:04d}.png"), plate)
     motion = {f: FrameMotion((0.05, 0.8 * np.sin(f / 5), 0.1)) for f in frames}

@@ -261,11 +261,12 @@ def write_png(path, image: np.ndarray) -> Path:
     return atomic_write_bytes(path, encode_png(image))
 
 
-def write_exr(path, rgba: np.ndarray) -> Path:
-    """Write a float (H, W, 4) RGBA or (H, W, 3) RGB image as a single-layer OpenEXR file, atomically."""
+def write_exr(path, rgba: np.ndarray, half: bool = False) -> Path:
+    """Write a float (H, W, 4) RGBA or (H, W, 3) RGB image as a single-layer ZIP OpenEXR file, atomically: 32-bit
+    float, or half float with ``half``."""
     import OpenEXR
 
-    pixels = np.ascontiguousarray(rgba, np.float32)
+    pixels = np.ascontiguousarray(rgba, np.float16 if half else np.float32)
     name = {4: "RGBA", 3: "RGB"}.get(pixels.shape[-1] if pixels.ndim == 3 else 0)
     if name is None:
         raise LowcamError(f"{path}: an OpenEXR image must be (H, W, 3) or (H, W, 4), got {pixels.shape}")

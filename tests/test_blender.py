@@ -358,3 +358,34 @@ def test_motion_from_a_file_json_or_gyro_csv(rendered, tmp_path):
     assert frames.motion(scene, 1, 0.033).angular_velocity == (0.0, 0.5, 0.0)
     with pytest.raises(LowcamError, match="no entry for frame 2"):
         frames.motion(scene, 2, 0.033)
+
+
+def test_half_float_renders_round_only_the_colour_and_nearly_keep_the_composite(tmp_path):
+    """Render Depth "Half Float": Blender writes the Combined pass as half float (the 32-bit render's values
+    rounded), keeps the Depth and Vector passes 32-bit, and the composite stands within the bounds the engine's
+    test holds (tests/test_io.py) of the 32-bit render's."""
+    import OpenEXR
+
+    blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=400, samples=4)
+    scene = submodule("addon.render").open_scene(blend)
+    scene.lowcam.use_depth_of_field = True
+    channels, composites = {}, {}
+    for depth in ("32", "16"):
+        scene.lowcam.render_depth = depth
+        scene.lowcam.output = str(tmp_path / depth / "####.png")
+        submodule("addon.frames").setup_scene(scene, 400)
+        out = submodule("addon.render").render_frame(scene, 1, tmp_path / depth / "render.exr")
+        composites[depth] = read_image(out).astype(int)
+        with OpenEXR.File(str(tmp_path / depth / "render.exr"), separate_channels=True) as f:
+            channels[depth] = {name: c.pixels for part in f.parts for name, c in part.channels.items()}
+    colour = [n for n in channels["32"] if n.startswith("ViewLayer.Combined.")]
+    data = [n for n in channels["32"] if n.startswith(("ViewLayer.Depth.", "ViewLayer.Vector."))]
+    assert len(colour) == 4 and len(data) == 5
+    for name in colour:
+        assert channels["16"][name].dtype == np.float16
+        assert np.array_equal(channels["16"][name], channels["32"][name].astype(np.float16))
+    for name in data:
+        assert channels["16"][name].dtype == np.float32
+        assert np.array_equal(channels["16"][name], channels["32"][name])
+    diff = np.abs(composites["16"] - composites["32"])
+    assert 0 < (diff > 0).mean() <= 0.005 and diff.max() <= 4
