@@ -4,7 +4,9 @@ A 1600x1200 render of the sample objects (the size ``lowcam demo`` renders at tw
 objects moving 1500 px/s to the right (50 px over the 33 ms exposure) and standing at 1 m with the focus at 2 m
 and a 2 mm aperture. Prints the median ms per frame of the chain alone, with each effect and with both, and the
 ratios to the chain alone, all measured in this run, the cases taking turns frame by frame (this machine's load
-changes by the second). Beside them, object motion as it was at ``--before`` (a commit; the module read with
+changes by the second). The same with the camera turning at (0.05, 0.8, 0.1) rad/s, the velocity pass holding the
+rotation's image velocity plus the objects' own (float32 sums, so the paths left after taking the rotation out
+differ by rounding). Beside them, object motion as it was at ``--before`` (a commit; the module read with
 ``git show``), and whether both give the same frames.
 
     .venv/bin/python benchmarks/bench_passes.py [--repeats 9] [--before ef6190f]
@@ -50,7 +52,9 @@ def main() -> None:
     args = parser.parse_args()
 
     import lowcam
+    from lowcam.effects.object_motion import rotation_velocity
     from lowcam.passes import RenderPasses
+    from lowcam.pipeline import render_focal_px
     from lowcam.sample import sample_plate, sample_render
 
     profile = lowcam.load_profile("fire-i")
@@ -63,13 +67,19 @@ def main() -> None:
     motion = profile.with_effect("object_motion")
     dof = {"focus_distance_m": 2.0, "aperture_mm": 2.0}
     before = f"+ object_motion at {args.before}"
+    turning = (0.05, 0.8, 0.1)
+    turning_velocity = rotation_velocity(turning, render_focal_px(profile, *render.shape[1::-1]), render.shape[:2])
+    turning_velocity[covered, 0] += 1500.0
+    turning_passes = RenderPasses(turning_velocity, depth)
     cases = {"chain alone": profile, "+ object_motion": motion, before: motion,
              "+ depth_of_field": profile.with_effect("depth_of_field", **dof),
-             "+ both": motion.with_effect("depth_of_field", **dof)}
+             "+ both": motion.with_effect("depth_of_field", **dof),
+             "turning: chain alone": profile, "turning: + object_motion": motion}
 
     def frame_of(name, p, frame):
+        w, frame_passes = (turning, turning_passes) if name.startswith("turning") else ((0, 0, 0), passes)
         if name != before:
-            return lowcam.run(render, p, plate, passes=passes, frame=frame).frame
+            return lowcam.run(render, p, plate, w, passes=frame_passes, frame=frame).frame
         with object_motion_at(args.before):
             return lowcam.run(render, p, plate, passes=passes, frame=frame).frame
 
@@ -81,9 +91,9 @@ def main() -> None:
             frame_of(name, p, frame)
             times[name].append(1e3 * (time.perf_counter() - t))
     print(f"1600x1200 render, {covered.mean():.0%} covered, median of {args.repeats}:")
-    base = statistics.median(times["chain alone"])
     for name, ts in times.items():
         median = statistics.median(ts)
+        base = statistics.median(times["turning: chain alone" if name.startswith("turning") else "chain alone"])
         print(f"  {name:34s} {median:7.1f} ms   {median / base:5.2f}x")
     now, then = frames["+ object_motion"].astype(int), frames[before].astype(int)
     print(f"object motion now / at {args.before}: "

@@ -90,6 +90,24 @@ def test_path_kernel_holds_every_tap_weight():
         assert centre_x == pytest.approx(0, abs=1e-9) and centre_y == pytest.approx(0, abs=1e-9)   # about the pixel
 
 
+def test_kernel_pieces_are_small_rectangles_that_hold_the_kernel_once():
+    """A path's kernel cut for OpenCV's direct filters: every piece under 50 entries, every weight in exactly one
+    piece."""
+    from lowcam.effects.object_motion import _kernel_pieces
+
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        path = rng.uniform(-80, 80, 2) * rng.choice([1.0, 0.1])
+        kernel = path_kernel(path, int(np.ceil(np.hypot(*path))) + 1)[0]
+        pieces = _kernel_pieces(kernel)
+        rebuilt = np.zeros_like(kernel)
+        for top, left, block in pieces:
+            assert block.size <= 49
+            assert not rebuilt[top:top + block.shape[0], left:left + block.shape[1]][block != 0].any()
+            rebuilt[top:top + block.shape[0], left:left + block.shape[1]] += block
+        assert np.array_equal(rebuilt, kernel.astype(np.float32))
+
+
 def test_edge_velocities_are_the_first_most_covered_neighbours():
     """The dilated search finds the same neighbour as trying every offset in turn (the first strictly better)."""
     rng = np.random.default_rng(4)

@@ -191,13 +191,16 @@ def _kernel_pieces(kernel: np.ndarray, most: int = 49):
     ii, jj = np.nonzero(kernel)
     order = np.lexsort((ii, jj) if kernel.shape[1] >= kernel.shape[0] else (jj, ii))
     pieces, members = [], []
-    for k in order:
-        trial = members + [k]
-        rows, cols = np.ptp(ii[trial]) + 1, np.ptp(jj[trial]) + 1
-        if members and rows * cols > most:
+    for k, i, j in zip(order.tolist(), ii[order].tolist(), jj[order].tolist()):
+        if members:     # the piece's bounds with this weight in it
+            top, bottom, left, right = min(top, i), max(bottom, i), min(left, j), max(right, j)
+        if members and (bottom - top + 1) * (right - left + 1) > most:
             pieces.append(members)
-            trial = [k]
-        members = trial
+            members = []
+        if not members:
+            top = bottom = i
+            left = right = j
+        members.append(k)
     pieces.append(members)
     out = []
     for members in pieces:
