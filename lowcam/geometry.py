@@ -70,6 +70,11 @@ class FrameGeometry:
     oversample: float = 1.6
     bayer_pattern: str = "GBRG"
 
+    def __deepcopy__(self, memo):
+        """Itself: a geometry never changes, so the copies of a profile share it and the arrays it keeps
+        (:attr:`sensel_positions`, read-only), as diagnosis copies profiles by the hundred."""
+        return self
+
     @cached_property
     def working_shape(self) -> tuple[int, int]:
         """(rows, columns) of the working grid; even, so the 2x2 half-sampling is exact."""
@@ -135,6 +140,7 @@ class FrameGeometry:
             jj, ii = np.meshgrid(2 * j + dx, 2 * i + dy)
             out[k, ..., 0] = jj
             out[k, ..., 1] = ii
+        out.flags.writeable = False     # shared by every copy of the profile
         return out
 
 

@@ -10,9 +10,11 @@ Contents
 - :func:`threads`: how many threads the engine uses (``cv2.getNumThreads()``, at most 8)
 - :func:`thread_map`: ``fn`` over items on those threads, results in order
 - :func:`row_strips`: an image's rows cut into one strip per thread
+- :func:`one_malloc_arena`: every thread's C allocations from one glibc arena (a leaner peak for threaded fits)
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -64,3 +66,18 @@ def row_strips(rows: int, min_rows: int = 64) -> list[slice]:
     parts = max(1, min(threads(), rows // min_rows))
     bounds = np.linspace(0, rows, parts + 1).astype(int)
     return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+#: glibc's ``mallopt`` parameter for the number of arenas (``malloc.h``).
+_M_ARENA_MAX = -8
+
+
+def one_malloc_arena() -> bool:
+    """Serve every thread's C allocations from one glibc malloc arena (``mallopt(M_ARENA_MAX, 1)``); True where
+    that was done (glibc), False elsewhere. By default each new thread may get its own arena (up to 8 per core),
+    and the frame-sized buffers that threaded fits free stay mapped in each: diagnosis of the standard set peaks
+    at about 1.05 GB that way and 0.9 GB with one arena, in the same time (``benchmarks/bench_diagnose.py``)."""
+    try:
+        return bool(ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1))
+    except (OSError, AttributeError):
+        return False

@@ -28,6 +28,7 @@ from ..measure.plate_compare import compare_plate, write_plate_report
 from ..measure.sets import load_set
 from ..measure.synth import parse_change, synthesise
 from ..outputs import atomic_write_bytes, check_output, check_output_folder, make_output_folder
+from ..parallel import one_malloc_arena
 from ..profile import load_profile
 from .common import PROFILE, check_report_outputs, end_progress_lines, progress_line
 
@@ -99,6 +100,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
+    one_malloc_arena()      # the candidates' threads share one arena: a lower peak, the same time
     check_report_outputs(args)
     if (args.add_best or args.until_explained) and not args.output:
         raise LowcamError(f"{'--add-best' if args.add_best else '--until-explained'} needs -o NEW.toml")

@@ -57,7 +57,7 @@ SIM_SEED = 1000
 INTENSITY_BINS = np.linspace(0, 256, 17)
 #: Deterministic fronts of the chain a shared ``cache`` keeps (:func:`simulate_capture`), least recently used out
 #: first.
-CACHED_FRONTS = 64
+CACHED_FRONTS = 32
 #: Captures simulated at a time by a comparison made from the main thread (NumPy and OpenCV release the GIL); a
 #: comparison made inside diagnosis's candidate threads runs its captures in turn.
 WORKERS = 2
@@ -122,14 +122,16 @@ def capture_inputs(profile, capture) -> CaptureInputs:
     return CaptureInputs(ideal, plate, mask)
 
 
-#: Each capture's float plate, held once for all its kept fronts (by the capture's id; weakly, so it goes with them).
+#: Each capture's plates (float and 8-bit), held once for all its kept fronts (by the capture's id and the kind;
+#: weakly, so they go with the fronts).
 _SHARED_PLATES: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 
 
-def _share_plate(state, shared: np.ndarray) -> None:
-    """Point ``state`` at the capture's float plate held once for all its kept fronts (the chain only reads it)."""
-    if state.plate is not shared and state.plate.shape == shared.shape and np.array_equal(state.plate, shared):
-        state.plate = shared
+def _shared_plate(key, plate: np.ndarray) -> np.ndarray:
+    """The plate held under ``key`` when it equals ``plate`` (the chain only reads plates), else ``plate``."""
+    kept = _SHARED_PLATES.setdefault(key, plate)
+    same = kept is plate or kept.shape == plate.shape and kept.dtype == plate.dtype and np.array_equal(kept, plate)
+    return kept if same else plate
 
 
 def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
@@ -142,7 +144,9 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     if token is None:
         token = prepare(ideal, profile, plate, capture.angular_velocity, capture.exposure_s, until)
     if cache is not None:  # least recently used out first: the diagnosed profile's fronts stay
-        _share_plate(token[0], _SHARED_PLATES.setdefault(id(capture), token[0].plate))
+        state, start, plate_u8 = token
+        state.plate = _shared_plate((id(capture), "float"), state.plate)
+        token = state, start, _shared_plate((id(capture), "8-bit"), plate_u8)
         cache[key] = token
         while len(cache) > CACHED_FRONTS:
             try:
@@ -173,6 +177,20 @@ def _row_log_ratios(F, G) -> list[float]:
     return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
 
 
+def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The float32 mean of ``frames`` (N, ...) and the sum of their squared deviations from it, one frame at a
+    time: the sums of ``mean(0)`` and ``((frames - mean) ** 2).sum(0)``, in the same order (so the same bits),
+    without a float32 copy of them all."""
+    total = frames[0].astype(np.float32)
+    for frame in frames[1:]:
+        total += frame
+    mean = total / np.float32(len(frames))
+    squares = np.square(frames[0] - mean)
+    for frame in frames[1:]:
+        squares += np.square(frame - mean)
+    return mean, squares
+
+
 def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None,
                   mask: np.ndarray | None = None) -> CaptureStats:
     """The error sums of one capture's measured frames F against simulated frames G (see the module docstring),
@@ -181,12 +199,12 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     With one measured frame its noise cannot be measured: the per-pixel variance ``assumed_noise`` (the diagnosed
     profile's, fixed while candidates are compared) stands for both, or the model's own when None. Then a model
     cannot lower its error by adding noise."""
-    Ff, Gf = F.astype(np.float32), G.astype(np.float32)
     n, k = len(F), len(G)
-    mF, mG = Ff.mean(0), Gf.mean(0)
-    vG = np.maximum(((Gf - mG) ** 2).sum(0) / (k - 1), 1 / 12)
+    mF, squares_F = _mean_and_squares(F)
+    mG, squares_G = _mean_and_squares(G)
+    vG = np.maximum(squares_G / (k - 1), 1 / 12)
     if n > 1:
-        vF = np.maximum(((Ff - mF) ** 2).sum(0) / (n - 1), 1 / 12)
+        vF = np.maximum(squares_F / (n - 1), 1 / 12)
         noise = vF / n + vG / k
     else:  # one frame: its noise is assumed
         vF = vG if assumed_noise is None else assumed_noise
@@ -199,7 +217,7 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
             "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
             "noise_map": noise, "variance_map": vF, "mask": mask,
             "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
-            "rows": _row_log_ratios(Ff, Gf) if n > 1 else []}
+            "rows": _row_log_ratios(F, G) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 

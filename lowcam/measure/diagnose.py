@@ -101,7 +101,7 @@ REFINE_WITHIN = 1.5
 FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
-_MEMO_ENTRIES = 64  # noise-free frames kept (one capture each, about 4 MB at 640x480)
+_MEMO_ENTRIES = 64  # noise-free frames kept (one capture each, about 1 MB at 640x480)
 #: Candidates fitted at once (threads: OpenCV and numpy release the GIL); the results do not depend on it.
 WORKERS = 2
 #: Side (px) of the image tiles of the two spatial folds, used when fewer than two captures show a candidate.
@@ -322,12 +322,12 @@ class Context:
                     self.memo.move_to_end((key, id(capture)))
             if frame is None:
                 frame = simulate_capture(q, capture, 1, inputs=self.inputs[i], cache=self.cache,
-                                         until="bayer_sampling")[0].astype(np.float32)
+                                         until="bayer_sampling")[0]     # kept as 8-bit: a quarter of float32
                 with self._lock:
                     self.memo[(key, id(capture))] = frame
                     if len(self.memo) > _MEMO_ENTRIES:
                         self.memo.popitem(last=False)
-            out.append(frame)
+            out.append(frame.astype(np.float32))
         return out
 
     def simulate(self, profile, i: int, count: int) -> np.ndarray:
