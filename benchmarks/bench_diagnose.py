@@ -12,7 +12,6 @@ included) beside the in-process figure.
 from __future__ import annotations
 
 import argparse
-import resource
 import statistics
 import subprocess
 import sys
@@ -20,6 +19,20 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+
+
+#: ``lowcam`` run as its command line, writing its peak memory (kB) to ``argv[1]`` as it exits. The process's own
+#: ``VmHWM``: ``ru_maxrss`` would count the parent too (a child started by vfork records the parent's peak at exec).
+CLI_WITH_PEAK = """
+import atexit, re, runpy, sys
+peak_file = sys.argv.pop(1)
+def record():
+    with open("/proc/self/status") as f, open(peak_file, "w") as out:
+        out.write(re.search(r"VmHWM:\\s+(\\d+)", f.read()).group(1))
+atexit.register(record)
+sys.argv[0] = "lowcam"
+runpy.run_module("lowcam.cli", run_name="__main__")
+"""
 
 
 def main() -> None:
@@ -59,12 +72,13 @@ def main() -> None:
             print(f"run {k + 1}: {totals[-1]:.1f} s, {d.summary()}; simulations: "
                   + ", ".join(f"{n} {v}" for n, v in counts.items()), flush=True)
         walls, peaks = [], []
+        peak_file = Path(tmp) / "peak"
         for _ in range(args.repeats):
             started = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "lowcam.cli", "diagnose", str(folder), "--profile", "fire-i",
-                            "--json", str(Path(tmp) / "d.json")], check=True, capture_output=True)
+            subprocess.run([sys.executable, "-c", CLI_WITH_PEAK, str(peak_file), "diagnose", str(folder), "--profile",
+                            "fire-i", "--json", str(Path(tmp) / "d.json")], check=True, capture_output=True)
             walls.append(time.perf_counter() - started)
-            peaks.append(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)  # the largest child's, MB
+            peaks.append(int(peak_file.read_text()) / 1024)
         workers, diagnosis.WORKERS = diagnosis.WORKERS, 1
         serial = []
         for _ in range(args.repeats):
