@@ -5,7 +5,7 @@ it with every candidate ``--repeats`` times. Prints the median total, the median
 (screening, fitting and error together) and the number of noise-free and noisy capture simulations; then, as the
 baseline in the same run, the median total with the candidates fitted one at a time (``WORKERS = 1``); and the
 command line's wall time and peak memory (``lowcam diagnose SET --json``, a fresh process each run, imports
-included) beside the in-process figure.
+included), its wall time beside the in-process figure.
 
     .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
 """

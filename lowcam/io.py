@@ -179,8 +179,9 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     # OpenEXR raises bare RuntimeErrors for some corrupt files; of others (a truncated one) its C core only
     # complains on file descriptors 1 and 2 and hands back no channels: that complaint is the reason, kept off the
     # terminal
-    if OpenEXR.global_thread_count() != threads():  # decode on the engine's threads (the default is one)
-        OpenEXR.set_global_thread_count(threads())
+    decoders = threads() if threads() > 1 else 0   # the engine's threads; 0: in the calling thread (the default)
+    if OpenEXR.global_thread_count() != decoders:
+        OpenEXR.set_global_thread_count(decoders)
     with quiet_stderr(stdout=True) as said:
         try:
             with OpenEXR.File(str(path)) as f:  # every part: Blender writes one part per view layer

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import ctypes
 import os
+import platform
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -74,10 +76,12 @@ _M_ARENA_MAX = -8
 
 def one_malloc_arena() -> bool:
     """Serve every thread's C allocations from one glibc malloc arena (``mallopt(M_ARENA_MAX, 1)``); True where
-    that was done (glibc), False elsewhere. By default each new thread may get its own arena (up to 8 per core),
-    and the frame-sized buffers that threaded fits free stay mapped in each: diagnosis of the standard set peaks
-    at about 1.05 GB that way and 0.9 GB with one arena, in the same time (``benchmarks/bench_diagnose.py``)."""
+    that was done (Linux with glibc), False elsewhere. By default each new thread may get its own arena (up to 8 per
+    core), and the frame-sized buffers that threaded fits free stay mapped in each: diagnosis of the standard set
+    peaks at about 1.05 GB that way and 0.9 GB with one arena, in the same time (``benchmarks/bench_diagnose.py``)."""
+    if not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc":
+        return False
     try:
         return bool(ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1))
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):
         return False

@@ -173,7 +173,8 @@ def test_a_half_float_render_reads_as_exactly_its_float32_values(tmp_path):
 
 #: How far a composite from a half-float render may stand from the 32-bit render's (stated in docs/blender.md):
 #: share of values changed, mean and largest difference in 8-bit levels.
-HALF_FLOAT_BOUNDS = {"fire-i": (0.005, 0.01, 4), "phone-video": (0.05, 0.1, 12)}
+HALF_FLOAT_BOUNDS = {"fire-i": (0.005, 0.01, 4), "iphone-xs-lens": (0.005, 0.01, 4), "rpi-hq": (0.005, 0.01, 4),
+                     "ueye": (0.005, 0.01, 4), "phone-video": (0.05, 0.1, 12)}
 
 
 @pytest.mark.parametrize("name", sorted(HALF_FLOAT_BOUNDS))

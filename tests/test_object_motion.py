@@ -90,16 +90,34 @@ def test_path_kernel_holds_every_tap_weight():
         assert centre_x == pytest.approx(0, abs=1e-9) and centre_y == pytest.approx(0, abs=1e-9)   # about the pixel
 
 
+def _pieces_by_growing_lists(kernel, most=49):
+    """The kernel's pieces as first written: each weight, in the same order, added to the current piece unless
+    the piece's box would then exceed ``most`` entries; the box recomputed from the whole list every time."""
+    ii, jj = np.nonzero(kernel)
+    order = np.lexsort((ii, jj) if kernel.shape[1] >= kernel.shape[0] else (jj, ii))
+    pieces, members = [], []
+    for k in order:
+        trial = members + [k]
+        if members and (np.ptp(ii[trial]) + 1) * (np.ptp(jj[trial]) + 1) > most:
+            pieces.append(members)
+            trial = [k]
+        members = trial
+    pieces.append(members)
+    return [(int(ii[m].min()), int(jj[m].min()), (int(np.ptp(ii[m])) + 1, int(np.ptp(jj[m])) + 1)) for m in pieces]
+
+
 def test_kernel_pieces_are_small_rectangles_that_hold_the_kernel_once():
     """A path's kernel cut for OpenCV's direct filters: every piece under 50 entries, every weight in exactly one
-    piece."""
+    piece, and the same cuts as recomputing each piece's box from its list (the cuts fix the summation order, so
+    the frame's bytes)."""
     from lowcam.effects.object_motion import _kernel_pieces
 
     rng = np.random.default_rng(9)
-    for _ in range(200):
-        path = rng.uniform(-80, 80, 2) * rng.choice([1.0, 0.1])
+    for _ in range(300):
+        path = rng.uniform(-80, 80, 2) * rng.choice([1.0, 0.1, 0.01])
         kernel = path_kernel(path, int(np.ceil(np.hypot(*path))) + 1)[0]
         pieces = _kernel_pieces(kernel)
+        assert [(top, left, block.shape) for top, left, block in pieces] == _pieces_by_growing_lists(kernel)
         rebuilt = np.zeros_like(kernel)
         for top, left, block in pieces:
             assert block.size <= 49

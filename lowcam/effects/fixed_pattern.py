@@ -212,8 +212,7 @@ def row_noise_variance(frames: np.ndarray) -> np.ndarray:
     """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
     and frames (row noise shows here; pixel noise averages out over a row)."""
     # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
-    sums = np.stack([cv2.reduce(np.ascontiguousarray(f, np.float32), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0]
-                     for f in frames])     # each frame as float32 in turn
+    sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
     rows = sums / frames.shape[2]
     return (rows - rows.mean(axis=0)).var(axis=(0, 1))
 

@@ -190,24 +190,21 @@ def _kernel_pieces(kernel: np.ndarray, most: int = 49):
     non-zero values where nothing lands; below 50 entries it sums the non-zero weights directly."""
     ii, jj = np.nonzero(kernel)
     order = np.lexsort((ii, jj) if kernel.shape[1] >= kernel.shape[0] else (jj, ii))
-    pieces, members = [], []
+    pieces = []                                         # [members, top, bottom, left, right]
     for k, i, j in zip(order.tolist(), ii[order].tolist(), jj[order].tolist()):
-        if members:     # the piece's bounds with this weight in it
+        if pieces:
+            members, top, bottom, left, right = pieces[-1]
             top, bottom, left, right = min(top, i), max(bottom, i), min(left, j), max(right, j)
-        if members and (bottom - top + 1) * (right - left + 1) > most:
-            pieces.append(members)
-            members = []
-        if not members:
-            top = bottom = i
-            left = right = j
-        members.append(k)
-    pieces.append(members)
+            if (bottom - top + 1) * (right - left + 1) <= most:
+                members.append(k)
+                pieces[-1][1:] = top, bottom, left, right
+                continue
+        pieces.append([[k], i, i, j, j])
     out = []
-    for members in pieces:
-        top, left = ii[members].min(), jj[members].min()
-        block = np.zeros((np.ptp(ii[members]) + 1, np.ptp(jj[members]) + 1), np.float32)
+    for members, top, bottom, left, right in pieces:
+        block = np.zeros((bottom - top + 1, right - left + 1), np.float32)
         block[ii[members] - top, jj[members] - left] = kernel[ii[members], jj[members]]
-        out.append((int(top), int(left), block))
+        out.append((top, left, block))
     return out
 
 

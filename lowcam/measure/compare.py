@@ -178,9 +178,9 @@ def _row_log_ratios(F, G) -> list[float]:
 
 
 def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The float32 mean of ``frames`` (N, ...) and the sum of their squared deviations from it, one frame at a
-    time: the sums of ``mean(0)`` and ``((frames - mean) ** 2).sum(0)``, in the same order (so the same bits),
-    without a float32 copy of them all."""
+    """The float32 mean of ``frames`` (N, ...; uint8 or float32) and the sum of their squared deviations from it,
+    one frame at a time: the sums of ``mean(0)`` and ``((frames - mean) ** 2).sum(0)`` of their float32 copy, in the
+    same order (so the same bits), without that copy."""
     total = frames[0].astype(np.float32)
     for frame in frames[1:]:
         total += frame
