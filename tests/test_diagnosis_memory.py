@@ -1,4 +1,4 @@
-"""What keeps diagnosis's peak memory down without changing a number: profile copies share their geometry, the
+"""What keeps diagnosis lean without changing a number: profile copies share their geometry and sensel gains, the
 kept chain fronts share each capture's plates, the noise-free frames are kept as 8-bit, and the comparison's
 frame statistics are summed one frame at a time."""
 import copy
@@ -57,3 +57,17 @@ def test_one_malloc_arena_takes_on_glibc():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
     assert out == str(glibc)
+
+
+def test_sensel_gains_are_kept_for_every_copy_of_a_profile_and_redone_when_a_value_changes(fire_i):
+    """The vignetting's gain planes (a texture sampled at every sensel) are computed once for all the frames and
+    profile copies that share its values; another fall-off gets its own, the same as computed afresh."""
+    vignetting = fire_i.effect("vignetting")
+    gains = vignetting.gain_planes(fire_i.geometry)
+    assert not gains.flags.writeable
+    assert fire_i.copy().effect("vignetting").gain_planes(fire_i.geometry) is gains
+    other = fire_i.with_effect("vignetting", texture="", k2=-0.3, k4=0.05, replace=True).effect("vignetting")
+    other_gains = other.gain_planes(fire_i.geometry)
+    assert other_gains is not gains and not np.array_equal(other_gains, gains)
+    assert np.array_equal(other_gains, other._gain_planes(fire_i.geometry))
+    assert np.array_equal(gains, vignetting._gain_planes(fire_i.geometry))

@@ -12,6 +12,7 @@ Contents
 - :func:`radial_vignetting`: gain map ``1 + k2 rho^2 + k4 rho^4`` over a (rows, cols) texture, maximum 1
 - :func:`lensfun_vignetting`: lensfun's ``pa`` vignetting gain at output pixels
 - :class:`Vignetting`: multiplies each sensel's colour (not its alpha) by a gain texture, brightest = 1 (sec. 4.1)
+- :data:`GAINS_KEPT`: how many sets of sensel gains the process keeps
 - :func:`fit_vignetting`: the gain texture from flat-field frames (sec. 4.1)
 - :func:`vignetting_statistic`: the radial fall-off of a moving shot (the same scene points at different radii)
 - :func:`vignetting_from_plate`: k2, k4 of the radial model from a moving shot (a PlateEstimate)
@@ -27,6 +28,9 @@ References
   2276-2288, 2010 (the same scene points seen at different image positions).
 """
 from __future__ import annotations
+
+import threading
+from collections import OrderedDict
 
 import cv2
 import numpy as np
@@ -66,6 +70,12 @@ def lensfun_vignetting(u, v, width, height, terms, crop_factor=1.0, calibration_
 
 
 _LENSFUN_KEYS = ("lensfun_terms", *LENSFUN_FRAME_PARAMS)
+
+#: Sets of sensel gains kept, shared by every copy of a profile (each frame of a shot and every simulation of a fit
+#: asks for the same ones): (geometry, values, texture bytes) -> read-only (4, hb, wb) planes.
+GAINS_KEPT = 8
+_KEPT_GAINS: OrderedDict = OrderedDict()
+_KEPT_LOCK = threading.Lock()
 
 
 class Vignetting(Effect):
@@ -141,7 +151,23 @@ class Vignetting(Effect):
         return radial_vignetting(width, height, self.k2, self.k4)
 
     def gain_planes(self, geometry) -> np.ndarray:
-        """The gain of every sensel, (4, hb, wb) like the sensel planes (the node group bakes the same)."""
+        """The gain of every sensel, (4, hb, wb) like the sensel planes (the node group bakes the same); read-only,
+        kept for the next call with the same geometry and values (:data:`GAINS_KEPT`)."""
+        key = (geometry, repr(self.values()), None if self._texture is None else self._texture.tobytes())
+        with _KEPT_LOCK:
+            planes = _KEPT_GAINS.get(key)
+            if planes is not None:
+                _KEPT_GAINS.move_to_end(key)
+                return planes
+        planes = self._gain_planes(geometry)
+        planes.flags.writeable = False
+        with _KEPT_LOCK:
+            _KEPT_GAINS[key] = planes
+            while len(_KEPT_GAINS) > GAINS_KEPT:
+                _KEPT_GAINS.popitem(last=False)
+        return planes
+
+    def _gain_planes(self, geometry) -> np.ndarray:
         pos = geometry.sensel_positions
         if self._texture is None and self.model == "lensfun_pa":
             return self._lensfun_gain(pos[..., 0], pos[..., 1], geometry.width, geometry.height).astype(np.float32)
