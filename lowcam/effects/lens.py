@@ -46,8 +46,8 @@ from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
 from .lens_models import (BLENDER_KEYS, BLENDER_MODELS, FULL_FRAME_HALF_DIAGONAL_MM, LENSFUN_FRAME_PARAMS,
                           LENSFUN_GEOMETRIES, LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens,
-                          KannalaBrandtLens, LensfunLens, LensModel, OpenCVLens, field_needed, lensfun_frame,
-                          lensfun_projection, lensfun_projection_limit)
+                          KannalaBrandtLens, LensfunLens, LensModel, OpenCVLens, border_points, field_needed,
+                          lensfun_frame, lensfun_projection, lensfun_projection_limit)
 
 
 #: The render's projections (``render_projection``): ``auto`` picks one per lens (:meth:`LensDistortion.projection`).
@@ -62,11 +62,7 @@ PINHOLE_FIELD_LIMIT_DEG = 150.0
 def ray_angle_needed(lens: LensModel, extent) -> float:
     """The widest angle (rad) from the optical axis that the border of ``extent`` (u0, v0, u1, v1; output pixels)
     sees through ``lens`` (:meth:`LensModel.undistort_ray`: may pass 90 deg)."""
-    u0, v0, u1, v1 = extent
-    t = np.linspace(0.0, 1.0, 257)
-    u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
-    v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
-    theta, _ = lens.undistort_ray(u, v)
+    theta, _ = lens.undistort_ray(*border_points(extent))
     return float(np.max(theta))
 
 

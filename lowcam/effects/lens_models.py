@@ -52,6 +52,7 @@ Contents
 - :data:`LENSFUN_FRAME_PARAMS`: the parameters placing lensfun's normalised coordinates on the frame
 - :data:`MODEL_KEYS`, :data:`BLENDER_MODELS`, :data:`BLENDER_KEYS`, :data:`LENSFUN_MODELS`, :data:`LENSFUN_KEYS`: the
   models' names and each model's parameters
+- :func:`border_points`: points along the border of a region of the frame
 - :func:`field_needed`: the pinhole half-extents the border of a region of the frame sees through a lens
 
 References
@@ -711,12 +712,17 @@ LENSFUN_FRAME_PARAMS = {
 }
 
 
+def border_points(extent, per_side: int = 257) -> tuple[np.ndarray, np.ndarray]:
+    """Points (u, v) along the border of ``extent`` (u0, v0, u1, v1; output pixels), ``per_side`` on each side,
+    corners included, clockwise from the top-left corner."""
+    u0, v0, u1, v1 = extent
+    t = np.linspace(0.0, 1.0, per_side)
+    return (np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)]),
+            np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t]))
+
+
 def field_needed(lens: LensModel, extent) -> tuple[float, float]:
     """Pinhole half-extents (X, Y) that the border of ``extent`` (u0, v0, u1, v1; output pixels) sees through
     ``lens``."""
-    u0, v0, u1, v1 = extent
-    t = np.linspace(0.0, 1.0, 257)
-    border_u = np.concatenate([u0 + (u1 - u0) * t, np.full_like(t, u1), u1 - (u1 - u0) * t, np.full_like(t, u0)])
-    border_v = np.concatenate([np.full_like(t, v0), v0 + (v1 - v0) * t, np.full_like(t, v1), v1 - (v1 - v0) * t])
-    x, y = lens.undistort(border_u, border_v)
+    x, y = lens.undistort(*border_points(extent))
     return float(np.abs(x).max()), float(np.abs(y).max())
