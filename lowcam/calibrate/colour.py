@@ -61,11 +61,7 @@ def fit_patch_colours(ideal, measured, noise=None, tone: dict | None = None):
     curve's values or None, the residuals (N, 3) divided by the noise)."""
     ideal, measured = np.asarray(ideal, np.float64), np.asarray(measured, np.float64)
     sigma = np.ones_like(measured) if noise is None else np.maximum(np.asarray(noise, np.float64), 1e-3)
-    rows = []
-    for c in range(3):  # weighted least squares, one output channel at a time
-        w = 1.0 / sigma[:, c]
-        rows.append(np.linalg.lstsq(ideal * w[:, None], measured[:, c] * w, rcond=None)[0])
-    total = np.array(rows)
+    total = fit_colour_matrix(ideal, measured, sigma)
     if tone is None:
         return total, None, (measured - ideal @ total.T) / sigma
     from scipy.optimize import least_squares

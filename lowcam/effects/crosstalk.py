@@ -128,10 +128,16 @@ class Crosstalk(Effect):
         state.keep_window("working", window, self)
 
 
-def fit_colour_matrix(ideal: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """The 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches; both (N, 3), same units)."""
-    x, *_ = np.linalg.lstsq(np.asarray(ideal, np.float64), np.asarray(measured, np.float64), rcond=None)
-    return x.T
+def fit_colour_matrix(ideal: np.ndarray, measured: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+    """The 3x3 matrix M with ``measured ~ M ideal`` (least squares over patches; both (N, 3), same units); with
+    ``sigma`` (N, 3), each patch and channel weighed by ``1 / sigma`` (one output channel at a time)."""
+    ideal, measured = np.asarray(ideal, np.float64), np.asarray(measured, np.float64)
+    if sigma is None:
+        x, *_ = np.linalg.lstsq(ideal, measured, rcond=None)
+        return x.T
+    w = 1.0 / np.asarray(sigma, np.float64)
+    return np.array([np.linalg.lstsq(ideal * w[:, c, None], measured[:, c] * w[:, c], rcond=None)[0]
+                     for c in range(3)])
 
 
 def crosstalk_from_colour_matrix(total: np.ndarray, saturation: float, luma=SATURATION_LUMA) -> np.ndarray:

@@ -545,9 +545,9 @@ def _colour_checker_reading(capture):
     """The ColorChecker read from a capture's mean frame (found there once per capture and kept), a patch clipped
     in any frame marked so; a mean without the chart is refused naming the capture's frames."""
     frames = capture.frames
-    for key in list(_CHECKERS):
-        if _CHECKERS[key][0] is frames:
-            return _CHECKERS[key][1]
+    kept = _CHECKERS.get(id(frames))
+    if kept is not None and kept[0] is frames:
+        return kept[1]
     names = capture.frame_names or [capture.where]
     if len(frames) == 1:
         reading = read_colour_checker(frames, names[:1], what=f"target colorchecker of {capture.where}")
