@@ -193,14 +193,16 @@ def test_linear_camera_without_tone_curve(tmp_path):
     assert relative_error(cal.values["crosstalk"]["matrix"], k) <= 0.02, about
 
 
-def test_no_chart_is_one_line_naming_the_frame(tmp_path, capsys):
-    """A frame without a ColorChecker (here a grey wall with a smooth light) is refused in one line naming it."""
+@pytest.mark.parametrize("spelling", ["colorchecker", "colourchecker"])
+def test_no_chart_is_one_line_naming_the_frame(tmp_path, capsys, spelling):
+    """A frame without a ColorChecker (here a grey wall with a smooth light) is refused in one line naming it; the
+    target is looked for under either spelling the target parser accepts."""
     from lowcam.cli import main
 
     y, x = np.mgrid[0:240, 0:320]
     wall = np.clip(100 + 0.1 * x + 0.05 * y, 0, 255).astype(np.uint8)
     cv2.imwrite(str(tmp_path / "wall.png"), np.repeat(wall[..., None], 3, axis=2))
-    rc = main(["calibrate", "colour", str(tmp_path / "wall.png"), "--target", "colorchecker",
+    rc = main(["calibrate", "colour", str(tmp_path / "wall.png"), "--target", spelling,
                "-o", str(tmp_path / "cam.toml")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "wall.png" in err and "no ColorChecker" in err

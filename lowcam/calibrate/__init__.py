@@ -228,8 +228,7 @@ def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
         source = str(o["patches"])
         ideal, measured = read_patches_csv(o["patches"])
     elif o["frames"] and o["target"]:
-        parse_target(o["target"], "--target")  # a name it does not know is refused there
-        if o["target"] != "colorchecker":
+        if parse_target(o["target"], "--target")[0] != "colorchecker":  # an unknown name is refused there
             raise LowcamError(f"--target {o['target']}: the colour calibration reads a colorchecker target")
         source = source_name(o["frames"])
         frames, names = load_frames(o["frames"], 1, "colour calibration")
