@@ -12,9 +12,11 @@ Contents
 - :func:`render_space_of`: the space a render is in: the one stated, else its header's, else linear Rec.709
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
 - :func:`read_render`: read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4)
+- :func:`read_checked_render`: :func:`read_render` with its window, which the pipeline then need not find again
 - :data:`RENDER_MAX`: the largest render value accepted
 - :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
 - :func:`check_render_window`: :func:`check_render`, and the window around the render's non-zero pixels
+- :class:`CheckedRender`: what :func:`check_render_window` returns; :func:`lowcam.simulate` takes it unchecked
 - :func:`read_image`: read a PNG/JPEG/TIFF as RGB (H, W, 3) or greyscale (H, W), keeping its dtype
 - :func:`read_plate`: read the video frame (PNG/JPEG) as uint8 and check its size against the camera's frame
 - :func:`check_plate`: validate an in-memory plate: uint8, the camera's size, RGB (or one channel for raw Bayer)
@@ -31,6 +33,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -245,7 +248,13 @@ def _rgba_from_exr(path, channels: dict[str, np.ndarray], layer: str | None = No
 
 
 def read_render(path, layer: str | None = None, render_space: str | None = None) -> np.ndarray:
-    """Read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4).
+    """Read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4): :func:`read_checked_render`'s array."""
+    return read_checked_render(path, layer, render_space).rgba
+
+
+def read_checked_render(path, layer: str | None = None, render_space: str | None = None) -> CheckedRender:
+    """Read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4), checked, with the window around its
+    non-zero pixels (:class:`CheckedRender`).
 
     OpenEXR (single-layer ``RGBA``, a Blender multilayer file's one ``*.Combined`` layer, or view layer ``layer``)
     is taken as premultiplied, as Blender writes it. PNG and TIFF are straight alpha (as Blender writes them) and
@@ -265,7 +274,7 @@ def read_render(path, layer: str | None = None, render_space: str | None = None)
         scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
         rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
         rgba[..., :3] *= rgba[..., 3:]
-    return check_render(to_camera_space(rgba, render_space_of(path, render_space, tags)), path)
+    return check_render_window(to_camera_space(rgba, render_space_of(path, render_space, tags)), path)
 
 
 #: The largest render value accepted: half-float's maximum (no real render is brighter; larger finite values
@@ -288,13 +297,21 @@ _COLOUR_BOUNDS, _ALPHA_BOUNDS = _float32_within(-RENDER_MAX, RENDER_MAX), _float
 _RENDER_BOUNDS = tuple((c, c, c, a) for c, a in zip(_COLOUR_BOUNDS, _ALPHA_BOUNDS))
 
 
+class CheckedRender(NamedTuple):
+    """A render that :func:`check_render_window` has passed, and its window. :func:`lowcam.simulate` takes it in
+    place of the array and does not check it again (a shot reads and checks each render on its reading thread)."""
+
+    rgba: np.ndarray
+    window: tuple[slice, slice] | None
+
+
 def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     """Validate an in-memory render: (H, W, 4), finite, within +-:data:`RENDER_MAX`, alpha in [0, 1]. Returns it
     as float32."""
     return check_render_window(rgba, name)[0]
 
 
-def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tuple[slice, slice] | None]:
+def check_render_window(rgba: np.ndarray, name="render") -> CheckedRender:
     """:func:`check_render`, and the :func:`~lowcam.window.nonzero_window` around the render's non-zero pixels
     (None: all zero). The zero margins are valid by construction, so only the window is checked in full."""
     rgba = np.asarray(rgba)
@@ -308,7 +325,7 @@ def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tu
         rgba = np.ascontiguousarray(rgba, np.float32)
     window = nonzero_window(rgba)  # NaN counts as non-zero
     if window is None:
-        return rgba, None
+        return CheckedRender(rgba, None)
     # One pass over the window: cv2.inRange fails NaN and Inf too, and its bounds (float32 values inside the
     # limits below) make it at least as strict; only a render it refuses is checked again for the exact error.
     # Strips of about 3 MB, shared out among the threads, keep each mask in cache until it is counted.
@@ -317,7 +334,7 @@ def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tu
     passed = thread_map(lambda rows: cv2.countNonZero(cv2.inRange(inside[rows], *_RENDER_BOUNDS)),
                         [slice(top, top + step) for top in range(0, inside.shape[0], step)])
     if sum(passed) == inside.shape[0] * inside.shape[1]:
-        return rgba, window
+        return CheckedRender(rgba, window)
     if not cv2.checkRange(rgba, True, -RENDER_MAX, RENDER_MAX)[0]:  # one pass finds NaN, Inf and range at once
         _check_finite(name, rgba)
         lo, hi = float(rgba.min()), float(rgba.max())
@@ -326,7 +343,7 @@ def check_render_window(rgba: np.ndarray, name="render") -> tuple[np.ndarray, tu
     lo, hi, _, _ = cv2.minMaxLoc(cv2.extractChannel(rgba, 3))
     if lo < -1e-4 or hi > 1 + 1e-4:
         raise LowcamError(f"{name}: alpha must lie in [0, 1], found {lo:.3g}..{hi:.3g}")
-    return rgba, window
+    return CheckedRender(rgba, window)
 
 
 #: What libjpeg and libpng say of a damaged file that they still decode (partly grey).

@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import LowcamError
-from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render, read_exr, read_exr_tagged,
-                 read_render, render_space_of)
+from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render_window, read_checked_render, read_exr,
+                 read_exr_tagged, render_space_of)
 from .render_spaces import to_camera_space
 
 
@@ -171,16 +171,16 @@ def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: fl
 
 def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps: float,
                            metres_per_unit: float = 1.0, render_space: str | None = None):
-    """``(render, passes)``: the render (:func:`lowcam.io.read_render`, in linear Rec.709 from ``render_space`` or
-    the space its header names) and, when ``needs`` names passes, its view layer's passes
+    """``(render, passes)``: the render (a :class:`lowcam.io.CheckedRender` from :func:`lowcam.io.read_checked_render`,
+    in linear Rec.709 from ``render_space`` or the space its header names) and, when ``needs`` names passes, its view layer's passes
     (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A render that is
     not an OpenEXR file has no passes: asking for them is a one-line error."""
     if not needs:
-        return read_render(path, layer, render_space), None
+        return read_checked_render(path, layer, render_space), None
     if _format(_exists(path)) != "exr":
         raise LowcamError(f"{path}: a {needs[0]} pass is needed and only an OpenEXR render holds one; render a "
                           f"multilayer OpenEXR ({PASS_HELP[needs[0]]})")
     channels, tags = read_exr_tagged(path)
-    render = check_render(to_camera_space(_rgba_from_exr(path, channels, layer),
-                                          render_space_of(path, render_space, tags)), path)
+    render = check_render_window(to_camera_space(_rgba_from_exr(path, channels, layer),
+                                                 render_space_of(path, render_space, tags)), path)
     return render, read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)

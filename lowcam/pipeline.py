@@ -51,7 +51,7 @@ from .effects.bayer import demosaic_bilinear, mosaic, unmosaic
 from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
 from .geometry import grid_points, sample_texture
-from .io import check_plate, check_render_window
+from .io import CheckedRender, check_plate, check_render_window
 from .passes import RenderPasses, check_passes
 from .profile import Profile, load_profile
 from .parallel import row_strips, thread_map
@@ -301,8 +301,11 @@ def check_memory(profile, render_shape=(0, 0)) -> None:
 def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes):
     """A validated :class:`SimState` at the start of the chain, and the plate's bytes."""
     profile = load_profile(profile)
+    checked = render if isinstance(render, CheckedRender) else None  # checked when it was read: not scanned again
+    if checked:
+        render = checked.rgba
     check_memory(profile, np.shape(render)[:2] if np.ndim(render) >= 2 else (0, 0))
-    render, window = check_render_window(render)
+    render, window = checked or check_render_window(render)
     passes = check_passes(passes, render.shape)
     plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
     w = tuple(float(x) for x in angular_velocity)
@@ -398,7 +401,8 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
 
     Parameters
     ----------
-    render : (H, W, 4) float array, premultiplied linear RGBA of an ideal pinhole camera.
+    render : (H, W, 4) float array, premultiplied linear RGBA of an ideal pinhole camera, or a
+        :class:`lowcam.io.CheckedRender` (:func:`lowcam.io.read_checked_render`), which is not checked again.
     profile : a profile name (``"fire-i"``, ``"ueye"``), a path to a TOML file, or a :class:`Profile`.
     plate : (h, w, 3) uint8 video frame at the camera's size (a (h, w) Bayer frame for a raw profile); None: black.
     angular_velocity : (wx, wy, wz) rad/s in the camera frame (x right, y down, z forward).

@@ -146,6 +146,33 @@ def test_a_serial_shot_reads_ahead_and_writes_behind_with_the_bytes_of_one_frame
         assert (r.read_s > 0 and r.simulate_s > 0 and r.write_s > 0) == (r.status == "written")
 
 
+def test_a_shot_checks_each_render_once_where_it_reads_it(shot_dir, tmp_path, monkeypatch):
+    """The reading thread checks the render (lowcam.io.read_checked_render) and the simulation takes its window
+    without scanning the render again; the frames are those of lowcam.simulate on the plain array, which checks."""
+    import lowcam
+    from lowcam import pipeline
+    from lowcam.io import read_plate, read_render
+
+    motion = read_motion_json(shot_dir / "motion.json")
+    expected = {}
+    for f in (2, 7):
+        plate = read_plate(shot_dir / "plates" / f"{f:04d}.png", 640, 480)
+        m = motion[f]
+        expected[f] = lowcam.simulate(read_render(shot_dir / "renders" / f"{f:04d}.exr"), "fire-i", plate,
+                                      m.angular_velocity, m.exposure_s, 0, f)
+    checks = []
+    real_check = pipeline.check_render_window
+    monkeypatch.setattr(pipeline, "check_render_window", lambda *a, **k: checks.append(1) or real_check(*a, **k))
+    shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "####.png"),
+                str(shot_dir / "plates/####.png"), motion, True)
+    assert [r.status for r in run_shot(shot, [2, 7], quiet=True)] == ["written", "written"]
+    assert checks == []
+    for f, frame in expected.items():
+        assert np.array_equal(cv2.cvtColor(cv2.imread(str(tmp_path / f"{f:04d}.png")), cv2.COLOR_BGR2RGB), frame)
+    lowcam.simulate(read_render(shot_dir / "renders/0002.exr"), "fire-i")
+    assert checks == [1]   # an array handed in is checked
+
+
 def test_a_serial_shot_shows_its_progress_on_a_terminal(shot_dir, tmp_path):
     """The bar is drawn while a reader thread keeps the codecs' messages off descriptor 2."""
     import fcntl
