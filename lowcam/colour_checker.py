@@ -28,6 +28,7 @@ Contents
 - :func:`patch_cells`: each patch's cell corners (pixels) from the chart's corners
 - :func:`patch_areas`: the area read of each patch (pixels), moved onto the patch's own centre
 - :func:`read_colour_checker`: the patches of the chart in frames (the mean frame), every problem naming a frame
+- :func:`mark_clipped`: mark the patches clipped in any of several frames
 
 References
 ----------
@@ -375,7 +376,13 @@ def read_colour_checker(frames, names, floor: float = 0.0, ceiling: float = 255.
         reading = read_patches(mean, corners, floor, ceiling, centres)
     except LowcamError as e:
         raise LowcamError(f"{names[0]}: {e}") from None
-    # a patch clipped in any frame is clipped
+    return mark_clipped(reading, frames, floor, ceiling)
+
+
+def mark_clipped(reading: PatchReading, frames, floor: float = 0.0, ceiling: float = 255.0) -> PatchReading:
+    """Mark clipped in ``reading`` (read on the frames' mean) each patch with any pixel at ``floor`` or ``ceiling``
+    in any of ``frames``: a mean frame hides a pixel clipped in one of them. Returns ``reading``."""
     for f in frames:
-        reading.clipped |= read_patches(f.astype(np.float64), corners, floor, ceiling, centres).clipped
+        areas = _areas(f, reading.corners, reading.centres)
+        reading.clipped |= np.array([bool(((a <= floor) | (a >= ceiling)).any()) for a in areas])
     return reading

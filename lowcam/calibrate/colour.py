@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..effects.crosstalk import crosstalk_from_colour_matrix, fit_colour_matrix
-from ..effects.tone_curve import transfer_curve
+from ..effects.tone_curve import tone_response
 from ..effects.saturation import colour_matrix_problems, saturation_matrix
 from ..errors import LowcamError
 from ..reports import figure
@@ -49,7 +49,7 @@ def _check_patch_colours(source: str, ideal: np.ndarray) -> None:
 
 
 def _tone(x, gamma, toe, black, white):
-    return black + (white - black) * transfer_curve(np.clip(x / 255.0, 0.0, None), gamma, toe)
+    return tone_response(np.clip(x / 255.0, 0.0, None), gamma, toe, black, white)
 
 
 def fit_patch_colours(ideal, measured, noise=None, tone: dict | None = None):

@@ -19,6 +19,7 @@ Contents
 --------
 - :class:`ToneCurve`: the transfer curve (linear toe, power law with offset, black and white levels) per channel
 - :func:`transfer_curve`: ``V(x)``, the normalised curve, for an array of normalised inputs
+- :func:`tone_response`: ``out``, the curve between the black and white levels (DN)
 - :func:`fit_tone_curve`: the candidate's fit: least squares of the curve on (clean model, measured mean) pairs
 
 References
@@ -56,6 +57,11 @@ def transfer_curve(x, gamma: float, toe_break: float = 0.0):
     return np.where(x < toe_break, k * x, (1.0 + a) * x ** (1.0 / gamma) - a)
 
 
+def tone_response(x, gamma: float, toe_break: float, black_dn: float, white_dn: float):
+    """``out = black_dn + (white_dn - black_dn) V(x)`` (DN) of normalised inputs ``x >= 0`` (module docstring)."""
+    return black_dn + (white_dn - black_dn) * transfer_curve(x, gamma, toe_break)
+
+
 def fit_tone_curve(ctx, effect: str):
     """The candidate's fit: the curve's four parameters by least squares on the (clean model, measured mean) pairs
     of every unclipped pixel and channel, binned by the model's value (the curve acts late in the chain, per
@@ -82,7 +88,7 @@ def fit_tone_curve(ctx, effect: str):
 
     def residual(q):
         gamma, toe, black, white = q
-        fit = w * (black + (white - black) * transfer_curve(xs, gamma, toe) - ms)
+        fit = w * (tone_response(xs, gamma, toe, black, white) - ms)
         return np.concatenate([fit, prior * q])
 
     low, high = [0.3, 0.0, -64.0, 128.0], [4.0, 0.3, 96.0, 400.0]
@@ -124,6 +130,5 @@ class ToneCurve(Effect):
     def apply(self, state):
         a = np.maximum(state.rgb_alpha, 1e-6)
         straight = np.clip(state.rgb / a, 0.0, None)
-        v = transfer_curve(straight / 255.0, self.gamma, self.toe_break)
-        curved = self.black_dn + (self.white_dn - self.black_dn) * v
+        curved = tone_response(straight / 255.0, self.gamma, self.toe_break, self.black_dn, self.white_dn)
         state.rgb = np.where(state.rgb_alpha > 0, curved * state.rgb_alpha, state.rgb).astype(np.float32)

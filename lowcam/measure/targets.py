@@ -70,7 +70,7 @@ import cv2
 import numpy as np
 
 from ..captures import detect_target, parse_target
-from ..colour_checker import (COLUMNS, NEUTRALS, ROWS, patch_areas, patch_cells, read_colour_checker,
+from ..colour_checker import (COLUMNS, NEUTRALS, ROWS, mark_clipped, patch_areas, patch_cells, read_colour_checker,
                               read_patches, reference_colours)
 from ..errors import LowcamError
 from ..pipeline import prefix_key, prepare, render_field_of_view, resume
@@ -556,8 +556,7 @@ def _colour_checker_reading(capture):
             reading = read_colour_checker([capture.mean], [names[0]], what=f"target colorchecker of {capture.where}")
         except LowcamError as e:  # the mean of a moving chart: name the frames
             raise LowcamError(f"{capture.where}: the mean of the frames: {str(e).partition(': ')[2]}") from None
-        for f in frames:
-            reading.clipped |= read_patches(f.astype(np.float64), reading.corners, centres=reading.centres).clipped
+        mark_clipped(reading, frames)
     _CHECKERS[id(frames)] = (frames, reading)
     while len(_CHECKERS) > 16:
         _CHECKERS.popitem(last=False)
