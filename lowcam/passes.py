@@ -171,10 +171,11 @@ def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: fl
 
 def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps: float,
                            metres_per_unit: float = 1.0, render_space: str | None = None):
-    """``(render, passes)``: the render (a :class:`lowcam.io.CheckedRender` from :func:`lowcam.io.read_checked_render`,
-    in linear Rec.709 from ``render_space`` or the space its header names) and, when ``needs`` names passes, its view layer's passes
-    (:func:`read_blender_passes`), the file read once; ``passes`` is None when none are needed. A render that is
-    not an OpenEXR file has no passes: asking for them is a one-line error."""
+    """``(render, passes)``: the render, checked (a :class:`lowcam.io.CheckedRender`, as
+    :func:`lowcam.io.read_checked_render` gives it), in linear Rec.709 from ``render_space`` or the space its header
+    names, and, when ``needs`` names passes, its view layer's passes (:func:`read_blender_passes`), the file read
+    once; ``passes`` is None when none are needed. A render that is not an OpenEXR file has no passes: asking for
+    them is a one-line error."""
     if not needs:
         return read_checked_render(path, layer, render_space), None
     if _format(_exists(path)) != "exr":
