@@ -19,6 +19,7 @@ Contents
 - :func:`setup_render_camera`: give a scene the render camera and film the engine needs
 - :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
+- :func:`plate_sequence_image`: the Plate pattern as an image sequence for the compositor's Image node
 - :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
 - :func:`motion`: the camera's angular velocity over a frame's exposure from the chosen motion source
 - :func:`output_path`: where a frame's degraded composite goes
@@ -171,6 +172,25 @@ def _setup_overlay_layer(scene, excluded):
 
 def main_layer(scene) -> str:
     return next(layer.name for layer in scene.view_layers if layer.name != OVERLAY_LAYER)
+
+
+def plate_sequence_image(scene):
+    """The scene's Plate pattern as a Blender image for the compositor's Image node: an image sequence whose
+    frame N is the pattern's file for frame N (a still image where the pattern has no frame number), or None
+    where the scene's first frame has no file."""
+    from lowcam.batch import expand_pattern
+
+    pattern = bpy.path.abspath(settings(scene).plate_pattern)
+    still = "#" not in pattern and "%" not in pattern
+    path = Path(pattern if still else expand_pattern(pattern, scene.frame_start))
+    if not path.is_file():
+        return None
+    image = bpy.data.images.load(str(path), check_existing=True)
+    if settings(scene).plate_pattern.startswith("//") and bpy.data.filepath:
+        image.filepath = bpy.path.relpath(str(path))   # relative as the pattern: the .blend can move with it
+    if not still:
+        image.source = "SEQUENCE"
+    return image
 
 
 def plate(scene, frame: int, profile):

@@ -6,6 +6,7 @@ Contents
 - :func:`render_and_degrade`: render a frame to a temporary multilayer EXR and write its degraded composite
 - :class:`LOWCAM_OT_apply`: render the current frame and apply the camera; the result opens as "Lowcam Result"
 - :class:`LOWCAM_OT_add_camera_node`: add a "Lowcam Camera" node to the scene's compositor, with its render camera
+  and the scene's plate (a Movie Clip, or the Plate pattern's image sequence) connected
 - :class:`LOWCAM_OT_viewport_look`: the camera look in the 3D viewport (the viewport compositor) on or off
 - :data:`classes`: the operator classes, for registration
 """
@@ -109,14 +110,20 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             clip = tree.nodes.new("CompositorNodeMovieClip")
             clip.clip = s.plate_clip
             tree.links.new(clip.outputs["Image"], node.inputs["Plate"])
+        elif s.plate_source == "SEQUENCE" and (image := frames.plate_sequence_image(scene)) is not None:
+            sequence = tree.nodes.new("CompositorNodeImage")   # frame N shows the pattern's file for frame N
+            sequence.image = image
+            sequence.frame_start, sequence.frame_offset = 1, 0
+            sequence.frame_duration = max(scene.frame_end, 1)
+            tree.links.new(sequence.outputs["Image"], node.inputs["Plate"])
         node.inputs["Seed"].default_value = s.seed
         tree.links.new(node.outputs["Image"], out)
         return {"FINISHED"}
 
 
 class LOWCAM_OT_viewport_look(bpy.types.Operator):
-    """Show the camera look in the 3D viewport (the viewport compositor runs the scene's compositor), or give the
-    3D views back their own Compositor setting"""
+    """Show the camera look in the 3D viewport (the viewport compositor runs the scene's compositor, shown under
+    the Standard view), or give the 3D views their own Compositor setting and the scene its view transform back"""
 
     bl_idname = "lowcam.viewport_look"
     bl_label = "Viewport Look"
@@ -129,7 +136,8 @@ class LOWCAM_OT_viewport_look(bpy.types.Operator):
         spaces = viewport.view3d_spaces(bpy.data.screens)
         if viewport.is_on(scene):
             viewport.switch_off(scene, spaces)
-            self.report({"INFO"}, "viewport look off: the 3D views have their own Compositor setting back")
+            self.report({"INFO"}, "viewport look off: the 3D views have their own Compositor setting back, the "
+                        "scene its own view transform")
             return {"FINISHED"}
         if not compat.at_least(5, 0):
             self.report({"ERROR"}, viewport.BEFORE_5_0)

@@ -35,6 +35,7 @@ Contents
 - :func:`group_stages`: the group's stages in order: the profile's, less those baked into others, plus the plate blend
 - :func:`build_camera_group`: build "Lowcam Camera" from a bake: Image, Plate, Seed and Noise in; Image out
 - :func:`set_code_view`: image output settings that write the group's output as its codes (Standard, no look)
+- :func:`set_code_display`: display and view settings that show the group's output as its codes
 
 References
 ----------
@@ -480,14 +481,24 @@ def set_code_view(image_settings) -> None:
     codes whatever the scene's view: their own colour management, the Standard view without look, exposure 0,
     gamma 1, no curves. The scene's view transform and look stay the user's."""
     image_settings.color_management = "OVERRIDE"
-    image_settings.display_settings.display_device = "sRGB"
-    view = image_settings.view_settings
-    view.view_transform = "Standard"
-    view.look = "None"
-    view.exposure, view.gamma = 0.0, 1.0
-    view.use_curve_mapping = False
-    if hasattr(view, "use_white_balance"):     # 4.5+
-        view.use_white_balance = False
+    set_code_display(image_settings.display_settings, image_settings.view_settings)
+
+
+#: The colour-management settings :func:`set_code_display` sets: (settings, attribute).
+CODE_DISPLAY = (("display", "display_device"), ("view", "view_transform"), ("view", "look"), ("view", "exposure"),
+                ("view", "gamma"), ("view", "use_curve_mapping"), ("view", "use_white_balance"))
+
+
+def set_code_display(display_settings, view_settings) -> None:
+    """Display and view settings under which the group's output shows as its 8-bit codes: an sRGB display, the
+    Standard view without look, exposure 0, gamma 1, no curves, no white balance."""
+    display_settings.display_device = "sRGB"
+    view_settings.view_transform = "Standard"
+    view_settings.look = "None"
+    view_settings.exposure, view_settings.gamma = 0.0, 1.0
+    view_settings.use_curve_mapping = False
+    if hasattr(view_settings, "use_white_balance"):     # 4.5+
+        view_settings.use_white_balance = False
 
 
 def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: str | None = None):

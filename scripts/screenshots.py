@@ -1,13 +1,12 @@
 """The UI, seen: screenshots of the add-on in Debian trixie's Blender 4.3 under Xvfb, written to docs/.
 
-    python scripts/screenshots.py [OUT_DIR] [--match-only | --viewport-only]      (as root; default docs/)
+    python scripts/screenshots.py [OUT_DIR] [--match-only]      (as root; default docs/)
 
 It builds the linux-x64 extension zip, installs it into a fresh user folder inside the trixie root
 (``scripts/trixie-blender.sh`` builds the root once), builds the sample scene with the installed add-on, and runs
 ``scripts/screenshots_blender.py`` in the real binary under ``xvfb-run`` twice per shot: with the add-on and with it
 disabled. Each picture is cropped with OpenCV to what the add-on adds (the panel, the nodes, the menu) and written
-as ``lowcam-panel.png``, ``lowcam-compositor.png``, ``lowcam-group.png``, ``lowcam-add-menu.png`` and
-``lowcam-viewport.png`` (the viewport compositor showing the camera look through the scene camera). Then the
+as ``lowcam-panel.png``, ``lowcam-compositor.png``, ``lowcam-group.png`` and ``lowcam-add-menu.png``. Then the
 Match loop runs in the same Blender on a measurement set with a hidden tone curve (:func:`match_pictures`):
 ``lowcam-match-before.png``, ``lowcam-match-diagnosed.png`` and ``lowcam-match-added.png``.
 
@@ -29,12 +28,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 MODULE = "bl_ext.user_default.lowcam"
 #: shot -> (X screen width, height): the Properties editor as tall and narrow as a sidebar, the compositor wide.
-GEOMETRY = {"panel": (720, 1500), "compositor": (1600, 1000), "menu": (1600, 1000), "viewport": (1200, 900)}
+GEOMETRY = {"panel": (720, 1500), "compositor": (1600, 1000), "menu": (1600, 1000)}
 #: the pictures each shot makes -> the docs/ file name
 DOCS = {"panel": "lowcam-panel.png", "compositor": "lowcam-compositor.png", "group": "lowcam-group.png",
         "menu": "lowcam-add-menu.png"}
-#: the viewport compositor's picture (``--viewport-only``: it needs a Blender 5.0+ binary that draws a 3D view)
-VIEWPORT_DOCS = {"viewport": "lowcam-viewport.png"}
 TIMES: dict[str, float] = {}
 #: The Match loop's pictures -> the docs/ file name; its X screen (the Properties editor with the Match panel alone).
 MATCH_DOCS = {"match-before": "lowcam-match-before.png", "match-diagnosed": "lowcam-match-diagnosed.png",
@@ -208,8 +205,6 @@ def crop_for_docs(name: str, with_addon: np.ndarray, without: np.ndarray, margin
     if name == "panel":
         box = changed_box(with_addon, without)
         crop = with_addon[:min(h, box[3] + margin)]
-    elif name == "viewport":                    # the whole 3D view: the look is everywhere in it
-        crop = with_addon
     elif name.startswith("match"):              # the Match panel alone: the window's top to the panel's end
         crop = with_addon[:min(h, content_box(with_addon)[3] + margin)]
     else:
@@ -228,7 +223,7 @@ def make_all(trixie: Trixie, work: Path, zip_path: Path) -> dict[str, tuple[np.n
     user = install(trixie, work, zip_path)
     blend = build_scene(trixie, work, user)
     pictures = {}
-    for shot in (s for s in GEOMETRY if s != "viewport"):     # the viewport look needs Blender 5.0+
+    for shot in GEOMETRY:
         on, off = take(trixie, work, user, blend, shot), take(trixie, work, user, blend, shot, addon=False)
         for name in on:
             pictures[name] = (cv2.imread(str(on[name])), cv2.imread(str(off[name])))
@@ -240,8 +235,7 @@ def main(argv=None) -> int:
 
     args = list(sys.argv[1:] if argv is None else argv)
     match_only = "--match-only" in args             # only the Match loop's pictures
-    viewport_only = "--viewport-only" in args       # only the viewport compositor's picture
-    args = [a for a in args if a not in ("--match-only", "--viewport-only")]
+    args = [a for a in args if a != "--match-only"]
     out = Path((args or [REPO / "docs"])[0])
     trixie = Trixie()
     try:
@@ -252,26 +246,20 @@ def main(argv=None) -> int:
     work, _ = trixie.workdir()
     try:
         zip_path = build_zip(work / "dist")
-        if viewport_only:
-            user = install(trixie, work, zip_path)
-            blend = build_scene(trixie, work, user)
-            on = take(trixie, work, user, blend, "viewport")["viewport"]
-            off = take(trixie, work, user, blend, "viewport", addon=False)["viewport"]
-            pictures = {"viewport": (cv2.imread(str(on)), cv2.imread(str(off)))}
-        elif match_only:
+        if match_only:
             pictures = {}
             user = install(trixie, work, zip_path)
             blend = build_scene(trixie, work, user)
         else:
             pictures = make_all(trixie, work, zip_path)
             user, blend = trixie.inside(work / "user"), work / "scene" / "sample_scene.blend"
-        match, numbers = ({}, {}) if viewport_only else match_pictures(trixie, work, user, blend)
+        match, numbers = match_pictures(trixie, work, user, blend)
         print(f"match: {numbers}")
         for name, path in match.items():
             image = cv2.imread(str(path))
             pictures[name] = (image, image)
         for name, (on, off) in pictures.items():
-            path = out / {**DOCS, **VIEWPORT_DOCS, **MATCH_DOCS}[name]
+            path = out / {**DOCS, **MATCH_DOCS}[name]
             ok, data = cv2.imencode(".png", crop_for_docs(name, on, off), [cv2.IMWRITE_PNG_COMPRESSION, 9])
             tmp = path.with_suffix(".png.part")
             tmp.write_bytes(data.tobytes())

@@ -4,11 +4,9 @@
 
 SHOT is ``panel`` (Output Properties with the Lowcam Camera panel: the Properties editor fills the window),
 ``compositor`` (the compositor with a Lowcam Camera node, then inside its group: ``compositor.png`` and
-``group.png``), ``viewport`` (the 3D viewport through the scene camera, Lowcam's Viewport Look on: the viewport
-compositor runs "Lowcam Camera"; ``viewport.png``), ``menu`` (the compositor's Add > Lowcam menu open) or ``match`` (the Match loop run on the
+``group.png``), ``menu`` (the compositor's Add > Lowcam menu open) or ``match`` (the Match loop run on the
 measurement set named after SHOT: ``match-before.png``, ``match-diagnosed.png``, ``match-added.png`` and
-``match.json``). ``--no-addon`` disables the installed add-on
-first, so the same steps show the same window without it. Writes OUT_DIR/<name>.png with Blender's own
+``match.json``). ``--no-addon`` disables the installed add-on first, so the same steps show the same window without it. Writes OUT_DIR/<name>.png with Blender's own
 ImageMagick's ``import`` (or ``screen.screenshot``) and then quits; a step that fails is written to OUT_DIR/error.txt.
 
 The steps run from a timer, a fraction of a second apart, so that the window redraws between them.
@@ -202,35 +200,7 @@ def match_steps():
     (OUT / "match.json").write_text(json.dumps(numbers, indent=1))
 
 
-def viewport_steps():
-    """The 3D viewport alone, through the scene camera, solid shading; the add-on's Viewport Look switched on."""
-    area = biggest_area()
-    area.type = "VIEW_3D"
-    yield 0.3
-    area = full_screen(area)
-    yield 0.3
-    space = area.spaces.active
-    space.shading.type = "SOLID"                # the look switches it to Material Preview
-    space.overlay.show_overlays = False
-    space.show_gizmo = False
-    with override(area):
-        if space.region_3d.view_perspective != "CAMERA":
-            bpy.ops.view3d.view_camera()
-        bpy.ops.view3d.view_center_camera()
-    if not NO_ADDON:
-        with override(area):
-            bpy.ops.lowcam.viewport_look()
-        if space.shading.use_compositor != "ALWAYS":
-            raise RuntimeError(f"Viewport Look left the Compositor at {space.shading.use_compositor}")
-    print("VIEWPORT", space.region_3d.view_perspective, space.shading.use_compositor, flush=True)
-    yield 20.0                                  # the viewport compositor compiles its shaders on the first draw
-    area.tag_redraw()
-    yield 1.0
-    shoot("viewport")
-
-
-STEPS = {"panel": panel_steps, "compositor": compositor_steps, "menu": menu_steps, "match": match_steps,
-         "viewport": viewport_steps}
+STEPS = {"panel": panel_steps, "compositor": compositor_steps, "menu": menu_steps, "match": match_steps}
 
 
 def main():

@@ -28,7 +28,7 @@ PYTHONS = ((3, 11), (3, 13))
 PROVIDED = {"opencv-python": "opencv-contrib-python-headless"}
 #: Imports a zip need not carry: Blender's own modules and numpy, this project, and the optional extras (farm, lens
 #: database).
-NOT_CARRIED = {"bpy", "mathutils", "numpy", "lowcam", "lowcam_blender", "dask", "lensfunpy"}
+NOT_CARRIED = {"bpy", "gpu", "mathutils", "numpy", "lowcam", "lowcam_blender", "dask", "lensfunpy"}
 #: Environment markers of each platform (PEP 508), for the wheels' own requirements.
 MARKERS = {"windows-x64": ("win32", "Windows", "nt"), "macos-arm64": ("darwin", "Darwin", "posix"),
            "macos-x64": ("darwin", "Darwin", "posix"), "linux-x64": ("linux", "Linux", "posix")}

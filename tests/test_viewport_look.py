@@ -39,9 +39,13 @@ def test_viewport_look_switches_the_compositor_on_and_gives_the_users_settings_b
     compat = submodule("blender_compat")
     scene = bpy.context.scene
     before = _settings(home)
+    view = scene.view_settings
+    view.view_transform, view.look, view.exposure = "AgX", "AgX - Punchy", 0.5     # the user's own view
 
     assert bpy.ops.lowcam.viewport_look() == {"FINISHED"}
     assert viewport.is_on(scene)
+    assert (view.view_transform, view.look, view.exposure, scene.display_settings.display_device) == \
+        ("Standard", "None", 0.0, "sRGB")                            # the frame's codes shown as they are
     for key, space in home:
         assert space.shading.use_compositor == "ALWAYS", key
         assert space.shading.type in ("MATERIAL", "RENDERED"), key   # Solid shows no compositing
@@ -57,6 +61,7 @@ def test_viewport_look_switches_the_compositor_on_and_gives_the_users_settings_b
     home[0][1].shading.use_compositor = "CAMERA"
     assert bpy.ops.lowcam.viewport_look() == {"FINISHED"}
     assert _settings(home) == before
+    assert (view.view_transform, view.look, view.exposure) == ("AgX", "AgX - Punchy", 0.5)
     assert not viewport.is_on(scene)
     assert node.name in tree.nodes                                   # the compositor itself is the user's now
 
@@ -116,3 +121,49 @@ def test_gpu_compositor_gives_the_cpu_compositors_frame(fire_i, tmp_path):
                                              tmp_path / f"{device}.png").astype(np.int16)
     assert frames["CPU"].std() > 10                                  # a frame, not a blank
     assert np.abs(frames["CPU"] - frames["GPU"]).max() <= 1
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(bpy.app.version < (5, 0, 0), reason="the viewport look needs Blender 5.0")
+def test_the_3d_view_shows_the_cameras_frame_over_the_plate(tmp_path):
+    """Blender 5's own 3D view, drawn through the sample scene's camera (offscreen, Mesa's software OpenGL): with
+    Viewport Look on, the viewport compositor runs "Lowcam Camera" on the viewport's image and the plate that Add
+    Camera Node connected (the Plate pattern's frames), so where no object is the view shows the plate's own
+    pixels; with the view's Compositor off it shows the viewport's world instead. The look's view transform is
+    what makes the pixels the plate's: under the scene's AgX they are far off."""
+    import cv2
+
+    from lowcam.io import read_image
+    from lowcam.profile import load_profile
+
+    submodule("addon.render")
+    blend = submodule("addon.sample").build_sample_scene(tmp_path, render_width=400, samples=4, frames=3)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    scene = bpy.context.scene
+    scene.view_settings.view_transform = "AgX"
+    viewport = submodule("nodes.viewport")
+    assert bpy.ops.lowcam.viewport_look() == {"FINISHED"}
+    tree = submodule("blender_compat").compositor_tree(scene)
+    node = next(n for n in tree.nodes if n.bl_idname == "LowcamCameraNode")
+    plate_image = node.inputs["Plate"].links[0].from_node.image
+    assert plate_image.source == "SEQUENCE" and plate_image.filepath == "//plate/0001.png"
+    viewport.start_gpu()
+    area = next(a for s in bpy.data.screens for a in s.areas if a.type == "VIEW_3D")
+    camera = load_profile(scene.lowcam.profile).camera
+    size = (camera.width, camera.height)                             # the frame drawn pixel for pixel
+    plate = read_image(tmp_path / "plate" / "0001.png").astype(np.float64)
+    sky = (slice(0, camera.height // 4), slice(None))                # no object in the frame's top quarter
+
+    def drawn(compositor):
+        area.spaces.active.shading.use_compositor = compositor
+        picture = viewport.draw_through_camera(scene, area, *size)[..., :3]
+        return np.clip(np.rint(picture * 255.0), 0, 255)
+
+    look = drawn("ALWAYS")
+    assert np.abs(look - plate)[sky].mean() < 1.0                  # the plate's pixels (0.5 measured)
+    assert np.abs(look - plate)[camera.height // 3:, :].mean() > 3  # the objects are in the frame
+    assert np.abs(drawn("DISABLED") - plate)[sky].mean() > 30      # the world's grey, not the plate
+    area.spaces.active.shading.use_compositor = "ALWAYS"
+    scene.view_settings.view_transform = "AgX"                      # the user's view while the look is on
+    assert np.abs(drawn("ALWAYS") - plate)[sky].mean() > 4         # 8.4 measured
+    assert cv2.countNonZero((look.mean(axis=2) > 0).astype(np.uint8)) > 0.9 * look.shape[0] * look.shape[1]
