@@ -19,6 +19,8 @@ Contents
 - :func:`setup_render_camera`: give a scene the render camera and film the engine needs
 - :func:`setup_scene`: prepare a scene for the render handler; returns the render camera (field of view, size)
 - :func:`main_layer`: the view layer that holds the graphics (not the overlay's)
+- :func:`plate_file`: the Plate pattern's file for a frame, and whether it is one still image
+- :data:`MAX_FRAME`: the last frame Blender plays
 - :func:`plate_sequence_image`: the Plate pattern as an image sequence for the compositor's Image node
 - :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
 - :func:`motion`: the camera's angular velocity over a frame's exposure from the chosen motion source
@@ -174,20 +176,36 @@ def main_layer(scene) -> str:
     return next(layer.name for layer in scene.view_layers if layer.name != OVERLAY_LAYER)
 
 
-def plate_sequence_image(scene):
-    """The scene's Plate pattern as a Blender image for the compositor's Image node: an image sequence whose
-    frame N is the pattern's file for frame N (a still image where the pattern has no frame number), or None
-    where the scene's first frame has no file."""
+def plate_file(scene, frame: int) -> tuple[str, bool]:
+    """The Plate pattern's file for ``frame`` (an absolute path), and whether the pattern is one still image behind
+    every frame (no frame number in it)."""
     from lowcam.batch import expand_pattern
 
     pattern = bpy.path.abspath(settings(scene).plate_pattern)
     still = "#" not in pattern and "%" not in pattern
-    path = Path(pattern if still else expand_pattern(pattern, scene.frame_start))
-    if not path.is_file():
-        return None
-    image = bpy.data.images.load(str(path), check_existing=True)
-    if settings(scene).plate_pattern.startswith("//") and bpy.data.filepath:
-        image.filepath = bpy.path.relpath(str(path))   # relative as the pattern: the .blend can move with it
+    return (pattern if still else expand_pattern(pattern, frame)), still
+
+
+#: The last frame Blender plays (``MAXFRAME``): a sequence node that long follows any later end of the scene.
+MAX_FRAME = 1048574
+
+
+def plate_sequence_image(scene):
+    """The scene's Plate pattern as a Blender image for the compositor's Image node: an image sequence whose
+    frame N is the pattern's file for frame N (a still image where the pattern has no frame number). Raises
+    :class:`LowcamError` where Blender cannot play the pattern: the scene's first frame has no file, or the frame
+    number is not the last number in the file's name (Blender numbers a sequence by that)."""
+    pattern = settings(scene).plate_pattern
+    path, still = plate_file(scene, scene.frame_start)
+    after = re.split(r"#+|%0?\d*d", Path(pattern).stem)[-1]   # the name before its extension
+    if not still and (re.search(r"\d", after) or re.search(r"#|%0?\d*d", str(Path(pattern).parent))):
+        raise LowcamError(f"{pattern}: Blender plays an image sequence by the last number in the file's name; "
+                          "put the frame number there")
+    if not Path(path).is_file():
+        raise LowcamError(f"{path}: no such file (the plate for frame {scene.frame_start})")
+    image = bpy.data.images.load(path, check_existing=True)
+    if pattern.startswith("//") and bpy.data.filepath:
+        image.filepath = bpy.path.relpath(path)        # relative as the pattern: the .blend can move with it
     if not still:
         image.source = "SEQUENCE"
     return image
@@ -195,7 +213,7 @@ def plate_sequence_image(scene):
 
 def plate(scene, frame: int, profile):
     """The plate for ``frame`` as uint8 RGB at the camera's size, or None."""
-    from lowcam.batch import expand_pattern, read_video_frame
+    from lowcam.batch import read_video_frame
     from lowcam.io import check_plate, read_plate
 
     s = settings(scene)
@@ -203,9 +221,7 @@ def plate(scene, frame: int, profile):
     if s.plate_source == "NONE":
         return None
     if s.plate_source == "SEQUENCE":
-        pattern = bpy.path.abspath(s.plate_pattern)
-        still = "#" not in pattern and "%" not in pattern       # one still image behind every frame
-        return read_plate(pattern if still else expand_pattern(pattern, frame), c.width, c.height)
+        return read_plate(plate_file(scene, frame)[0], c.width, c.height)
     clip = s.plate_clip
     if clip is None:
         raise LowcamError("the plate source is Movie Clip but no clip is chosen")

@@ -110,12 +110,17 @@ class LOWCAM_OT_add_camera_node(bpy.types.Operator):
             clip = tree.nodes.new("CompositorNodeMovieClip")
             clip.clip = s.plate_clip
             tree.links.new(clip.outputs["Image"], node.inputs["Plate"])
-        elif s.plate_source == "SEQUENCE" and (image := frames.plate_sequence_image(scene)) is not None:
-            sequence = tree.nodes.new("CompositorNodeImage")   # frame N shows the pattern's file for frame N
-            sequence.image = image
-            sequence.frame_start, sequence.frame_offset = 1, 0
-            sequence.frame_duration = max(scene.frame_end, 1)
-            tree.links.new(sequence.outputs["Image"], node.inputs["Plate"])
+        elif s.plate_source == "SEQUENCE":
+            try:
+                image = frames.plate_sequence_image(scene)
+            except LowcamError as e:
+                self.report({"WARNING"}, f"{e}; the node's Plate input is left for you to connect")
+            else:
+                sequence = tree.nodes.new("CompositorNodeImage")   # frame N shows the pattern's file for frame N
+                sequence.image = image
+                sequence.frame_start, sequence.frame_offset = 1, 0
+                sequence.frame_duration = frames.MAX_FRAME
+                tree.links.new(sequence.outputs["Image"], node.inputs["Plate"])
         node.inputs["Seed"].default_value = s.seed
         tree.links.new(node.outputs["Image"], out)
         return {"FINISHED"}

@@ -298,14 +298,27 @@ def check_memory(profile, render_shape=(0, 0)) -> None:
                           "camera.margin_px or the frame size")
 
 
+def _checked(render) -> CheckedRender:
+    """``render`` checked (:func:`~lowcam.io.check_render_window`), or a :class:`~lowcam.io.CheckedRender` taken
+    as checked when it was read (not scanned again), once what the chain relies on holds: float32 (H, W, 4) in C
+    order, its window inside it."""
+    if not isinstance(render, CheckedRender):
+        return check_render_window(render)
+    rgba, window = render
+    if not (isinstance(rgba, np.ndarray) and rgba.dtype == np.float32 and rgba.ndim == 3 and rgba.shape[2] == 4
+            and rgba.flags.c_contiguous) or (window is not None and not all(
+                0 <= part.start < part.stop <= size for part, size in zip(window, rgba.shape))):
+        raise LowcamError("render: a CheckedRender must be what lowcam.io.check_render_window returned; pass the "
+                          "render's array instead")
+    return render
+
+
 def _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes):
     """A validated :class:`SimState` at the start of the chain, and the plate's bytes."""
     profile = load_profile(profile)
-    checked = render if isinstance(render, CheckedRender) else None  # checked when it was read: not scanned again
-    if checked:
-        render = checked.rgba
-    check_memory(profile, np.shape(render)[:2] if np.ndim(render) >= 2 else (0, 0))
-    render, window = checked or check_render_window(render)
+    shape = np.shape(render.rgba if isinstance(render, CheckedRender) else render)
+    check_memory(profile, shape[:2] if len(shape) >= 2 else (0, 0))
+    render, window = _checked(render)
     passes = check_passes(passes, render.shape)
     plate_u8, plate_f, plate_raw = _prepare_plate(profile, plate)
     w = tuple(float(x) for x in angular_velocity)
@@ -464,7 +477,7 @@ def plain_composite(render: np.ndarray, profile="fire-i", plate: np.ndarray | No
     """The standard compositing the paper compares against: the render warped through the lens, resampled to the
     frame and blended over the plate with its alpha, with none of the camera's degradations."""
     profile = load_profile(profile)
-    render, window = check_render_window(render)
+    render, window = _checked(render)
     plate_u8, plate_f, _ = _prepare_plate(profile, plate)
     if profile.is_raw:
         plate_f = demosaic_bilinear(unmosaic(plate_u8, profile.geometry), profile.geometry)

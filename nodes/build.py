@@ -36,6 +36,7 @@ Contents
 - :func:`build_camera_group`: build "Lowcam Camera" from a bake: Image, Plate, Seed and Noise in; Image out
 - :func:`set_code_view`: image output settings that write the group's output as its codes (Standard, no look)
 - :func:`set_code_display`: display and view settings that show the group's output as its codes
+- :data:`CODE_DISPLAY`: the settings :func:`set_code_display` sets, as (display or view, attribute)
 
 References
 ----------
@@ -484,7 +485,8 @@ def set_code_view(image_settings) -> None:
     set_code_display(image_settings.display_settings, image_settings.view_settings)
 
 
-#: The colour-management settings :func:`set_code_display` sets: (settings, attribute).
+#: The colour-management settings :func:`set_code_display` sets: ("display" or "view" settings, attribute), the
+#: view transform before its look (a look belongs to a view transform).
 CODE_DISPLAY = (("display", "display_device"), ("view", "view_transform"), ("view", "look"), ("view", "exposure"),
                 ("view", "gamma"), ("view", "use_curve_mapping"), ("view", "use_white_balance"))
 

@@ -33,20 +33,23 @@ Contents
 - :data:`VIEWPORT_NODE_KINDS`: the node kinds (``bl_idname``) the group may contain in the viewport compositor
 - :data:`BEFORE_5_0`: why the look refuses to switch on before Blender 5.0
 - :data:`SAVED`: the scene's custom property holding the 3D views' own settings while the look is on
+- :data:`SCENE_DISPLAY`: the key under which it keeps the scene's own display and view settings
 - :func:`node_kinds`: every node kind in a node tree, groups opened: {bl_idname: count}
 - :func:`unsupported_in_viewport`: the kinds of a tree the viewport compositor is not known to run, sorted
 - :func:`view3d_spaces`: the 3D views of some screens as (key, space) pairs
 - :func:`is_on`: whether the look is on in a scene
-- :func:`switch_on`: set the 3D views' Compositor to ``mode`` (and Solid shading to Material Preview), keeping
-  each view's own settings
-- :func:`switch_off`: give back each 3D view the settings it had before :func:`switch_on`
+- :func:`switch_on`: set the 3D views' Compositor to ``mode`` (and Solid shading to Material Preview) and the
+  scene's display to the Standard view, keeping each view's own settings and the scene's
+- :func:`switch_off`: give back each 3D view the settings it had before :func:`switch_on`, and the scene its own
 - :func:`start_gpu`: start Blender's GPU module in a background process (one tiny EEVEE render)
 - :func:`draw_through_camera`: a 3D view drawn offscreen through the scene camera, its compositor included
 """
 from __future__ import annotations
 
+import bpy
 import numpy as np
 
+from .. import blender_compat as compat
 from .build import CODE_DISPLAY, set_code_display
 
 #: Node kinds the group may contain in the viewport compositor: the group's built-in nodes in Blender 5.x and
@@ -96,6 +99,10 @@ def is_on(scene) -> bool:
     return SAVED in scene
 
 
+def _display(scene) -> dict:
+    return {"display": scene.display_settings, "view": scene.view_settings}
+
+
 def switch_on(scene, spaces, mode: str = "ALWAYS") -> int:
     """Set the Compositor of the 3D views ``spaces`` ((key, space) pairs) to ``mode`` ("ALWAYS" or "CAMERA"), and
     their shading to Material Preview where it is Wireframe or Solid (the viewport compositor runs in Material
@@ -103,7 +110,7 @@ def switch_on(scene, spaces, mode: str = "ALWAYS") -> int:
     keeping each view's own settings and the scene's in ``scene[SAVED]`` (settings already kept keep their first
     values); returns how many views were set."""
     saved = {key: dict(value) for key, value in scene.get(SAVED, {}).items()}
-    settings = {"display": scene.display_settings, "view": scene.view_settings}
+    settings = _display(scene)
     saved.setdefault(SCENE_DISPLAY, {name: getattr(settings[part], name) for part, name in CODE_DISPLAY
                                      if hasattr(settings[part], name)})
     set_code_display(scene.display_settings, scene.view_settings)
@@ -122,11 +129,12 @@ def switch_off(scene, spaces) -> int:
     Compositor setting it had before :func:`switch_on`; views the look did not set stay as they are. Forgets the
     kept settings; returns how many views were given theirs back."""
     saved = scene.get(SAVED, {})
-    own = saved.get(SCENE_DISPLAY, {})
-    settings = {"display": scene.display_settings, "view": scene.view_settings}
+    own, settings = saved.get(SCENE_DISPLAY, {}), _display(scene)
     for part, name in CODE_DISPLAY:    # the view transform before its look
-        if name in own:
+        try:
             setattr(settings[part], name, own[name])
+        except (KeyError, TypeError, AttributeError):  # not kept, or unknown to this colour configuration
+            pass
     restored = 0
     for key, space in spaces:
         if key in saved:
@@ -142,7 +150,6 @@ def start_gpu() -> None:
     """Start Blender's GPU module in a background process (``blender -b``, the bpy module), where drawing is
     refused until a render has started it: one 8x8 EEVEE render of a scene made for it and removed. Does nothing
     where the module is up (a window, or a render before)."""
-    import bpy
     import gpu
 
     try:
@@ -155,7 +162,7 @@ def start_gpu() -> None:
     try:
         scene.collection.objects.link(camera)
         scene.camera = camera
-        scene.render.engine = "BLENDER_EEVEE"
+        scene.render.engine = compat.eevee_engine()
         scene.render.resolution_x = scene.render.resolution_y = 8
         bpy.ops.render.render(scene=scene.name)
     finally:
@@ -169,16 +176,18 @@ def draw_through_camera(scene, area, width: int, height: int) -> np.ndarray:
     """The 3D view of ``area`` drawn offscreen through ``scene``'s camera, ``width`` x ``height`` pixels, with the
     view's own shading and Compositor setting (the viewport compositor runs as on screen) and the scene's display
     colour management: (height, width, 4) float32, the top row first. Needs the GPU module (:func:`start_gpu`)."""
-    import bpy
     import gpu
 
     region = next(r for r in area.regions if r.type == "WINDOW")
     camera = scene.camera
+    if camera is None:
+        raise ValueError(f"scene '{scene.name}' has no camera to draw through")
+    layer = bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
     projection = camera.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(), x=width, y=height)
     offscreen = gpu.types.GPUOffScreen(width, height)
     try:
         with offscreen.bind():
-            offscreen.draw_view3d(scene, bpy.context.view_layer, area.spaces.active, region,
+            offscreen.draw_view3d(scene, layer, area.spaces.active, region,
                                   camera.matrix_world.inverted(), projection, do_color_management=True)
             pixels = gpu.state.active_framebuffer_get().read_color(0, 0, width, height, 4, 0, "FLOAT")
     finally:

@@ -6,8 +6,9 @@ SHOT is ``panel`` (Output Properties with the Lowcam Camera panel: the Propertie
 ``compositor`` (the compositor with a Lowcam Camera node, then inside its group: ``compositor.png`` and
 ``group.png``), ``menu`` (the compositor's Add > Lowcam menu open) or ``match`` (the Match loop run on the
 measurement set named after SHOT: ``match-before.png``, ``match-diagnosed.png``, ``match-added.png`` and
-``match.json``). ``--no-addon`` disables the installed add-on first, so the same steps show the same window without it. Writes OUT_DIR/<name>.png with Blender's own
-ImageMagick's ``import`` (or ``screen.screenshot``) and then quits; a step that fails is written to OUT_DIR/error.txt.
+``match.json``). ``--no-addon`` disables the installed add-on first, so the same steps show the same window
+without it. Writes OUT_DIR/<name>.png with Blender's own ImageMagick's ``import`` (or ``screen.screenshot``) and
+then quits; a step that fails is written to OUT_DIR/error.txt.
 
 The steps run from a timer, a fraction of a second apart, so that the window redraws between them.
 """

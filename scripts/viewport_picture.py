@@ -3,8 +3,9 @@
     .venv/bin/python scripts/viewport_picture.py [OUT_DIR] [--size 640x480] [--repeats 3]
 
 In the bpy 5.0 module (no window, no GPU needed: Mesa's software OpenGL), it builds the sample scene with the
-add-on, switches *Viewport Look* on (which adds "Lowcam Camera" with the scene's plate connected) and draws the 3D view through the scene camera offscreen, the viewport compositor running the group as it
-does on screen (:func:`nodes.viewport.draw_through_camera`), and once more with the view's Compositor off. Writes
+add-on, switches *Viewport Look* on (which adds "Lowcam Camera" with the scene's plate connected) and draws the 3D
+view through the scene camera offscreen, the viewport compositor running the group as it does on screen
+(:func:`nodes.viewport.draw_through_camera`), and once more with the view's Compositor off. Writes
 ``lowcam-viewport.png``: the view without the look beside it with the look. Prints the median time of a draw
 with and without the compositor (after a first draw of each, which compiles the shaders).
 """

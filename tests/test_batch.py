@@ -148,10 +148,14 @@ def test_a_serial_shot_reads_ahead_and_writes_behind_with_the_bytes_of_one_frame
 
 def test_a_shot_checks_each_render_once_where_it_reads_it(shot_dir, tmp_path, monkeypatch):
     """The reading thread checks the render (lowcam.io.read_checked_render) and the simulation takes its window
-    without scanning the render again; the frames are those of lowcam.simulate on the plain array, which checks."""
+    without scanning the render again; the frames are those of lowcam.simulate on the plain array, which checks.
+    A CheckedRender that is not what the check returns is refused."""
+    import threading
+
     import lowcam
-    from lowcam import pipeline
-    from lowcam.io import read_plate, read_render
+    from lowcam import io, pipeline
+    from lowcam.errors import LowcamError
+    from lowcam.io import CheckedRender, read_plate, read_render
 
     motion = read_motion_json(shot_dir / "motion.json")
     expected = {}
@@ -160,17 +164,24 @@ def test_a_shot_checks_each_render_once_where_it_reads_it(shot_dir, tmp_path, mo
         m = motion[f]
         expected[f] = lowcam.simulate(read_render(shot_dir / "renders" / f"{f:04d}.exr"), "fire-i", plate,
                                       m.angular_velocity, m.exposure_s, 0, f)
-    checks = []
+    checks, reads = [], []
     real_check = pipeline.check_render_window
     monkeypatch.setattr(pipeline, "check_render_window", lambda *a, **k: checks.append(1) or real_check(*a, **k))
+    monkeypatch.setattr(io, "check_render_window",
+                        lambda *a, **k: reads.append(threading.current_thread().name) or real_check(*a, **k))
     shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "####.png"),
                 str(shot_dir / "plates/####.png"), motion, True)
     assert [r.status for r in run_shot(shot, [2, 7], quiet=True)] == ["written", "written"]
-    assert checks == []
+    assert checks == [] and len(reads) == 2 and all(name.startswith("lowcam-read") for name in reads)
     for f, frame in expected.items():
         assert np.array_equal(cv2.cvtColor(cv2.imread(str(tmp_path / f"{f:04d}.png")), cv2.COLOR_BGR2RGB), frame)
-    lowcam.simulate(read_render(shot_dir / "renders/0002.exr"), "fire-i")
+    render = read_render(shot_dir / "renders/0002.exr")
+    lowcam.simulate(render, "fire-i")
     assert checks == [1]   # an array handed in is checked
+    for wrong in (CheckedRender(render.astype(np.float64), None),
+                  CheckedRender(render, (slice(0, render.shape[0] + 1), slice(0, 10)))):
+        with pytest.raises(LowcamError, match="CheckedRender must be what"):
+            lowcam.simulate(wrong, "fire-i")
 
 
 def test_a_serial_shot_shows_its_progress_on_a_terminal(shot_dir, tmp_path):

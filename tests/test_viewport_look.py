@@ -41,11 +41,12 @@ def test_viewport_look_switches_the_compositor_on_and_gives_the_users_settings_b
     before = _settings(home)
     view = scene.view_settings
     view.view_transform, view.look, view.exposure = "AgX", "AgX - Punchy", 0.5     # the user's own view
+    view.gamma, view.use_curve_mapping = 1.2, True
 
     assert bpy.ops.lowcam.viewport_look() == {"FINISHED"}
     assert viewport.is_on(scene)
-    assert (view.view_transform, view.look, view.exposure, scene.display_settings.display_device) == \
-        ("Standard", "None", 0.0, "sRGB")                            # the frame's codes shown as they are
+    assert (view.view_transform, view.look, view.exposure, view.gamma, view.use_curve_mapping,
+            scene.display_settings.display_device) == ("Standard", "None", 0.0, 1.0, False, "sRGB")  # the codes
     for key, space in home:
         assert space.shading.use_compositor == "ALWAYS", key
         assert space.shading.type in ("MATERIAL", "RENDERED"), key   # Solid shows no compositing
@@ -61,7 +62,8 @@ def test_viewport_look_switches_the_compositor_on_and_gives_the_users_settings_b
     home[0][1].shading.use_compositor = "CAMERA"
     assert bpy.ops.lowcam.viewport_look() == {"FINISHED"}
     assert _settings(home) == before
-    assert (view.view_transform, view.look, view.exposure) == ("AgX", "AgX - Punchy", 0.5)
+    assert (view.view_transform, view.look, view.exposure, view.gamma, view.use_curve_mapping) == \
+        ("AgX", "AgX - Punchy", 0.5, pytest.approx(1.2), True)
     assert not viewport.is_on(scene)
     assert node.name in tree.nodes                                   # the compositor itself is the user's now
 
@@ -151,7 +153,8 @@ def test_the_3d_view_shows_the_cameras_frame_over_the_plate(tmp_path):
     area = next(a for s in bpy.data.screens for a in s.areas if a.type == "VIEW_3D")
     camera = load_profile(scene.lowcam.profile).camera
     size = (camera.width, camera.height)                             # the frame drawn pixel for pixel
-    plate = read_image(tmp_path / "plate" / "0001.png").astype(np.float64)
+    scene.frame_set(3)                                               # frame N shows the plate's file N
+    plate = read_image(tmp_path / "plate" / "0003.png").astype(np.float64)
     sky = (slice(0, camera.height // 4), slice(None))                # no object in the frame's top quarter
 
     def drawn(compositor):
@@ -161,9 +164,40 @@ def test_the_3d_view_shows_the_cameras_frame_over_the_plate(tmp_path):
 
     look = drawn("ALWAYS")
     assert np.abs(look - plate)[sky].mean() < 1.0                  # the plate's pixels (0.5 measured)
+    first = read_image(tmp_path / "plate" / "0001.png").astype(np.float64)
+    assert np.abs(look - first)[sky].mean() > 2 * np.abs(look - plate)[sky].mean()   # not frame 1's
     assert np.abs(look - plate)[camera.height // 3:, :].mean() > 3  # the objects are in the frame
     assert np.abs(drawn("DISABLED") - plate)[sky].mean() > 30      # the world's grey, not the plate
     area.spaces.active.shading.use_compositor = "ALWAYS"
     scene.view_settings.view_transform = "AgX"                      # the user's view while the look is on
     assert np.abs(drawn("ALWAYS") - plate)[sky].mean() > 4         # 8.4 measured
     assert cv2.countNonZero((look.mean(axis=2) > 0).astype(np.uint8)) > 0.9 * look.shape[0] * look.shape[1]
+
+
+def test_add_camera_node_connects_the_plate_pattern_only_where_blender_can_play_it(tmp_path):
+    """The Plate pattern becomes the node's image sequence only where Blender can play it: a frame number that is
+    not the last number in the file's name, or a first frame without a file, leaves the Plate input unconnected
+    (the operator says why; the render handler reads such patterns itself)."""
+    import cv2
+
+    submodule("addon.render")
+    bpy.ops.wm.read_homefile(use_empty=False)
+    scene = bpy.context.scene
+    compat = submodule("blender_compat")
+    s = scene.lowcam
+    s.plate_source = "SEQUENCE"
+    for f in (1, 2):
+        cv2.imwrite(str(tmp_path / f"{f:04d}_v2.png"), np.full((8, 8, 3), 40 * f, np.uint8))
+
+    def plate_input(pattern):
+        s.plate_pattern = str(tmp_path / pattern)
+        assert bpy.ops.lowcam.add_camera_node() == {"FINISHED"}
+        node = [n for n in compat.compositor_tree(scene).nodes if n.bl_idname == "LowcamCameraNode"][-1]
+        return node.inputs["Plate"]
+
+    assert not plate_input("####_v2.png").is_linked          # Blender would number the sequence by the 2
+    assert not plate_input("v2_####.png").is_linked          # no file for the first frame
+    for f in (1, 2):
+        (tmp_path / f"{f:04d}_v2.png").rename(tmp_path / f"v2_{f:04d}.png")
+    image = plate_input("v2_####.png").links[0].from_node.image
+    assert image.source == "SEQUENCE" and image.filepath.endswith("v2_0001.png")
