@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The Blender test matrix: the Blender tier (tests/test_blender.py, test_extension.py, test_render_passes.py,
-# test_colour_management.py, marker "blender") under each supported Blender, then a real Blender binary. Each part
-# prints its time.
+# test_colour_management.py, test_viewport_look.py, marker "blender") under each supported Blender, then a real
+# Blender binary. Each part prints its time.
 #   bash scripts/test-blenders.sh              every part
 #   bash scripts/test-blenders.sh bpy42 bpy45  some parts: bpy42 (bpy 4.2 LTS), bpy45 (4.5 LTS), bpy50 (5.0), trixie
 # Further pytest arguments go after "--" (e.g. -- -x -k extension).
@@ -14,7 +14,8 @@ parts=()
 while [ $# -gt 0 ] && [ "$1" != "--" ]; do parts+=("$1"); shift; done
 [ "${1:-}" = "--" ] && shift
 [ ${#parts[@]} -eq 0 ] && parts=(bpy42 bpy45 bpy50 trixie)
-TESTS=(tests/test_blender.py tests/test_extension.py tests/test_render_passes.py tests/test_colour_management.py)
+TESTS=(tests/test_blender.py tests/test_extension.py tests/test_render_passes.py tests/test_colour_management.py
+       tests/test_viewport_look.py)
 declare -A BPY=([bpy42]="4.2.*" [bpy45]="4.5.*")
 
 python311() {
