@@ -383,6 +383,6 @@ def mark_clipped(reading: PatchReading, frames, floor: float = 0.0, ceiling: flo
     """Mark clipped in ``reading`` (read on the frames' mean) each patch with any pixel at ``floor`` or ``ceiling``
     in any of ``frames``: a mean frame hides a pixel clipped in one of them. Returns ``reading``."""
     for f in frames:
-        areas = _areas(f, reading.corners, reading.centres)
-        reading.clipped |= np.array([bool(((a <= floor) | (a >= ceiling)).any()) for a in areas])
+        areas = _areas(f, reading.corners, reading.centres) or []   # None: cells under 8 px, as in the reading
+        reading.clipped[:len(areas)] |= np.array([bool(((a <= floor) | (a >= ceiling)).any()) for a in areas], bool)
     return reading
