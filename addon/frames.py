@@ -190,6 +190,13 @@ def plate_file(scene, frame: int) -> tuple[str, bool]:
 MAX_FRAME = 1048574
 
 
+def _numbered_by_blender(scene, frame: int) -> bool:
+    """Whether Blender, which numbers an image sequence by the last number in a file's name (before its
+    extension), takes the Plate pattern's file for ``frame`` for frame ``frame``."""
+    numbers = re.findall(r"\d+", Path(plate_file(scene, frame)[0]).stem)
+    return bool(numbers) and int(numbers[-1]) == frame
+
+
 def plate_sequence_image(scene):
     """The scene's Plate pattern as a Blender image for the compositor's Image node: an image sequence whose
     frame N is the pattern's file for frame N (a still image where the pattern has no frame number). Raises
@@ -197,8 +204,7 @@ def plate_sequence_image(scene):
     number is not the last number in the file's name (Blender numbers a sequence by that)."""
     pattern = settings(scene).plate_pattern
     path, still = plate_file(scene, scene.frame_start)
-    after = re.split(r"#+|%0?\d*d", Path(pattern).stem)[-1]   # the name before its extension
-    if not still and (re.search(r"\d", after) or re.search(r"#|%0?\d*d", str(Path(pattern).parent))):
+    if not still and not all(_numbered_by_blender(scene, f) for f in (scene.frame_start, scene.frame_start + 1)):
         raise LowcamError(f"{pattern}: Blender plays an image sequence by the last number in the file's name; "
                           "put the frame number there")
     if not Path(path).is_file():

@@ -383,6 +383,7 @@ def mark_clipped(reading: PatchReading, frames, floor: float = 0.0, ceiling: flo
     """Mark clipped in ``reading`` (read on the frames' mean) each patch with any pixel at ``floor`` or ``ceiling``
     in any of ``frames``: a mean frame hides a pixel clipped in one of them. Returns ``reading``."""
     for f in frames:
-        areas = _areas(f, reading.corners, reading.centres) or []   # None: cells under 8 px, as in the reading
-        reading.clipped[:len(areas)] |= np.array([bool(((a <= floor) | (a >= ceiling)).any()) for a in areas], bool)
+        areas = _areas(f, reading.corners, reading.centres)
+        if areas is not None:  # None: cells under 8 px, which a reading refuses
+            reading.clipped |= [bool(((a <= floor) | (a >= ceiling)).any()) for a in areas]
     return reading

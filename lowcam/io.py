@@ -13,6 +13,7 @@ Contents
 - :data:`OVERLAY_LAYER`: the add-on's view layer of excluded objects, never taken for the render
 - :func:`read_render`: read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4)
 - :func:`read_checked_render`: :func:`read_render` with its window, which the pipeline then need not find again
+- :func:`exr_render`: :func:`read_checked_render` of an OpenEXR file's channels already read
 - :data:`RENDER_MAX`: the largest render value accepted
 - :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
 - :func:`check_render_window`: :func:`check_render`, and the window around the render's non-zero pixels
@@ -263,17 +264,22 @@ def read_checked_render(path, layer: str | None = None, render_space: str | None
     when given, else the one an OpenEXR header names: :func:`render_space_of`) is converted to linear Rec.709.
     """
     path = _exists(path)
-    tags = None
     if _format(path) == "exr":
-        channels, tags = read_exr_tagged(path)
-        rgba = _rgba_from_exr(path, channels, layer)
-    else:
-        img = _decode(path)
-        if img.ndim != 3 or img.shape[2] != 4:
-            raise LowcamError(f"{path}: no alpha channel (a render needs RGBA)")
-        scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
-        rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
-        rgba[..., :3] *= rgba[..., 3:]
+        return exr_render(path, *read_exr_tagged(path), layer, render_space)
+    img = _decode(path)
+    if img.ndim != 3 or img.shape[2] != 4:
+        raise LowcamError(f"{path}: no alpha channel (a render needs RGBA)")
+    scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
+    rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / np.float32(scale)
+    rgba[..., :3] *= rgba[..., 3:]
+    return check_render_window(to_camera_space(rgba, render_space_of(path, render_space)), path)
+
+
+def exr_render(path, channels: dict, tags: dict, layer: str | None = None,
+               render_space: str | None = None) -> CheckedRender:
+    """:func:`read_checked_render` of an OpenEXR file whose channels and colour tags are read
+    (:func:`read_exr_tagged`)."""
+    rgba = _rgba_from_exr(path, channels, layer)
     return check_render_window(to_camera_space(rgba, render_space_of(path, render_space, tags)), path)
 
 

@@ -36,9 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import LowcamError
-from .io import (OVERLAY_LAYER, _exists, _format, _rgba_from_exr, check_render_window, read_checked_render, read_exr,
-                 read_exr_tagged, render_space_of)
-from .render_spaces import to_camera_space
+from .io import OVERLAY_LAYER, _exists, _format, exr_render, read_checked_render, read_exr, read_exr_tagged
 
 
 #: Each kind of pass: its :class:`RenderPasses` field and the Blender pass that holds it.
@@ -182,6 +180,5 @@ def read_render_and_passes(path, layer: str | None, needs: tuple[str, ...], fps:
         raise LowcamError(f"{path}: a {needs[0]} pass is needed and only an OpenEXR render holds one; render a "
                           f"multilayer OpenEXR ({PASS_HELP[needs[0]]})")
     channels, tags = read_exr_tagged(path)
-    render = check_render_window(to_camera_space(_rgba_from_exr(path, channels, layer),
-                                                 render_space_of(path, render_space, tags)), path)
-    return render, read_blender_passes(path, layer, fps, metres_per_unit, needs, channels)
+    return exr_render(path, channels, tags, layer, render_space), read_blender_passes(path, layer, fps,
+                                                                                     metres_per_unit, needs, channels)

@@ -36,7 +36,7 @@ Contents
 - :func:`build_camera_group`: build "Lowcam Camera" from a bake: Image, Plate, Seed and Noise in; Image out
 - :func:`set_code_view`: image output settings that write the group's output as its codes (Standard, no look)
 - :func:`set_code_display`: display and view settings that show the group's output as its codes
-- :data:`CODE_DISPLAY`: the settings :func:`set_code_display` sets, as (display or view, attribute)
+- :data:`CODE_DISPLAY`: the settings :func:`set_code_display` sets, as (display or view, attribute, value)
 
 References
 ----------
@@ -485,22 +485,20 @@ def set_code_view(image_settings) -> None:
     set_code_display(image_settings.display_settings, image_settings.view_settings)
 
 
-#: The colour-management settings :func:`set_code_display` sets: ("display" or "view" settings, attribute), the
-#: view transform before its look (a look belongs to a view transform).
-CODE_DISPLAY = (("display", "display_device"), ("view", "view_transform"), ("view", "look"), ("view", "exposure"),
-                ("view", "gamma"), ("view", "use_curve_mapping"), ("view", "use_white_balance"))
+#: The display under which the group's output shows as its 8-bit codes: ("display" or "view" settings, attribute,
+#: value), the view transform before its look (a look belongs to a view transform).
+CODE_DISPLAY = (("display", "display_device", "sRGB"), ("view", "view_transform", "Standard"),
+                ("view", "look", "None"), ("view", "exposure", 0.0), ("view", "gamma", 1.0),
+                ("view", "use_curve_mapping", False), ("view", "use_white_balance", False))
 
 
 def set_code_display(display_settings, view_settings) -> None:
-    """Display and view settings under which the group's output shows as its 8-bit codes: an sRGB display, the
-    Standard view without look, exposure 0, gamma 1, no curves, no white balance."""
-    display_settings.display_device = "sRGB"
-    view_settings.view_transform = "Standard"
-    view_settings.look = "None"
-    view_settings.exposure, view_settings.gamma = 0.0, 1.0
-    view_settings.use_curve_mapping = False
-    if hasattr(view_settings, "use_white_balance"):     # 4.5+
-        view_settings.use_white_balance = False
+    """Display and view settings under which the group's output shows as its 8-bit codes (:data:`CODE_DISPLAY`):
+    an sRGB display, the Standard view without look, exposure 0, gamma 1, no curves, no white balance."""
+    settings = {"display": display_settings, "view": view_settings}
+    for part, name, value in CODE_DISPLAY:
+        if hasattr(settings[part], name):   # white balance: 4.5+
+            setattr(settings[part], name, value)
 
 
 def build_camera_group(camera: CameraBake, name: str = "Lowcam Camera", until: str | None = None):

@@ -111,7 +111,7 @@ def switch_on(scene, spaces, mode: str = "ALWAYS") -> int:
     values); returns how many views were set."""
     saved = {key: dict(value) for key, value in scene.get(SAVED, {}).items()}
     settings = _display(scene)
-    saved.setdefault(SCENE_DISPLAY, {name: getattr(settings[part], name) for part, name in CODE_DISPLAY
+    saved.setdefault(SCENE_DISPLAY, {name: getattr(settings[part], name) for part, name, _ in CODE_DISPLAY
                                      if hasattr(settings[part], name)})
     set_code_display(scene.display_settings, scene.view_settings)
     for key, space in spaces:
@@ -130,7 +130,7 @@ def switch_off(scene, spaces) -> int:
     kept settings; returns how many views were given theirs back."""
     saved = scene.get(SAVED, {})
     own, settings = saved.get(SCENE_DISPLAY, {}), _display(scene)
-    for part, name in CODE_DISPLAY:    # the view transform before its look
+    for part, name, _ in CODE_DISPLAY:    # the view transform before its look
         try:
             setattr(settings[part], name, own[name])
         except (KeyError, TypeError, AttributeError):  # not kept, or unknown to this colour configuration
