@@ -15,6 +15,7 @@ from the caller instead (each poll returns at once), which is what the operators
 Contents
 --------
 - :data:`POLL_S`: how often the timer polls a running job (s)
+- :data:`JOB_NICENESS`: how far below Blender a job's processes run (POSIX ``nice``; below normal on Windows)
 - :class:`Job`: one or more ``lowcam`` commands in a child process, their output, progress, result or error
 - :func:`lowcam_command`: the command line that runs ``lowcam ARGS`` in a child process, and its environment
 - :func:`current`: the job running now (one at a time), or None
@@ -43,6 +44,9 @@ from bpy.app.handlers import persistent
 
 #: How often the timer polls a running job (s).
 POLL_S = 0.1
+#: How far below Blender a job's processes run (POSIX ``nice``; Windows: below normal priority), so that a diagnosis
+#: using every core leaves Blender's own thread the CPU it needs to stay responsive.
+JOB_NICENESS = 10
 
 
 def lowcam_command(args) -> tuple[list[str], dict]:
@@ -94,7 +98,9 @@ class Job:
         self.stderr = []
         self.step_started = time.monotonic()
         own_group = {"start_new_session": True} if os.name == "posix" else \
-            {"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
+            {"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.BELOW_NORMAL_PRIORITY_CLASS}
+        if os.name == "posix" and shutil.which("nice"):
+            argv = ["nice", "-n", str(JOB_NICENESS), *argv]   # Blender's own thread keeps the CPU it needs
         self.process = subprocess.Popen(argv, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                         stderr=subprocess.PIPE, text=True, encoding="utf-8", errors="replace",
                                         bufsize=1, **own_group)
