@@ -1,8 +1,15 @@
 #!/usr/bin/env bash
-# Create .venv (Python 3.11) and install Lowcam with everything the tests need. Idempotent: it reinstalls only
-# when pyproject.toml changed since the last successful install.
+# Create .venv (Python 3.11) and install Lowcam with everything the tests need, at the versions in
+# constraints.txt (the ones the tests passed with). Idempotent: it reinstalls only when pyproject.toml or
+# constraints.txt changed since the last successful install.
+#   bash scripts/setup.sh            .venv, the locked versions
+#   bash scripts/setup.sh --newest   .venv-newest, the newest versions pyproject.toml allows (no constraints)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+venv=.venv constraints=(-c constraints.txt)
+if [ "${1:-}" = "--newest" ]; then
+  venv=.venv-newest constraints=()
+fi
 
 py=""
 for cand in python3.11 python3; do
@@ -15,18 +22,18 @@ if [ -z "$py" ]; then
   exit 1
 fi
 
-stamp=.venv/.lowcam-installed
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+stamp=$venv/.lowcam-installed
+want=$(cat pyproject.toml "${constraints[@]:1}" | sha256sum | cut -d' ' -f1)
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi
-[ -x .venv/bin/python ] || "$py" -m venv .venv
-echo "setup: installing Lowcam and its dependencies into .venv (bpy is large: the first time takes a few minutes)"
-log=.venv/pip-install.log
+[ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
+echo "setup: installing Lowcam and its dependencies into $venv (bpy is large: the first time takes a few minutes)"
+log=$venv/pip-install.log
 # colour-checker-detection (ColorChecker targets) asks for opencv-python, whose cv2 would replace the
 # opencv-contrib build's: it is installed without its requirements (the others are Lowcam's own)
-if ! { .venv/bin/python -m pip install --disable-pip-version-check -e ".[test]" &&
-       .venv/bin/python -m pip install --disable-pip-version-check --no-deps "colour-checker-detection==0.2.1"; } \
+if ! { "$venv/bin/python" -m pip install --disable-pip-version-check "${constraints[@]}" -e ".[test]" &&
+       "$venv/bin/python" -m pip install --disable-pip-version-check --no-deps "colour-checker-detection==0.2.1"; } \
      >"$log" 2>&1; then
   grep -E "ERROR|error:" "$log" | tail -20 >&2
   echo "setup: pip install failed; the whole log is in $log" >&2

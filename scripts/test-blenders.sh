@@ -6,7 +6,8 @@
 #   bash scripts/test-blenders.sh bpy42 bpy45  some parts: bpy42 (bpy 4.2 LTS), bpy45 (4.5 LTS), bpy50 (5.0), trixie
 # Further pytest arguments go after "--" (e.g. -- -x -k extension).
 # The bpy parts run under Python 3.11, each in its own venv made here on first use (.venv-bpy42, .venv-bpy45;
-# bpy 5.0 is the project's own .venv from scripts/setup.sh), reinstalled when pyproject.toml changes.
+# bpy 5.0 is the project's own .venv from scripts/setup.sh), at constraints.txt's versions but for bpy, reinstalled
+# when pyproject.toml or constraints.txt changes.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 
@@ -35,12 +36,14 @@ venv_for() {
   local dir=.venv-$part spec="bpy==${BPY[$part]}" py
   # as scripts/setup.sh: the ColorChecker detector without its opencv-python requirement
   local detector="colour-checker-detection==0.2.1"
-  local want; want="$(sha256sum pyproject.toml | cut -d' ' -f1) $spec $detector"
+  local want; want="$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1) $spec $detector"
   if [ ! -f "$dir/.lowcam-installed" ] || [ "$(cat "$dir/.lowcam-installed")" != "$want" ]; then
     py=$(python311) || return 1
     [ -x "$dir/bin/python" ] || "$py" -m venv "$dir" || return 1
     echo "test-blenders: installing $spec and Lowcam into $dir (bpy is large: minutes the first time)" >&2
-    if ! { "$dir/bin/python" -m pip install --disable-pip-version-check -q "$spec" -e . pytest pytest-timeout \
+    grep -v '^bpy==' constraints.txt > "$dir/constraints.txt"  # the locked versions, but this part's bpy
+    if ! { "$dir/bin/python" -m pip install --disable-pip-version-check -q -c "$dir/constraints.txt" "$spec" -e . \
+             pytest pytest-timeout \
              pillow packaging &&
            "$dir/bin/python" -m pip install --disable-pip-version-check -q --no-deps "$detector"; } \
         >"$dir/pip-install.log" 2>&1; then

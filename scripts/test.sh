@@ -6,11 +6,29 @@
 #                                   (scripts/test-blenders.sh bpy42 bpy45); the slow tier runs beside the others,
 #                                   one lane per core: what CI runs. With pytest arguments: pytest over every tier
 #   bash scripts/test.sh --tier X   one tier by marker expression, e.g. --tier blender
+#   bash scripts/test.sh --newest   the fast tier against the newest versions pyproject.toml allows (.venv-newest),
+#                                   listing where they differ from constraints.txt; with --update-constraints
+#                                   after it, a pass writes those versions into constraints.txt
 # Further arguments go to pytest (a file, -k, -x ...).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
 tier=(-m "not slow and not blender")
+if [ "${1:-}" = "--newest" ]; then
+  shift
+  update=0
+  if [ "${1:-}" = "--update-constraints" ]; then update=1; shift; fi
+  bash scripts/setup.sh --newest
+  frozen=$(.venv-newest/bin/python -m pip freeze --exclude-editable --disable-pip-version-check | grep -v -i '^lowcam')
+  echo "=== newest versions that differ from constraints.txt ==="
+  diff <(grep -v '^#' constraints.txt | sort -f) <(sort -f <<<"$frozen") | grep '^[<>]' || echo "none"
+  .venv-newest/bin/python -m pytest "${tier[@]}" -p no:cacheprovider "$@"
+  if [ "$update" = 1 ]; then
+    { grep '^#' constraints.txt; sort -f <<<"$frozen"; } > constraints.txt.new && mv constraints.txt.new constraints.txt
+    echo "constraints.txt now holds the versions the fast tier passed with"
+  fi
+  exit 0
+fi
+bash scripts/setup.sh
 case "${1:-}" in
   --all)
     shift

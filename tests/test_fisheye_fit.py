@@ -220,14 +220,18 @@ def test_fisheye_fit_recovers_a_lens_from_projected_corners():
     assert error.max() < 1.0
 
 
-def test_a_view_that_makes_the_fisheye_fit_ill_conditioned_is_left_out_and_named():
-    """A wrong detection (points strewn over the frame) among eight good views: OpenCV's conditioning check fails,
-    naming the view where it failed (not always the wrong one); the calibration leaves out the view whose absence
-    lets the fit through, and says so. Two wrong detections: refused in one line (OpenCV's solve fails)."""
+@pytest.mark.parametrize("detection", ["strewn", "collapsed"])
+def test_a_view_that_makes_the_fisheye_fit_ill_conditioned_is_left_out_and_named(detection):
+    """A wrong detection among eight good views: its points strewn over the frame (OpenCV's conditioning check
+    fails, naming the view where it failed, not always the wrong one), or collapsed onto one spot (OpenCV 4.11
+    cannot initialise its pose and names no view). The calibration leaves out the view whose absence lets the fit
+    through, and says so. Two wrong detections: refused in one line (OpenCV's solve fails)."""
     rng = np.random.default_rng(5)
     k, d = hidden_lens(rng, 120.0)
     obj, img = projected_views(rng, k, d, 8)
     wrong = [rng.uniform(0, [WIDTH, HEIGHT], img[0].shape) for _ in range(2)]
+    if detection == "collapsed":
+        wrong = [np.full_like(w, w[0]) for w in wrong]
     names = [f"view{n}.png" for n in range(10)]
     with pytest.raises(IllConditionedView):
         fit_lens(obj[:3] + obj[:1] + obj[3:], img[:3] + wrong[:1] + img[3:], (WIDTH, HEIGHT), "fisheye")

@@ -11,7 +11,8 @@ Contents
 - :class:`LensFit`: result of :func:`fit_lens`: the fitted parameters and the reprojection errors
 - :func:`fit_lens`: fit a lens ``model`` (``"fov"``, ``"opencv"`` or ``"fisheye"``) to views of a planar target
   (sec. 4.1)
-- :class:`IllConditionedView`: ``cv2.fisheye.calibrate``'s conditioning check failed at one view (which one)
+- :class:`IllConditionedView`: ``cv2.fisheye.calibrate``'s conditioning check failed at one view (which one), or
+  it could not find that view's initial pose
 
 References
 ----------
@@ -68,8 +69,9 @@ def _unpack(model, p, width, height, fix_aspect):
 
 
 class IllConditionedView(ValueError):
-    """``cv2.fisheye.calibrate``'s conditioning check (``CALIB_CHECK_COND``) failed at the pose of view ``index``:
-    the target too small, far or edge-on in it, or the intrinsics spoilt by another view's wrong detection."""
+    """``cv2.fisheye.calibrate``'s conditioning check (``CALIB_CHECK_COND``) failed at the pose of view ``index``
+    (the target too small, far or edge-on in it, or the intrinsics spoilt by another view's wrong detection), or
+    OpenCV could not find that view's initial pose at all (a degenerate detection)."""
 
     def __init__(self, index: int):
         super().__init__(f"view {index} is ill-conditioned")
@@ -86,20 +88,48 @@ _FISHEYE_HOLD = {4: 0, 3: cv2.fisheye.CALIB_FIX_K4, 2: cv2.fisheye.CALIB_FIX_K4 
                  1: cv2.fisheye.CALIB_FIX_K4 | cv2.fisheye.CALIB_FIX_K3 | cv2.fisheye.CALIB_FIX_K2}
 
 
+def _fisheye_calibrate(obj, img, image_size, flags: int):
+    """``cv2.fisheye.calibrate`` on the views, raising :class:`IllConditionedView` for the view it could not use.
+
+    OpenCV names the view whose pose fails its conditioning check. A view whose initial pose cannot be found at all
+    (a degenerate detection: OpenCV 4.11 asserts ``fabs(norm_u1) > 0`` in ``InitExtrinsics``) is not named; it is
+    the first view whose absence lets that step through. Any other failure is ``cv2.error``.
+    """
+    def calibrate(views):
+        try:
+            return cv2.fisheye.calibrate(
+                [obj[j].reshape(-1, 1, 3) for j in views], [img[j].reshape(-1, 1, 2) for j in views],
+                tuple(image_size), np.eye(3), np.zeros(4), flags=flags,
+                criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
+        except cv2.error as e:
+            bad = re.search(r"Ill-conditioned matrix for input array (\d+)", str(e))
+            if bad:
+                raise IllConditionedView(views[int(bad.group(1))]) from None
+            raise
+
+    views = list(range(len(obj)))
+    try:
+        return calibrate(views)
+    except cv2.error as e:
+        if "InitExtrinsics" not in str(e):
+            raise
+        for left in views:
+            try:
+                calibrate(views[:left] + views[left + 1:])
+            except cv2.error as again:
+                if "InitExtrinsics" in str(again):
+                    continue
+            except IllConditionedView:
+                pass
+            raise IllConditionedView(left) from None
+        raise
+
+
 def _fit_fisheye(obj, img, image_size, terms: int) -> LensFit:
     """OpenCV's fisheye calibration (``cv2.fisheye.calibrate``, :data:`FISHEYE_FLAGS`, k1..k``terms`` free, fx and
     fy apart). Its solve reaches the least reprojection error (a joint Levenberg-Marquardt refinement from it
     moved no parameter by 1e-4 on the tests' views), so it is the fit."""
-    try:
-        _, k, d, rvecs, tvecs = cv2.fisheye.calibrate(
-            [o.reshape(-1, 1, 3) for o in obj], [i.reshape(-1, 1, 2) for i in img], tuple(image_size), np.eye(3),
-            np.zeros(4), flags=FISHEYE_FLAGS | _FISHEYE_HOLD[terms],
-            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10))
-    except cv2.error as e:
-        bad = re.search(r"Ill-conditioned matrix for input array (\d+)", str(e))
-        if bad:
-            raise IllConditionedView(int(bad.group(1))) from None
-        raise
+    _, k, d, rvecs, tvecs = _fisheye_calibrate(obj, img, image_size, FISHEYE_FLAGS | _FISHEYE_HOLD[terms])
     d = d.ravel()
     params = dict(fx_px=k[0, 0], fy_px=k[1, 1], cx_px=k[0, 2], cy_px=k[1, 2],
                   **{f"fisheye_k{n + 1}": d[n] for n in range(4)})
