@@ -22,6 +22,7 @@ verdict is ``explained`` up to 1.1 times the noise floor
 Contents
 --------
 - :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
+- :data:`EDGE_SHARE`, :data:`EDGES_HOLD`: the pixels counted as edges, and when the residual is said to be there
 - :data:`SIM_SEED`: the first noise seed of the simulated frames
 - :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
 - :data:`CACHED_FRONTS`: deterministic fronts of the chain a shared cache keeps
@@ -33,6 +34,7 @@ Contents
 - :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
 - :func:`combine`: the error and its families over all captures
+- :func:`residual_family`: the kind of residual left (edges, levels, space or time), with its numbers
 - :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
 - :func:`compare`: compare a profile with a measurement set (the error above)
 """
@@ -53,6 +55,10 @@ from ..pipeline import deterministic_prefix, prefix_key, prepare, resume
 from .targets import ideal_from_target
 
 EXPLAINED_BELOW = 1.1
+#: The share of each frame's pixels that :func:`where` counts as edges (the steepest of the simulated mean).
+EDGE_SHARE = 0.1
+#: The residual is at edges (:func:`residual_family`) when they hold this many times their share of it.
+EDGES_HOLD = 3.0
 SIM_SEED = 1000
 INTENSITY_BINS = np.linspace(0, 256, 17)
 #: Deterministic fronts of the chain a shared ``cache`` keeps (:func:`simulate_capture`), least recently used out
@@ -234,8 +240,9 @@ def combine(stats: list[CaptureStats]) -> tuple[float, dict]:
 
 
 def where(stats: list[CaptureStats]) -> dict:
-    """Where the mean residual lives: per channel, per region (3x3), per spatial-frequency band, per brightness.
-    Each entry is the noise-normalised error of that subset (1.0 = noise)."""
+    """Where the mean residual lives: per channel, per region (3x3), per spatial-frequency band, per brightness,
+    and at edges (the steepest :data:`EDGE_SHARE` of pixels: their share of the residual, and the error there and
+    elsewhere). Each error is the noise-normalised error of that subset (1.0 = noise)."""
     def ratio(sel_r2, sel_noise):
         return float(np.sqrt(sel_r2 / max(sel_noise, 1e-12)))
 
@@ -277,7 +284,49 @@ def where(stats: list[CaptureStats]) -> dict:
             den += nz[sel].sum()
         if den > 0:
             out["intensities"].append({"range_dn": [float(lo), float(hi)], "error": ratio(num, den)})
+    # edges: the steepest EDGE_SHARE of each capture's simulated mean (grey gradient magnitude)
+    px = res_edges = res_all = noise_edges = noise_all = 0.0
+    for s, x, nz in zip(stats, r2, noise):
+        grey = s.simulated.mean(0, dtype=np.float64).mean(-1)
+        gy, gx = np.gradient(grey)
+        steep = np.hypot(gx, gy)
+        edge = steep > max(np.quantile(steep, 1 - EDGE_SHARE), 1e-9)
+        px += edge.mean() / len(stats)
+        res_edges, res_all = res_edges + x[edge].sum(), res_all + x.sum()
+        noise_edges, noise_all = noise_edges + nz[edge].sum(), noise_all + nz.sum()
+    out["edges"] = {"share_px": float(px), "share_residual": float(res_edges / max(res_all, 1e-12)),
+                    "error": ratio(res_edges, noise_edges),
+                    "error_elsewhere": ratio(res_all - res_edges, noise_all - noise_edges)}
     return out
+
+
+def residual_family(cmp: "Comparison") -> tuple[str, str]:
+    """The kind of residual a comparison leaves, and the numbers that say so (one line):
+
+    - ``time``: the noise between frames (``variance`` or ``rows`` family) is further off than the mean;
+    - ``edges``: the pixels at edges (:data:`EDGE_SHARE` of them) hold at least :data:`EDGES_HOLD` times their
+      share of the mean's residual (blur, sharpening, coding or registration);
+    - ``levels``: the residual varies more with brightness than across the frame (tone, black level, clipping);
+    - ``space``: it varies more across the frame's regions (vignetting, a field-dependent effect).
+    """
+    fam, w = cmp.families, cmp.where
+    if cmp.measured["variance"] and max(fam["variance"], fam["rows"]) > fam["mean"]:
+        return "time", (f"the noise between frames: variance {fam['variance']:.2f}, rows {fam['rows']:.2f}, "
+                        f"against the mean's {fam['mean']:.2f}")
+    edges = w["edges"]
+    if edges["share_residual"] >= EDGES_HOLD * edges["share_px"]:
+        return "edges", (f"{edges['share_residual']:.0%} of the residual on the {edges['share_px']:.0%} of pixels "
+                         f"at edges (error {edges['error']:.2f} there, {edges['error_elsewhere']:.2f} elsewhere)")
+    levels = sorted(w["intensities"], key=lambda e: e["error"])
+    regions = sorted(w["regions"], key=lambda e: e["error"])
+    level_spread = levels[-1]["error"] / max(levels[0]["error"], 1e-9) if len(levels) > 1 else 1.0
+    region_spread = regions[-1]["error"] / max(regions[0]["error"], 1e-9)
+    if level_spread >= region_spread:
+        lo, hi = levels[-1]["range_dn"]
+        return "levels", (f"worst at {lo:.0f}-{hi:.0f} DN ({levels[-1]['error']:.2f}), best at "
+                          f"{levels[0]['range_dn'][0]:.0f}-{levels[0]['range_dn'][1]:.0f} DN ({levels[0]['error']:.2f})")
+    return "space", (f"worst in the {regions[-1]['region']} ({regions[-1]['error']:.2f}), best in the "
+                     f"{regions[0]['region']} ({regions[0]['error']:.2f})")
 
 
 def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=None, assumed_noise=None,

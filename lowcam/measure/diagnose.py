@@ -30,12 +30,14 @@ so a candidate cannot lower the error by only adding model noise. ``Diagnosis.as
 families were measured.
 
 Verdict (:attr:`Diagnosis.verdict`): ``explained`` when the profile's own error is at most 1.1; ``missing-effect``
-when the best candidate's held-out error is at most :data:`UNEXPLAINED_ABOVE` (it is named, with that error);
-``unexplained`` otherwise (``where`` then still says where the residual lives).
+when the best candidate's held-out error is at most :data:`UNEXPLAINED_ABOVE` and below the profile's own by
+:data:`NAMED_GAIN` (it is named, with that error); ``unexplained`` otherwise, naming the residual's family (edges,
+levels, space or time: :func:`lowcam.measure.compare.residual_family`), and ``where`` says where it lives.
 
 Contents
 --------
 - :data:`UNEXPLAINED_ABOVE`: the best candidate's held-out error above which the verdict is ``unexplained`` (1.25)
+- :data:`NAMED_GAIN`: how much lower than the profile's error a candidate's must be for it to be named (3 %)
 - :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
 - :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its held-out error is within this
   factor of the best screened candidate's
@@ -92,10 +94,13 @@ from ..effects import known_effects
 from ..errors import NotFitted
 from ..pipeline import prefix_key
 from .compare import (EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare,
-                      simulate_capture)
+                      residual_family, simulate_capture)
 from .sets import MeasurementSet
 
 UNEXPLAINED_ABOVE = 1.25
+#: A candidate is named (``missing-effect``) and added by :func:`explain` only when its held-out error is below
+#: the profile's own by at least this fraction: one that does not lower the error is never named.
+NAMED_GAIN = 0.03
 FITTED = 4
 REFINE_WITHIN = 1.5
 FULL_ERRORS = 3
@@ -704,31 +709,42 @@ class Diagnosis:
         return self.candidates[0] if self.candidates else None
 
     @property
+    def lowers(self) -> bool:
+        """True when the best candidate's held-out error is below the profile's by :data:`NAMED_GAIN` at least."""
+        return self.best is not None and self.best.score <= self.error * (1 - NAMED_GAIN)
+
+    @property
     def verdict(self) -> str:
         if self.error <= EXPLAINED_BELOW * self.comparison.noise_floor:
             return "explained"
-        if self.best is not None and self.best.score <= UNEXPLAINED_ABOVE:
+        if self.lowers and self.best.score <= UNEXPLAINED_ABOVE:
             return "missing-effect"
         return "unexplained"
 
     def summary(self) -> str:
-        """One line: the error, the verdict and the numbers it rests on (held-out errors)."""
+        """One line: the error, the verdict and the numbers it rests on (held-out errors); when unexplained, the
+        residual's family (:func:`lowcam.measure.compare.residual_family`)."""
         v, b = self.verdict, self.best
         if v == "explained":
-            why = f"at the noise floor (explained up to {EXPLAINED_BELOW})"
-        elif v == "missing-effect":
-            why = f"{b.effect} brings it to {b.score:.3f} held out (at most {UNEXPLAINED_ABOVE})"
+            return f"error {self.error:.3f}, verdict {v}: at the noise floor (explained up to {EXPLAINED_BELOW})"
+        if v == "missing-effect":
+            return (f"error {self.error:.3f}, verdict {v}: {b.effect} brings it to {b.score:.3f} held out (at most "
+                    f"{UNEXPLAINED_ABOVE})")
+        if b is not None and not self.lowers:
+            why = f"no candidate lowers it (the best, {b.effect}, leaves {b.score:.3f} held out)"
         elif b is not None:
             why = f"the best candidate, {b.effect}, leaves {b.score:.3f} held out (above {UNEXPLAINED_ABOVE})"
         else:
             why = "no candidate could be fitted" + (
                 ": " + "; ".join(f"{k}: {r}" for k, r in list(self.not_fitted.items())[:3]) if self.not_fitted
                 else "")
-        return f"error {self.error:.3f}, verdict {v}: {why}"
+        family, numbers = residual_family(self.comparison)
+        return f"error {self.error:.3f}, verdict {v}: {why}; the residual is one of {family}: {numbers}"
 
     def as_json(self) -> dict:
         return {"error": round(self.error, 4), "noise_floor": self.comparison.noise_floor,
                 "verdict": self.verdict, "summary": self.summary(), "seconds": round(self.seconds, 2),
+                "residual_family": residual_family(self.comparison)[0],
                 "families": {k: round(v, 4) for k, v in self.comparison.families.items()},
                 "measured": self.comparison.measured, "added": [c.effect for c in self.added],
                 "candidates": [c.as_json() for c in self.candidates],
@@ -1249,7 +1265,7 @@ class Step:
     profile: object
 
 
-def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain: float = 0.03) -> list[Step]:
+def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain: float = NAMED_GAIN) -> list[Step]:
     """``diagnose --until-explained``: diagnose, add the best candidate, refit every continuous parameter added so
     far together (:func:`polish`), and repeat until the error is explained, no candidate lowers it by at least
     ``min_gain`` (relative), or ``max_steps`` effects were added. The last step's ``added`` is None."""
