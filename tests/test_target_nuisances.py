@@ -165,10 +165,12 @@ def _board_polygon(k, pose, points_sq):
 
 @pytest.fixture(scope="module")
 def occluded_views():
-    """Three views at random poses, each with two occluders drawn into the ideal view with OpenCV: a finger over
-    a random side's outer squares (from beyond the paper, stopping short of the inner corners, so the board is
-    still found) and a glint or smudge on a random inner square. (profile, captures, per view the output pixels
-    the occluders change)."""
+    """Three views at random poses, each with three departures from the board drawn into the ideal view with
+    OpenCV: a finger over a random side's outer squares (from beyond the paper, stopping short of the inner
+    corners, so the board is still found), skin-coloured; a glint on a random inner black square, brighter in the
+    second frame than in the first; and a grey smudge on another inner square, the same in both frames (nothing
+    says it is not the camera's). (profile, captures, per view the output pixels the finger and glint change and
+    those the smudge changes)."""
     profile = lowcam.load_profile("fire-i")
     rng = np.random.default_rng(20261125)
     k, size = _pinhole(profile)
@@ -183,41 +185,59 @@ def occluded_views():
         cv2.fillPoly(finger, [_board_polygon(k, pose, [(x_out, along), (x_in, along + 0.1), (x_in, along + 0.5),
                                                        (x_out, along + 0.6)])], 1)
         grey = rng.uniform(0.35, 0.55) * (1 + 0.15 * np.linspace(-1, 1, ideal.shape[1]))[None, :]
-        occluded[..., :3][finger > 0] = grey[..., None].repeat(ideal.shape[0], 0)[finger > 0]
-        # the glint (on a black square) or smudge (on a white one): 0.35 squares across, in a random inner square
-        i, j = rng.integers(1, INNER[0] - 1), rng.integers(1, INNER[1] - 1)
-        spot = np.zeros(ideal.shape[:2], np.uint8)
-        ring = [(i - 0.5 + 0.18 * np.cos(a), j - 0.5 + 0.18 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 12)]
-        cv2.fillPoly(spot, [_board_polygon(k, pose, ring)], 1)
-        black_square = (i + j) % 2 == 0  # the spot's square (i - 1, j - 1) is black when i - 1 + j - 1 is even
-        occluded[..., :3][spot > 0] = 0.7 if black_square else 0.3
-        frames = _frames(occluded, profile)
-        clean = _frames(ideal, profile, 1)[0]
-        changed = np.abs(frames[0].astype(np.float32) - clean).max(axis=2) > 12
+        skin = grey[..., None].repeat(ideal.shape[0], 0) * np.array([1.3, 0.9, 0.7])
+        occluded[..., :3][finger > 0] = skin[finger > 0]
+
+        def spot_in(i, j):  # a spot 0.35 squares across in the inner square (i - 1, j - 1)
+            spot = np.zeros(ideal.shape[:2], np.uint8)
+            ring = [(i - 0.5 + 0.18 * np.cos(a), j - 0.5 + 0.18 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 12)]
+            cv2.fillPoly(spot, [_board_polygon(k, pose, ring)], 1)
+            return spot > 0
+
+        # the glint: on a black square ((i - 1) + (j - 1) even), 0.45 then 0.75; the smudge: 0.3 on a white one
+        i, j = rng.integers(1, INNER[0] - 2), rng.integers(1, INNER[1] - 2)
+        i += (i + j) % 2
+        glint, smudge = spot_in(i, j), spot_in(i - 1 if i > 1 else i + 1, j + 2)  # two squares apart
+        occluded[..., :3][smudge] = 0.3
+        frames = []
+        for f, level in enumerate((0.45, 0.75)):
+            lit = occluded.copy()
+            lit[..., :3][glint] = level
+            frames.append(_frames(lit, profile, 2)[f])
+        frames = np.stack(frames)
+        clean = _frames(ideal, profile, 2)  # the same noise as the frames: only what was drawn differs
+        without_smudge = occluded.copy()
+        without_smudge[..., :3][smudge] = ideal[..., :3][smudge]
+        smudge_changed = np.abs(_frames(without_smudge, profile, 1)[0].astype(np.float32) -
+                                _frames(occluded, profile, 1)[0]).max(axis=2) > 12
+        changed = (np.abs(frames.astype(np.float32) - clean).max(axis=(0, 3)) > 12) & ~smudge_changed
         captures.append(Capture(f"view{n}", frames, target=TARGET))
-        changed &= _paper_in_output(profile, pose)
-        footprints.append(changed)
+        paper = _paper_in_output(profile, pose)
+        footprints.append((changed & paper, smudge_changed & paper))
     return profile, captures, footprints
 
 
 @pytest.mark.slow
-def test_an_occluder_on_the_board_is_masked(occluded_views):
-    """The occluder is found from the board fit alone, masked (False = not compared) over nearly all of what it
-    changes, and little else; with its mask the comparison is back near the noise floor, without it it is not."""
+def test_an_occluder_on_the_board_is_masked_on_evidence(occluded_views):
+    """The departures are found from the board fit alone; a region is masked (False = not compared) only where
+    the frames show something other than the board: the finger's colour, the glint's change between frames. The
+    grey smudge shows neither, so it stays compared: a departure from the board may be the model's own failure.
+    The error with every pixel compared is given beside the masked one."""
     profile, captures, footprints = occluded_views
     inputs = [capture_inputs(profile, c) for c in captures]
-    for inp, foot, cap in zip(inputs, footprints, captures):
+    for inp, (foot, smudge), cap in zip(inputs, footprints, captures):
         assert inp.mask is not None, cap.name
         masked = ~inp.mask
         near = cv2.dilate(foot.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
         assert (masked & foot).sum() >= 0.9 * foot.sum(), (cap.name, (masked & foot).sum(), foot.sum())
         assert (masked & ~near).sum() <= 0.003 * masked.size, (cap.name, (masked & ~near).sum())
+        assert smudge.sum() > 20 and (masked & smudge).sum() <= 0.1 * smudge.sum(), (cap.name, smudge.sum())
     mset = _set(captures)
-    with_mask = compare(mset, profile, inputs=inputs)
+    cmp = compare(mset, profile, inputs=inputs)
     without = compare(mset, profile, inputs=[CaptureInputs(i.ideal, i.plate, None) for i in inputs])
-    assert with_mask.families["mean"] <= 2.0, with_mask.families
-    # the occluders cover about 0.3 % of the frame and lift the whole frame's mean family by a third or more
-    assert without.families["mean"] >= 1.3 * with_mask.families["mean"], (without.families, with_mask.families)
+    assert cmp.error_unmasked == pytest.approx(without.error, rel=1e-6)
+    # the finger and glint lift the whole frame's mean family by a third or more
+    assert without.families["mean"] >= 1.3 * cmp.families["mean"], (without.families, cmp.families)
 
 
 def _flat_fire_i():

@@ -87,11 +87,13 @@ def cmd_compare(args) -> int:
     print(f"comparing {len(mset.captures)} captures with {profile.name} ...", file=sys.stderr, flush=True)
     cmp = compare(mset, profile)
     history = record_history(mset.path, str(profile.path or profile.name), cmp)
+    unmasked = cmp.error_unmasked
     print(f"{mset.path}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
-          ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()))
+          ", ".join(f"{k} {v:.3f}" for k, v in cmp.families.items()) +
+          (f"; {unmasked:.3f} with the masked pixels compared too" if unmasked != cmp.error else ""))
     if args.json:
-        doc = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict, "families": cmp.families,
-               "where": cmp.where}
+        doc = {"error": cmp.error, "error_unmasked": unmasked, "noise_floor": cmp.noise_floor,
+               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     if args.report:
         page = write_compare_report(cmp, args.report, f"{profile.name} against {mset.path}", history)

@@ -96,6 +96,11 @@ class Comparison:
         return {"mean": True, "variance": several, "rows": several}
 
     @property
+    def error_unmasked(self) -> float:
+        """The error with the masks' pixels compared too (:attr:`error` leaves them out): shown beside it."""
+        return combine(self.captures, masked=False)[0]
+
+    @property
     def where(self) -> dict:
         if not hasattr(self, "_where"):
             self._where = where(self.captures)
@@ -216,22 +221,29 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
     r = mF - mG
+    every = (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64)))
     if mask is not None:  # left-out pixels carry no residual and no noise
         r = r * mask[..., None]
         noise = noise * mask[..., None]
     sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
+            "mean_unmasked": every,
             "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
             "noise_map": noise, "variance_map": vF, "mask": mask,
             "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
+            "variance_unmasked": _variance_log_ratios(vF, vG, mG) if n > 1 and mask is not None else None,
             "rows": _row_log_ratios(F, G) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 
-def combine(stats: list[CaptureStats]) -> tuple[float, dict]:
-    num = sum(s.sums["mean"][0] for s in stats)
-    den = sum(s.sums["mean"][1] for s in stats)
+def combine(stats: list[CaptureStats], masked: bool = True) -> tuple[float, dict]:
+    """The error and its families over all captures; ``masked=False``: over every pixel, the captures' masks
+    ignored."""
+    mean = "mean" if masked else "mean_unmasked"
+    num = sum(s.sums[mean][0] for s in stats)
+    den = sum(s.sums[mean][1] for s in stats)
     e_mean = float(np.sqrt(num / den))
-    logs = [v for s in stats for v in s.sums["variance"]]
+    logs = [v for s in stats for v in (s.sums["variance"] if masked or s.sums["variance_unmasked"] is None
+                                       else s.sums["variance_unmasked"])]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
     rows = [v for s in stats for v in s.sums["rows"]]
     e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 1.0

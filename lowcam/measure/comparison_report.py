@@ -379,8 +379,8 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
     figures = probe_figures(cmp, folder)
     if history:
         figures.insert(0, ("Error history", history_figure(history, folder)))
-    numbers = {"error": cmp.error, "noise_floor": cmp.noise_floor, "verdict": cmp.verdict,
-               "families": cmp.families, "where": cmp.where}
+    numbers = {"error": cmp.error, "error_unmasked": cmp.error_unmasked, "noise_floor": cmp.noise_floor,
+               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where}
     shares = masked_shares(cmp)
     if shares:
         numbers["masked"] = shares
@@ -395,8 +395,9 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
         held = masked / max(total, 1e-12)
         parts.append(f"<p>Left out of the comparison (tinted on the residual maps): {pixels:.1%} of the pixels, in "
                      f"{len(shares)} of {len(cmp.captures)} captures, holding {held:.0%} of the residual energy: "
-                     "where the frames are not the fitted chart (an occluder, a glint, the paper's edge) or the "
-                     "capture's own mask.</p>")
+                     "where the frames show something other than the chart (it changes between frames, or its "
+                     "colour is not the paper's) or the capture's own mask. <b>With those pixels compared too, the "
+                     f"error is {cmp.error_unmasked:.3f}</b>.</p>")
     extra = extra or {}
     parts += candidate_sections(extra.get("candidates", []), extra.get("not_fitted", []), folder, error=cmp.error)
     added = [(s["step"], c) for s in extra.get("steps", []) for c in s["candidates"][:1] if s.get("added")]

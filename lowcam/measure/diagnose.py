@@ -742,7 +742,8 @@ class Diagnosis:
         return f"error {self.error:.3f}, verdict {v}: {why}; the residual is one of {family}: {numbers}"
 
     def as_json(self) -> dict:
-        return {"error": round(self.error, 4), "noise_floor": self.comparison.noise_floor,
+        return {"error": round(self.error, 4), "error_unmasked": round(self.comparison.error_unmasked, 4),
+                "noise_floor": self.comparison.noise_floor,
                 "verdict": self.verdict, "summary": self.summary(), "seconds": round(self.seconds, 2),
                 "residual_family": residual_family(self.comparison)[0],
                 "families": {k: round(v, 4) for k, v in self.comparison.families.items()},

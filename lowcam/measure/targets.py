@@ -21,8 +21,10 @@ blamed for anything, the target's own nuisances are fitted to the frames (:func:
 - the **outliers** of the fit (:func:`_board_outliers`): regions where the frames are not the fitted board (a
   hand or a finger, a glint, a stain, the paper's edge where the print does not end as modelled), found in the
   flat-equivalent domain as departures from the fit beyond what is smooth in the image, grown into connected
-  regions. They are the capture's mask (:class:`~lowcam.measure.compare.CaptureInputs`), left out of the
-  comparison, and the light is fitted again without them. They come from the data and the profile the board is
+  regions. The light is fitted again without them. Those that show evidence of something other than the
+  camera (:func:`earned_outliers`: they change between the frames, or their colour is not the paper's) are the
+  capture's mask (:class:`~lowcam.measure.compare.CaptureInputs`), left out of the comparison; the others stay in
+  it, since a departure from the board may be the model's own failure. They come from the data and the profile the board is
   fitted through (in diagnosis, the diagnosed one), so every candidate is compared on the same pixels.
 
 The fit is made in the profile's own "flat-equivalent render value" domain: the quiet profile (no noise, no
@@ -40,6 +42,8 @@ Contents
 - :data:`OUTLIER_LEVEL`, :data:`OUTLIER_SIGMAS`: how far from the board fit an outlier departs
 - :data:`LIGHT_TERMS`, :data:`LIGHT_RIDGE`, :data:`RICH_LIGHT_SUPPORT`: the illumination field's terms and when
   the terms beyond bilinear are used
+- :data:`EARNED_MOTION`, :data:`EARNED_SHARE`, :data:`EARNED_CHROMA_DN`: the evidence an outlier region needs to be masked
+- :func:`earned_outliers`: the outlier regions that show evidence of something other than the camera
 - :class:`BoardNuisances`: the fitted paper white, black, illumination field, margins and outliers of one capture
 - :func:`flat_response`: the quiet profile's per-pixel output (channel mean, DN) for flat renders, cached
 - :func:`board_coordinates`: per output pixel, the board coordinates (in squares) through the lens and the pose
@@ -83,6 +87,13 @@ MAX_MARGIN = 2.0
 OUTLIER_LEVEL = 0.08
 #: ... and by this many robust sigmas of the fit's departures (:func:`_board_outliers`).
 OUTLIER_SIGMAS = 5.0
+#: An outlier region is masked when its pixels' temporal noise is this many times the frames' own at their level
+#: (:func:`earned_outliers`) ...
+EARNED_MOTION = 3.0
+#: ... in this share of its pixels at least ...
+EARNED_SHARE = 0.2
+#: ... or its chroma departs from the paper's by this much (DN, and 4 robust sigmas).
+EARNED_CHROMA_DN = 4.0
 _RESPONSES: OrderedDict = OrderedDict()
 _CHECKERS: OrderedDict = OrderedDict()  # id(frames) -> (frames, the ColorChecker read from them)
 #: The share of a ColorChecker patch's cell (per side) compared: less than the calibration reads
@@ -110,7 +121,8 @@ class BoardNuisances:
     across the squares; ``margins``: white paper beyond the squares (left, top, right, bottom) in squares;
     ``flipped``: the square at the first inner corner's top-left is white (the parity seen in the frames);
     ``outliers``: (H, W) bool, the output pixels where the frames are not the fitted board (an occluder, a
-    reflection, the paper's edge where it is not modelled), or None when not looked for."""
+    reflection, the paper's edge where it is not modelled), or None when not looked for; ``paper``: (H, W) bool,
+    the output pixels on the paper (with its margins), or None."""
 
     white: float = 0.9
     black: float = 0.1
@@ -118,6 +130,7 @@ class BoardNuisances:
     margins: tuple = (1.0, 1.0, 1.0, 1.0)
     flipped: bool = False
     outliers: np.ndarray | None = field(default=None, repr=False)
+    paper: np.ndarray | None = field(default=None, repr=False)
 
     def light(self, s, t):
         """The illumination field at board coordinates (s, t)."""
@@ -327,6 +340,58 @@ def _board_outliers(rel: np.ndarray, detect: np.ndarray, dark: np.ndarray, squar
     return cv2.morphologyEx(region, cv2.MORPH_CLOSE, disc) > 0
 
 
+def earned_outliers(outliers: np.ndarray, frames: np.ndarray, paper: np.ndarray) -> tuple[np.ndarray, list[dict]]:
+    """The outlier regions (:func:`_board_outliers`) that show evidence of something other than the camera, and
+    what each region showed: ``(earned (H, W) bool, [{"share_px", "evidence"}...])``, ``evidence`` "" when none.
+
+    A departure from the fitted board may be the model's own failure (blur, sharpening, the print's edge), so a
+    region is left out of the comparison only where the frames show that something else is there:
+
+    - **it changes between the frames** of the capture: at least :data:`EARNED_SHARE` of its pixels have a
+      temporal standard deviation :data:`EARNED_MOTION` times the median the frames' noise gives at their level
+      elsewhere (binned by level; noise alone puts under 5 % of pixels there, even with two frames): a hand, a
+      moving glint. The share, not the median, since a region is grown around what departs;
+    - **its colour is not the board's**: the region's median chroma (R - G, B - G of the mean frame, DN) departs
+      from the paper's (the median over ``paper``, (H, W) bool, outside the outliers) by :data:`EARNED_CHROMA_DN`
+      and by 4 of the paper's robust sigmas (a finger, a coloured stain); a grey camera shows no colour, so this
+      never fires there.
+
+    A mask the set gives (``mask`` in set.toml: a known target defect) is the user's evidence and is kept apart.
+    """
+    n, labels = cv2.connectedComponents(outliers.astype(np.uint8), connectivity=8)
+    frames = np.asarray(frames)
+    grey = frames.astype(np.float32).mean(-1)  # (N, H, W)
+    mean = grey.mean(0)
+    board = ~outliers
+    noise_ratio = None
+    if len(frames) > 1:
+        std = grey.std(0, ddof=1)
+        bins = np.clip((mean / 16).astype(int), 0, 15)
+        expected = np.array([np.median(std[board & (bins == b)]) if (board & (bins == b)).sum() > 50 else np.nan
+                             for b in range(16)])
+        expected = np.where(np.isfinite(expected), expected, np.nanmedian(expected))
+        noise_ratio = std / np.maximum(expected[bins], 0.3)
+    rgb = frames.astype(np.float32).mean(0)
+    chroma = np.stack([rgb[..., 0] - rgb[..., 1], rgb[..., 2] - rgb[..., 1]], -1)
+    sheet = paper & board
+    neutral = np.median(chroma[sheet], 0)
+    spread = 1.4826 * np.median(np.abs(chroma[sheet] - neutral), 0)
+    earned, regions = np.zeros_like(outliers), []
+    for k in range(1, n):
+        region = labels == k
+        why = []
+        moving = 0.0 if noise_ratio is None else float(np.mean(noise_ratio[region] >= EARNED_MOTION))
+        if moving >= EARNED_SHARE:
+            why.append(f"changes between frames ({moving:.0%} of it beyond {EARNED_MOTION:g} times the noise)")
+        departs = np.abs(np.median(chroma[region], 0) - neutral)
+        if np.any((departs >= EARNED_CHROMA_DN) & (departs >= 4 * spread)):
+            why.append(f"colour unlike the paper's (chroma {departs.max():.1f} DN off)")
+        if why:
+            earned |= region
+        regions.append({"share_px": float(region.mean()), "evidence": "; ".join(why)})
+    return earned, regions
+
+
 def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: float,
                         max_margin: float = MAX_MARGIN, max_samples: int = 30000, simulated=None,
                         previous: BoardNuisances | None = None) -> BoardNuisances:
@@ -435,7 +500,7 @@ def fit_board_nuisances(profile, mean: np.ndarray, rvec, tvec, inner, square: fl
     if outliers.any():
         nuis = light_fit(cv2.erode((paper & ~outliers).astype(np.uint8), kernel) > 0, beta0)
     nuis.margins = tuple(margins)
-    nuis.outliers = outliers
+    nuis.outliers, nuis.paper = outliers, paper
     return nuis
 
 
@@ -641,7 +706,9 @@ def ideal_from_target(profile, capture, nuisances: bool = True) -> tuple[np.ndar
     spec, rvec, tvec, u8 = board_pose(profile, capture)
     if nuisances:
         _, rvec, tvec, fitted = fit_target(profile, capture)
-        mask = None if fitted.outliers is None or not fitted.outliers.any() else ~fitted.outliers
+        earned = None if fitted.outliers is None else earned_outliers(fitted.outliers, capture.frames,
+                                                                         fitted.paper)[0]
+        mask = None if earned is None or not earned.any() else ~earned
         return render_board_view(profile, rvec, tvec, spec[1], spec[2], nuisances=fitted, px_per_square=120), u8, mask
 
     img = detect_target(u8, spec)[1]
