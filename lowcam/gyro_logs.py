@@ -65,6 +65,7 @@ Contents
 - :func:`read_gcsv`: a ``.gcsv`` log as a :class:`GyroLog`
 - :func:`read_gyroflow_project`: a ``.gyroflow`` project's gyro data, axes and offsets as a :class:`GyroLog`
 - :func:`clip_frame_rate`: a video clip's frame rate as FFmpeg reads it (PyAV), or why it cannot
+- :func:`cut_short`: where an MP4/MOV file ends inside one of its boxes (a clip cut short), or None
 - :func:`read_clip_gyro`: the gyro a camera recorded inside its video file (telemetry-parser) as a :class:`GyroLog`
 - :func:`read_gyro_log`: any of the four (a ``.gcsv``, a ``.gyroflow``, a clip, Lowcam's CSV), told by content
 - :func:`gyro_log_motion`: per-frame motion from a gyro log file, and the frame rate used (``batch``/``motion --gyro``)
@@ -416,7 +417,7 @@ def _first_line(error: BaseException) -> str:
 def clip_frame_rate(path) -> tuple[float | None, str | None]:
     """``(fps, None)``: the average frame rate (frames/s) of the clip's first video stream as FFmpeg reads it
     (PyAV's ``average_rate``, else its ``guessed_rate``; None when it states neither); or ``(None, why)`` when
-    FFmpeg cannot open the file as a video (``why``: one line)."""
+    FFmpeg cannot open the file as a video, or reads a still image (``why``: one line)."""
     try:
         import av
     except ImportError:
@@ -425,12 +426,44 @@ def clip_frame_rate(path) -> tuple[float | None, str | None]:
         with av.open(str(path)) as container:
             if not container.streams.video:
                 return None, "no video stream"
+            if container.format.name.endswith("_pipe") or container.format.name == "image2":
+                return None, f"a still image ({container.format.name})"
             stream = container.streams.video[0]
             rate = stream.average_rate or stream.guessed_rate
     except Exception as e:   # FFmpeg's errors (av.FFmpegError), OSError, ValueError: one line for the caller
-        return None, _first_line(e)
+        return None, getattr(e, "strerror", None) or _first_line(e)
     fps = float(rate) if rate else None
     return (fps if fps and math.isfinite(fps) and 1e-3 <= fps <= 1e4 else None), None
+
+
+#: Top-level box types an MP4/MOV file (ISO base media file format, ISO/IEC 14496-12 sec. 4.2) starts with.
+_MP4_FIRST_BOXES = {b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"pnot", b"uuid"}
+
+
+def cut_short(path) -> str | None:
+    """Where an MP4/MOV file ends inside one of its top-level boxes (``"its 'mdat' box ends at byte B, the file at
+    byte N"``), None when its boxes fit or it is no MP4/MOV. A box is a 32-bit big-endian size (1: a 64-bit size
+    follows the type; 0: to the end of the file) and a four-character type (ISO/IEC 14496-12 sec. 4.2)."""
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        head = f.read(8)
+        if len(head) < 8 or head[4:8] not in _MP4_FIRST_BOXES:
+            return None
+        at = 0
+        while at + 8 <= size:
+            f.seek(at)
+            header = f.read(16)
+            length, kind = int.from_bytes(header[:4], "big"), header[4:8]
+            if length == 1 and len(header) == 16:
+                length = int.from_bytes(header[8:16], "big")
+            elif length == 0:
+                return None
+            if length < 8:
+                return f"a box of {length} bytes at byte {at}"
+            if at + length > size:
+                return f"its '{kind.decode('latin-1')}' box ends at byte {at + length}, the file at byte {size}"
+            at += length
+    return None
 
 
 def read_clip_gyro(path) -> GyroLog:
@@ -440,6 +473,9 @@ def read_clip_gyro(path) -> GyroLog:
     frame by :data:`GYROFLOW_TO_CAMERA`; ``fps`` the clip's (:func:`clip_frame_rate`). A file with no gyro, one
     that is cut short or no video at all is one line naming the file."""
     path = Path(path)
+    short = cut_short(path)
+    if short:
+        raise LowcamError(f"{path}: the clip is cut short ({short}): copy it whole from the camera")
     fps, not_video = clip_frame_rate(path)
     try:
         import telemetry_parser
@@ -460,8 +496,8 @@ def read_clip_gyro(path) -> GyroLog:
             raise LowcamError(f"{path}: the clip holds no gyro data that telemetry-parser reads (GoPro GPMF, Sony, "
                               f"Insta360, DJI, ...{f'; it says: {why}' if why else ''}): give a gyro log instead "
                               f"(.gcsv, .gyroflow or a CSV)")
-        raise LowcamError(f"{path}: neither a video FFmpeg reads ({not_video}) nor a file telemetry-parser finds a "
-                          f"gyro in{f' ({why})' if why else ''}: a clip cut short, or not a clip or gyro log")
+        raise LowcamError(f"{path}: not a video clip ({not_video}), and telemetry-parser finds no gyro in it"
+                          f"{f' ({why})' if why else ''}: give the camera's clip or a gyro log")
     try:
         data = np.array([[s["timestamp_ms"], *s["gyro"]] for s in gyro], np.float64)
     except (TypeError, ValueError, KeyError):
