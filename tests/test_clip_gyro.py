@@ -164,3 +164,21 @@ def test_bad_clip_is_one_line_naming_it_and_nothing_is_written(name, command, cl
     lines = err.strip().splitlines()
     assert len(lines) == 1 and str(path) in lines[0] and says in lines[0] and "Traceback" not in err, err
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.blender
+def test_addons_motion_source_reads_the_clips_gyro(clips, tmp_path):
+    """The add-on's motion source "File" given the clip: frame f of a 30 frames/s scene starting at frame 1 gets
+    the known rotation's mean over its exposure, as ``lowcam motion`` does."""
+    from lowcam_blender import submodule
+
+    blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=160, samples=1)
+    scene = submodule("addon.render").open_scene(blend)
+    scene.render.fps, scene.render.fps_base, scene.frame_start = FPS, 1.0, 1
+    scene.lowcam.motion_source = "FILE"
+    scene.lowcam.motion_file = str(clips["hero8-style YxZ"])
+    frames = submodule("addon.frames")
+    for f in (1, 7, 31):
+        a = (f - 1) / FPS
+        np.testing.assert_allclose(frames.motion(scene, f, 0.02).angular_velocity, known_mean(a, a + 0.02),
+                                   atol=QUANTUM + 2e-4, rtol=0)
