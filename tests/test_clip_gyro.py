@@ -182,3 +182,29 @@ def test_addons_motion_source_reads_the_clips_gyro(clips, tmp_path):
         a = (f - 1) / FPS
         np.testing.assert_allclose(frames.motion(scene, f, 0.02).angular_velocity, known_mean(a, a + 0.02),
                                    atol=QUANTUM + 2e-4, rtol=0)
+
+
+@pytest.mark.blender
+def test_addons_plate_clip_gyro_is_timed_by_the_clips_frames(clips, tmp_path):
+    """Motion "Plate Clip's Gyro": the plate Movie Clip's own gyro, scene frame f showing the clip's frame
+    f - frame_start + frame_offset at the clip's 30 frames/s (not the scene's 24); refused in one line where the
+    plate is no Movie Clip."""
+    import bpy
+    from lowcam.errors import LowcamError
+    from lowcam_blender import submodule
+
+    blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=160, samples=1)
+    scene = submodule("addon.render").open_scene(blend)
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    clip = bpy.data.movieclips.load(str(clips["hero5-style ZXY"]))
+    clip.frame_start, clip.frame_offset = 5, 3          # scene frame 5 shows the clip's frame index 3
+    s = scene.lowcam
+    s.plate_source, s.plate_clip, s.motion_source = "CLIP", clip, "PLATE_GYRO"
+    frames = submodule("addon.frames")
+    for f in (5, 9, 40):
+        a = (f - 5 + 3) / FPS
+        np.testing.assert_allclose(frames.motion(scene, f, 0.02).angular_velocity, known_mean(a, a + 0.02),
+                                   atol=QUANTUM + 2e-4, rtol=0)
+    s.plate_source = "NONE"
+    with pytest.raises(LowcamError, match="Movie Clip"):
+        frames.motion(scene, 5, 0.02)
