@@ -85,6 +85,7 @@ import csv
 import math
 import os
 import stat
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -480,9 +481,9 @@ def read_clip_gyro(path) -> GyroLog:
     try:
         import telemetry_parser
     except ImportError:
-        raise LowcamError(f"{path}: reading a clip's own gyro needs the telemetry-parser package, which this Python "
-                          f"lacks (pip install telemetry-parser; it has no build for Python 3.13): export the gyro "
-                          f"from Gyroflow as a .gcsv log instead") from None
+        raise LowcamError(f"{path}: reading a clip's own gyro needs telemetry-parser, which this Python "
+                          f"{sys.version_info[0]}.{sys.version_info[1]} lacks (it is built for Python 3.8 to 3.12): "
+                          f"export the gyro from Gyroflow as a .gcsv log instead") from None
     imu, why = None, ""
     try:
         imu = telemetry_parser.Parser(str(path)).normalized_imu()

@@ -208,3 +208,21 @@ def test_addons_plate_clip_gyro_is_timed_by_the_clips_frames(clips, tmp_path):
     s.plate_source = "NONE"
     with pytest.raises(LowcamError, match="Movie Clip"):
         frames.motion(scene, 5, 0.02)
+
+
+def test_a_python_without_telemetry_parser_says_so_in_one_line(clips, tmp_path):
+    """Where telemetry-parser cannot be installed (Blender 5.1's Python 3.13: no build of it), a clip is refused in
+    one line naming the file and the way round; a .gcsv log still reads. Run in a child Python in which the
+    package is blocked from importing (``sys.modules[name] = None``)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['telemetry_parser'] = None\n"
+            "from lowcam.cli import main\n"
+            f"sys.exit(main(['motion', '--gyro', {str(clips['hero8-style YxZ'])!r}, '--exposure-s', '0.02', "
+            f"'--frames', '1', '-o', {str(tmp_path / 'm.json')!r}]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert str(clips["hero8-style YxZ"]) in lines[0] and "telemetry-parser" in lines[0] and ".gcsv" in lines[0]
+    assert not (tmp_path / "m.json").exists()
