@@ -263,17 +263,26 @@ def motion(scene, frame: int, exposure_s: float) -> FrameMotion:
         if scene.camera is None:
             raise LowcamError(f"scene '{scene.name}' has no camera to take the motion from")
         return camera_motion(scene, scene.camera, [frame], exposure_s * fps)[frame]
-    path = bpy.path.abspath(s.motion_file)
-    is_json = path.lower().endswith(".json")
+    first = scene.frame_start
+    if s.motion_source == "PLATE_GYRO":   # the plate clip's own gyro: scene frame f shows the clip's frame index
+        clip = s.plate_clip if s.plate_source == "CLIP" else None
+        if clip is None or clip.source != "MOVIE":
+            raise LowcamError("Motion 'Plate Clip's Gyro' needs a Movie Clip of a video file as the plate")
+        path, first = bpy.path.abspath(clip.filepath), clip.frame_start - clip.frame_offset
+    else:
+        path = bpy.path.abspath(s.motion_file)
+    is_json = s.motion_source == "FILE" and path.lower().endswith(".json")
     key = (path, Path(path).stat().st_mtime if Path(path).exists() else 0)
     if key not in _MOTION_FILE_CACHE:                   # read once, not once per frame
-        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_log(path).samples
+        _MOTION_FILE_CACHE[key] = read_motion_json(path) if is_json else read_gyro_log(path)
     data = _MOTION_FILE_CACHE[key]
     if is_json:
         if frame not in data:
             raise LowcamError(f"{path}: no entry for frame {frame}")
         return data[frame]
-    return gyro_to_motion(data, [frame], fps, exposure_s, first_frame=scene.frame_start, source=path)[frame]
+    if s.motion_source == "PLATE_GYRO":
+        fps = data.fps or fps                           # the clip's frames are k / (its frame rate) apart
+    return gyro_to_motion(data.samples, [frame], fps, exposure_s, first_frame=first, source=path)[frame]
 
 
 def output_path(scene, frame: int) -> Path:

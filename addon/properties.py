@@ -95,7 +95,10 @@ class LowcamSettings(bpy.types.PropertyGroup):
                                  options=path_options())
     motion_source: EnumProperty(name="Motion", items=[
         ("CAMERA", "Scene Camera", "Angular velocity of the scene camera (e.g. the solved camera) over the shutter"),
-        ("FILE", "File", "A motion.json, a gyro CSV, or a Gyroflow .gcsv log or .gyroflow project"),
+        ("FILE", "File", "A motion.json, a gyro CSV, a Gyroflow .gcsv log or .gyroflow project, or a video clip "
+                         "that records its own gyro (GoPro, Sony, Insta360, DJI)"),
+        ("PLATE_GYRO", "Plate Clip's Gyro", "The gyro the plate's Movie Clip records in its own file (GoPro, Sony, "
+                                            "Insta360, DJI), timed by the clip's frames"),
         ("NONE", "None", "No camera motion blur")], default="CAMERA")
     motion_file: StringProperty(name="Motion File", subtype="FILE_PATH", options=path_options())
     use_object_motion: BoolProperty(

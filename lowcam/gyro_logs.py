@@ -1,6 +1,7 @@
-"""Gyroflow's gyro logs as camera motion: ``.gcsv`` logs and ``.gyroflow`` projects, read into the gyro samples
-(``t, wx, wy, wz``: s, rad/s in Lowcam's camera frame) that :func:`lowcam.motion.gyro_to_motion` turns into each
-frame's angular velocity, for ``lowcam batch --gyro`` and ``lowcam motion --gyro``.
+"""Gyroflow's gyro logs as camera motion: ``.gcsv`` logs, ``.gyroflow`` projects and the gyro a camera records
+inside its own video file, read into the gyro samples (``t, wx, wy, wz``: s, rad/s in Lowcam's camera frame) that
+:func:`lowcam.motion.gyro_to_motion` turns into each frame's angular velocity, for ``lowcam batch --gyro`` and
+``lowcam motion --gyro``.
 
 Gyroflow (https://gyroflow.xyz) stabilises video with a gyro log; the same log drives Lowcam's motion blur and
 rolling shutter (both take the frame's angular velocity).
@@ -31,6 +32,17 @@ shot frame 1 is the video's first frame. Where the offset drifts, the rates are 
 t_gyro``, so that a frame turns by what the gyro turned between its start and end on the gyro's clock, as
 Gyroflow's orientation at a video time is the gyro's at the mapped time.
 
+A clip's own gyro. Action cameras, many drones and some phones record their gyro inside the video file (GoPro's
+GPMF track, Sony's, Insta360's, DJI's, ...). Gyroflow reads them with its own library, telemetry-parser
+(``Parser(path).normalized_imu()``: ``timestamp_ms`` and ``gyro`` in deg/s, turned by the orientation the file
+states, or the one telemetry-parser knows for that camera, into Gyroflow's IMU axes); Lowcam takes those samples
+as a ``.gcsv`` log's, through the same :data:`GYROFLOW_TO_CAMERA`. GoPro's documented axes (gpmf-parser's README,
+"IMU Orientation"): X toward the camera's left, Y backward (out of the screen), Z up; its cameras write ``ORIO``
+``ZXY``, which is Gyroflow's x up, y left, z backward. Time: telemetry-parser's, the first sample at video time 0
+(a GoPro's samples spread evenly over its metadata track); a delay between the gyro and the picture is what
+Gyroflow's synchronisation finds (``--gyro-t0``, or give its ``.gyroflow`` project). The frame rate is the clip's
+first video stream's average rate as FFmpeg reads it (PyAV), when ``--fps`` is not given.
+
 ``.gyroflow`` project (JSON, ``"title": "Gyroflow data file"``): ``gyro_source`` gives the samples, either
 embedded (``raw_imu``, a list of ``{"timestamp_ms", "gyro": [x, y, z] deg/s}``, or ``file_metadata.raw_imu``)
 or from the ``.gcsv`` log ``filepath`` names (absolute, relative to the project, or of that name beside it); its
@@ -49,10 +61,13 @@ Contents
 - :func:`imu_rotation`: Gyroflow's ``rotation`` ``[pitch, roll, yaw]`` (deg) as a 3x3 matrix
 - :func:`offset_ms`: Gyroflow's synced offset (ms) at gyro times (ms), as Gyroflow interpolates it
 - :func:`offset_slope`: the slope of that offset (ms per ms) at gyro times (ms)
-- :func:`log_kind`: ``"gcsv"``, ``"gyroflow"`` or ``"csv"``, from a file's first bytes
+- :func:`log_kind`: ``"gcsv"``, ``"gyroflow"``, ``"clip"`` (binary) or ``"csv"``, from a file's first bytes
 - :func:`read_gcsv`: a ``.gcsv`` log as a :class:`GyroLog`
 - :func:`read_gyroflow_project`: a ``.gyroflow`` project's gyro data, axes and offsets as a :class:`GyroLog`
-- :func:`read_gyro_log`: any of the three (a ``.gcsv``, a ``.gyroflow``, Lowcam's CSV), told by content
+- :func:`clip_frame_rate`: a video clip's frame rate as FFmpeg reads it (PyAV), or why it cannot
+- :func:`cut_short`: where an MP4/MOV file ends inside one of its boxes (a clip cut short), or None
+- :func:`read_clip_gyro`: the gyro a camera recorded inside its video file (telemetry-parser) as a :class:`GyroLog`
+- :func:`read_gyro_log`: any of the four (a ``.gcsv``, a ``.gyroflow``, a clip, Lowcam's CSV), told by content
 - :func:`gyro_log_motion`: per-frame motion from a gyro log file, and the frame rate used (``batch``/``motion --gyro``)
 
 References
@@ -61,6 +76,8 @@ References
   ``src/core/imu_integration/mod.rs``, ``src/core/stabilization/frame_transform.rs``, ``src/core/lib.rs``),
   https://github.com/gyroflow/gyroflow; telemetry-parser (``src/gyroflow/gcsv.rs``),
   https://github.com/AdrianEddy/telemetry-parser; the GCSV format, https://docs.gyroflow.xyz.
+- [GPMF] GoPro, GPMF introduction and "IMU Orientation Uses These Axis Labels" (``README.md``,
+  ``GPMF_common.h``: ``ORIN``, ``ORIO``), https://github.com/gopro/gpmf-parser.
 """
 from __future__ import annotations
 
@@ -68,6 +85,7 @@ import csv
 import math
 import os
 import stat
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -94,7 +112,8 @@ class GyroLog:
     """A gyro log read: ``samples`` (N, 4) ``t, wx, wy, wz`` (s on the video's clock, rad/s in Lowcam's camera
     frame, times strictly increasing); ``fps`` (the project's frame rate, None when the file gives none);
     ``readout_s`` (the rolling shutter read-out the file states, s, None when none); ``orientation`` (the
-    string applied, "" for Lowcam's CSV); ``kind`` (``"gcsv"``, ``"gyroflow"`` or ``"csv"``)."""
+    string applied, "" for Lowcam's CSV and for a clip, whose orientation telemetry-parser applies); ``kind``
+    (``"gcsv"``, ``"gyroflow"``, ``"clip"`` or ``"csv"``)."""
 
     samples: np.ndarray
     fps: float | None = None
@@ -157,8 +176,9 @@ def offset_slope(offsets: dict[int, float], t_ms: np.ndarray) -> np.ndarray:
 
 
 def log_kind(path) -> str:
-    """``"gcsv"`` (first line ``GYROFLOW IMU LOG`` or ``CAMERA IMU LOG``), ``"gyroflow"`` (a JSON object) or
-    ``"csv"`` (anything else, Lowcam's CSV), from the file's first bytes; a pipe or device is ``"csv"``."""
+    """``"gcsv"`` (first line ``GYROFLOW IMU LOG`` or ``CAMERA IMU LOG``), ``"gyroflow"`` (a JSON object),
+    ``"clip"`` (binary: a NUL byte in the first 256, as every MP4/MOV box header has) or ``"csv"`` (anything else,
+    Lowcam's CSV), from the file's first bytes; a pipe or device is ``"csv"``."""
     path = Path(path)
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
@@ -167,6 +187,8 @@ def log_kind(path) -> str:
             head = f.read(256)
     except (OSError, ValueError):
         return "csv"  # the CSV reader says what is wrong with it
+    if b"\0" in head:
+        return "clip"
     text = head.decode("utf-8", "replace").lstrip("\ufeff")
     if any(text.startswith(h) for h in _HEADERS):
         return "gcsv"
@@ -389,10 +411,118 @@ def read_gyroflow_project(path) -> GyroLog:
     return GyroLog(np.column_stack([t_video, rates]), fps, readout, orientation, "gyroflow")
 
 
+def _first_line(error: BaseException) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+
+
+def clip_frame_rate(path) -> tuple[float | None, str | None]:
+    """``(fps, None)``: the average frame rate (frames/s) of the clip's first video stream as FFmpeg reads it
+    (PyAV's ``average_rate``, else its ``guessed_rate``; None when it states neither); or ``(None, why)`` when
+    FFmpeg cannot open the file as a video, or reads a still image (``why``: one line)."""
+    try:
+        import av
+    except ImportError:
+        return None, "PyAV (av) is not installed"
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                return None, "no video stream"
+            if container.format.name.endswith("_pipe") or container.format.name == "image2":
+                return None, f"a still image ({container.format.name})"
+            stream = container.streams.video[0]
+            rate = stream.average_rate or stream.guessed_rate
+    except Exception as e:   # FFmpeg's errors (av.FFmpegError), OSError, ValueError: one line for the caller
+        return None, getattr(e, "strerror", None) or _first_line(e)
+    fps = float(rate) if rate else None
+    return (fps if fps and math.isfinite(fps) and 1e-3 <= fps <= 1e4 else None), None
+
+
+#: Top-level box types an MP4/MOV file (ISO base media file format, ISO/IEC 14496-12 sec. 4.2) starts with.
+_MP4_FIRST_BOXES = {b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"pnot", b"uuid"}
+
+
+def cut_short(path) -> str | None:
+    """Where an MP4/MOV file ends inside one of its top-level boxes (``"its 'mdat' box ends at byte B, the file at
+    byte N"``), None when its boxes fit or it is no MP4/MOV. A box is a 32-bit big-endian size (1: a 64-bit size
+    follows the type; 0: to the end of the file) and a four-character type (ISO/IEC 14496-12 sec. 4.2)."""
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        head = f.read(8)
+        if len(head) < 8 or head[4:8] not in _MP4_FIRST_BOXES:
+            return None
+        at = 0
+        while at + 8 <= size:
+            f.seek(at)
+            header = f.read(16)
+            length, kind = int.from_bytes(header[:4], "big"), header[4:8]
+            if length == 1 and len(header) == 16:
+                length = int.from_bytes(header[8:16], "big")
+            elif length == 0:
+                return None
+            if length < 8:
+                return f"a box of {length} bytes at byte {at}"
+            if at + length > size:
+                return f"its '{kind.decode('latin-1')}' box ends at byte {at + length}, the file at byte {size}"
+            at += length
+    return None
+
+
+def read_clip_gyro(path) -> GyroLog:
+    """The gyro a camera recorded inside its video file (GoPro GPMF, Sony, Insta360, DJI and the other formats
+    telemetry-parser reads) as a :class:`GyroLog` of kind ``"clip"``: telemetry-parser's ``normalized_imu()``
+    (ms; deg/s in Gyroflow's IMU axes, the file's orientation applied) taken to s and rad/s in Lowcam's camera
+    frame by :data:`GYROFLOW_TO_CAMERA`; ``fps`` the clip's (:func:`clip_frame_rate`). A file with no gyro, one
+    that is cut short or no video at all is one line naming the file."""
+    path = Path(path)
+    short = cut_short(path)
+    if short:
+        raise LowcamError(f"{path}: the clip is cut short ({short}): copy it whole from the camera")
+    fps, not_video = clip_frame_rate(path)
+    try:
+        import telemetry_parser
+    except ImportError:
+        raise LowcamError(f"{path}: reading a clip's own gyro needs telemetry-parser, which this Python "
+                          f"{sys.version_info[0]}.{sys.version_info[1]} lacks (it is built for Python 3.8 to 3.12): "
+                          f"export the gyro from Gyroflow as a .gcsv log instead") from None
+    imu, why = None, ""
+    try:
+        imu = telemetry_parser.Parser(str(path)).normalized_imu()
+    except BaseException as e:   # its Rust side raises OSError, ValueError ("No metadata") or a PanicException
+        if isinstance(e, (KeyboardInterrupt, SystemExit, MemoryError)):
+            raise
+        why = _first_line(e)
+    gyro = [s for s in imu or () if isinstance(s, dict) and s.get("gyro") is not None]
+    if len(gyro) < 2:
+        if not_video is None:
+            raise LowcamError(f"{path}: the clip holds no gyro data that telemetry-parser reads (GoPro GPMF, Sony, "
+                              f"Insta360, DJI, ...{f'; it says: {why}' if why else ''}): give a gyro log instead "
+                              f"(.gcsv, .gyroflow or a CSV)")
+        raise LowcamError(f"{path}: not a video clip ({not_video}), and telemetry-parser finds no gyro in it"
+                          f"{f' ({why})' if why else ''}: give the camera's clip or a gyro log")
+    try:
+        data = np.array([[s["timestamp_ms"], *s["gyro"]] for s in gyro], np.float64)
+    except (TypeError, ValueError, KeyError):
+        raise LowcamError(f"{path}: telemetry-parser's gyro samples are not numbers (t, gx, gy, gz)") from None
+    if data.ndim != 2 or data.shape[1] != 4:
+        raise LowcamError(f"{path}: telemetry-parser's gyro samples are not three axes each")
+    bad = np.flatnonzero(~np.isfinite(data).all(1))
+    if len(bad):
+        raise LowcamError(f"{path}: the clip's gyro sample {bad[0]} is not finite")
+    t = data[:, 0] / 1000.0
+    _check_times(t, f"{path}: the clip's gyro")
+    rates = np.radians(data[:, 1:])
+    big = np.flatnonzero(np.abs(rates).max(1) > MAX_RATE)
+    if len(big):
+        raise LowcamError(f"{path}: the clip's gyro sample {big[0]} reads {np.abs(rates[big[0]]).max():g} rad/s, "
+                          f"beyond {MAX_RATE:g} rad/s")
+    return GyroLog(np.column_stack([t, rates @ GYROFLOW_TO_CAMERA.T]), fps, None, "", "clip")
+
+
 def read_gyro_log(path) -> GyroLog:
     """A gyro log of any kind Lowcam reads, told by its content (not its name): a Gyroflow ``.gcsv`` log, a
-    ``.gyroflow`` project, or Lowcam's CSV (``t, wx, wy, wz``). A file named ``.gcsv`` or ``.gyroflow`` that is
-    not one is refused as such."""
+    ``.gyroflow`` project, a video clip with its own gyro (a binary file: :func:`read_clip_gyro`) or Lowcam's
+    CSV (``t, wx, wy, wz``). A file named ``.gcsv``, ``.gyroflow`` or ``.csv`` that is not one is refused as
+    such."""
     path = Path(path)
     kind = log_kind(path)
     suffix = path.suffix.lower()
@@ -406,6 +536,8 @@ def read_gyro_log(path) -> GyroLog:
                           f"'CAMERA IMU LOG')")
     if suffix == ".gyroflow":
         return read_gyroflow_project(path)
+    if kind == "clip" and suffix != ".csv":
+        return read_clip_gyro(path)
     return GyroLog(read_gyro_csv(path))
 
 
@@ -413,9 +545,10 @@ def gyro_log_motion(path, frames, fps: float | None, exposure_s: float, t0: floa
                     first_frame: int | None = None) -> tuple[dict[int, FrameMotion], float]:
     """Per-frame motion from the gyro log ``path`` (:func:`read_gyro_log`), and the frame rate used: frame f is
     exposed from ``t0 + (f - first_frame) / fps`` (video clock) for ``exposure_s``; ``fps`` None takes the
-    project's."""
+    project's or the clip's."""
     log = read_gyro_log(path)
     fps = fps or log.fps
     if not fps:
-        raise LowcamError(f"{path}: give the frame rate (--fps): the gyro log states none")
+        raise LowcamError(f"{path}: give the frame rate (--fps): the gyro {'file' if log.kind == 'clip' else 'log'} "
+                          f"states none")
     return gyro_to_motion(log.samples, frames, fps, exposure_s, t0, first_frame, source=str(path)), fps

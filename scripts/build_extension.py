@@ -5,7 +5,8 @@ profiles/, the manifest and the wheels the add-on needs at run time for that pla
 supported Blenders embed (3.11 for Blender 4.2-5.0, 3.13 for 5.1 and later): Lowcam's engine itself (built from
 pyproject.toml, pure Python) and what it imports at run time that Blender lacks (:data:`RUNTIME`), with everything those
 require on that platform and Python (read from their installed metadata, :func:`runtime_pins`), at the versions
-installed in this environment. numpy comes with Blender and is not bundled. Blender's own builder (``blender_ext.py build
+installed in this environment, and those of :data:`WHERE_BUILT` where they have a wheel. numpy comes with Blender
+and is not bundled. Blender's own builder (``blender_ext.py build
 --split-platforms``, shipped in the bpy wheel) validates the manifest, keeps each platform's wheels and zips.
 
 Downloaded wheels are kept in build/wheel-cache/ (git-ignored): a rebuild asks pip only for what is missing there.
@@ -36,7 +37,11 @@ CACHE = ROOT / "build" / "wheel-cache"
 #: What the engine imports at run time (the loop's fits, plots, progress and DNG tags included): their own
 #: requirements are added by :func:`runtime_pins`.
 RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile",
-           "rapidfuzz", "colour-science", "colour-checker-detection")
+           "rapidfuzz", "colour-science", "colour-checker-detection", "av")
+#: Run-time packages with no wheel for every Python the supported Blenders embed: carried for the platforms and
+#: Pythons they have wheels for, left out elsewhere, where the engine refuses what needs them in one line.
+#: telemetry-parser 0.3.0 (a clip's own gyro) has wheels for Python 3.11 (Blender 4.2-5.0), none for 3.13.
+WHERE_BUILT = ("telemetry-parser",)
 #: Requirements another runtime wheel provides (the same ``cv2`` module): never bundled beside it.
 PROVIDED = {"opencv-python": "opencv-contrib-python-headless"}
 #: Every Blender embeds these: never bundled.
@@ -165,6 +170,17 @@ def build(out_dir: Path, platforms=tuple(PLATFORMS)) -> list[Path]:
         supported_tags(p, PYTHONS[0])                       # unknown platform: an error before any work
     wheels = {fetch_wheel(name, version, p, py) for p in platforms for py in PYTHONS
               for name, version in runtime_pins(p, py)}
+    for name in WHERE_BUILT:
+        try:
+            version = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            version = None
+        for p in platforms:
+            for py in PYTHONS:
+                try:
+                    wheels.add(fetch_wheel(name, version, p, py))
+                except BuildError:
+                    pass        # no wheel for this platform and Python: the add-on does without it there
     stage = Path(tempfile.mkdtemp(prefix="lowcam-extension-"))
     try:
         (stage / "wheels").mkdir()

@@ -644,6 +644,38 @@ for _name, _content in [
     case(f"gyro-{_name}")(_make())
 
 
+def clip_case(folder: Path, name: str, content: bytes, says: str) -> Case:
+    """``--gyro`` given a binary file (read as a video clip with its own gyro): one line naming it and saying
+    ``says``."""
+    renders = write_renders(folder, (1, 2))
+    path = folder / name
+    path.write_bytes(content)
+    return Case(["batch", "--renders", renders, "--gyro", str(path), "--exposure-s", "0.02", "--frames", "1-2", "-o",
+                 str(folder / "out" / "####.png"), "--quiet"], names=(name,), also=(says,),
+                outputs=(folder / "out" / "0001.png", folder / "out" / "0002.png"))
+
+
+def _box(kind: bytes, body: bytes, size: int | None = None) -> bytes:
+    """An MP4 box: 32-bit big-endian size (``size``, else the true one), type, body."""
+    return (size or 8 + len(body)).to_bytes(4, "big") + kind + body
+
+
+@case("gyro-clip-cut-short")
+def _(folder):   # an MP4 whose media data box says 1 MB and holds 64 bytes: a copy cut short
+    data = _box(b"ftyp", b"isom\0\0\2\0isomiso2mp41") + _box(b"mdat", bytes(range(64)), size=1 << 20)
+    return clip_case(folder, "GX010001.MP4", data, "cut short")
+
+
+@case("gyro-clip-not-a-video")
+def _(folder):   # binary bytes that are no container FFmpeg or telemetry-parser knows
+    return clip_case(folder, "clip.mp4", b"\0\1\2\3" * 512 + bytes(range(256)), "not a video clip")
+
+
+@case("gyro-clip-is-a-picture")
+def _(folder):
+    return clip_case(folder, "clip.mov", (ROOT / "lowcam" / "data" / "coffee.png").read_bytes(), "not a video clip")
+
+
 @case("gyro-fps-nan")
 def _(folder):
     return gyro_case(folder, _GYRO_OK, names=("--fps", "fps"), fps="nan")

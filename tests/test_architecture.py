@@ -65,6 +65,8 @@ LAZY = {
     "scipy": "heavy (scipy.optimize, scipy.stats: 0.5-2 s): fits only",
     "colour": "heavy (colour-science: about 1 s to import): ColorChecker targets only",
     "colour_checker_detection": "heavy (imports colour-science): ColorChecker targets only",
+    "av": "heavy (PyAV: about 0.6 s to import): a clip's frame rate, for --gyro CLIP only (lowcam.gyro_logs)",
+    "telemetry_parser": "absent under Python 3.13 (no wheel; Blender 5.1's extension lacks it): --gyro CLIP only",
 }
 
 

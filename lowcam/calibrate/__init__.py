@@ -295,7 +295,8 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
                "vignetting, gyro motion",
                (Option("footage", "frames", required=True, positional=True,
                        help="a video file, a folder of frames, or frame names or patterns"),
-                Option("gyro", "path", help="gyro log: rows 'wx wy wz t' (framestamp.txt beside it) or a gyro CSV"),
+                Option("gyro", "path", help="gyro log: rows 'wx wy wz t' (framestamp.txt beside it), a gyro CSV, a "
+                                            "Gyroflow .gcsv or .gyroflow, or a clip with its own gyro"),
                 Option("fps", Number(0, 1000, low_open=True, what="frames per second"),
                        help="frames/s, 0 to 1000 (default: the video's, else 30)"),
                 Option("min_confidence", Number(0, 1, what="a confidence"), 0.5,

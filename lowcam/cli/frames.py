@@ -116,12 +116,12 @@ def cmd_stages(args) -> int:
 
 
 def gyro_motion(args, frames) -> tuple[dict, float]:
-    """Each frame's motion from ``--gyro`` (a Gyroflow ``.gcsv`` log or ``.gyroflow`` project, or Lowcam's CSV),
-    ``--fps`` (or the project's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion),
+    """Each frame's motion from ``--gyro`` (a Gyroflow ``.gcsv`` log or ``.gyroflow`` project, a clip with its own
+    gyro, or Lowcam's CSV), ``--fps`` (or the project's or clip's), ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion),
     and the frame rate used."""
     if args.exposure_s is None:
         raise LowcamError(f"{args.gyro}: a gyro log needs --exposure-s (and --fps unless it is a Gyroflow project "
-                          f"that states it)")
+                          f"or a video clip, which state it)")
     return gyro_log_motion(args.gyro, frames, args.fps, args.exposure_s, args.gyro_t0, args.gyro_first_frame)
 
 
@@ -129,9 +129,11 @@ def gyro_options(p) -> None:
     """``--gyro``, ``--fps``, ``--exposure-s``, ``--gyro-t0`` and ``--gyro-first-frame`` (batch and motion)."""
     p.add_argument("--gyro", type=Reads("file"),
                    help="gyro log integrated over each frame's exposure: a Gyroflow .gcsv log or .gyroflow project "
-                        "(axes and sync offsets from the file), or a CSV of t, wx, wy, wz (rad/s, camera frame)")
-    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro (default: a .gyroflow project's) and the "
-                                           "renders' Vector pass (default 24)")
+                        "(axes and sync offsets from the file), a video clip that records its own gyro (GoPro, "
+                        "Sony, Insta360, DJI: read with telemetry-parser), or a CSV of t, wx, wy, wz (rad/s, "
+                        "camera frame)")
+    p.add_argument("--fps", type=FPS, help="frame rate, for --gyro (default: a .gyroflow project's or the clip's) "
+                                           "and the renders' Vector pass (default 24)")
     p.add_argument("--exposure-s", type=EXPOSURE_S, help="exposure time, for --gyro")
     p.add_argument("--gyro-t0", type=Number(-1e9, 1e9, what="gyro time in s"), default=0.0,
                    help="time (s, the log's clock; a project's: the video's) at which --gyro-first-frame starts")

@@ -59,7 +59,7 @@ from ..captures import expand_paths, load_frames
 from ..effects import known_effects
 from ..errors import LowcamError, NotFitted
 from ..io import quiet_stderr
-from ..gyro_logs import read_gyro_log
+from ..gyro_logs import log_kind, read_gyro_log
 from ..pipeline import render_camera, simulate
 from ..plate_estimate import PlateEstimate, PlateProbe
 from ..profile import load_profile
@@ -184,7 +184,8 @@ _VIDEO_DAMAGE = re.compile(r"damaged|corrupt|conceal|error|invalid|missing|trunc
 
 def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | None]:
     """A gyro log as (samples (N, 4) ``t, wx, wy, wz``, frame start times or None). Reads a log with a header
-    (Lowcam's CSV, Gyroflow's ``.gcsv`` or project: :func:`lowcam.gyro_logs.read_gyro_log`) or the phone format:
+    (Lowcam's CSV, Gyroflow's ``.gcsv`` or project, a clip's own gyro: :func:`lowcam.gyro_logs.read_gyro_log`) or
+    the phone format:
     whitespace-separated rows ``wx wy wz t`` (rad/s, s), with ``framestamp.txt`` beside it (or ``framestamps``)
     giving each frame's start time (s). Times logged in milliseconds (samples about 2.4 ms apart read as 2.4 "s")
     are converted to seconds. The phone format's axes are kept as logged: a phone's gyro axes need not be Lowcam's
@@ -192,6 +193,8 @@ def read_phone_gyro(path, framestamps=None) -> tuple[np.ndarray, np.ndarray | No
     path = Path(path)
     if not path.is_file():
         raise LowcamError(f"{path}: no such gyro log")
+    if log_kind(path) == "clip":   # a video clip's own gyro
+        return read_gyro_log(path).samples, None
     text = path.read_text(errors="replace")
     first = next((ln for ln in text.splitlines() if ln.strip()), "")
     if first and not _numeric_row(first):  # a header: Lowcam's CSV or Gyroflow's
