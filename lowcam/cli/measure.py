@@ -93,7 +93,8 @@ def cmd_compare(args) -> int:
           (f"; {unmasked:.3f} with the masked pixels compared too" if unmasked != cmp.error else ""))
     if args.json:
         doc = {"error": cmp.error, "error_unmasked": unmasked, "noise_floor": cmp.noise_floor,
-               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where}
+               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where,
+               "noise_texture": cmp.noise_texture}
         atomic_write_bytes(args.json, json.dumps(doc, indent=1).encode())
     if args.report:
         page = write_compare_report(cmp, args.report, f"{profile.name} against {mset.path}", history)

@@ -34,6 +34,8 @@ Contents
 - :func:`simulate_capture`: ``count`` noisy frames of a capture through a profile, the deterministic part cached
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
 - :func:`combine`: the error and its families over all captures
+- :data:`BANDS`: the radial spatial-frequency bands of :func:`where` and :func:`noise_texture`
+- :func:`noise_texture`: how a capture's temporal noise is correlated in space (neighbours, frequency bands) and time
 - :func:`residual_family`: the kind of residual left (edges, levels, space or time), with its numbers
 - :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
 - :func:`compare`: compare a profile with a measurement set (the error above)
@@ -99,6 +101,22 @@ class Comparison:
     def error_unmasked(self) -> float:
         """The error with the masks' pixels compared too (:attr:`error` leaves them out): shown beside it."""
         return combine(self.captures, masked=False)[0]
+
+    @property
+    def noise_texture(self) -> dict | None:
+        """The noise's correlation in space and time (:func:`noise_texture`), the frames' against the model's,
+        each the mean over the captures with at least 3 frames; None without one."""
+        pairs = [(noise_texture(s.measured), noise_texture(s.simulated)) for s in self.captures]
+        pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+        if not pairs:
+            return None
+
+        def mean(which):
+            keys = ("lag1_x", "lag1_y", "lag1_t")
+            out = {k: float(np.mean([p[which][k] for p in pairs])) for k in keys}
+            out["bands"] = {b: float(np.mean([p[which]["bands"][b] for p in pairs])) for _, _, b in BANDS}
+            return out
+        return {"measured": mean(0), "model": mean(1), "captures": len(pairs)}
 
     @property
     def where(self) -> dict:
@@ -272,7 +290,7 @@ def where(stats: list[CaptureStats]) -> dict:
             out["regions"].append({"region": ["top", "middle", "bottom"][i] + "-" + ["left", "centre", "right"][j],
                                    "error": ratio(sum(x[sl].sum() for x in r2), sum(x[sl].sum() for x in noise))})
     # bands: residual power by radial spatial frequency, against white noise of the same total noise power
-    bands = [(0.0, 0.05, "low"), (0.05, 0.2, "mid"), (0.2, 0.71, "high")]
+    bands = BANDS
     power = np.zeros(3)
     expected = np.zeros(3)
     for s, nz in zip(stats, noise):
@@ -310,6 +328,45 @@ def where(stats: list[CaptureStats]) -> dict:
                     "error": ratio(res_edges, noise_edges),
                     "error_elsewhere": ratio(res_all - res_edges, noise_all - noise_edges)}
     return out
+
+
+#: The radial spatial-frequency bands (cycles per pixel) of :func:`where` and :func:`noise_texture`.
+BANDS = ((0.0, 0.05, "low"), (0.05, 0.2, "mid"), (0.2, 0.71, "high"))
+
+
+def noise_texture(frames: np.ndarray) -> dict | None:
+    """How the temporal noise of a static capture's frames (n, H, W, 3; n >= 3) is correlated, in space and time:
+    what tells a denoised camera from a raw one of the same noise variance.
+
+    The noise is each frame less the frames' mean, ``N_t = F_t - mean(F)`` (the scene cancels), on the grey
+    (channel mean). ``lag1_x``, ``lag1_y``: its correlation with its neighbour one pixel right and one down
+    (0 for white noise; a spatial denoiser, a blur or a demosaic raise it). ``bands``: the share of its power in
+    each radial frequency band of :data:`BANDS` (white noise puts most in ``high``, where most frequencies are;
+    blotchy, low-pass noise moves it to ``low`` and ``mid``). ``lag1_t``: the correlation of the noise from one
+    frame to the next, ``1 - var(F_{t+1} - F_t) / (2 var(N) n / (n - 1))``: 0 for noise drawn anew each frame (the
+    mean's bias corrected for such noise); a temporal filter that carries a share ``a`` of the last frame raises
+    it, to below ``a`` over few frames, since their mean takes part of a slow drift (0.43 for ``a = 0.6`` over 8
+    frames). The frames and the model are read alike. None with fewer than 3 frames.
+    """
+    n = len(frames)
+    if n < 3:
+        return None
+    grey = frames.astype(np.float32).mean(-1)
+    noise = grey - grey.mean(0)
+    var = float(np.mean(noise ** 2))
+    if var <= 1e-9:
+        return None
+    lag_x = float(np.mean(noise[:, :, 1:] * noise[:, :, :-1]) / var)
+    lag_y = float(np.mean(noise[:, 1:, :] * noise[:, :-1, :]) / var)
+    step = float(np.mean(np.diff(grey, axis=0) ** 2))
+    lag_t = 1.0 - step / (2.0 * var * n / (n - 1))
+    h, w = grey.shape[1:]
+    spec = (np.abs(np.fft.rfft2(noise)) ** 2).sum(0)
+    fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.rfftfreq(w), indexing="ij")
+    f = np.hypot(fx, fy)
+    power = np.array([spec[(f >= lo) & (f < hi)].sum() for lo, hi, _ in BANDS])
+    return {"lag1_x": lag_x, "lag1_y": lag_y, "lag1_t": float(lag_t),
+            "bands": {name: float(p) for (_, _, name), p in zip(BANDS, power / max(power.sum(), 1e-12))}}
 
 
 def residual_family(cmp: "Comparison") -> tuple[str, str]:

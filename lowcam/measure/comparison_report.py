@@ -379,8 +379,9 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
     figures = probe_figures(cmp, folder)
     if history:
         figures.insert(0, ("Error history", history_figure(history, folder)))
+    texture = cmp.noise_texture
     numbers = {"error": cmp.error, "error_unmasked": cmp.error_unmasked, "noise_floor": cmp.noise_floor,
-               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where}
+               "verdict": cmp.verdict, "families": cmp.families, "where": cmp.where, "noise_texture": texture}
     shares = masked_shares(cmp)
     if shares:
         numbers["masked"] = shares
@@ -398,6 +399,14 @@ def write_compare_report(cmp, folder, title: str, history=None, extra: dict | No
                      "where the frames show something other than the chart (it changes between frames, or its "
                      "colour is not the paper's) or the capture's own mask. <b>With those pixels compared too, the "
                      f"error is {cmp.error_unmasked:.3f}</b>.</p>")
+    if texture:
+        f, m = texture["measured"], texture["model"]
+        parts.append(f"<p>Noise texture (the frames' against the model's): neighbours correlated "
+                     f"{f['lag1_x']:.2f} / {f['lag1_y']:.2f} across / down (model {m['lag1_x']:.2f} / "
+                     f"{m['lag1_y']:.2f}), {f['bands']['high']:.0%} of the noise's power in the high band (model "
+                     f"{m['bands']['high']:.0%}), correlated {f['lag1_t']:.2f} from frame to frame (model "
+                     f"{m['lag1_t']:.2f}). Higher correlation and less high-band power than the model's: the camera "
+                     "denoises (in space or over frames) where the model does not.</p>")
     extra = extra or {}
     parts += candidate_sections(extra.get("candidates", []), extra.get("not_fitted", []), folder, error=cmp.error)
     added = [(s["step"], c) for s in extra.get("steps", []) for c in s["candidates"][:1] if s.get("added")]
