@@ -36,7 +36,7 @@ CACHE = ROOT / "build" / "wheel-cache"
 #: What the engine imports at run time (the loop's fits, plots, progress and DNG tags included): their own
 #: requirements are added by :func:`runtime_pins`.
 RUNTIME = ("opencv-contrib-python-headless", "OpenEXR", "tomli-w", "scipy", "matplotlib", "tqdm", "tifffile",
-           "rapidfuzz", "colour-science", "colour-checker-detection")
+           "rapidfuzz", "colour-science", "colour-checker-detection", "av")
 #: Requirements another runtime wheel provides (the same ``cv2`` module): never bundled beside it.
 PROVIDED = {"opencv-python": "opencv-contrib-python-headless"}
 #: Every Blender embeds these: never bundled.

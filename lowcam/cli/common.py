@@ -19,6 +19,7 @@ from ..arguments import Number, Reads, Text
 from ..batch import parse_frames
 from ..outputs import check_output, check_output_folder
 from ..render_spaces import render_space
+from ..video import parse_plate_colour
 
 
 class Parser(argparse.ArgumentParser):
@@ -43,6 +44,15 @@ PROFILE = Reads("profile")
 LAYER = Text(what="view layer")
 #: A render's colour space (:func:`lowcam.render_spaces.render_space`: acescg, linear-rec2020, Blender's names).
 RENDER_SPACE = Text(what="colour space", check=render_space)
+#: A video plate's matrix, range and transfer, overriding its tags (:func:`lowcam.video.parse_plate_colour`).
+PLATE_COLOUR = Text(what="matrix,range[,transfer]", check=parse_plate_colour)
+
+
+def plate_colour_option(p) -> None:
+    """``--plate-colour``: how a video plate's Y'CbCr is read, where its tags are missing or wrong."""
+    p.add_argument("--plate-colour", type=PLATE_COLOUR, metavar="MATRIX,RANGE[,TRANSFER]",
+                   help="read a video plate with this matrix (bt601, bt709, bt2020), range (limited, full) and "
+                        "transfer (sdr) instead of its tags, e.g. bt709,limited (default: the video's own tags)")
 
 
 def _check_frames(spec: str) -> None:

@@ -31,7 +31,7 @@ from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
-from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE
+from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE, plate_colour_option
 
 
 def _load_inputs(args, profile):
@@ -150,7 +150,7 @@ def cmd_batch(args) -> int:
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
                 _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())),
-                args.render_space)
+                args.render_space, args.plate_colour)
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -200,6 +200,7 @@ def add_commands(sub) -> None:
     p.add_argument("--plates", type=Reads("pattern"), help="plate pattern (plate/####.png) or one video file")
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
+    plate_colour_option(p)
     p.add_argument("--motion", type=Reads("file"), help="motion.json: per-frame angular velocity and exposure")
     gyro_options(p)
     p.add_argument("--frames", type=FRAMES, required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
