@@ -22,6 +22,7 @@ from ..errors import LowcamError
 from ..measure import plate
 from ..plate_estimate import format_value
 from ..reports import figure
+from ..video import is_video
 from .checks import load_checked
 from .outcome import Calibration
 
@@ -114,6 +115,9 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     progress = sys.stderr.isatty() if progress is None else progress
 
     names = [str(f) for f in ([footage] if isinstance(footage, (str, Path)) else footage)]
+    if plate_colour and not (len(names) == 1 and is_video(names[0])):
+        raise LowcamError(f"--plate-colour {plate_colour}: only a video has colour tags to override "
+                          f"({', '.join(names)[:200]} is not one video file)")
     if len(names) == 1 and not any(c in names[0] for c in "*?["):
         shot = plate.read_footage(names[0], fps=fps, gyro=gyro, colour=plate_colour)
     else:

@@ -31,6 +31,7 @@ from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
+from ..video import is_video
 from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE, plate_colour_option
 
 
@@ -140,6 +141,9 @@ def gyro_options(p) -> None:
 
 def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)
+    if args.plate_colour and not is_video(args.plates):
+        raise LowcamError(f"--plate-colour {args.plate_colour}: only a video plate has colour tags to override "
+                          f"(--plates is {args.plates or 'not given'})")
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
     motion, require, fps = {}, False, args.fps or 24.0

@@ -30,6 +30,7 @@ from ..measure.synth import parse_change, synthesise
 from ..outputs import atomic_write_bytes, check_output, check_output_folder, make_output_folder
 from ..parallel import one_malloc_arena
 from ..profile import load_profile
+from ..video import is_video
 from .common import PROFILE, check_report_outputs, end_progress_lines, plate_colour_option, progress_line
 
 
@@ -54,6 +55,9 @@ def _compare_plate_only(args, profile) -> int:
         if unknown:
             raise LowcamError(f"--probes: no plate probe {', '.join(unknown)} (there are: {', '.join(known)})")
         probes = [known[n] for n in names]
+    if args.plate_colour and not is_video(args.plate_only):
+        raise LowcamError(f"--plate-colour {args.plate_colour}: only a video has colour tags to override "
+                          f"({args.plate_only} is not a video file)")
     footage = read_footage(args.plate_only, colour=args.plate_colour)
     cmp = compare_plate(footage, profile, probes)
     worst = cmp.where["worst"]
@@ -78,6 +82,8 @@ def cmd_compare(args) -> int:
         raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
     if args.probes and not args.plate_only:
         raise LowcamError("compare: --probes goes with --plate-only")
+    if args.plate_colour and not args.plate_only:
+        raise LowcamError("compare: --plate-colour goes with --plate-only (a video)")
     check_report_outputs(args)
     profile = load_profile(args.profile)
     if args.plate_only:
