@@ -33,6 +33,8 @@ Contents
 - :func:`parse_plate_colour`: the ``--plate-colour`` option's text -> the fields it sets
 - :func:`ycbcr_to_rgb`: Y'CbCr code values -> R'G'B' in [0, 1] (ITU-T H.273)
 - :class:`VideoReader`: one open video: frame ``i`` as uint8 RGB, in order or by seeking
+- :func:`to_rgb`: one decoded frame -> uint8 RGB with a clip's :class:`PlateColour`
+- :func:`open_video`: the :class:`VideoReader` of a file, kept open per process
 - :func:`read_video_frame`: frame ``index`` of a video file, the file kept open per process
 - :func:`close_videos`: close the videos :func:`read_video_frame` keeps open
 - :func:`av_log_capture`: FFmpeg's warnings and errors while a block runs, kept off the terminal

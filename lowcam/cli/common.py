@@ -5,7 +5,8 @@ Contents
 --------
 - :class:`Parser`: an argument parser whose errors are one line
 - :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`,
-  :data:`RENDER_SPACE`: declared arguments several commands share
+  :data:`RENDER_SPACE`, :data:`PLATE_COLOUR`: declared arguments several commands share
+- :func:`plate_colour_option`: ``--plate-colour``, on the commands that read video plates
 - :func:`check_report_outputs`: check ``--json`` and ``--report`` of compare and diagnose before any work
 - :func:`progress_line`: one fitting step's progress on stderr (rewritten in place on a terminal)
 - :func:`end_progress_lines`: end an open progress line and close any progress bar
