@@ -308,3 +308,25 @@ def test_a_profile_keeps_the_video_table_and_refuses_a_bad_one(tmp_path):
     (tmp_path / "bad.toml").write_text(text)
     with pytest.raises(ProfileError, match=r"bad\.toml: \[video\] 'gop_length'"):
         load_profile(tmp_path / "bad.toml")
+
+
+@pytest.mark.slow
+def test_a_shot_on_two_dask_workers_gets_every_frame_of_a_long_gop_clip(tmp_path):
+    """``lowcam batch`` with a long-GOP, B-frame H.264 plate on two Dask workers: transparent renders, so each
+    output is its plate frame; every one shows its own index and the bytes of the frame read in order."""
+    from lowcam.batch import Shot, run_shot
+    from lowcam.outputs import write_exr
+
+    frames = 60
+    clip = _long_gop_clip(tmp_path / "plate.mp4", 640, 480, frames)
+    with VideoReader(clip) as video:
+        sequential = [rgb for _, rgb in video.frames()]
+    for f in range(1, frames + 1):
+        write_exr(tmp_path / "renders" / f"{f:04d}.exr", np.zeros((150, 200, 4), np.float32))
+    shot = Shot("fire-i", str(tmp_path / "renders" / "####.exr"), str(tmp_path / "out" / "####.png"), str(clip))
+    order = [int(f) for f in np.random.default_rng(5).permutation(np.arange(1, frames + 1))]
+    results = run_shot(shot, order, workers=2, quiet=True)
+    assert [r.status for r in results] == ["written"] * frames
+    for f in range(1, frames + 1):
+        out = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / f"{f:04d}.png")), cv2.COLOR_BGR2RGB)
+        assert _index_in(out) == f - 1 and np.array_equal(out, sequential[f - 1])
