@@ -31,7 +31,8 @@ Contents
 - :data:`MATRICES`: the Y'CbCr matrices, name -> (Kr, Kb)
 - :class:`PlateColour`: a clip's matrix, range and transfer
 - :func:`parse_plate_colour`: the ``--plate-colour`` option's text -> the fields it sets
-- :func:`ycbcr_to_rgb`: Y'CbCr code values -> R'G'B' in [0, 1] (ITU-T H.273)
+- :func:`ycbcr_matrix`: the affine map from Y'CbCr code values to R'G'B' in [0, 1] (ITU-T H.273)
+- :func:`ycbcr_to_rgb`: Y'CbCr code values -> R'G'B' in [0, 1]
 - :class:`VideoReader`: one open video: frame ``i`` as uint8 RGB, in order or by seeking
 - :func:`to_rgb`: one decoded frame -> uint8 RGB with a clip's :class:`PlateColour`
 - :func:`open_video`: the :class:`VideoReader` of a file, kept open per process
@@ -116,26 +117,35 @@ def parse_plate_colour(text: str | None) -> dict:
     return out
 
 
-def ycbcr_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, bits: int, matrix: str, full: bool) -> np.ndarray:
-    """Y'CbCr code values (any integer dtype, ``bits`` per sample) -> R'G'B' float32 (H, W, 3), not clipped.
+def ycbcr_matrix(matrix: str, bits: int, full: bool) -> np.ndarray:
+    """The (3, 4) affine map from Y'CbCr code values (``bits`` per sample) to R'G'B' in [0, 1]: rows R, G, B,
+    columns Y, Cb, Cr, offset.
 
     Limited range (H.273 eq. 23-25 inverted): E'Y = (Y - 16 * 2^(n-8)) / (219 * 2^(n-8)),
     E'C = (C - 128 * 2^(n-8)) / (224 * 2^(n-8)); full range: E'Y = Y / (2^n - 1), E'C = (C - 2^(n-1)) / (2^n - 1).
     Then R' = Y' + 2 (1 - Kr) Cr, B' = Y' + 2 (1 - Kb) Cb, G' = (Y' - Kr R' - Kb B') / (1 - Kr - Kb)."""
     kr, kb = MATRICES[matrix]
+    kg = 1 - kr - kb
     scale = 2.0 ** (bits - 8)
     if full:
         top = 2.0 ** bits - 1
-        yo, ys, co, cs = 0.0, 1 / top, 2.0 ** (bits - 1), 1 / top
+        offsets, gains = np.array([0.0, 2.0 ** (bits - 1), 2.0 ** (bits - 1)]), np.full(3, 1 / top)
     else:
-        yo, ys, co, cs = 16 * scale, 1 / (219 * scale), 128 * scale, 1 / (224 * scale)
-    yn = (y.astype(np.float32) - yo) * ys
-    pb = (cb.astype(np.float32) - co) * cs
-    pr = (cr.astype(np.float32) - co) * cs
-    r = yn + 2 * (1 - kr) * pr
-    b = yn + 2 * (1 - kb) * pb
-    g = (yn - kr * r - kb * b) / (1 - kr - kb)
-    return np.stack([r, g, b], axis=-1)
+        offsets = np.array([16.0, 128.0, 128.0]) * scale
+        gains = 1 / (np.array([219.0, 224.0, 224.0]) * scale)
+    mix = np.array([[1.0, 0.0, 2 * (1 - kr)],                                  # E'Y, E'Cb, E'Cr -> R'
+                    [1.0, -2 * kb * (1 - kb) / kg, -2 * kr * (1 - kr) / kg],     # -> G'
+                    [1.0, 2 * (1 - kb), 0.0]])                                  # -> B'
+    linear = mix * gains
+    return np.column_stack([linear, -linear @ offsets])
+
+
+def ycbcr_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, bits: int, matrix: str, full: bool) -> np.ndarray:
+    """Y'CbCr code values (any integer dtype, ``bits`` per sample, planes of one size) -> R'G'B' float32
+    (H, W, 3), not clipped (:func:`ycbcr_matrix`)."""
+    m = ycbcr_matrix(matrix, bits, full).astype(np.float32)
+    ycc = np.stack([y, cb, cr], axis=-1).astype(np.float32)
+    return ycc @ m[:, :3].T + m[:, 3]
 
 
 def _tag_value(value) -> int:
@@ -399,8 +409,10 @@ def to_rgb(frame, colour: PlateColour, path: str = "video") -> np.ndarray:
     if cb.shape != y.shape:
         cb = cv2.resize(cb, (w, h), interpolation=cv2.INTER_LINEAR)
         cr = cv2.resize(cr, (w, h), interpolation=cv2.INTER_LINEAR)
-    rgb = ycbcr_to_rgb(y, cb, cr, bits, colour.matrix, colour.range == "full")
-    return np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+    # one affine map per pixel, rounded and saturated to 0-255 by OpenCV (the same map as ycbcr_to_rgb)
+    m = 255.0 * ycbcr_matrix(colour.matrix, bits, colour.range == "full")
+    rgb = cv2.transform(cv2.merge([y, cb, cr]), m)
+    return rgb if rgb.dtype == np.uint8 else np.minimum(rgb, 255).astype(np.uint8)
 
 
 #: Open videos, (real path, mtime ns, size, colour override) -> :class:`VideoReader`: a shot's video is opened

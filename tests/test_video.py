@@ -330,3 +330,13 @@ def test_a_shot_on_two_dask_workers_gets_every_frame_of_a_long_gop_clip(tmp_path
     for f in range(1, frames + 1):
         out = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / f"{f:04d}.png")), cv2.COLOR_BGR2RGB)
         assert _index_in(out) == f - 1 and np.array_equal(out, sequential[f - 1])
+
+
+def test_super_white_and_super_black_saturate_not_wrap(tmp_path):
+    """Limited-range codes beyond nominal white (Y' 940 of 1023) and black come out 255 and 0, not wrapped."""
+    y = np.full((H, W), 1019, np.dtype("<u2"))
+    y[:, :W // 2] = 4
+    c = np.full((H // 2, W // 2), 512, np.dtype("<u2"))
+    clip = _write(tmp_path / "super.mkv", [(y, c, c)], "libx265", "yuv420p10le", 1, 1, 14)
+    rgb = read_video_frame(clip, 0)
+    assert (rgb[:, W // 2 + 4:] == 255).all() and (rgb[:, :W // 2 - 4] == 0).all()
