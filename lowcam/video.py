@@ -395,7 +395,8 @@ _DIRECT = re.compile(r"yuvj?4[24][024]p(9|10|12|14|16)?(le)?$")
 
 def to_rgb(frame, colour: PlateColour, path: str = "video") -> np.ndarray:
     """A decoded PyAV frame -> uint8 RGB (H, W, 3) with ``colour``'s matrix and range (:func:`ycbcr_to_rgb`);
-    chroma planes upsampled bilinearly to the luma's size. RGB frames are repacked, no matrix."""
+    each chroma sample repeated over the luma samples it covers (4:2:0: 2x2), as FFmpeg's own conversion and
+    Blender's Movie Clip do. RGB frames are repacked, no matrix."""
     name = frame.format.name
     if frame.format.is_rgb or name.startswith(("pal8", "gbr", "rgb", "bgr", "argb", "abgr", "rgba", "bgra")):
         return frame.to_ndarray(format="rgb24")
@@ -406,9 +407,10 @@ def to_rgb(frame, colour: PlateColour, path: str = "video") -> np.ndarray:
         frame = frame.reformat(format="yuv444p16le" if deep else "yuv444p")
     (y, cb, cr), bits = _planes(frame, name)
     h, w = y.shape
-    if cb.shape != y.shape:
-        cb = cv2.resize(cb, (w, h), interpolation=cv2.INTER_LINEAR)
-        cr = cv2.resize(cr, (w, h), interpolation=cv2.INTER_LINEAR)
+    if cb.shape != y.shape:   # each chroma sample over the luma samples it was taken from
+        fy, fx = -(-h // cb.shape[0]), -(-w // cb.shape[1])
+        cb = np.repeat(np.repeat(cb, fy, axis=0), fx, axis=1)[:h, :w]
+        cr = np.repeat(np.repeat(cr, fy, axis=0), fx, axis=1)[:h, :w]
     # one affine map per pixel, rounded and saturated to 0-255 by OpenCV (the same map as ycbcr_to_rgb)
     m = 255.0 * ycbcr_matrix(colour.matrix, bits, colour.range == "full")
     rgb = cv2.transform(cv2.merge([y, cb, cr]), m)
