@@ -40,6 +40,11 @@ Contents
 - :func:`close_videos`: close the videos :func:`read_video_frame` keeps open
 - :func:`av_log_capture`: FFmpeg's warnings and errors while a block runs, kept off the terminal
 - :func:`stream_facts`: the codec, profile, GOP structure, frame types and bitrate read from the bitstream
+- :data:`VIDEO_OUTPUTS`: the video files a shot can be written as
+- :class:`VideoCoding`: how a shot is coded (encoder, bit depth, colour tags, GOP, B-frames, rate)
+- :func:`coding_of_plate`: the coding of a plate video, read from its bitstream
+- :func:`rgb_to_ycbcr`: uint8 R'G'B' -> 4:2:0 Y'CbCr code values (the inverse of :func:`ycbcr_matrix`)
+- :func:`write_video`: frames coded into a video file, tagged, written atomically
 
 References
 ----------
@@ -60,6 +65,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .outputs import atomic_write_with
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp",
                             ".mts", ".m2ts", ".ts"})
@@ -511,3 +517,132 @@ def _encoder_settings(data: bytes) -> str:
     """x264's or x265's settings line, which they write into an SEI message of the first access unit."""
     m = re.search(rb"(x26[45] \(build|x264 - core|x265 \(build)[\x20-\x7e]{0,4000}", data)
     return m.group().decode("ascii", "replace") if m else ""
+
+
+# --- writing a shot as a video --------------------------------------------------------------------------------------
+
+#: The video files ``lowcam batch -o`` writes: suffix -> FFmpeg's container.
+VIDEO_OUTPUTS = {".mp4": "mp4", ".mov": "mov", ".mkv": "matroska"}
+#: The decoder's name -> the encoder that codes a shot as that camera did (others: libx264).
+_ENCODERS = {"h264": "libx264", "hevc": "libx265"}
+_MATRIX_CODE = {"bt601": 6, "bt709": 1, "bt2020": 9}
+
+
+@dataclass(frozen=True)
+class VideoCoding:
+    """How a shot is coded: ``encoder`` (libx264, libx265), ``pixel_format`` (yuv420p, yuv420p10le), the colour
+    tags (``matrix``, ``range``; ``transfer_tag``, ``primaries_tag``: H.273 code points), ``gop`` (frames from
+    one key frame to the next), ``b_frames`` (at most in a row), the rate (``crf``, else ``bitrate_bps``),
+    ``fps`` and ``source`` (where these came from)."""
+
+    encoder: str = "libx264"
+    pixel_format: str = "yuv420p"
+    matrix: str = "bt709"
+    range: str = "limited"
+    transfer_tag: int = 1
+    primaries_tag: int = 1
+    gop: int = 48
+    b_frames: int = 2
+    crf: float | None = 18.0
+    bitrate_bps: int | None = None
+    fps: float = 24.0
+    source: str = "Lowcam's default (H.264, CRF 18, BT.709 limited range)"
+
+
+def coding_of_plate(video: VideoReader, fps: float | None = None) -> VideoCoding:
+    """The coding of the plate ``video``: its codec (H.264, HEVC; others coded as H.264), bit depth, colour tags,
+    GOP length, B-frames and rate (x264's or x265's CRF where the stream states it, else its bitrate), as
+    :func:`stream_facts` reads them from the frames decoded so far."""
+    facts = stream_facts(video)
+    cc = video.stream.codec_context
+    rgb = video.colour.matrix not in MATRICES
+    crf = facts.get("encoder_crf")
+    try:
+        crf = float(crf) if crf is not None and facts.get("encoder_rc") == "crf" else None
+    except ValueError:
+        crf = None
+    return VideoCoding(
+        encoder=_ENCODERS.get(facts["codec"], "libx264"),
+        pixel_format="yuv420p10le" if facts["bit_depth"] > 8 else "yuv420p",
+        matrix="bt709" if rgb else video.colour.matrix, range="limited" if rgb else video.colour.range,
+        transfer_tag=_tag_value(cc.color_trc) or 1, primaries_tag=_tag_value(cc.color_primaries) or 1,
+        gop=int(facts.get("gop_length") or max(1, round(2 * (video.fps or 24)))),
+        b_frames=int(facts["max_consecutive_b_frames"]), crf=crf,
+        bitrate_bps=None if crf is not None else facts.get("bitrate_bps"),
+        fps=float(fps or video.fps or 24.0), source=f"the plate {video.path} ({facts['codec']})")
+
+
+def rgb_to_ycbcr(rgb: np.ndarray, bits: int, matrix: str, full: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """uint8 R'G'B' (H, W, 3), H and W even -> 4:2:0 Y'CbCr code values (Y (H, W), Cb and Cr (H/2, W/2), uint8 or
+    uint16 for ``bits`` > 8): the inverse of :func:`ycbcr_matrix`, chroma averaged over each 2x2 block."""
+    m = ycbcr_matrix(matrix, bits, full)
+    inverse = np.linalg.inv(m[:, :3])
+    forward = np.column_stack([inverse / 255.0, -inverse @ m[:, 3]])   # R'G'B' DN -> code values
+    ycc = cv2.transform(rgb.astype(np.float32), forward.astype(np.float32))
+    h, w = rgb.shape[:2]
+    chroma = cv2.resize(ycc[..., 1:], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    top = 2 ** bits - 1
+    dtype = np.uint8 if bits == 8 else np.dtype("<u2")
+    planes = (ycc[..., 0], chroma[..., 0], chroma[..., 1])
+    return tuple(np.clip(np.rint(p), 0, top).astype(dtype) for p in planes)
+
+
+def write_video(path, frames, coding: VideoCoding) -> Path:
+    """Code ``frames`` (an iterable of uint8 RGB (H, W, 3), H and W even) into the video file ``path``
+    (:data:`VIDEO_OUTPUTS`) as ``coding`` says, tagged with its matrix, range, transfer and primaries; written
+    through a temporary file and renamed into place (nothing is left at ``path`` on failure)."""
+    path = Path(path)
+    container_format = VIDEO_OUTPUTS.get(path.suffix.lower())
+    if container_format is None:
+        raise LowcamError(f"{path}: unknown video format '{path.suffix}' (write {', '.join(VIDEO_OUTPUTS)})")
+    bits = 10 if "10" in coding.pixel_format else 8
+    full = coding.range == "full"
+
+    def write(tmp):
+        with av.open(str(tmp), "w", format=container_format) as out:
+            stream = None
+            for i, rgb in enumerate(frames):
+                h, w = rgb.shape[:2]
+                if stream is None:
+                    if h % 2 or w % 2:
+                        raise LowcamError(f"{path}: frames of {w}x{h} px; 4:2:0 video needs an even width and "
+                                          "height")
+                    stream = _video_stream(out, coding, w, h)
+                frame = av.VideoFrame(w, h, coding.pixel_format)
+                for plane, data in zip(frame.planes, rgb_to_ycbcr(rgb, bits, coding.matrix, full)):
+                    buf = np.zeros((plane.height, plane.line_size // data.itemsize), data.dtype)
+                    buf[:, :data.shape[1]] = data
+                    plane.update(buf.tobytes())
+                frame.pts = i
+                frame.colorspace, frame.color_range = _MATRIX_CODE[coding.matrix], 2 if full else 1
+                for packet in stream.encode(frame):
+                    out.mux(packet)
+            if stream is None:
+                raise LowcamError(f"{path}: no frames to write")
+            for packet in stream.encode():
+                out.mux(packet)
+
+    try:
+        return atomic_write_with(path, write)
+    except av.FFmpegError as e:
+        raise LowcamError(f"{path}: the encoder {coding.encoder} refused ({_first_line(e)})") from None
+
+
+def _video_stream(out, coding: VideoCoding, width: int, height: int):
+    stream = out.add_stream(coding.encoder, rate=Fraction(coding.fps).limit_denominator(1001))
+    stream.width, stream.height, stream.pix_fmt = width, height, coding.pixel_format
+    cc = stream.codec_context
+    cc.colorspace, cc.color_range = _MATRIX_CODE[coding.matrix], 2 if coding.range == "full" else 1
+    cc.color_trc, cc.color_primaries = coding.transfer_tag, coding.primaries_tag
+    gop = f"keyint={coding.gop}:min-keyint={coding.gop}:scenecut=0:bframes={coding.b_frames}"
+    options = {}
+    if coding.crf is not None:
+        options["crf"] = f"{coding.crf:g}"
+    else:
+        stream.bit_rate = int(coding.bitrate_bps)
+    if coding.encoder == "libx265":
+        options["x265-params"] = gop + ":log-level=error"
+    else:
+        options["x264-params"] = gop
+    stream.options = options
+    return stream

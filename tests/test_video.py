@@ -364,3 +364,67 @@ def test_blenders_movie_clip_decode_agrees_with_the_add_ons_plate(tmp_path, matr
         bpy.data.images.remove(image)
     ours = read_video_frame(clip, 0).astype(int)
     assert np.abs(blender - ours).max() <= 1
+
+
+# --- a shot written as a video --------------------------------------------------------------------------------------
+
+def _indexed_colour_clip(path, frames=6):
+    """A 640x480 (the Fire-i's frame) BT.709 limited-range H.264 clip, CRF 18, GOP 4 with 2 B-frames: the
+    colour patches, and the frame index in 8 blocks."""
+    planes = []
+    for i in range(frames):
+        img = cv2.resize(_picture(), (640, 480), interpolation=cv2.INTER_NEAREST)
+        for bit in range(8):
+            img[:BLOCK, bit * BLOCK:(bit + 1) * BLOCK] = 235 if (i >> bit) & 1 else 16
+        planes.append(_ycbcr(img, "bt709", True, 8))
+    return _write(path, planes, "libx264", "yuv420p", 1, 1, 1,
+                  options={"crf": "18", "x264-params": "keyint=4:min-keyint=4:bframes=2:b-adapt=0:scenecut=0"})
+
+
+def test_batch_writes_a_shot_as_a_video_coded_and_tagged_as_its_plate_and_resumes(tmp_path, capsys):
+    from lowcam.cli import main
+    from lowcam.outputs import write_exr
+
+    plate = _indexed_colour_clip(tmp_path / "plate.mp4")
+    for f in range(1, 7):                                       # transparent renders: the output is the plate
+        write_exr(tmp_path / "renders" / f"{f:04d}.exr", np.zeros((150, 200, 4), np.float32))
+    shot = tmp_path / "out" / "shot.mp4"
+    args = ["batch", "--renders", str(tmp_path / "renders" / "####.exr"), "--plates", str(plate), "--frames", "1-6",
+            "-o", str(shot), "--quiet"]
+    assert main(args) == 0
+    assert "coded by libx264 (CRF 18, GOP 4, 2 B-frames, bt709 limited)" in capsys.readouterr().out
+    with VideoReader(shot) as ours, VideoReader(plate) as theirs:
+        assert (ours.colour.matrix, ours.colour.range, ours.count, ours.fps) == ("bt709", "limited", 6, 24)
+        for i in range(6):
+            out, src = ours.frame(i), theirs.frame(i)
+            assert _index_in(out) == i
+            assert np.abs(out.astype(int) - src).mean() < 1.5
+            for k, value in enumerate(PATCHES.values()):            # the patches, scaled 4x across, 5x down
+                centre = out[230:250, (24 + 38 * k) * 4 - 10:(24 + 38 * k) * 4 + 10].astype(int)
+                assert np.abs(centre - value).max() <= 3
+        facts = stream_facts_of(ours)
+    assert facts["codec"] == "h264" and facts["gop_length"] == 4 and facts["max_consecutive_b_frames"] == 2
+    # resumable as image sequences: a frame lost and the video gone, a rerun makes that frame alone
+    (tmp_path / "out" / "shot.mp4.frames" / "000003.png").unlink()
+    shot.unlink()
+    assert main(args) == 0
+    assert "1 written, 5 already done" in capsys.readouterr().out and shot.is_file()
+    assert [n for n in os.listdir(tmp_path / "out") if n != "shot.mp4.frames"] == ["shot.mp4"]   # no temporaries
+
+
+def stream_facts_of(video):
+    for _ in video.frames():
+        pass
+    return lv.stream_facts(video)
+
+
+def test_a_video_output_that_is_the_plate_is_refused_and_nothing_written(tmp_path, capsys):
+    from lowcam.cli import main
+
+    plate = _indexed_colour_clip(tmp_path / "plate.mp4", 2)
+    before = plate.read_bytes()
+    rc = main(["batch", "--renders", str(tmp_path / "r" / "####.exr"), "--plates", str(plate), "--frames", "1-2",
+               "-o", str(plate), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "the output is the input" in err and len(err.strip().splitlines()) == 1
+    assert plate.read_bytes() == before and not (tmp_path / "plate.mp4.frames").exists()
