@@ -415,8 +415,8 @@ def to_rgb(frame, colour: PlateColour, path: str = "video") -> np.ndarray:
     h, w = y.shape
     if cb.shape != y.shape:   # each chroma sample over the luma samples it was taken from
         fy, fx = -(-h // cb.shape[0]), -(-w // cb.shape[1])
-        cb = np.repeat(np.repeat(cb, fy, axis=0), fx, axis=1)[:h, :w]
-        cr = np.repeat(np.repeat(cr, fy, axis=0), fx, axis=1)[:h, :w]
+        cb = cv2.resize(cb, None, fx=fx, fy=fy, interpolation=cv2.INTER_NEAREST)[:h, :w]
+        cr = cv2.resize(cr, None, fx=fx, fy=fy, interpolation=cv2.INTER_NEAREST)[:h, :w]
     # one affine map per pixel, rounded and saturated to 0-255 by OpenCV (the same map as ycbcr_to_rgb)
     m = 255.0 * ycbcr_matrix(colour.matrix, bits, colour.range == "full")
     rgb = cv2.transform(cv2.merge([y, cb, cr]), m)
