@@ -219,7 +219,7 @@ def plate_sequence_image(scene):
 
 def plate(scene, frame: int, profile):
     """The plate for ``frame`` as uint8 RGB at the camera's size, or None."""
-    from lowcam.batch import read_video_frame
+    from lowcam.video import read_video_frame
     from lowcam.io import check_plate, read_plate
 
     s = settings(scene)

@@ -2,8 +2,9 @@
 
 A shot is described by file patterns in which a run of ``#`` stands for the zero-padded frame number
 (``renders/####.exr`` -> ``renders/0007.exr``; ``%04d`` works too). Plates may instead be one video file, read
-with OpenCV: shot frame ``f`` is video frame ``f - video_first_frame``; the video is opened once per shot (also by
-the add-on's Movie Clip plates), not once per frame.
+by :mod:`lowcam.video` with the stream's colour tags (``plate_colour`` overrides them): shot frame ``f`` is video
+frame ``f - video_first_frame`` in presentation order, found by its time; the video is opened once per process
+(also by the add-on's Movie Clip plates), not once per frame.
 
 Every output is written atomically, so a frame file that exists is complete; a rerun skips those frames unless
 ``force``. A bad frame (missing, corrupt, NaN, wrong size) is reported by name while the others finish; a full disk
@@ -20,9 +21,7 @@ Contents
 - :func:`check_shot_outputs`: check every output of a shot before any frame is made
 - :class:`Shot`: everything one frame's job needs; picklable, so Dask can ship it to workers
 - :class:`FrameResult`: one frame's outcome in a shot
-- :data:`OPEN_VIDEOS_MAX`: how many video files :func:`read_video_frame` keeps open at once
-- :func:`read_video_frame`: frame ``index`` (0-based) of a video file as uint8 RGB, the file opened once per shot
-- :func:`close_videos`: release the video files :func:`read_video_frame` keeps open
+- :func:`read_video_frame`, :func:`close_videos`: :mod:`lowcam.video`'s, the shot's video reader
 - :func:`process_frame`: simulate and write one frame; bad input is reported, never raised
 - :data:`READ_AHEAD`: how many frames a serial shot reads ahead of the one it simulates
 - :func:`run_shot`: process frames serially, on a local Dask cluster or on one at ``tcp://host:port``
@@ -58,8 +57,7 @@ from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .passes import needed_passes, read_render_and_passes
 from .pipeline import simulate
 from .profile import load_profile
-
-VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"}
+from .video import VIDEO_SUFFIXES, close_videos, is_video, read_video_frame  # noqa: F401  (the shot's reader)
 
 
 def expand_pattern(pattern: str, frame: int) -> str:
@@ -122,6 +120,7 @@ class Shot:
     metres_per_unit: float = 1.0   # the renders' Depth pass unit
     plugins: tuple = ()            # plug-in modules the user trusted (--plugin), trusted on every worker too
     render_space: str | None = None  # the renders' colour space (None: their header's, else linear Rec.709)
+    plate_colour: str | None = None  # a video plate's matrix, range, transfer overriding its tags (--plate-colour)
 
     def load_profile(self):
         """The shot's profile with its added ``effects`` (cached per process), the shot's ``plugins`` trusted."""
@@ -160,73 +159,14 @@ def _profile(name: str, effects: tuple = ()):
     return _PROFILES[name, effects]
 
 
-class _OpenVideo:
-    """An open video file and the index of the frame its next read returns."""
-
-    def __init__(self, path: str):
-        self.capture = cv2.VideoCapture(path)
-        self.next_index = 0
-        self.count = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT)) if self.capture.isOpened() else 0
-
-    def read(self, index: int):
-        if index != self.next_index:      # sequential frames (a shot rendered in order) need no seek
-            self.capture.set(cv2.CAP_PROP_POS_FRAMES, index)
-        ok, img = self.capture.read()
-        self.next_index = index + 1 if ok else -1
-        return img if ok else None
-
-
-#: Open videos, (real path, mtime ns, size) -> :class:`_OpenVideo`: a shot's video is opened once, not once per
-#: frame; a file changed on disk is opened afresh. At most :data:`OPEN_VIDEOS_MAX` stay open.
-_OPEN_VIDEOS: dict = {}
-OPEN_VIDEOS_MAX = 2
-
-
-def _open_video(path: str) -> _OpenVideo:
-    st = os.stat(path)
-    key = (os.path.realpath(path), st.st_mtime_ns, st.st_size)
-    video = _OPEN_VIDEOS.pop(key, None)
-    if video is None:
-        video = _OpenVideo(path)
-        if not video.capture.isOpened():
-            video.capture.release()
-            raise LowcamError(f"{path}: not a readable video")
-        while len(_OPEN_VIDEOS) >= OPEN_VIDEOS_MAX:                 # the least recently used goes
-            _OPEN_VIDEOS.pop(next(iter(_OPEN_VIDEOS))).capture.release()
-    _OPEN_VIDEOS[key] = video                                       # most recently used last
-    return video
-
-
-def close_videos() -> None:
-    """Release every video :func:`read_video_frame` keeps open."""
-    while _OPEN_VIDEOS:
-        _OPEN_VIDEOS.popitem()[1].capture.release()
-
-
-def read_video_frame(path: str, index: int):
-    """Frame ``index`` (0-based) of a video file as uint8 RGB. The file is opened once per process and kept open
-    (keyed by path, modification time and size), so a shot's frames are read in sequence without reopening or
-    seeking."""
-    if not Path(path).is_file():
-        raise LowcamError(f"{path}: no such file")
-    with quiet_stderr():  # FFmpeg's messages stay off the terminal
-        video = _open_video(path)
-        if index < 0 or (video.count > 0 and index >= video.count):
-            raise LowcamError(f"{path}: the video has {video.count} frames, frame {index} (0-based) does not exist")
-        img = video.read(index)
-    if img is None:
-        raise LowcamError(f"{path}: frame {index} (0-based) cannot be decoded")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
 def _is_video(plates: str | None) -> bool:
-    return bool(plates) and Path(plates).suffix.lower() in VIDEO_SUFFIXES
+    return is_video(plates)
 
 
 def _read_plate(shot: Shot, frame: int, profile):
     c = profile.camera
     if _is_video(shot.plates):
-        img = read_video_frame(shot.plates, frame - shot.video_first_frame)
+        img = read_video_frame(shot.plates, frame - shot.video_first_frame, shot.plate_colour)
         return check_plate(img, c.width, c.height, name=f"{shot.plates} frame {frame}", raw=profile.is_raw)
     return read_plate(expand_pattern(shot.plates, frame), c.width, c.height, None if profile.is_raw else 3)
 
@@ -385,7 +325,7 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
     or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
     shot.load_profile()  # a bad profile fails here, once, before any frame
     if _is_video(shot.plates):
-        read_video_frame(shot.plates, 0)  # an unreadable video fails once, not once per frame
+        read_video_frame(shot.plates, 0, shot.plate_colour)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):
         raise LowcamError(f"--scheduler {scheduler}: not a Dask scheduler address (use tcp://host:port)")
     folders = {shot.output_path(f).parent for f in frames}

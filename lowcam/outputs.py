@@ -8,6 +8,7 @@ that makes them: never a folder, a FIFO or one of the inputs. Every problem is a
 Contents
 --------
 - :data:`FULL_ERRNOS`: the OS errors of a full disk, a quota or a file-size limit (:class:`~lowcam.errors.DiskFull`)
+- :func:`atomic_write_with`: a file a library writes, through a temporary file renamed into place
 - :func:`atomic_write_bytes`: write bytes through a temporary file, fsync, an atomic rename and a folder fsync
 - :func:`remove_stale_temporaries`: remove the temporaries of killed runs, never a live run's or a user's file
 - :func:`check_output`: check before any work that an output file can be written and is none of the inputs
@@ -104,6 +105,12 @@ def _write_through_temporary(path, write) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def atomic_write_with(path, write) -> Path:
+    """Call ``write(temporary_path)`` and rename the temporary over ``path`` (fsynced): for outputs a library
+    writes itself (a video); nothing is left at ``path`` if ``write`` fails."""
+    return _write_through_temporary(path, write)
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:

@@ -19,6 +19,11 @@ Layout (see ``profiles/fire-i.toml`` for a complete, commented example)::
     camera = "..."                # the [camera] table
     lens_distortion = "lensfun database: Canon PowerShot G12 at 6.1 mm"   # a whole effect
     "noise.read_noise_dn" = "DNG NoiseProfile of IMG_0001.dng"           # one parameter
+    video = "the bitstream of clip.mp4"
+
+    [video]                       # optional: how the footage a profile was estimated from was coded
+    codec = "h264"                # (lowcam calibrate plate reads it from the bitstream; nothing simulates it)
+    gop_length = 30
 
 Everything is validated on load: an unknown key, a wrong type or a value out of range is a one-line
 :class:`~lowcam.errors.ProfileError` naming the file and the key.
@@ -34,6 +39,7 @@ Contents
 - :func:`load_profile`: load and validate a profile by name (``"fire-i"``) or path (``"my-camera.toml"``)
 - :func:`profile_from_dict`: a validated :class:`Profile` from parsed TOML
 - :func:`inherited_provenance`: the base's provenance for a profile made from it, its replaced effects left out
+- :func:`check_video`: validate a ``[video]`` table (the coding of the footage a profile was estimated from)
 - :func:`check_provenance`: validate a ``[provenance]`` table against a profile's camera and effects
 
 References
@@ -44,6 +50,7 @@ References
 from __future__ import annotations
 
 import copy
+import math
 import os
 from functools import cached_property
 from pathlib import Path
@@ -90,6 +97,9 @@ class Profile:
         self.path = Path(path) if path else None
         #: Where the numbers came from: ``{"camera" | "EFFECT" | "EFFECT.PARAM": source}`` (:func:`check_provenance`)
         self.provenance = dict(provenance or {})
+        #: How the footage the profile was estimated from was coded (``[video]``: codec, profile, GOP, bitrate,
+        #: ...), as read from its bitstream; a record, not simulated.
+        self.video: dict = {}
         names = [e.name for e in self.effects]
         for needed in ("lens_distortion", "half_sampling", "bayer_sampling", "demosaic"):
             if needed not in names:
@@ -214,6 +224,8 @@ class Profile:
             out["effect"].append(entry)
         if self.provenance:
             out["provenance"] = dict(self.provenance)
+        if self.video:
+            out["video"] = dict(self.video)
         return out
 
     def save(self, path) -> Path:
@@ -291,9 +303,10 @@ def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
     base_dir = path.parent if path else None
     e = ProfileError
     data = schema.table(data, source, error=e)
-    unknown = sorted(set(data) - {"camera", "effect", "provenance"})
+    unknown = sorted(set(data) - {"camera", "effect", "provenance", "video"})
     if unknown:
-        raise e(f"{source}: unknown top-level key {schema.shown(unknown[0])} (known: camera, effect, provenance)")
+        raise e(f"{source}: unknown top-level key {schema.shown(unknown[0])} (known: camera, effect, provenance, "
+                "video)")
     camera = CameraSpec(source, base_dir, **schema.table(data.get("camera", {}), source, "camera", error=e))
     entries = data.get("effect", [])
     if not isinstance(entries, list) or not entries:
@@ -306,8 +319,26 @@ def profile_from_dict(data: dict, path: Path | None = None) -> Profile:
         enabled = schema.boolean(entry.pop("enabled", True), f"{source}: effect '{cls.name}'", "enabled", error=e)
         effects.append(cls(enabled, source, base_dir, **entry))
     profile = Profile(camera, effects, path)
+    profile.video = check_video(data.get("video", {}), source)
     profile.provenance = check_provenance(data.get("provenance", {}), profile)
     return profile
+
+
+def check_video(table, source: str) -> dict:
+    """The ``[video]`` table, checked: each value a string (at most 400 characters), a boolean or a finite
+    number (a one-line :class:`ProfileError` otherwise)."""
+    e = ProfileError
+    table = schema.table(table, source, "video", error=e)
+    for key, value in table.items():
+        where = f"{source}: [video] {schema.shown(key)}"
+        if isinstance(value, str):
+            if len(value) > 400:
+                raise e(f"{where}: a text of {len(value)} characters (at most 400)")
+        elif isinstance(value, bool):
+            continue
+        elif not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise e(f"{where}: {schema.shown(value)} is not a text, a boolean or a finite number")
+    return dict(table)
 
 
 def inherited_provenance(base: Profile, replaced) -> dict[str, str]:
@@ -332,6 +363,9 @@ def check_provenance(table, profile: Profile) -> dict[str, str]:
     owners = {"camera": profile.camera, **{x.name: x for x in profile.effects}}
     for key, value in table.items():
         owner, _, param = key.partition(".")
+        if owner == "video" and profile.video and (not param or param in profile.video):
+            schema.string(value, f"{source}: [provenance]", key, nonempty=True, error=e)
+            continue
         if owner not in owners:
             raise e(f"{source}: [provenance] key {schema.shown(key)} names no effect of the chain "
                     f"(known: {', '.join(owners)})")

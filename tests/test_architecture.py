@@ -32,7 +32,7 @@ LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
                  "lowcam.io", "lowcam.outputs", "lowcam.registration", "lowcam.reports", "lowcam.captures",
                  "lowcam.motion", "lowcam.gyro_logs", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate",
-                 "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces", "lowcam.colour_checker")),
+                 "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces", "lowcam.colour_checker", "lowcam.video")),
     ("effects", ("lowcam.effects", "lowcam.effects.*")),
     ("profile", ("lowcam.profile", "lowcam.dng", "lowcam.lensdb", "lowcam.gyroflow")),
     ("pipeline", ("lowcam", "lowcam.pipeline", "lowcam.node_maps", "lowcam.sample", "lowcam.scene",

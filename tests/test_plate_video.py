@@ -1,6 +1,7 @@
 """A video plate is opened once per shot, not once per frame: ``lowcam batch`` and the add-on's Movie Clip plates.
 
-The video is written and read back with OpenCV itself; opens are counted by wrapping ``cv2.VideoCapture``.
+The video is written with OpenCV (MJPEG) and read with :mod:`lowcam.video`; opens are counted by wrapping
+``lowcam.video.VideoReader``, and the frames are checked against OpenCV's own decode.
 """
 import os
 
@@ -8,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lowcam import batch
+from lowcam import video as lowcam_video
 from lowcam.batch import Shot, read_video_frame, run_shot
 from lowcam.outputs import write_exr
 
@@ -39,26 +40,36 @@ def _frames_as_opencv_reads_them(path):
     return out
 
 
+def _frames_as_lowcam_reads_them(path):
+    with lowcam_video.VideoReader(path) as video:
+        return [rgb for _, rgb in video.frames()]
+
+
 @pytest.fixture
 def count_opens(monkeypatch):
-    """The number of ``cv2.VideoCapture`` objects made, per path, from now on (cached ones closed first)."""
-    batch.close_videos()
+    """The number of ``lowcam.video.VideoReader`` objects made, per path, from now on (cached ones closed
+    first)."""
+    lowcam_video.close_videos()
     opens: dict = {}
-    real = cv2.VideoCapture
+    real = lowcam_video.VideoReader
 
-    def counting(path, *args):
-        opens[os.path.basename(str(path))] = opens.get(os.path.basename(str(path)), 0) + 1
-        return real(path, *args)
+    class Counting(real):
+        def __init__(self, path, *args):
+            opens[os.path.basename(str(path))] = opens.get(os.path.basename(str(path)), 0) + 1
+            super().__init__(path, *args)
 
-    monkeypatch.setattr(cv2, "VideoCapture", counting)
+    monkeypatch.setattr(lowcam_video, "VideoReader", Counting)
     yield opens
-    batch.close_videos()
+    lowcam_video.close_videos()
 
 
 def test_a_shot_opens_its_video_once_and_reads_every_frame_right(tmp_path, count_opens):
     video = _write_video(tmp_path / "plate.avi")
-    truth = _frames_as_opencv_reads_them(video)
+    opencv = _frames_as_opencv_reads_them(video)
+    truth = _frames_as_lowcam_reads_them(video)
     assert len(truth) == FRAMES and count_opens == {"plate.avi": 1}
+    for ours, theirs in zip(truth, opencv):                          # MJPEG: full-range BT.601 both ways
+        assert np.abs(ours.astype(int) - theirs).mean() < 1.5
     count_opens.clear()
     for f in range(1, FRAMES + 1):                                   # transparent renders: the output is the plate
         write_exr(tmp_path / "renders" / f"{f:04d}.exr", np.zeros((150, 200, 4), np.float32))
@@ -95,7 +106,7 @@ def test_a_movie_clip_plate_is_opened_once_per_render_of_many_frames(tmp_path, c
 
     render = submodule("addon.render")                              # registers the add-on
     video = _write_video(tmp_path / "plate.avi")
-    truth = _frames_as_opencv_reads_them(video)
+    truth = _frames_as_lowcam_reads_them(video)
     count_opens.clear()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene

@@ -55,6 +55,7 @@ from ..errors import LowcamError
 from ..outputs import make_output_folder
 from ..profile import load_profile
 from ..schema import read_toml
+from ..video import parse_plate_colour
 from .blur import calibrate_blur
 from .checks import source_name
 from .chromatic_aberration import calibrate_chromatic_aberration
@@ -300,9 +301,12 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
                 Option("fps", Number(0, 1000, low_open=True, what="frames per second"),
                        help="frames/s, 0 to 1000 (default: the video's, else 30)"),
                 Option("min_confidence", Number(0, 1, what="a confidence"), 0.5,
-                       help="estimates below this confidence (0 to 1) are reported, not applied")),
+                       help="estimates below this confidence (0 to 1) are reported, not applied"),
+                Option("plate_colour", Text(what="matrix,range[,transfer]", check=parse_plate_colour),
+                       help="read a video with this matrix (bt601, bt709, bt2020), range (limited, full) and "
+                            "transfer (sdr) instead of its tags, e.g. bt709,limited")),
                lambda o, base, plots: calibrate_plate(o["footage"], base, o["gyro"], o["fps"], o["min_confidence"],
-                                                      plots)),
+                                                      plots, plate_colour=o["plate_colour"])),
 )}
 
 

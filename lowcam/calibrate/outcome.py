@@ -72,6 +72,10 @@ def apply_to_profile(profile, calibrations, out_path: Path):
     for cal in calibrations:
         for name in list(cal.values) + [n for n in cal.textures if n not in cal.values]:
             values = dict(cal.values.get(name, {}))
+            if name == "video":  # how the footage was coded, read from its bitstream (a record)
+                new = new.copy()
+                new.video = dict(values)
+                continue
             if name == "camera":  # the camera's own settings (a plate profile's name)
                 new = new.copy()
                 for key, value in values.items():

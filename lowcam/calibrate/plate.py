@@ -15,12 +15,14 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import av
 import numpy as np
 
 from ..errors import LowcamError
 from ..measure import plate
 from ..plate_estimate import format_value
 from ..reports import figure
+from ..video import is_video
 from .checks import load_checked
 from .outcome import Calibration
 
@@ -92,20 +94,32 @@ def _plate_figures(estimates, plot_dir: Path, base) -> list[Path]:
     return figures
 
 
+def _ffmpeg_version() -> str:
+    major, minor, micro = av.library_versions["libavcodec"]
+    return f"libavcodec {major}.{minor}.{micro}"
+
+
 def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = None,
                     min_confidence: float | None = None, plot_dir: Path | None = None,
-                    progress: bool | None = None) -> Calibration:
+                    progress: bool | None = None, plate_colour: str | None = None) -> Calibration:
     """A profile from the footage itself: :func:`lowcam.measure.plate.estimate_profile` on
     ``footage`` (a video file, a folder of frames, or frame names or patterns), starting from ``base``. Confident
     estimates become the calibration's values, each with a ``[provenance]`` entry; the others are listed, not
     written; footage from which nothing can be estimated is refused (one line with every estimate's reason). With
     ``plot_dir`` the base profile films similar content (:func:`lowcam.measure.plate.model_statistics`) and each
-    statistic is plotted beside the model's. ``progress`` (stderr; default: when stderr is a terminal)."""
+    statistic is plotted beside the model's. ``progress`` (stderr; default: when stderr is a terminal).
+    ``plate_colour``: a video's matrix, range and transfer overriding its tags (``--plate-colour``). A video's
+    coding as its bitstream states it (codec, profile, GOP structure, frame types, bitrate, the encoder's rate
+    control where it wrote it: :func:`lowcam.video.stream_facts`) goes into the profile's ``[video]`` table, with
+    its ``[provenance]``."""
     progress = sys.stderr.isatty() if progress is None else progress
 
     names = [str(f) for f in ([footage] if isinstance(footage, (str, Path)) else footage)]
+    if plate_colour and not (len(names) == 1 and is_video(names[0])):
+        raise LowcamError(f"--plate-colour {plate_colour}: only a video has colour tags to override "
+                          f"({', '.join(names)[:200]} is not one video file)")
     if len(names) == 1 and not any(c in names[0] for c in "*?["):
-        shot = plate.read_footage(names[0], fps=fps, gyro=gyro)
+        shot = plate.read_footage(names[0], fps=fps, gyro=gyro, colour=plate_colour)
     else:
         frames, names_read, source = load_checked(names, plate.MIN_FRAMES, "plate estimation")
         shot = plate.Footage(np.stack(frames), fps or 30.0, source, names=names_read)
@@ -125,20 +139,27 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
                 values.setdefault(effect, {})[param] = value
     values["camera"] = {"name": profile.camera.name}
     provenance = {k: v for k, v in profile.provenance.items() if base.provenance.get(k) != v}
+    if shot.video:
+        values["video"] = dict(shot.video)
+        provenance["video"] = (f"the bitstream of {shot.path} (FFmpeg {_ffmpeg_version()} through PyAV); colour "
+                               f"from {shot.video['colour_from']}")
     figures = []
     if plot_dir:
         if progress:
             print("the base profile filming similar content", file=sys.stderr, flush=True)
         plate.model_statistics(shot, base, estimates)
         figures = _plate_figures(estimates, Path(plot_dir), base)
-    numbers = {est.statistic: {"effect": est.effect, "measurable": est.measurable,
+    numbers = {"video": shot.video} if shot.video else {}
+    numbers |= {est.statistic: {"effect": est.effect, "measurable": est.measurable,
                                "confidence": est.confidence if est.measurable else None, "reason": est.reason,
                                "applied": est.applied, "params": est.params, "base_params": est.base_params,
                                "footage": plate.headline(est.measured),
                                "model": None if est.model is None else plate.headline(est.model)}
                for est in estimates}
     applied = [e.statistic for e in estimates if e.applied]
-    summary = (f"plate {shot.path}: {len(shot)} frames {shot.shape[1]}x{shot.shape[0]}; applied "
+    coded = "" if not shot.video else (f" ({shot.video['codec']} {shot.video['codec_profile']}, "
+                                        f"{shot.video['colour']})")
+    summary = (f"plate {shot.path}{coded}: {len(shot)} frames {shot.shape[1]}x{shot.shape[0]}; applied "
                f"{', '.join(applied) or 'nothing'}; {len(estimates) - len(applied)} reported only")
     def flat(d, prefix=""):
         out = []

@@ -5,7 +5,8 @@ Contents
 --------
 - :class:`Parser`: an argument parser whose errors are one line
 - :data:`FPS`, :data:`EXPOSURE_S`, :data:`METRES_PER_UNIT`, :data:`PROFILE`, :data:`LAYER`, :data:`FRAMES`,
-  :data:`RENDER_SPACE`: declared arguments several commands share
+  :data:`RENDER_SPACE`, :data:`PLATE_COLOUR`: declared arguments several commands share
+- :func:`plate_colour_option`: ``--plate-colour``, on the commands that read video plates
 - :func:`check_report_outputs`: check ``--json`` and ``--report`` of compare and diagnose before any work
 - :func:`progress_line`: one fitting step's progress on stderr (rewritten in place on a terminal)
 - :func:`end_progress_lines`: end an open progress line and close any progress bar
@@ -19,6 +20,7 @@ from ..arguments import Number, Reads, Text
 from ..batch import parse_frames
 from ..outputs import check_output, check_output_folder
 from ..render_spaces import render_space
+from ..video import parse_plate_colour
 
 
 class Parser(argparse.ArgumentParser):
@@ -43,6 +45,15 @@ PROFILE = Reads("profile")
 LAYER = Text(what="view layer")
 #: A render's colour space (:func:`lowcam.render_spaces.render_space`: acescg, linear-rec2020, Blender's names).
 RENDER_SPACE = Text(what="colour space", check=render_space)
+#: A video plate's matrix, range and transfer, overriding its tags (:func:`lowcam.video.parse_plate_colour`).
+PLATE_COLOUR = Text(what="matrix,range[,transfer]", check=parse_plate_colour)
+
+
+def plate_colour_option(p) -> None:
+    """``--plate-colour``: how a video plate's Y'CbCr is read, where its tags are missing or wrong."""
+    p.add_argument("--plate-colour", type=PLATE_COLOUR, metavar="MATRIX,RANGE[,TRANSFER]",
+                   help="read a video plate with this matrix (bt601, bt709, bt2020), range (limited, full) and "
+                        "transfer (sdr) instead of its tags, e.g. bt709,limited (default: the video's own tags)")
 
 
 def _check_frames(spec: str) -> None:

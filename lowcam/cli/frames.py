@@ -23,15 +23,16 @@ from ..arguments import Number, Reads, Text, Writes, angular_velocity, bounded_i
 from ..batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
 from ..effects import trusted_modules
 from ..errors import LowcamError
-from ..io import read_plate, read_render
+from ..io import read_image, read_plate, read_render
 from ..gyro_logs import gyro_log_motion
 from ..motion import read_motion_json
-from ..outputs import IMAGE_SUFFIXES, check_image_output, check_output_folder, make_output_folder, write_image, write_png
+from ..outputs import IMAGE_SUFFIXES, check_image_output, check_output, check_output_folder, make_output_folder, write_image, write_png
 from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
-from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE
+from ..video import VIDEO_OUTPUTS, VideoCoding, coding_of_plate, is_video, open_video, write_video
+from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE, plate_colour_option
 
 
 def _load_inputs(args, profile):
@@ -142,6 +143,13 @@ def gyro_options(p) -> None:
 
 def cmd_batch(args) -> int:
     frames = parse_frames(args.frames)
+    video_out = args.output if Path(args.output).suffix.lower() in VIDEO_OUTPUTS else None
+    if video_out:   # the frames as PNG files beside it (resumable), then the video
+        check_output(video_out, [args.plates, args.motion, args.gyro])
+        args.output = str(Path(video_out + ".frames") / "######.png")
+    if args.plate_colour and not is_video(args.plates):
+        raise LowcamError(f"--plate-colour {args.plate_colour}: only a video plate has colour tags to override "
+                          f"(--plates is {args.plates or 'not given'})")
     check_shot_outputs(args.output, args.renders, args.plates, frames)
     load_profile(args.profile)  # fail early on a bad profile
     motion, require, fps = {}, False, args.fps or 24.0
@@ -152,7 +160,7 @@ def cmd_batch(args) -> int:
     shot = Shot(args.profile, args.renders, args.output, args.plates, motion, require, args.seed,
                 args.video_first_frame, args.layer, args.motion or args.gyro or "the motion file",
                 _pass_effects(args), fps, args.metres_per_unit, tuple(sorted(trusted_modules())),
-                args.render_space)
+                args.render_space, args.plate_colour)
     shot.load_profile()  # a bad --defocus value fails here, once
     t = time.perf_counter()
     results = run_shot(shot, frames, args.force, args.workers, args.scheduler, args.quiet)
@@ -162,7 +170,28 @@ def cmd_batch(args) -> int:
     failed = any(r.status == "failed" for r in results)
     print(f"{summary(results)}\n{len(frames)} frames in {elapsed:.1f} s{rate}",
           file=sys.stderr if failed else sys.stdout)
+    if video_out and failed:
+        print(f"{video_out}: not written until every frame is made; run the same command again", file=sys.stderr)
+    elif video_out:
+        _write_shot_video(video_out, shot, frames, args.fps)
     return 1 if failed else 0
+
+
+def _write_shot_video(path: str, shot, frames: list[int], fps: float | None) -> None:
+    """The shot's frames (PNG files, in frame order) coded into ``path`` as the plate video was coded (its codec,
+    bit depth, colour tags, GOP, B-frames and rate), else as :class:`lowcam.video.VideoCoding`'s default."""
+    if is_video(shot.plates):
+        coding = coding_of_plate(open_video(shot.plates, shot.plate_colour), fps)
+    else:
+        coding = VideoCoding(fps=fps or 24.0)
+    t = time.perf_counter()
+    def rgb(f):
+        img = read_image(shot.output_path(f))
+        return np.dstack([img] * 3) if img.ndim == 2 else img[..., :3]
+    write_video(path, (rgb(f) for f in frames), coding)
+    crf = f"CRF {coding.crf:g}" if coding.crf is not None else f"{coding.bitrate_bps} bit/s"
+    print(f"{path}: {len(frames)} frames coded by {coding.encoder} ({crf}, GOP {coding.gop}, {coding.b_frames} "
+          f"B-frames, {coding.matrix} {coding.range}) as {coding.source} in {time.perf_counter() - t:.1f} s")
 
 
 def add_commands(sub) -> None:
@@ -202,11 +231,13 @@ def add_commands(sub) -> None:
     p.add_argument("--plates", type=Reads("pattern"), help="plate pattern (plate/####.png) or one video file")
     p.add_argument("--video-first-frame", type=frame_number, default=1,
                    help="shot frame shown by the video's first frame")
+    plate_colour_option(p)
     p.add_argument("--motion", type=Reads("file"), help="motion.json: per-frame angular velocity and exposure")
     gyro_options(p)
     p.add_argument("--frames", type=FRAMES, required=True, help="e.g. 1-240, 1-10,15, 1-240x2")
-    p.add_argument("-o", "--output", type=Writes("pattern", IMAGE_SUFFIXES), required=True,
-                   help="output pattern: out/####.png")
+    p.add_argument("-o", "--output", type=Writes("pattern", IMAGE_SUFFIXES + tuple(VIDEO_OUTPUTS)), required=True,
+                   help="output pattern: out/####.png; or a video file (shot.mp4, .mov, .mkv) coded as the plate "
+                        "video is, its frames kept in shot.mp4.frames/")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--force", action="store_true", help="redo frames whose output exists")
     p.add_argument("--workers", type=bounded_int(0, 1024), default=0,

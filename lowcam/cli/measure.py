@@ -30,7 +30,8 @@ from ..measure.synth import parse_change, synthesise
 from ..outputs import atomic_write_bytes, check_output, check_output_folder, make_output_folder
 from ..parallel import one_malloc_arena
 from ..profile import load_profile
-from .common import PROFILE, check_report_outputs, end_progress_lines, progress_line
+from ..video import is_video
+from .common import PROFILE, check_report_outputs, end_progress_lines, plate_colour_option, progress_line
 
 
 def _steps_folder(output) -> Path:
@@ -54,7 +55,10 @@ def _compare_plate_only(args, profile) -> int:
         if unknown:
             raise LowcamError(f"--probes: no plate probe {', '.join(unknown)} (there are: {', '.join(known)})")
         probes = [known[n] for n in names]
-    footage = read_footage(args.plate_only)
+    if args.plate_colour and not is_video(args.plate_only):
+        raise LowcamError(f"--plate-colour {args.plate_colour}: only a video has colour tags to override "
+                          f"({args.plate_only} is not a video file)")
+    footage = read_footage(args.plate_only, colour=args.plate_colour)
     cmp = compare_plate(footage, profile, probes)
     worst = cmp.where["worst"]
     print(f"{args.plate_only}: error {cmp.error:.3f} (noise floor 1.0): {cmp.verdict}; " +
@@ -78,6 +82,8 @@ def cmd_compare(args) -> int:
         raise LowcamError("compare: give a measurement set or --plate-only FOOTAGE (one of the two)")
     if args.probes and not args.plate_only:
         raise LowcamError("compare: --probes goes with --plate-only")
+    if args.plate_colour and not args.plate_only:
+        raise LowcamError("compare: --plate-colour goes with --plate-only (a video)")
     check_report_outputs(args)
     profile = load_profile(args.profile)
     if args.plate_only:
@@ -204,6 +210,7 @@ def add_commands(sub) -> None:
                    help="no chart, no ideal: compare the plate probes' statistics of this video, folder or glob "
                         "of frames with the profile filming similar content")
     p.add_argument("--probes", type=Text(what="PROBE,..."), help="with --plate-only: comma-separated plate probes to compare (default: all)")
+    plate_colour_option(p)
     p.add_argument("--profile", type=PROFILE, default="fire-i")
     p.add_argument("--report", type=Writes("folder"), help="folder for the HTML report and its pictures")
     p.add_argument("--json", type=Writes("file"), help="write the numbers as JSON")

@@ -20,7 +20,7 @@ statistic at all (flat, still) gives "not measurable" and no value.
 Contents
 --------
 - :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
-- :func:`read_footage`: a video file (OpenCV) or a folder or glob of frames as :class:`Footage`
+- :func:`read_footage`: a video file (:mod:`lowcam.video`) or a folder or glob of frames as :class:`Footage`
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
 - :func:`plate_probes`: every plate probe the effects declare, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
@@ -58,11 +58,11 @@ import numpy as np
 from ..captures import expand_paths, load_frames
 from ..effects import known_effects
 from ..errors import LowcamError, NotFitted
-from ..io import quiet_stderr
 from ..gyro_logs import log_kind, read_gyro_log
 from ..pipeline import render_camera, simulate
 from ..plate_estimate import PlateEstimate, PlateProbe
 from ..profile import load_profile
+from ..video import VideoReader, av_log_capture, is_video, stream_facts
 
 #: Estimates below this confidence are reported, not applied to the profile.
 MIN_CONFIDENCE = 0.5
@@ -70,7 +70,6 @@ MIN_CONFIDENCE = 0.5
 #: A shot needs at least this many frames.
 MIN_FRAMES = 2
 
-_VIDEO_SUFFIXES = {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp"}
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr"}
 
 
@@ -87,6 +86,7 @@ class Footage:
     gyro: np.ndarray | None = None
     frame_times: np.ndarray | None = None
     names: list[str] = field(default_factory=list)
+    video: dict | None = None   # a video file's coding, read from its bitstream (lowcam.video.stream_facts)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -119,16 +119,18 @@ def _natural_key(p: Path):
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
 
 
-def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 2000) -> Footage:
-    """Read a shot: a video file (OpenCV's VideoCapture), a folder of frames (PNG/JPEG/TIFF, in natural name
+def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 2000,
+                 colour: str | None = None) -> Footage:
+    """Read a shot: a video file (:class:`lowcam.video.VideoReader`: its own colour tags, ``colour``, the
+    ``--plate-colour`` text, overriding them), a folder of frames (PNG/JPEG/TIFF, in natural name
     order) or a glob pattern of frames. ``gyro``: optional gyro log (:func:`read_phone_gyro`). Every problem is
     one line naming the file: missing, unreadable, too few
     frames, mismatched sizes, video data the decoder reports damaged (it would conceal it with grey blocks)."""
     p = Path(path)
     name = str(path)
-    if p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
-        frames, rate = _read_video(p, max_frames)
-        footage = Footage(frames, fps or rate or 30.0, name)
+    if p.is_file() and is_video(p):
+        frames, rate, facts = _read_video(p, max_frames, colour)
+        footage = Footage(frames, fps or rate or 30.0, name, video=facts)
     else:
         paths = _frame_paths(p)
         if not paths:
@@ -145,37 +147,33 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
     return footage
 
 
-def _read_video(path: Path, max_frames: int):
-    with quiet_stderr():
-        cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise LowcamError(f"{path}: cannot be read as a video")
-    rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
-    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)   # what the container says it holds
+def _read_video(path: Path, max_frames: int, colour: str | None = None):
+    """The video's frames (T, H, W, 3) uint8 RGB (:class:`lowcam.video.VideoReader`: the stream's own matrix,
+    range and transfer, ``colour`` overriding them), its frame rate (or None) and what its bitstream says of its
+    coding (:func:`lowcam.video.stream_facts`)."""
     frames = []
-    with quiet_stderr() as decoder:   # FFmpeg conceals damage (grey blocks) and says so on stderr, from any thread
-        try:
-            while len(frames) < max_frames:
-                ok, bgr = cap.read()
-                if not ok:
-                    break
-                if frames and bgr.shape != frames[0].shape:
-                    raise LowcamError(f"{path}: frame {len(frames)} is {bgr.shape[1]}x{bgr.shape[0]}, the first is "
-                                      f"{frames[0].shape[1]}x{frames[0].shape[0]}: mismatched sizes")
-                frames.append(bgr[..., ::-1].copy())
-        finally:
-            cap.release()
-    complaint = next((line for line in decoder["text"].splitlines() if _VIDEO_DAMAGE.search(line)), None)
-    if complaint:
-        raise LowcamError(f"{path}: damaged video data ({complaint.strip()}; {len(frames)} of {count} frames "
-                          "decoded); damaged footage is not measured")
-    if not frames:
-        raise LowcamError(f"{path}: no frame could be decoded")
-    if len(frames) < min(count, max_frames) - 1:   # the count may be an estimate (off by one) in some containers
-        # the decoder stopped without complaint: what it gave is whole (Cinepak's tree.avi gives 68 of 444)
-        print(f"note: {path}: only the first {len(frames)} of the {count} frames its header lists could be decoded; "
-              "measuring those", file=sys.stderr)
-    return np.stack(frames), (rate if 0 < rate < 1000 else None)
+    with VideoReader(path, colour) as video:
+        with av_log_capture() as said:   # FFmpeg conceals damage (grey blocks) and says so
+            try:
+                for _, rgb in video.frames(max_frames):
+                    frames.append(rgb)
+            except LowcamError:
+                if video.decode_error is None:
+                    raise
+        complaint = next((line for line in said if _VIDEO_DAMAGE.search(line)), video.decode_error)
+        if complaint is None and video.corrupt:
+            complaint = f"frame {video.corrupt[0]} flagged corrupt by the decoder"
+        if complaint:
+            raise LowcamError(f"{path}: damaged video data ({complaint.strip()}; {len(frames)} of {video.count} "
+                              "frames decoded); damaged footage is not measured")
+        if not frames:
+            raise LowcamError(f"{path}: no frame could be decoded")
+        if len(frames) < min(video.count, max_frames) - 1:
+            print(f"note: {path}: only the first {len(frames)} of the {video.count} frames its packets list could "
+                  "be decoded; measuring those", file=sys.stderr)
+        facts = stream_facts(video)
+        rate = video.fps
+    return np.stack(frames), rate, facts
 
 
 #: What FFmpeg's decoders say of damaged video data they conceal.
