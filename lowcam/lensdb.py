@@ -73,7 +73,7 @@ from rapidfuzz.distance import OSA
 
 from .effects.lens_models import LENSFUN_GEOMETRIES
 from .errors import LowcamError
-from .gyroflow import read_gyroflow_lens
+from .gyroflow import lens_in_frame, read_gyroflow_lens
 from .profile import inherited_provenance
 from .schema import read_json
 
@@ -218,7 +218,7 @@ GYROFLOW_ENV = "LOWCAM_GYROFLOW_PROFILES"
 @dataclass(frozen=True)
 class GyroflowEntry:
     """One Gyroflow lens profile of a folder: the file, the camera's brand and model, the lens, the video mode
-    (``camera_setting``, else what the file name adds to brand, model and lens), the calibration frame (w, h px),
+    (``camera_setting``, else what the file name adds to brand, model and lens), the recorded frame (w, h px),
     the frame rate (0: not given) and the lens model (``opencv_fisheye`` or ``opencv_standard``)."""
 
     path: Path
@@ -245,25 +245,27 @@ class GyroflowEntry:
         rate = f" at {self.fps:.4g} fps" if self.fps else ""
         return (f"{self.maker or '-'} | {self.model or '-'} | Gyroflow {self.distortion.removeprefix('opencv_')} | "
                 f"lens {self.lens_name or '-'} | mode {self.mode or '-'} | {self.size[0]}x{self.size[1]}{rate} | "
-                f"lowcam profile from-gyroflow {shlex.quote(str(self.path))} --base fire-i -o mycam.toml")
+                f"lowcam profile from-gyroflow {shlex.quote(str(self.path))} -o mycam.toml")
 
 
 def _gyroflow_entry(path: Path) -> GyroflowEntry:
-    lens = read_gyroflow_lens(path)            # a file Lowcam cannot read raises here and is not listed
+    lens = read_gyroflow_lens(path)            # a file Lowcam cannot make a profile of raises here, not listed
+    lens_in_frame(lens)                        # ... and one whose lens folds over inside its frame
     doc = read_json(path, "Gyroflow lens profile")
     maker, model, lens_name, setting = (str(doc.get(key) or "").strip() for key in
                                         ("camera_brand", "camera_model", "lens_model", "camera_setting"))
     if not setting:  # the mode is in the file name: GoPro_HERO11 Black_Wide_NO-EIS_1440p_4by3_1920x1440-59.94fps
         known = {w.lower() for w in (maker, model, lens_name)}
         setting = " ".join(part for part in path.stem.split("_") if part.strip().lower() not in known)
-    return GyroflowEntry(path, maker, model, lens_name, setting, lens.size, lens.fps, lens.model)
+    return GyroflowEntry(path, maker, model, lens_name, setting, lens.frame, lens.fps, lens.model)
 
 
 @functools.lru_cache(maxsize=4)
 def gyroflow_entries(folder: Path) -> tuple[tuple[GyroflowEntry, ...], int]:
     """``(entries, skipped)``: every Gyroflow lens profile (``*.json``, in sub-folders too) of ``folder`` that
-    Lowcam reads, sorted by path, and how many ``.json`` files it could not read (another of Gyroflow's lens
-    models, not a lens profile, damaged)."""
+    ``lowcam profile from-gyroflow`` makes a profile of, sorted by path, and how many ``.json`` files it cannot
+    (not a lens profile, damaged, another of Gyroflow's lens models, a digital lens, a lens that folds over inside
+    its frame)."""
     entries, skipped = [], 0
     for path in sorted(Path(folder).rglob("*.json")):
         try:
@@ -291,7 +293,8 @@ def gyroflow_folder(given: str | None) -> Path | None:
 
 
 def _words(text: str) -> list[str]:
-    return re.findall(r"[a-z0-9]+", text.lower())
+    """The words of a name or a search: runs of letters (of any script) and digits, lower case."""
+    return re.findall(r"[^\W_]+", text.lower())
 
 
 #: A word of the search matches a word of a name with the same digits at this similarity or more (0-100: 100 (1 -
@@ -354,6 +357,8 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
         entries = [e for e in entries if isinstance(e, LensEntry) and
                    e.focal_range[0] - 1e-3 <= focal_mm <= e.focal_range[1] + 1e-3]
     words = _words(text)
+    if text.strip() and not words:             # punctuation only: nothing to look for, so nothing matches
+        return []
     names = {id(e): _words(f"{e.maker} {e.name}") for e in entries}
     vocabulary = sorted({w for ws in names.values() for w in ws})
     near = {}
