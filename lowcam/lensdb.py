@@ -32,6 +32,7 @@ Contents
 - :class:`GyroflowEntry`: one Gyroflow lens profile of a folder: camera, lens, mode, frame size, lens model
 - :func:`gyroflow_entries`: the Gyroflow lens profiles of a folder that Lowcam reads
 - :func:`gyroflow_folder`: the folder of Gyroflow lens profiles given (option or environment), checked
+- :func:`name_words`: the words of a name or a search (letters of any script, digits)
 - :data:`TYPO_SIMILARITY`: how similar (rapidfuzz, 0-100) a mistyped word must be to a word of a name
 - :data:`TYPO_LETTERS`: how long a word must be to be taken as mistyped
 - :class:`Match`: one row of a search: the entry, its score and the mistyped words it was found by
@@ -292,7 +293,7 @@ def gyroflow_folder(given: str | None) -> Path | None:
     return Path(text)
 
 
-def _words(text: str) -> list[str]:
+def name_words(text: str) -> list[str]:
     """The words of a name or a search: runs of letters (of any script) and digits, lower case."""
     return re.findall(r"[^\W_]+", text.lower())
 
@@ -321,17 +322,17 @@ class Match:
         return {LensEntry: "lens", CameraEntry: "camera", GyroflowEntry: "gyroflow"}[type(self.entry)]
 
 
-def _word_score(word: str, name_words: list[str], compact: str, near: dict[str, float]) -> tuple[float, str]:
+def _word_score(word: str, its_words: list[str], compact: str, near: dict[str, float]) -> tuple[float, str]:
     """How well one word of the search matches a name: 100 a word of it, 95 the start of one, 90 inside one or
     across words (``1835`` in ``18-35mm``), else the rapidfuzz similarity to its nearest word, at most 89."""
     if word not in compact:
         if not near:
             return 0.0, ""
-        best = max(name_words, key=lambda w: near.get(w, 0.0), default="")
+        best = max(its_words, key=lambda w: near.get(w, 0.0), default="")
         return min(near.get(best, 0.0), 89.0), best
-    if word in name_words:
+    if word in its_words:
         return 100.0, word
-    return (95.0 if any(w.startswith(word) for w in name_words) else 90.0), word
+    return (95.0 if any(w.startswith(word) for w in its_words) else 90.0), word
 
 
 def search(text: str, maker: str | None = None, lens_type: str | None = None, focal_mm: float | None = None,
@@ -356,10 +357,10 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     if focal_mm is not None:
         entries = [e for e in entries if isinstance(e, LensEntry) and
                    e.focal_range[0] - 1e-3 <= focal_mm <= e.focal_range[1] + 1e-3]
-    words = _words(text)
+    words = name_words(text)
     if text.strip() and not words:             # punctuation only: nothing to look for, so nothing matches
         return []
-    names = {id(e): _words(f"{e.maker} {e.name}") for e in entries}
+    names = {id(e): name_words(f"{e.maker} {e.name}") for e in entries}
     vocabulary = sorted({w for ws in names.values() for w in ws})
     near = {}
     for word in words:  # each word of the search against every word of the names, once
@@ -370,17 +371,17 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     whole = "".join(words)
     out = []
     for e in entries:
-        name_words = names[id(e)]
-        compact = "".join(name_words)
+        its_words = names[id(e)]
+        compact = "".join(its_words)
         scores = []
         for w in words:  # most names miss the first word: no need to score the rest
-            scores.append(_word_score(w, name_words, compact, near[w]))
+            scores.append(_word_score(w, its_words, compact, near[w]))
             if scores[-1][0] < TYPO_SIMILARITY:
                 break
         else:
             out.append((Match(e, sum(s for s, _ in scores) / len(scores) if scores else 100.0,
                               tuple((w, m) for w, (s, m) in zip(words, scores) if s < 90)),
-                        fuzz.ratio(whole, "".join(_words(e.name)))))
+                        fuzz.ratio(whole, "".join(name_words(e.name)))))
     order = {LensEntry: 0, CameraEntry: 1, GyroflowEntry: 2}
     out.sort(key=lambda m: (-m[0].score, -m[1], order[type(m[0].entry)], m[0].entry.name.lower()))
     return [m for m, _ in out]

@@ -21,8 +21,8 @@ from ..arguments import Number, Numbers, Reads, Text, Writes, bounded_int
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
 from ..gyroflow import profile_from_gyroflow
-from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, nearest_maker,
-                      nearest_names, profile_from_lensfun, require_lensfunpy, search)
+from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, name_words,
+                      nearest_maker, nearest_names, profile_from_lensfun, require_lensfunpy, search)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
 from .common import PROFILE, Parser
@@ -165,6 +165,8 @@ def cmd_profile_search(args) -> int:
         if (maker or args.type or args.focal_mm) and search(text, gyroflow=folder, lensfun=lensfun):
             raise LowcamError(f"nothing matching '{text}' is of the maker, type and focal length asked for "
                               "(without --maker, --type and --focal-mm: lowcam profile search TEXT)")
+        if not name_words(text):
+            raise LowcamError(f"nothing in {where} matches '{text}' (it holds no letters or digits to look for)")
         names = sorted({m.entry.name for m in search("", gyroflow=folder, lensfun=lensfun)})
         raise LowcamError(f"nothing in {where} matches '{text}'; nearest: {nearest_names(text, names)}")
     if found[0].typos:
