@@ -9,8 +9,9 @@ is JSON; Lowcam reads:
   ``use_opencv_standard``) and its parameters, ``fisheye_params`` (or ``calib_params``): ``camera_matrix`` (3x3,
   px, OpenCV's pixel-centre convention) and ``distortion_coeffs`` (fisheye: ``k1..k4`` of the ray's angle;
   standard: OpenCV's ``k1, k2, p1, p2, k3``);
-- ``frame_readout_time`` (ms, optional): the rolling shutter's read-out, first row to last (negative: read from
-  the bottom row up, Gyroflow's ``ReadoutDirection::BottomToTop``);
+- ``frame_readout_time`` (ms, optional): the rolling shutter's read-out, first row to last (negative, or
+  ``frame_readout_direction`` ``"BottomToTop"``: read from the bottom row up, Gyroflow's
+  ``ReadoutDirection::BottomToTop``; a read-out across the columns is refused);
 - ``fps`` (optional): the video's frame rate, which bounds the exposure;
 - ``input_horizontal_stretch``, ``input_vertical_stretch`` (optional; 0.01 or less, or absent: 1): an anamorphic
   lens's squeeze. Gyroflow calibrates the frame stretched by these factors (``calib_dimension`` is the stretched
@@ -166,6 +167,12 @@ def read_gyroflow_lens(path) -> GyroflowLens:
     readout_ms = doc.get("frame_readout_time")
     readout_s = 0.0 if readout_ms is None else schema.number(readout_ms, str(path), "frame_readout_time", -1000,
                                                              1000, "ms") / 1000      # negative: bottom row first
+    direction = doc.get("frame_readout_direction")
+    if direction in ("LeftToRight", "RightToLeft"):
+        raise LowcamError(f"{path}: frame_readout_direction {direction}: a read-out across the columns is not "
+                          "modelled by Lowcam's rolling shutter (rows only)")
+    if direction == "BottomToTop":
+        readout_s = -abs(readout_s)
     fps = 0.0 if doc.get("fps") in (None, 0) else schema.number(doc["fps"], str(path), "fps", 1e-3, 1000)
     words = [str(doc.get(key) or "").strip() for key in ("camera_brand", "camera_model", "lens_model",
                                                           "camera_setting")]

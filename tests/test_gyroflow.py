@@ -300,3 +300,48 @@ def test_a_seeded_draw_from_gyroflows_database_matches_opencv_or_is_refused_for_
         inside = (theirs[:, 0] < w - 0.5) & (theirs[:, 1] < h - 0.5)    # a frame cut to a multiple of 4 by 2
         assert np.abs(np.stack([u, v], -1) - theirs)[inside].max() < 0.01, path.name
     assert imported >= 30
+
+
+@pytest.mark.parametrize("name, frame, readout_ms", [("iphone-12-hd", (1920, 1080), 6.6),
+                                                     ("gopro-hero8-hd", (1920, 1080), 4.17083)])
+def test_the_bundled_16_by_9_profiles_state_where_every_number_came_from(name, frame, readout_ms):
+    """The bundled HD phone and action camera: 16:9 frames, a Gyroflow calibration's lens and read-out, every
+    effect and the camera with a provenance entry (the rest from phone-video, said so), and they render: the
+    pinhole field a render must cover is found."""
+    profile = lowcam.load_profile(name)
+    assert (profile.camera.width, profile.camera.height) == frame
+    assert "Gyroflow lens profile" in profile.provenance["lens_distortion"]
+    assert profile.effect("rolling_shutter").readout_s == pytest.approx(readout_ms / 1000)
+    assert "(from base phone-video)" in profile.provenance["camera"]
+    for e in profile.effects:
+        assert profile.provenance_of(e.name) and "not stated" not in profile.provenance_of(e.name), e.name
+    cam = lowcam.render_camera(name, 1920)
+    assert cam["projection"] == "pinhole" and cam["height"] == 1080
+
+
+@pytest.mark.skipif(not DATABASE.is_file(), reason="../shared/data/gyroflow-lens-profiles is not beside the checkout")
+def test_the_bundled_16_by_9_profiles_are_what_their_script_makes(tmp_path):
+    """profiles/make_profiles.sh's from-gyroflow commands, run again on the files of Gyroflow's database: the same
+    profiles, value for value."""
+    import shlex
+
+    from lowcam.profile import BUNDLED_PROFILES
+
+    script = (BUNDLED_PROFILES / "make_profiles.sh").read_text()
+    wanted = {v: shlex.split(script.split(f"\n{v}=", 1)[1].splitlines()[0])[0] for v in ("PHONE", "ACTION")}
+    with tarfile.open(DATABASE, "r|xz") as tar:
+        for member in tar:
+            if member.name in wanted.values():
+                (tmp_path / Path(member.name).name).write_bytes(tar.extractfile(member).read())
+    for var, name in (("PHONE", "iphone-12-hd"), ("ACTION", "gopro-hero8-hd")):
+        path = tmp_path / Path(wanted[var]).name
+        assert main(["profile", "from-gyroflow", str(path), "--base", str(BUNDLED_PROFILES / "phone-video.toml"),
+                     "-o", str(tmp_path / f"{name}.toml")]) == 0
+        bundled, again = lowcam.load_profile(name), lowcam.load_profile(tmp_path / f"{name}.toml")
+        assert (bundled.camera.width, bundled.camera.height, bundled.camera.exposure_s) == \
+            (again.camera.width, again.camera.height, again.camera.exposure_s)
+        def values(profile):    # a texture's path is written relative to the profile: compare where it leads
+            return [{k: (Path(e.base_dir, v).resolve() if k == "texture" and v else v) for k, v in e.values().items()}
+                    for e in profile.effects]
+        assert values(bundled) == values(again), name
+        assert bundled.provenance == again.provenance
