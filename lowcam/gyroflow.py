@@ -43,6 +43,7 @@ Contents
 - :data:`DIGITAL_LENSES`: Gyroflow's digital lenses, by their names there
 - :func:`scaled_intrinsics`: OpenCV intrinsics (fx, fy, cx, cy) of one frame size at another of its aspect ratio
 - :func:`framed_intrinsics`: OpenCV intrinsics of a frame scaled and cut to another size, as a camera's video mode
+- :func:`radial_limit`: how far a radial lens's mapping reaches one to one
 - :func:`check_lens_over_frame`: refuse a lens whose mapping folds over, or is not finite, inside the frame
 - :func:`lens_in_frame`: the frame a profile of a Gyroflow lens delivers and its lens there, checked
 - :func:`profile_from_gyroflow`: the base profile with the file's lens, rolling shutter and exposure limit
@@ -62,6 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from .effects.lens import ROUND_TRIP_PX, frame_round_trip, lens_model_from
+from .effects.lens_models import KannalaBrandtLens, OpenCVLens
 from .errors import LowcamError
 from . import schema
 from .profile import check_provenance, inherited_provenance
@@ -206,26 +208,53 @@ def framed_intrinsics(intrinsics, size, to_size) -> tuple[float, float, float, f
     return fx * s, fy * s, (cx + 0.5) * s - 0.5 - (w * s - w2) / 2, (cy + 0.5) * s - 0.5 - (h * s - h2) / 2
 
 
+def radial_limit(lens) -> tuple[float, float] | None:
+    """``(rd, theta)`` for a radial lens (OpenCV's fisheye, or its standard model without tangential terms): the
+    largest normalised distorted radius its mapping reaches one to one, and the ray's angle there (rad): where the
+    radius stops rising, or for a fisheye that rises to 180 deg, its radius there. None for another lens."""
+    if isinstance(lens, KannalaBrandtLens):
+        theta = lens.theta_rising()
+        return float(lens.theta_d(theta)), theta
+    if isinstance(lens, OpenCVLens) and not (lens.p1 or lens.p2):
+        k1, k2, k3 = lens.k1, lens.k2, lens.k3
+        peaks = [z.real for z in np.roots([7 * k3, 5 * k2, 3 * k1, 1.0]) if abs(z.imag) < 1e-12 and z.real > 0] \
+            if (k1 or k2 or k3) else []            # the slope's zeros in r^2
+        if not peaks:
+            return np.inf, np.pi / 2
+        r = float(np.sqrt(min(peaks)))
+        return r * (1 + r * r * (k1 + r * r * (k2 + r * r * k3))), float(np.arctan(r))
+    return None
+
+
 def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> None:
     """Refuse, in one line naming ``where``, the ``lens_distortion`` ``values`` whose mapping over the ``width`` x
-    ``height`` frame folds over, is not finite or needs rays the model cannot carry: a point of the frame taken to
-    its ray and back misses itself by more than :data:`~lowcam.effects.lens.ROUND_TRIP_PX`
-    (:func:`~lowcam.effects.lens.frame_round_trip`)."""
+    ``height`` frame folds over, is not finite or needs rays the model cannot carry. A radial lens
+    (:func:`radial_limit`): the frame's farthest corner (outer pixel edges; on a rectangle the farthest point from
+    the principal point is a corner) must lie within the radius its mapping reaches one to one. Another lens: a
+    point of the frame taken to its ray and back must miss itself by at most
+    :data:`~lowcam.effects.lens.ROUND_TRIP_PX` (:func:`~lowcam.effects.lens.frame_round_trip`)."""
     lens = lens_model_from(values, width, height)
+    limit = radial_limit(lens)
+    if limit is not None:
+        fx, fy, cx, cy = lens.pinhole_intrinsics()
+        corner = max(np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, width - 0.5) for v in (-0.5, height - 0.5))
+        rd, theta = limit
+        if np.isnan(rd) or not np.isfinite(corner):
+            raise LowcamError(f"{where}: the lens mapping is not finite over the {width}x{height} frame")
+        if corner <= rd:
+            return
+        raise LowcamError(f"{where}: the lens folds over inside the {width}x{height} frame (its radius stops rising "
+                          f"{np.degrees(theta):.1f} deg from the axis, {100 * rd / corner:.1f} % of the way to the "
+                          "frame's farthest corner): the calibration does not hold out to the frame's corners")
     error, u, v = frame_round_trip(lens, width, height)
     if error <= ROUND_TRIP_PX:
         return
-    fx, fy, cx, cy = lens.pinhole_intrinsics()
     if not np.isfinite(error):
         raise LowcamError(f"{where}: the lens mapping is not finite at pixel ({u:g}, {v:g}) of the {width}x"
                           f"{height} frame")
-    if hasattr(lens, "theta_rising"):
-        radius = f"its radius stops rising {np.degrees(lens.theta_rising()):.1f} deg from the axis"
-    else:
-        radius = "its radius stops rising"
-    raise LowcamError(f"{where}: the lens folds over inside the {width}x{height} frame ({radius}, before pixel "
-                      f"({u:g}, {v:g}): a ray maps there and back {error:.3g} px away); the calibration does "
-                      "not hold out to the frame's border")
+    raise LowcamError(f"{where}: the lens folds over inside the {width}x{height} frame (before pixel ({u:g}, {v:g}): "
+                      f"a ray maps there and back {error:.3g} px away): the calibration does not hold out to the "
+                      "frame's border")
 
 
 def lens_in_frame(lens: GyroflowLens, size: tuple[int, int] | None = None):

@@ -107,6 +107,25 @@ def test_a_file_lowcam_cannot_read_is_one_line_naming_it(tmp_path, capsys, chang
     assert not (tmp_path / "out.toml").exists()
 
 
+@pytest.mark.parametrize("p", [0.0, 0.001])
+def test_a_standard_lens_that_folds_inside_its_frame_is_refused(tmp_path, p):
+    """OpenCV's standard model with k1 = -0.9 at 1280x960 (f = 1000 px): OpenCV's own radius (``cv2.projectPoints``
+    along the frame's diagonal) stops rising before the corner, so the file is refused naming it, without
+    tangential terms (the radial limit) and with them (the round trip through the lens)."""
+    k = [[1000.0, 0.0, 639.5], [0.0, 1000.0, 479.5], [0.0, 0.0, 1.0]]
+    d = [-0.9, 0.0, p, p, 0.0]
+    r = np.linspace(0.0, 1.0, 1000)
+    pts = np.stack([r * 0.8, r * 0.6, np.ones_like(r)], -1)[:, None]
+    u = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.array(k), np.array(d))[0][:, 0]
+    radius = np.hypot(u[:, 0] - 639.5, u[:, 1] - 479.5)
+    assert np.any(np.diff(radius[radius < 800.0]) < 0)         # folds before the corner, 800 px from the centre
+    doc = {"calib_dimension": {"w": 1280, "h": 960}, "use_opencv_fisheye": False, "use_opencv_standard": True,
+           "calib_params": {"camera_matrix": k, "distortion_coeffs": d}}
+    path = _write(tmp_path, doc)
+    with pytest.raises(LowcamError, match=f"{path}: the lens folds over inside the 1280x960 frame"):
+        profile_from_gyroflow(path, lowcam.load_profile("fire-i"))
+
+
 def test_a_file_that_is_not_json_is_one_line(tmp_path, capsys):
     path = tmp_path / "lens.json"
     path.write_bytes(b"\x00\xffnot json")
