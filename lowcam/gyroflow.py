@@ -28,7 +28,8 @@ is JSON; Lowcam reads:
 The distortion coefficients may take any finite value: a lens is judged by its mapping over the frame, not by its
 terms (OpenCV's fit of a narrow lens gives large terms of alternating sign that cancel over its field). A file is
 refused where the mapping folds over inside the frame, is not finite there, or needs rays the model cannot
-carry (:func:`~lowcam.effects.lens.frame_round_trip`).
+carry (:func:`check_lens_over_frame`). Focal lengths that are both negative (a picture turned 180 degrees, in some
+files) are the same lens seen upright: made positive (and the tangential terms' signs turned).
 
 The profile delivers the recorded frame (its width cut down to a multiple of 4 and its height to a multiple of 2,
 at the right and the bottom, where it is not one already), or a size asked for: the frame is then scaled by ``s``
@@ -83,8 +84,8 @@ class GyroflowLens:
     calibration frame ``size`` (w, h px, stretched); ``intrinsics`` (fx, fy, cx, cy px at that size);
     ``coefficients``; ``stretch`` (horizontal, vertical: the anamorphic stretch, 1 for none); ``readout_s`` (0:
     none given; negative: bottom row first) and ``fps`` (0: none given); ``name`` and ``calibration`` (who, the
-    fit's error), for the profile; ``turned``: the file's focal lengths were both negative (a picture turned 180 deg about the axis: the
-    same lens seen from a camera turned so), made positive."""
+    fit's error), for the profile; ``turned``: the file's focal lengths were both negative (a picture turned 180
+    deg about the axis: the same lens seen from a camera turned so), made positive."""
 
     path: Path
     model: str
