@@ -121,12 +121,13 @@ def _stretch(doc, path, key) -> float:
     return 1.0 if value <= NO_STRETCH else value
 
 
-def read_gyroflow_lens(path) -> GyroflowLens:
-    """The lens profile in ``path``: a one-line :class:`~lowcam.errors.LowcamError` naming the file and the key
-    for a file that is no Gyroflow lens profile, a model or digital lens Lowcam lacks, or a value that is missing
-    or not finite."""
+def read_gyroflow_lens(path, doc=None) -> GyroflowLens:
+    """The lens profile in ``path`` (``doc``: its JSON, already read): a one-line
+    :class:`~lowcam.errors.LowcamError` naming the file and the key for a file that is no Gyroflow lens profile, a
+    model or digital lens Lowcam lacks, or a value that is missing or not finite."""
     path = Path(path)
-    doc = schema.read_json(path, "Gyroflow lens profile")      # a device, a huge file, NaN: refused there
+    if doc is None:
+        doc = schema.read_json(path, "Gyroflow lens profile")  # a device, a huge file, NaN: refused there
     if not isinstance(doc, dict) or not isinstance(doc.get("calib_dimension"), dict):
         raise LowcamError(f"{path}: not a Gyroflow lens profile (no calib_dimension)")
     model = doc.get("distortion_model") or ("opencv_standard" if doc.get("use_opencv_standard") and

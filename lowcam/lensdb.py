@@ -250,9 +250,9 @@ class GyroflowEntry:
 
 
 def _gyroflow_entry(path: Path) -> GyroflowEntry:
-    lens = read_gyroflow_lens(path)            # a file Lowcam cannot make a profile of raises here, not listed
-    lens_in_frame(lens)                        # ... and one whose lens folds over inside its frame
     doc = read_json(path, "Gyroflow lens profile")
+    lens = read_gyroflow_lens(path, doc)       # a file Lowcam cannot make a profile of raises here, not listed
+    lens_in_frame(lens)                        # ... and one whose lens folds over inside its frame
     maker, model, lens_name, setting = (str(doc.get(key) or "").strip() for key in
                                         ("camera_brand", "camera_model", "lens_model", "camera_setting"))
     if not setting:  # the mode is in the file name: GoPro_HERO11 Black_Wide_NO-EIS_1440p_4by3_1920x1440-59.94fps
