@@ -132,8 +132,8 @@ def read_gyroflow_lens(path, doc=None) -> GyroflowLens:
         raise LowcamError(f"{path}: not a Gyroflow lens profile (no calib_dimension)")
     model = doc.get("distortion_model") or ("opencv_standard" if doc.get("use_opencv_standard") and
                                             not doc.get("use_opencv_fisheye") else "opencv_fisheye")
-    if model not in MODELS:
-        raise LowcamError(f"{path}: Gyroflow's '{model}' lens model is not one Lowcam reads "
+    if not isinstance(model, str) or model not in MODELS:
+        raise LowcamError(f"{path}: Gyroflow's '{str(model)[:80]}' lens model is not one Lowcam reads "
                           f"({', '.join(MODELS)})")
     digital = doc.get("digital_lens")
     if digital:

@@ -364,3 +364,20 @@ def test_the_bundled_16_by_9_profiles_are_what_their_script_makes(tmp_path):
                     for e in profile.effects]
         assert values(bundled) == values(again), name
         assert bundled.provenance == again.provenance
+
+
+@pytest.mark.parametrize("value", [None, "x", [], {}, -1, 0, 1e308, True, [[1, 2], [3]], {"w": "1"}])
+def test_any_value_of_any_key_is_a_profile_or_one_line(tmp_path, value):
+    """Every key of a real lens profile (and the anamorphic, digital-lens and read-out keys), each given a value of
+    another kind: the file either makes a profile or is refused in one line naming it; never another exception."""
+    keys = [*GOPRO, "input_horizontal_stretch", "input_vertical_stretch", "digital_lens", "frame_readout_direction"]
+    fire_i = lowcam.load_profile("fire-i")
+    for i, key in enumerate(keys + ["fisheye_params.camera_matrix", "fisheye_params.distortion_coeffs"]):
+        doc = json.loads(json.dumps(GOPRO))
+        where, _, inner = key.partition(".")
+        (doc[where] if inner else doc)[inner or key] = value
+        path = _write(tmp_path, doc, f"lens{i}.json")
+        try:
+            profile_from_gyroflow(path, fire_i)
+        except LowcamError as e:
+            assert str(e).startswith(str(path)) and "\n" not in str(e), str(e)
