@@ -63,11 +63,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .effects.lens import ROUND_TRIP_PX, frame_round_trip, lens_model_from
+from .effects.lens import ROUND_TRIP_PX, LensDistortion, frame_round_trip, lens_model_from
 from .effects.lens_models import KannalaBrandtLens, OpenCVLens
 from .errors import LowcamError
 from . import schema
-from .profile import check_provenance, inherited_provenance
+from .profile import CameraSpec, check_provenance, inherited_provenance
 
 #: Gyroflow's distortion models Lowcam reads, and its lens model for each.
 MODELS = {"opencv_fisheye": "fisheye", "opencv_standard": "opencv"}
@@ -262,7 +262,8 @@ def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> 
 def lens_in_frame(lens: GyroflowLens, size: tuple[int, int] | None = None):
     """``(w, h, values, rows)``: the frame (px) a profile of ``lens`` delivers (the recorded one cut to a multiple
     of 4 by 2 px at the right and bottom, or ``size`` made from it as the camera would, :func:`framed_intrinsics`),
-    the ``lens_distortion`` values there, checked over that frame (:func:`check_lens_over_frame`), and the share
+    the ``lens_distortion`` values there, checked over that frame (:func:`check_lens_over_frame`) and as a profile
+    checks them (:class:`~lowcam.effects.lens.LensDistortion`), and the share
     of the recorded rows the frame keeps (for the read-out)."""
     wr, hr = lens.frame
     if size is None:
@@ -273,13 +274,13 @@ def lens_in_frame(lens: GyroflowLens, size: tuple[int, int] | None = None):
         w, h = size
         fx, fy, cx, cy = framed_intrinsics(lens.frame_intrinsics, (wr, hr), (w, h))
         rows = min(1.0, (h / max(w / wr, h / hr)) / hr)
-    if w < 16 or h < 16:
-        raise LowcamError(f"{lens.path}: a {w}x{h} frame is smaller than a camera's 16x16 px")
+    CameraSpec(f"{lens.path}: the frame", None, width=w, height=h)     # a frame a camera table takes
     values = dict(model=MODELS[lens.model], fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy)
     keys = ("fisheye_k1", "fisheye_k2", "fisheye_k3", "fisheye_k4") if lens.model == "opencv_fisheye" else \
         ("k1", "k2", "p1", "p2", "k3")
     values.update(zip(keys, lens.coefficients))
     check_lens_over_frame(values, w, h, str(lens.path))
+    LensDistortion(True, str(lens.path), **values)     # the profile's own checks: what from-gyroflow meets
     return w, h, values, rows
 
 
