@@ -32,6 +32,7 @@ Contents
 - :class:`GyroflowEntry`: one Gyroflow lens profile of a folder: camera, lens, mode, frame size, lens model
 - :func:`gyroflow_entries`: the Gyroflow lens profiles of a folder that Lowcam reads
 - :func:`gyroflow_folder`: the folder of Gyroflow lens profiles given (option or environment), checked
+- :func:`name_words`: the words of a name or a search (letters of any script, digits)
 - :data:`TYPO_SIMILARITY`: how similar (rapidfuzz, 0-100) a mistyped word must be to a word of a name
 - :data:`TYPO_LETTERS`: how long a word must be to be taken as mistyped
 - :class:`Match`: one row of a search: the entry, its score and the mistyped words it was found by
@@ -73,7 +74,7 @@ from rapidfuzz.distance import OSA
 
 from .effects.lens_models import LENSFUN_GEOMETRIES
 from .errors import LowcamError
-from .gyroflow import read_gyroflow_lens
+from .gyroflow import lens_in_frame, read_gyroflow_lens
 from .profile import inherited_provenance
 from .schema import read_json
 
@@ -218,7 +219,7 @@ GYROFLOW_ENV = "LOWCAM_GYROFLOW_PROFILES"
 @dataclass(frozen=True)
 class GyroflowEntry:
     """One Gyroflow lens profile of a folder: the file, the camera's brand and model, the lens, the video mode
-    (``camera_setting``, else what the file name adds to brand, model and lens), the calibration frame (w, h px),
+    (``camera_setting``, else what the file name adds to brand, model and lens), the recorded frame (w, h px),
     the frame rate (0: not given) and the lens model (``opencv_fisheye`` or ``opencv_standard``)."""
 
     path: Path
@@ -245,25 +246,27 @@ class GyroflowEntry:
         rate = f" at {self.fps:.4g} fps" if self.fps else ""
         return (f"{self.maker or '-'} | {self.model or '-'} | Gyroflow {self.distortion.removeprefix('opencv_')} | "
                 f"lens {self.lens_name or '-'} | mode {self.mode or '-'} | {self.size[0]}x{self.size[1]}{rate} | "
-                f"lowcam profile from-gyroflow {shlex.quote(str(self.path))} --base fire-i -o mycam.toml")
+                f"lowcam profile from-gyroflow {shlex.quote(str(self.path))} -o mycam.toml")
 
 
 def _gyroflow_entry(path: Path) -> GyroflowEntry:
-    lens = read_gyroflow_lens(path)            # a file Lowcam cannot read raises here and is not listed
     doc = read_json(path, "Gyroflow lens profile")
+    lens = read_gyroflow_lens(path, doc)       # a file Lowcam cannot make a profile of raises here, not listed
+    lens_in_frame(lens)                        # ... and one whose lens folds over inside its frame
     maker, model, lens_name, setting = (str(doc.get(key) or "").strip() for key in
                                         ("camera_brand", "camera_model", "lens_model", "camera_setting"))
     if not setting:  # the mode is in the file name: GoPro_HERO11 Black_Wide_NO-EIS_1440p_4by3_1920x1440-59.94fps
         known = {w.lower() for w in (maker, model, lens_name)}
         setting = " ".join(part for part in path.stem.split("_") if part.strip().lower() not in known)
-    return GyroflowEntry(path, maker, model, lens_name, setting, lens.size, lens.fps, lens.model)
+    return GyroflowEntry(path, maker, model, lens_name, setting, lens.frame, lens.fps, lens.model)
 
 
 @functools.lru_cache(maxsize=4)
 def gyroflow_entries(folder: Path) -> tuple[tuple[GyroflowEntry, ...], int]:
     """``(entries, skipped)``: every Gyroflow lens profile (``*.json``, in sub-folders too) of ``folder`` that
-    Lowcam reads, sorted by path, and how many ``.json`` files it could not read (another of Gyroflow's lens
-    models, not a lens profile, damaged)."""
+    ``lowcam profile from-gyroflow`` makes a profile of, sorted by path, and how many ``.json`` files it cannot
+    (not a lens profile, damaged, another of Gyroflow's lens models, a digital lens, a lens that folds over inside
+    its frame)."""
     entries, skipped = [], 0
     for path in sorted(Path(folder).rglob("*.json")):
         try:
@@ -290,8 +293,9 @@ def gyroflow_folder(given: str | None) -> Path | None:
     return Path(text)
 
 
-def _words(text: str) -> list[str]:
-    return re.findall(r"[a-z0-9]+", text.lower())
+def name_words(text: str) -> list[str]:
+    """The words of a name or a search: runs of letters (of any script) and digits, lower case."""
+    return re.findall(r"[^\W_]+", text.lower())
 
 
 #: A word of the search matches a word of a name with the same digits at this similarity or more (0-100: 100 (1 -
@@ -318,17 +322,17 @@ class Match:
         return {LensEntry: "lens", CameraEntry: "camera", GyroflowEntry: "gyroflow"}[type(self.entry)]
 
 
-def _word_score(word: str, name_words: list[str], compact: str, near: dict[str, float]) -> tuple[float, str]:
+def _word_score(word: str, its_words: list[str], compact: str, near: dict[str, float]) -> tuple[float, str]:
     """How well one word of the search matches a name: 100 a word of it, 95 the start of one, 90 inside one or
     across words (``1835`` in ``18-35mm``), else the rapidfuzz similarity to its nearest word, at most 89."""
     if word not in compact:
         if not near:
             return 0.0, ""
-        best = max(name_words, key=lambda w: near.get(w, 0.0), default="")
+        best = max(its_words, key=lambda w: near.get(w, 0.0), default="")
         return min(near.get(best, 0.0), 89.0), best
-    if word in name_words:
+    if word in its_words:
         return 100.0, word
-    return (95.0 if any(w.startswith(word) for w in name_words) else 90.0), word
+    return (95.0 if any(w.startswith(word) for w in its_words) else 90.0), word
 
 
 def search(text: str, maker: str | None = None, lens_type: str | None = None, focal_mm: float | None = None,
@@ -353,8 +357,10 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     if focal_mm is not None:
         entries = [e for e in entries if isinstance(e, LensEntry) and
                    e.focal_range[0] - 1e-3 <= focal_mm <= e.focal_range[1] + 1e-3]
-    words = _words(text)
-    names = {id(e): _words(f"{e.maker} {e.name}") for e in entries}
+    words = name_words(text)
+    if text.strip() and not words:             # punctuation only: nothing to look for, so nothing matches
+        return []
+    names = {id(e): name_words(f"{e.maker} {e.name}") for e in entries}
     vocabulary = sorted({w for ws in names.values() for w in ws})
     near = {}
     for word in words:  # each word of the search against every word of the names, once
@@ -365,17 +371,17 @@ def search(text: str, maker: str | None = None, lens_type: str | None = None, fo
     whole = "".join(words)
     out = []
     for e in entries:
-        name_words = names[id(e)]
-        compact = "".join(name_words)
+        its_words = names[id(e)]
+        compact = "".join(its_words)
         scores = []
         for w in words:  # most names miss the first word: no need to score the rest
-            scores.append(_word_score(w, name_words, compact, near[w]))
+            scores.append(_word_score(w, its_words, compact, near[w]))
             if scores[-1][0] < TYPO_SIMILARITY:
                 break
         else:
             out.append((Match(e, sum(s for s, _ in scores) / len(scores) if scores else 100.0,
                               tuple((w, m) for w, (s, m) in zip(words, scores) if s < 90)),
-                        fuzz.ratio(whole, "".join(_words(e.name)))))
+                        fuzz.ratio(whole, "".join(name_words(e.name)))))
     order = {LensEntry: 0, CameraEntry: 1, GyroflowEntry: 2}
     out.sort(key=lambda m: (-m[0].score, -m[1], order[type(m[0].entry)], m[0].entry.name.lower()))
     return [m for m, _ in out]

@@ -144,6 +144,17 @@ class Profile:
         """A deep copy whose effects can be changed without touching this profile."""
         return copy.deepcopy(self)
 
+    def with_frame(self, width: int, height: int, source: str | None = None) -> "Profile":
+        """A copy that delivers ``width`` x ``height`` px frames, its other camera settings and its effects kept
+        (a lens's intrinsics are the caller's to set); a size the ``[camera]`` table refuses is a one-line
+        :class:`ProfileError` naming ``source``."""
+        out = self.copy()
+        c = out.camera
+        values = {key: getattr(c, key) for key in type(c).params}
+        out.camera = type(c)(source or self.source, c.base_dir, **dict(values, width=width, height=height))
+        out.__dict__.pop("geometry", None)          # the cached frame geometry is the old frame's
+        return out
+
     def with_effect(self, name: str, replace: bool = False, source: str | None = None, base_dir=None,
                     after: str | None = None, **values) -> "Profile":
         """A copy with effect ``name`` set to ``values`` (merged into the existing effect's, or all new with

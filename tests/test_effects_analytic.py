@@ -92,12 +92,12 @@ def _bar_centres(profile, render, omega):
     return (w * u[cols]).sum(axis=1) / w.sum(axis=1), v
 
 
-@pytest.mark.parametrize("wy", [1.0, -1.5])
-def test_rolling_shutter_skews_a_vertical_bar_by_f_w_readout(fire_i, wy):
+@pytest.mark.parametrize("wy, readout", [(1.0, 0.05), (-1.5, 0.05), (1.0, -0.05)])
+def test_rolling_shutter_skews_a_vertical_bar_by_f_w_readout(fire_i, wy, readout):
     """Row v is exposed t(v) = (v/H - 1/2) R after the middle row, when the camera has turned by wy t(v) about y:
     a bar at x = 0 is seen at x = -tan(wy t), i.e. at u ~ cx - f wy t(v), so du/dv = -f wy R / H (f: the lens's
-    focal length at the centre). Positive wy pans right, so later (lower) rows see the bar further left."""
-    readout = 0.05
+    focal length at the centre). Positive wy pans right, so later (lower) rows see the bar further left; a negative
+    read-out (Gyroflow's bottom row first) skews the other way."""
     profile = _quiet(fire_i).with_effect("rolling_shutter", readout_s=readout)
     x, _, focal = _render_axes(profile)
     half_width = 0.02
@@ -112,7 +112,7 @@ def test_rolling_shutter_skews_a_vertical_bar_by_f_w_readout(fire_i, wy):
     # central half of the frame: the lens's horizontal scale there is within a few % of the centre's
     central = np.abs(v - cy) < height / 4
     slope = np.polyfit(v[central], moving[central] - still[central], 1)[0]
-    assert np.sign(slope) == -np.sign(wy)
+    assert np.sign(slope) == -np.sign(wy * readout)
     assert slope == pytest.approx(predicted_slope, rel=0.06)
     # top rows against bottom rows (a fraction 0.75 of the frame apart): ~ f wy R * 0.75, less the barrel's
     # shrinking of the horizontal scale away from the centre

@@ -34,7 +34,7 @@ def gopro(tmp_path_factory):
     path = tmp_path_factory.mktemp("gopro") / "gopro.json"
     import json
     path.write_text(json.dumps(GOPRO))
-    profile, _ = profile_from_gyroflow(path, lowcam.load_profile("fire-i"))
+    profile, _ = profile_from_gyroflow(path, lowcam.load_profile("fire-i"), (640, 480))
     return profile
 
 

@@ -301,3 +301,30 @@ def test_a_lens_that_folds_on_the_frame_is_named_with_its_setting(tmp_path, caps
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "Olympus M.Zuiko Digital ED 14-42mm f/3.5-5.6 at 14 mm, crop factor 2, on fire-i's 640x480 frame" in err, err
     assert "folds over" in err and "fire-i.toml" not in err and not (tmp_path / "olympus.toml").exists()
+
+
+def test_a_size_of_another_shape_is_lensfuns_own_lens_at_that_frame(tmp_path, capsys):
+    """``--size 1920,1080`` on the 4:3 fire-i base: a 16:9 profile whose lens is lensfun's own ``Modifier`` for a
+    1920x1080 image of the same camera (lensfun's calibrations hold at any frame: it scales by the crop factor and
+    the frame's diagonal), within 0.05 px; a size the camera cannot deliver is one line naming --size."""
+    maker, model, focal = "Canon", "Canon EF-S 18-55mm f/3.5-5.6", 18.0
+    args = ["profile", "from-lensfun", "--maker", maker, "--model", model, "--focal-mm", str(focal), "--base",
+            "fire-i", "--size", "1920,1080", "-o", str(tmp_path / "hd.toml")]
+    assert main(args) == 0
+    profile = load_profile(tmp_path / "hd.toml")
+    w, h = profile.camera.width, profile.camera.height
+    assert (w, h) == (1920, 1080)
+    lens = database_lens(maker, model, None)
+    m = lensfunpy.Modifier(lens, lens.crop_factor, w, h)
+    m.initialize(focal, lens.min_aperture or 2.8, 1000.0, scale=1.0, flags=lensfunpy.ModifyFlags.DISTORTION)
+    u, v = np.meshgrid(np.arange(0, w, 7, dtype=np.float64), np.arange(0, h, 7, dtype=np.float64))
+    ref = np.concatenate([m.apply_geometry_distortion(x, 0, 1, h) for x in range(0, w, 7)], axis=1)[::7]
+    ref = ref.astype(np.float64)                      # one column at a time, as columns() asks lensfun
+    fx, fy, cx, cy = profile.lens.pinhole_intrinsics()
+    ud, vd = profile.lens.distort((u - cx) / fx, (v - cy) / fy)
+    assert np.hypot(ref[..., 0] - u, ref[..., 1] - v).max() > 1.0
+    assert np.hypot(ud - ref[..., 0], vd - ref[..., 1]).max() <= 0.05
+    assert main(args[:-4] + ["--size", "1922,1080", "-o", str(tmp_path / "odd.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "--size 1922,1080: the frame must be a multiple of 4 wide" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "odd.toml").exists()

@@ -166,14 +166,14 @@ def test_gyroflow_profiles_of_a_folder_are_listed_with_the_command_that_reads_th
     path = folder / "GoPro" / "GoPro_HERO11 Black_Wide_NO-EIS_1440p_4by3_1920x1440-59.94fps.json"
     assert gopro == (f"GoPro | Hero11 Black | Gyroflow fisheye | lens Wide | mode NO-EIS 1440p 4by3 "
                      f"1920x1440-59.94fps | 1920x1440 at 59.94 fps | lowcam profile from-gyroflow "
-                     f"{shlex.quote(str(path))} --base fire-i -o mycam.toml")
-    assert last.endswith("1 Gyroflow profile") and "2 .json files are no Gyroflow lens profile" in err
+                     f"{shlex.quote(str(path))} -o mycam.toml")
+    assert last.endswith("1 Gyroflow profile") and "2 .json files are not listed" in err
     assert run_row_command(capsys, gopro, tmp_path).camera.name == "GoPro Hero11 Black Wide"
     monkeypatch.setenv(lensdb.GYROFLOW_ENV, str(folder))                 # the folder from the environment
     found, _, _ = rows(capsys, "phnoe", "model", "x")
     assert found == [f"Phone | Model X | Gyroflow standard | lens Main | mode 4:3 30p | 1280x960 at 30 fps | "
                      f"lowcam profile from-gyroflow {shlex.quote(str(folder / 'Phone' / 'Phone_Model X_Main.json'))} "
-                     f"--base fire-i -o mycam.toml"]
+                     f"-o mycam.toml"]
     assert rows(capsys, "phone", "model", "x", "--type", "rectilinear")[0] == found  # OpenCV's standard model
     assert main(["profile", "search", "phone", "model", "x", "--type", "fisheye"]) == 2
     err = capsys.readouterr().err
@@ -217,4 +217,51 @@ def test_a_reader_that_leaves_is_no_error(tmp_path):
                            timeout=120, env=ENV)
     finally:
         os.close(write)
-    assert r.returncode == 0 and r.stderr.count("\n") == 1 and "no Gyroflow lens profile" in r.stderr, r.stderr
+    assert r.returncode == 0 and r.stderr.count("\n") == 1 and ".json files are not listed" in r.stderr, r.stderr
+
+
+def test_every_gyroflow_row_ends_with_a_command_that_works_at_any_frame_shape(capsys, tmp_path):
+    """A folder with a GoPro's 16:9 and anamorphic modes, a narrow phone lens with large alternating terms, a
+    SuperView file and a lens that folds over inside its frame: the three Lowcam makes profiles of are listed, each
+    row's command makes the profile at the mode's own frame (16:9 1920x1080; the anamorphic 2880x1080 calibration's
+    recorded 1920x1080); the other two are counted as not listed."""
+    from test_gyroflow import TELEPHOTO
+    folder = tmp_path / "lens_profiles" / "GoPro"
+    folder.mkdir(parents=True)
+    k16 = [[850.9, 0.0, 961.2], [0.0, 851.2, 541.7], [0.0, 0.0, 1.0]]
+    modes = {"GoPro_HERO10 Black_Linear_1080p_16by9_1920x1080.json":
+             dict(GOPRO, camera_model="HERO10 Black", lens_model="Linear", calib_dimension={"w": 1920, "h": 1080},
+                  fisheye_params=dict(GOPRO["fisheye_params"], camera_matrix=k16)),
+             "GoPro_HERO10 Black_Linear_anamorphic_2880x1080.json":
+             dict(GOPRO, camera_model="HERO10 Black", lens_model="Linear", calib_dimension={"w": 2880, "h": 1080},
+                  input_horizontal_stretch=1.5, camera_setting="anamorphic",
+                  fisheye_params=dict(GOPRO["fisheye_params"], camera_matrix=[[1276.4, 0.0, 1441.8],
+                                                                              [0.0, 851.2, 541.7], [0, 0, 1]])),
+             "GoPro_HERO10 Black_Linear_SuperView.json": dict(GOPRO, camera_model="HERO10 Black",
+                                                              digital_lens="gopro_superview"),
+             "GoPro_HERO10 Black_Linear_folds.json":
+             dict(GOPRO, camera_model="HERO10 Black", fisheye_params=dict(GOPRO["fisheye_params"],
+                                                                          distortion_coeffs=[-0.9, 0, 0, 0]))}
+    for name, doc in modes.items():
+        (folder / name).write_text(json.dumps(doc))
+    (folder / "Apple_iPhone 12 Pro_Telephoto.json").write_text(json.dumps(TELEPHOTO))
+    found, last, err = rows(capsys, "hero10", "linear", "--gyroflow", str(folder.parent))
+    assert last == "2 Gyroflow profiles" and "2 .json files are not listed" in err
+    frames = {}
+    for i, row in enumerate(found):
+        profile = run_row_command(capsys, row, tmp_path, f"mode{i}.toml")
+        frames[row.split(" | ")[4]] = (profile.camera.width, profile.camera.height)
+    assert frames == {"mode 1080p 16by9 1920x1080": (1920, 1080), "mode anamorphic": (1920, 1080)}
+    found, _, _ = rows(capsys, "iphone", "12", "pro", "telephoto", "--gyroflow", str(folder.parent))
+    gyroflow = [row for row in found if "Gyroflow" in row]
+    assert len(gyroflow) == 1 and " | 3840x2160 at 25 fps | " in gyroflow[0]
+    assert run_row_command(capsys, gyroflow[0], tmp_path, "tele.toml").camera.width == 3840
+
+
+@pytest.mark.parametrize("text", ["[(*+?", "***", "Объектив", "カメラ"])
+def test_a_search_that_matches_nothing_says_so(capsys, text):
+    """Punctuation alone, Cyrillic or Japanese text: no name holds it, so the search says that nothing matches, in
+    one line, with status 2 (as for any text that matches nothing), instead of listing every lens."""
+    assert main(["profile", "search", text]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and f"matches '{text}'" in captured.err and len(captured.err.strip().splitlines()) == 1

@@ -17,15 +17,30 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..arguments import Number, Reads, Text, Writes, bounded_int
+from ..arguments import Number, Numbers, Reads, Text, Writes, bounded_int
 from ..dng import profile_from_dng
 from ..errors import LowcamError, UntrustedPlugin
 from ..gyroflow import profile_from_gyroflow
-from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, nearest_maker,
-                      nearest_names, profile_from_lensfun, require_lensfunpy, search)
+from ..lensdb import (GYROFLOW_ENV, gyroflow_entries, gyroflow_folder, is_of_type, lens_types, makers, name_words,
+                      nearest_maker, nearest_names, profile_from_lensfun, require_lensfunpy, search)
 from ..outputs import check_output
 from ..profile import list_profiles, load_profile
 from .common import PROFILE, Parser
+
+
+#: ``--size WIDTH,HEIGHT``: the frame a profile from outside data delivers (px; the camera table's range).
+FRAME_SIZE = Numbers((Number(16, 16384, integer=True, what="a width in px"),
+                      Number(16, 16384, integer=True, what="a height in px")), 2, "WIDTH,HEIGHT in px")
+
+
+def _frame_size(size) -> tuple[int, int] | None:
+    """``--size`` as whole pixels, None if not given; a frame the camera cannot deliver is a one-line error."""
+    if size is None:
+        return None
+    w, h = (int(round(x)) for x in size)
+    if w % 4 or h % 2:
+        raise LowcamError(f"--size {w},{h}: the frame must be a multiple of 4 wide and 2 high")
+    return w, h
 
 
 def cmd_profiles(args) -> int:
@@ -62,6 +77,9 @@ def cmd_profile_from_lensfun(args) -> int:
     require_lensfunpy()
     base = load_profile(args.base)
     camera = (args.camera_maker, args.camera_model) if args.camera_maker is not None else None
+    size = _frame_size(args.size)
+    if size is not None:
+        base = base.with_frame(*size, "--size")
     profile, setting = profile_from_lensfun(base, args.maker, args.model, args.focal_mm, args.aperture,
                                             args.distance_m, camera, args.crop_factor)
     # the camera is now the base's sensor with another lens: named after the lens unless --name says otherwise
@@ -139,13 +157,16 @@ def cmd_profile_search(args) -> int:
     maker = _search_maker(args.maker, folder, lensfun)
     found = search(text, maker, args.type, args.focal_mm, folder, lensfun)
     if folder is not None and gyroflow_entries(folder)[1]:
-        print(f"{folder}: {gyroflow_entries(folder)[1]} .json files are no Gyroflow lens profile Lowcam reads "
-              "(another lens model, or damaged): not listed", file=sys.stderr)
+        print(f"{folder}: {gyroflow_entries(folder)[1]} .json files are not listed: Lowcam makes no profile of "
+              "them (not a lens profile or damaged, a digital lens, or a lens that folds over inside its frame; "
+              "lowcam profile from-gyroflow FILE says why)", file=sys.stderr)
     where = "the lensfun database" + (f" or {folder}" if folder is not None else "") if lensfun else str(folder)
     if not found:
         if (maker or args.type or args.focal_mm) and search(text, gyroflow=folder, lensfun=lensfun):
             raise LowcamError(f"nothing matching '{text}' is of the maker, type and focal length asked for "
                               "(without --maker, --type and --focal-mm: lowcam profile search TEXT)")
+        if not name_words(text):
+            raise LowcamError(f"nothing in {where} matches '{text}' (it holds no letters or digits to look for)")
         names = sorted({m.entry.name for m in search("", gyroflow=folder, lensfun=lensfun)})
         raise LowcamError(f"nothing in {where} matches '{text}'; nearest: {nearest_names(text, names)}")
     if found[0].typos:
@@ -168,7 +189,7 @@ def cmd_profile_from_gyroflow(args) -> int:
     shutter and exposure limit."""
     if Path(check_output(args.output)).suffix.lower() != ".toml":
         raise LowcamError(f"{args.output}: a profile is written as .toml")
-    profile, notes = profile_from_gyroflow(args.lens_profile, load_profile(args.base))
+    profile, notes = profile_from_gyroflow(args.lens_profile, load_profile(args.base), _frame_size(args.size))
     path = profile.save(args.output)
     print(f"{path}: {profile.camera.name}; " + "; ".join(notes))
     return 0
@@ -218,6 +239,8 @@ def add_commands(sub) -> None:
     q.add_argument("--crop-factor", type=Number(0.1, 100, what="crop factor"), default=None,
                    help="the camera's crop factor (default: the one the lens was calibrated on)")
     q.add_argument("--base", type=PROFILE, required=True, help="profile for everything else (name or file)")
+    q.add_argument("--size", type=FRAME_SIZE, default=None, metavar="WIDTH,HEIGHT",
+                   help="the frame in px (default: the base's); lensfun's calibrations hold at any frame size")
     q.add_argument("--name", type=Text(what="camera name"), default=None,
                    help="the new camera's name (default: the lens and focal length)")
     q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="the new profile (.toml)")
@@ -242,7 +265,10 @@ def add_commands(sub) -> None:
                         "of a Gyroflow lens profile (.json) on a base profile")
     q.add_argument("lens_profile", type=Reads("file"), help="a Gyroflow lens profile (JSON)")
     q.add_argument("--base", type=PROFILE, default="fire-i",
-                   help="profile whose frame (of the calibration's aspect ratio), sensor and processing are kept")
+                   help="profile whose sensor and processing are kept (any frame shape)")
+    q.add_argument("--size", type=FRAME_SIZE, default=None, metavar="WIDTH,HEIGHT",
+                   help="the frame in px, of any shape, made from the recorded one as the camera does (scaled to "
+                        "cover it, cut around the centre); default: the recorded frame")
     q.add_argument("-o", "--output", type=Writes("file", (".toml",)), required=True, help="profile TOML to write")
     q.set_defaults(func=cmd_profile_from_gyroflow)
     q = psub.add_parser("from-dng", help="the sensor (noise, colour, levels, CFA) from a DNG file's metadata")

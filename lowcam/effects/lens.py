@@ -13,6 +13,8 @@ Contents
 - :data:`RENDER_PROJECTIONS`: the render's projections (pinhole, Cycles' equidistant fisheye, or automatic)
 - :data:`PINHOLE_FIELD_LIMIT_DEG`: the widest field an automatic projection renders through a pinhole
 - :func:`ray_angle_needed`: the widest ray angle the border of a region of the frame sees through a lens
+- :data:`ROUND_TRIP_PX`, :func:`frame_round_trip`: how far a point of the frame misses itself through the lens's
+  inverse and back (where the mapping folds over inside the frame)
 - :func:`lens_model_from`: the lens model of a dict of :class:`LensDistortion` parameters, unvalidated (a fit's
   trial values)
 - :class:`LensDistortion`: warps the pinhole render through the lens into the working grid, 2x2 supersampled (sec.
@@ -64,6 +66,31 @@ def ray_angle_needed(lens: LensModel, extent) -> float:
     sees through ``lens`` (:meth:`LensModel.undistort_ray`: may pass 90 deg)."""
     theta, _ = lens.undistort_ray(*border_points(extent))
     return float(np.max(theta))
+
+
+#: How far (px) a pixel of the frame may land from itself through the lens's inverse and back
+#: (:func:`frame_round_trip`); beyond it the mapping folds over there, or leaves what the model can carry.
+ROUND_TRIP_PX = 1e-3
+
+
+def frame_round_trip(lens: LensModel, width: int, height: int, per_side: int = 33) -> tuple[float, float, float]:
+    """``(error, u, v)``: how far (px) a point of a ``width`` x ``height`` frame misses itself when taken to the
+    ray it sees (:meth:`LensModel.undistort_ray`) and back (:meth:`LensModel.distort_ray`), the worst over a
+    ``per_side`` x ``per_side`` grid and 257 points a side along the border (outer pixel edges, ``-1/2`` to
+    ``width - 1/2``), and where (u, v). Inf where a value is not finite. Where the lens maps its rays one to one
+    out to the frame's border this is the inverse's precision (Newton's, under 1e-6 px); where its radius stops
+    rising inside the frame (a fit's terms beyond the field it was fitted over), the inverse stops at the peak
+    and the points beyond miss by their distance to it. For a radial model the border alone decides (a pixel
+    inside lies at a smaller radius than some border pixel); the grid covers the tangential terms."""
+    gu, gv = np.meshgrid(np.linspace(-0.5, width - 0.5, per_side), np.linspace(-0.5, height - 0.5, per_side))
+    bu, bv = border_points((-0.5, -0.5, width - 0.5, height - 0.5))
+    u, v = np.concatenate([gu.ravel(), bu]), np.concatenate([gv.ravel(), bv])
+    with np.errstate(all="ignore"):
+        back_u, back_v = lens.distort_ray(*lens.undistort_ray(u, v))
+        error = np.hypot(back_u - u, back_v - v)
+    error = np.where(np.isfinite(error), error, np.inf)
+    worst = int(np.argmax(error))
+    return float(error[worst]), float(u[worst]), float(v[worst])
 
 
 def lens_model_from(values: dict, width: int, height: int) -> LensModel:
@@ -125,15 +152,17 @@ class LensDistortion(Effect):
         "fy_px": Param(500.0, low=1.0, high=1e6, unit="px"),
         "cx_px": Param(319.5, low=-1e5, high=1e5, unit="px"),
         "cy_px": Param(239.5, low=-1e5, high=1e5, unit="px"),
-        "k1": Param(0.0, low=-100.0, high=100.0),
-        "k2": Param(0.0, low=-100.0, high=100.0),
-        "k3": Param(0.0, low=-100.0, high=100.0),
+        # OpenCV's coefficients: any finite value (a narrow lens's fit has large terms of alternating sign that
+        # cancel over its field); a lens is judged by its mapping over the frame (check, frame_round_trip)
+        "k1": Param(0.0),
+        "k2": Param(0.0),
+        "k3": Param(0.0),
         "p1": Param(0.0, low=-10.0, high=10.0),
         "p2": Param(0.0, low=-10.0, high=10.0),
-        "fisheye_k1": Param(0.0, low=-10.0, high=10.0, doc="fisheye (OpenCV's Kannala-Brandt) model"),
-        "fisheye_k2": Param(0.0, low=-10.0, high=10.0),
-        "fisheye_k3": Param(0.0, low=-10.0, high=10.0),
-        "fisheye_k4": Param(0.0, low=-10.0, high=10.0),
+        "fisheye_k1": Param(0.0, doc="fisheye (OpenCV's Kannala-Brandt) model"),
+        "fisheye_k2": Param(0.0),
+        "fisheye_k3": Param(0.0),
+        "fisheye_k4": Param(0.0),
         "focal_length": Param(4.0, low=0.01, high=5000.0, unit="mm",
                               doc="Blender and lensfun models (lensfun: of the undistorted coordinates)"),
         "sensor_width": Param(3.6, low=0.01, high=500.0, unit="mm"),
@@ -392,12 +421,19 @@ FIT_KEYS = {
 _TIED = {"fov": ("fy", "fx"), "opencv": ("fy_px", "fx_px"), "fisheye": ("fy_px", "fx_px")}  # (follower, leader): the ratio is kept
 
 
+#: The ranges the ``radial_distortion`` candidate fits OpenCV's coefficients within (a profile accepts any finite
+#: value): wide enough for every real lens's fit from optical flow, narrow enough to keep the search bounded.
+FIT_BOUNDS = {**{k: (-100.0, 100.0) for k in ("k1", "k2", "k3")},
+              **{f"fisheye_k{i}": (-10.0, 10.0) for i in range(1, 5)}}
+
+
 def range_of(model: str) -> tuple[np.ndarray, np.ndarray]:
-    """The ranges (low, high) of the parameters :data:`FIT_KEYS` fits in lens ``model``, as the profile accepts
-    them (:attr:`LensDistortion.params`)."""
-    specs = [LensDistortion.params[key] for key, _ in FIT_KEYS[model]]
-    return (np.array([-np.inf if s.low is None else s.low for s in specs]),
-            np.array([np.inf if s.high is None else s.high for s in specs]))
+    """The ranges (low, high) of the parameters :data:`FIT_KEYS` fits in lens ``model``: :data:`FIT_BOUNDS`, else
+    as the profile accepts them (:attr:`LensDistortion.params`)."""
+    bounds = [FIT_BOUNDS.get(key, (LensDistortion.params[key].low, LensDistortion.params[key].high))
+              for key, _ in FIT_KEYS[model]]
+    return (np.array([-np.inf if low is None else low for low, _ in bounds]),
+            np.array([np.inf if high is None else high for _, high in bounds]))
 
 
 def _lens_values(values: dict, model: str, theta) -> dict:

@@ -2,7 +2,8 @@
 
 Row ``v`` is exposed ``(v / H - 1/2) readout_s`` after the frame's middle row, so with the camera turning at
 ``w`` it sees the scene rotated by ``w t(v)``: the image skews and stretches (``readout_s``: the time from the
-first row to the last). The effect adds sampling offsets on the 24x18-cell grid to every sensel's position; for a
+first row to the last; negative where the bottom row is read first, as Gyroflow writes a read-out from the bottom
+up [Gyroflow]). The effect adds sampling offsets on the 24x18-cell grid to every sensel's position; for a
 lens rendered through a fisheye, the rays are unit directions (at 90 deg and beyond too).
 
 Contents
@@ -13,6 +14,8 @@ References
 ----------
 - [Klein2010] G. Klein and D. W. Murray, "Simulating Low-Cost Cameras for Augmented Reality Compositing", IEEE
   Transactions on Visualization and Computer Graphics 16(3), 369-380, 2010.
+- [Gyroflow] a negative ``frame_readout_time`` is a read-out from the bottom row up (``ReadoutDirection::BottomToTop``,
+  ``src/core/gyro_source/mod.rs``), https://github.com/gyroflow/gyroflow.
 """
 from __future__ import annotations
 
@@ -35,11 +38,12 @@ class RollingShutter(Effect):
     order = 60
     searches = (Search("rolling_shutter", "moving captures skew as with a {readout_s:.4f} s row read-out",
                        bounds={"readout_s": (0.0, 0.1)}, captures="moving"),)
-    params = {"readout_s": Param(0.0, low=0.0, high=1.0, unit="s", doc="time from first to last row")}
+    params = {"readout_s": Param(0.0, low=-1.0, high=1.0, unit="s",
+                                 doc="time from the first row to the last; negative: the bottom row is read first")}
 
     def apply(self, state):
         w = np.asarray(state.angular_velocity, np.float64)
-        if not np.any(w) or self.readout_s <= 0:
+        if not np.any(w) or self.readout_s == 0:
             return
 
         g = state.geometry
