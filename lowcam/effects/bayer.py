@@ -8,14 +8,15 @@ temporal noise in 4x4 blocks (the paper's Fig. 4).
 A lens calibration, a plate and a tracked feature are all measured on the frames the camera delivers, after its
 demosaicing. The Fire-i's blocks move the picture by half a pixel left and half a pixel down (every sensel fills
 the block that has it in its top-right corner): a feature a sensel sees at pixel (u, v) is delivered at (u - 1/2,
-v + 1/2). So each sensel samples the frame where the delivered frame shows what it saw, its own pixel moved by
-its profile's :func:`sensel_shift_px`, and the lens's calibration holds on the delivered frame.
+v + 1/2). So the sensel of pixel (u, v) sees the light the lens puts at (u, v) moved by its profile's
+:func:`sensel_shift_px` (the lens stage lays the working grid out so), and the lens's calibration holds on the
+delivered frame.
 
 Contents
 --------
 - :class:`BayerSampling`: samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
 - :data:`DEMOSAIC_SHIFT_PX`: how far each demosaicing method moves the picture, (right, down) output px
-- :func:`sensel_shift_px`: where a profile's sensels sample the frame, relative to their own pixels
+- :func:`sensel_shift_px`: where in the delivered frame a profile's sensels look, from their own pixels
 - :data:`WARPS_KEPT`: how many sets of Bayer sampling warps the process keeps
 - :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5)
 - :func:`mosaic`: interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
@@ -61,7 +62,7 @@ _COLOUR_PLANES = (slice(0, 1), slice(1, 3), slice(3, 4))
 #: How many sets of Bayer sampling warps are kept, shared by every profile in the process (a fit varies
 #: profiles by the dozen; a shot's frames reuse one set while the camera's motion is steady).
 WARPS_KEPT = 4
-_KEPT_WARPS: list = []     # ((geometry, shift), (ca_grid, sampling_offset, motion_taps) copies, (taps, warps))
+_KEPT_WARPS: list = []     # (geometry, (ca_grid, sampling_offset, motion_taps) copies, (taps, warps))
 _KEPT_LOCK = threading.Lock()
 
 
@@ -74,10 +75,10 @@ DEMOSAIC_SHIFT_PX = {"block": (-0.5, 0.5), "bilinear": (0.0, 0.0), "gradient_cor
 
 
 def sensel_shift_px(profile) -> tuple[float, float]:
-    """Where ``profile``'s sensels sample the frame, (right, down) output px from their own pixels: by its
-    demosaicing's :data:`DEMOSAIC_SHIFT_PX`. A sensel of pixel ``s`` reads the frame at ``s + d``, and the
-    delivered pixel ``s + d`` shows it: every ray lands where the lens puts it in the delivered frame. None without
-    a demosaicing stage (e.g. a raw-Bayer camera's plate)."""
+    """Where in the delivered frame ``profile``'s sensels look, (right, down) output px from their own pixels: its
+    demosaicing's :data:`DEMOSAIC_SHIFT_PX`. The sensel of pixel ``s`` sees the light the lens puts at ``s + d``,
+    and the delivered pixel ``s + d`` shows it: every ray lands where the lens puts it in the delivered frame.
+    None without a demosaicing stage (e.g. a raw-Bayer camera's plate)."""
     demosaic = profile.effect("demosaic")
     if demosaic is None or not demosaic.enabled:
         return 0.0, 0.0
@@ -131,9 +132,6 @@ class BayerSampling(Effect):
         """
         g = state.geometry
         pos = g.sensel_positions.astype(np.float32)
-        du, dv = sensel_shift_px(state.profile)
-        if du or dv:    # where the demosaicing shows this sensel (DEMOSAIC_SHIFT_PX)
-            pos = pos + np.array([du, dv], np.float32)
         su, sv = pos[..., 0].copy(), pos[..., 1].copy()
         if state.ca_grid is not None:  # R and B only (green is the reference): the lookup is per point
             ca = sample_texture(state.ca_grid, g.frame_extent, pos[0::3, ..., 0], pos[0::3, ..., 1])
@@ -161,10 +159,9 @@ class BayerSampling(Effect):
         sensel plane and tap). Kept (:data:`WARPS_KEPT`) for the next frame while the geometry and the aberration,
         offset and motion-tap grids are the same (a steady camera motion)."""
         inputs = (state.ca_grid, state.sampling_offset, state.motion_taps)
-        where = (state.geometry, sensel_shift_px(state.profile))
         with _KEPT_LOCK:
-            for i, (place, kept, result) in enumerate(_KEPT_WARPS):
-                if place == where and all(_same(a, b) for a, b in zip(kept, inputs)):
+            for i, (geometry, kept, result) in enumerate(_KEPT_WARPS):
+                if geometry == state.geometry and all(_same(a, b) for a, b in zip(kept, inputs)):
                     _KEPT_WARPS.append(_KEPT_WARPS.pop(i))    # most recently used last
                     return result
         hb, wb = state.geometry.bayer_shape
@@ -172,7 +169,7 @@ class BayerSampling(Effect):
         n = x.shape[1]
         warps = [WindowedRemap(x[ks].reshape(-1, hb, wb), y[ks].reshape(-1, hb, wb), tile=8) for ks in _COLOUR_PLANES]
         with _KEPT_LOCK:
-            _KEPT_WARPS.append((where, tuple(None if a is None else a.copy() for a in inputs), (n, warps)))
+            _KEPT_WARPS.append((state.geometry, tuple(None if a is None else a.copy() for a in inputs), (n, warps)))
             del _KEPT_WARPS[:-WARPS_KEPT]
         return n, warps
 
