@@ -27,7 +27,9 @@ Contents
 - :func:`read_patches`: each patch's mean and noise in a frame from the chart's corners (and patch centres)
 - :func:`patch_cells`: each patch's cell corners (pixels) from the chart's corners
 - :func:`patch_areas`: the area read of each patch (pixels), moved onto the patch's own centre
-- :func:`read_colour_checker`: the patches of the chart in frames (the mean frame), every problem naming a frame
+- :data:`MOVED_PX`: how far a frame of a static view may lie from the first
+- :func:`read_colour_checker`: the patches of the chart in frames (found once, on the mean frame), every problem
+  naming a frame
 - :func:`mark_clipped`: mark the patches clipped in any of several frames
 
 References
@@ -353,25 +355,51 @@ def read_patches(image: np.ndarray, corners: np.ndarray, floor: float = 0.0, cei
                         centres=None if centres is None else np.asarray(centres, np.float64))
 
 
+#: The most a frame of a static view may lie from the first (px, registered by phase correlation over the chart)
+#: before the capture is refused as moving.
+MOVED_PX = 1.0
+
+
+def _moved_px(frames, corners: np.ndarray) -> list[float]:
+    """How far each of ``frames`` lies from the first over the chart's bounding box ``corners`` (px): the
+    translation phase correlation finds (Hann-windowed; the noise averages out over the whole chart, where a chart
+    found in each noisy frame on its own jitters by pixels)."""
+    h, w = frames[0].shape[:2]
+    x0, y0 = np.clip(np.floor(corners.min(axis=0)).astype(int), 0, [w - 1, h - 1])
+    x1, y1 = np.clip(np.ceil(corners.max(axis=0)).astype(int) + 1, 1, [w, h])
+
+    def grey(f):
+        return np.asarray(f, np.float64)[y0:y1, x0:x1].reshape(y1 - y0, x1 - x0, -1).mean(axis=2)
+
+    window = cv2.createHanningWindow((x1 - x0, y1 - y0), cv2.CV_64F)
+    first = grey(frames[0])
+    return [float(np.hypot(*cv2.phaseCorrelate(first, grey(f), window)[0])) for f in frames]
+
+
 def read_colour_checker(frames, names, floor: float = 0.0, ceiling: float = 255.0,
                         what: str = "ColorChecker") -> PatchReading:
-    """The ColorChecker's patches in frames of one static view: the chart found in each frame (a frame where it
-    is not found is one line naming that frame), the patches read on the mean frame (its noise is the mean's)."""
+    """The ColorChecker's patches in frames of one static view: the chart found once, on the mean frame (whose
+    noise is the mean's, so noisy frames of one view are one view), the patches read there. Where the mean holds
+    no chart, the first frame without one is named; a frame that lies more than :data:`MOVED_PX` from the first
+    (a moving view) is refused naming it."""
     frames = [np.asarray(f) for f in frames]
-    located = []
-    for f, n in zip(frames, names):
-        found = locate_patches(f)
-        if found is None:
-            raise LowcamError(f"{n}: no ColorChecker found in the frame ({what}: the whole chart, its 24 patches "
-                              f"and the dark gaps between them, must be in view)")
-        located.append(found)
-    moved = [float(np.abs(c - located[0][0]).max()) for c, _ in located]
-    if max(moved) > 3.0:
-        raise LowcamError(f"{names[int(np.argmax(moved))]}: the ColorChecker moved by {max(moved):.1f} px against "
-                          f"{names[0]} (a {what} capture is one static view; give moving views as separate captures)")
-    corners = np.mean([c for c, _ in located], axis=0)
-    centres = np.mean([p for _, p in located], axis=0)
     mean = np.mean([f.astype(np.float64) for f in frames], axis=0)
+    found = locate_patches(mean)
+    if found is None:
+        bad = next((n for f, n in zip(frames, names) if locate_patches(f) is None), None) if len(frames) > 1 \
+            else names[0]
+        if bad is None:
+            raise LowcamError(f"{names[0]}: the ColorChecker is found in every frame but not in their mean: it moved "
+                              f"(a {what} capture is one static view; give moving views as separate captures)")
+        raise LowcamError(f"{bad}: no ColorChecker found in the frame ({what}: the whole chart, its 24 patches "
+                          f"and the dark gaps between them, must be in view)")
+    corners, centres = found
+    if len(frames) > 1:
+        moved = _moved_px(frames, corners)
+        if max(moved) > MOVED_PX:
+            raise LowcamError(f"{names[int(np.argmax(moved))]}: the ColorChecker moved by {max(moved):.1f} px against "
+                              f"{names[0]} (a {what} capture is one static view; give moving views as separate "
+                              "captures)")
     try:
         reading = read_patches(mean, corners, floor, ceiling, centres)
     except LowcamError as e:

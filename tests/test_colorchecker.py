@@ -160,7 +160,8 @@ def test_calibrate_recovers_hidden_cameras(tmp_path, capsys):
     from lowcam.profile import load_profile
 
     base = tmp_path / "base.toml"
-    load_profile("fire-i").with_effect("tone_curve", gamma=2.0).save(base)
+    # these cameras have no fall-off: nor has the profile (the fit takes the profile's as the camera's)
+    load_profile("fire-i").with_effect("tone_curve", gamma=2.0).without("vignetting").save(base)
     rng = np.random.default_rng(2026)
     for i in range(4):
         k, about = camera_matrix(rng)
@@ -319,3 +320,55 @@ def test_diagnose_finds_a_missing_colour_matrix_on_the_chart(tmp_path):
     assert d.error > 3 and d.candidates[0].effect == "colour_matrix", ranking
     fitted = d.candidates[0].profile.effect("crosstalk").total_matrix()
     assert relative_error(fitted, k) < 0.02, (fitted, k)
+
+
+def turned_chart_set(folder, hidden, angles=(0.0, 4.0, -3.0), frames: int = 4, light: float = 0.7):
+    """A measurement set of ``target = "colorchecker"`` captures filmed by the profile ``hidden`` (its lens, its
+    fall-off, its noise): the chart straight on at the middle of a 1280x960 render, turned by each of ``angles``
+    (deg) about its centre, ``frames`` frames each (seeded noise); captures ``cc0``, ``cc1``, ..."""
+    from lowcam.outputs import write_png
+    from lowcam.pipeline import simulate
+
+    (folder / "frames").mkdir(parents=True, exist_ok=True)
+    half = np.array([[-240, -160], [240, -160], [240, 160], [-240, 160]], float)
+    entries = []
+    for c, angle in enumerate(angles):
+        a = np.radians(angle)
+        corners = half @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]) + [640, 480]
+        ideal = np.ones((960, 1280, 4), np.float32)
+        ideal[..., :3] = render_chart(reference_colours() * light, size=(1280, 960), corners=corners, background=0.2)
+        for i in range(frames):
+            write_png(folder / "frames" / f"cc{c}-{i:03d}.png", simulate(ideal, hidden, None, seed=11 + c, frame=i))
+        entries.append(f'[[capture]]\nname = "cc{c}"\ntarget = "colorchecker"\nframes = ["frames/cc{c}-*.png"]\n')
+    (folder / "set.toml").write_text("\n".join(entries))
+    return folder
+
+
+@pytest.mark.slow  # per camera: 12 frames filmed, a calibration and a comparison of three captures (minutes)
+def test_calibration_through_a_wide_lens_explains_every_capture(tmp_path):
+    """Charts filmed through the Fire-i (its 113 deg lens, its fall-off to 0.6 in the corners, its noise) with hidden
+    crosstalk matrices drawn at random (seeded, colour-science's camera data): ``lowcam calibrate colour --target
+    colorchecker`` takes a capture's four noisy frames of one view (the chart found once, on their mean), fits the
+    hidden crosstalk within 0.02 in every element (measured: 0.002; the fall-off across the chart is the
+    profile's) near the patches' noise (fit error 2.3), and ``compare`` of all three captures (straight on, turned
+    by 4 and -3 deg) with the calibrated profile is at most 1.5 (measured: 1.05; the Fire-i's own crosstalk: 5.4)."""
+    from lowcam.measure.compare import compare
+    from lowcam.measure.sets import load_set
+    from lowcam.profile import load_profile
+
+    base = load_profile("fire-i")
+    rng = np.random.default_rng(38)
+    for trial in range(2):
+        k, about = camera_matrix(rng)
+        hidden = base.with_effect("crosstalk", matrix=k.tolist(), extra_mixing=0.0)
+        folder = turned_chart_set(tmp_path / f"set{trial}", hidden)
+        frames = [cv2.imread(str(p))[..., ::-1] for p in sorted((folder / "frames").glob("cc0-*.png"))]
+        profile, numbers = _calibrate(tmp_path, frames, "fire-i", base.effect("saturation").saturation, f"cam{trial}")
+        fitted = np.array(profile.effect("crosstalk").matrix)
+        mset = load_set(folder, base)
+        after = compare(mset, profile)
+        print(f"{about}: fit error {numbers['fit_error']:.2f}, crosstalk off by {np.abs(fitted - k).max():.4f}, "
+              f"compare {after.error:.2f}")
+        assert np.abs(fitted - k).max() <= 0.02, (fitted, k)
+        assert numbers["fit_error"] <= 3.0
+        assert after.error <= 1.5

@@ -19,6 +19,7 @@ import pytest
 from scipy.special import i0e
 
 import lowcam
+from lowcam.effects.bayer import sensel_shift_px
 
 from helpers import flat_render, noise_field
 
@@ -65,12 +66,15 @@ def _disc(profile, radius, value=1.0):
 
 
 def _sensel_coords(profile, plane_shape, channel):
-    """Output-pixel coordinates (u of each column, v of each row) of a sensel plane of ``channel`` (R, Gr, Gb, B)."""
+    """Output-pixel coordinates (u of each column, v of each row) where a sensel plane of ``channel`` (R, Gr, Gb, B)
+    samples the frame: its pixels, moved by the profile's demosaicing (``sensel_shift_px``, half a pixel left and
+    down for the Fire-i's blocks)."""
     g = profile.geometry
     hb, wb = plane_shape
     by, bx = (hb - g.height // 2) // 2, (wb - g.width // 2) // 2
     dy, dx = g.cfa[channel]
-    return 2 * (np.arange(wb) - bx) + dx, 2 * (np.arange(hb) - by) + dy
+    su, sv = sensel_shift_px(profile)
+    return 2 * (np.arange(wb) - bx) + dx + su, 2 * (np.arange(hb) - by) + dy + sv
 
 
 # --- 1. rolling shutter -------------------------------------------------------------------------------------------
@@ -410,10 +414,11 @@ def test_jpeg_has_8x8_blocks_and_matches_an_independent_encoder(fire_i, quality)
 # --- 11. asymmetric sharpening ------------------------------------------------------------------------------------
 
 def _halos(profile, shift, lo=0.3, hi=0.6):
-    """Undershoot left of and overshoot right of a dark-to-bright vertical edge at u = 320 (midway between two Gr
-    sensel columns), in DN, from the mean Gr row; and the profiles before and after sharpening."""
+    """Undershoot left of and overshoot right of a dark-to-bright vertical edge midway between two Gr sensel
+    columns' samples (u = 320 moved by the demosaicing's ``sensel_shift_px``), in DN, from the mean Gr row; and the
+    profiles before and after sharpening."""
     q = profile.with_effect("sharpening", shift=shift)
-    u_edge = 320.0
+    u_edge = 320.0 + sensel_shift_px(q)[0]
     x_edge, _ = q.lens.undistort(np.array([u_edge]), np.array([q.geometry.height / 2 - 0.5]))
     render = _edge(q, float(x_edge[0]), lo, hi)
     b0 = lowcam.run(render, q, stop_after="horizontal_blur").state.bayer[1]

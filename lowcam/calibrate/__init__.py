@@ -52,6 +52,7 @@ from ..captures import chart_patch_colours, expand_paths, load_frames, parse_tar
 from ..colour_checker import read_colour_checker, reference_colours
 from ..effects import known_effects
 from ..errors import LowcamError
+from ..measure.targets import patch_fall_off
 from ..outputs import make_output_folder
 from ..profile import load_profile
 from ..schema import read_toml
@@ -234,7 +235,10 @@ def _run_colour(o: dict, base, plot_dir: Path | None) -> Calibration:
         source = source_name(o["frames"])
         frames, names = load_frames(o["frames"], 1, "colour calibration")
         reading = read_colour_checker(frames, names, what="colour calibration")
-        ideal, measured, noise, usable = reference_colours() * 255.0, reading.mean, reading.noise, ~reading.clipped
+        # each patch's light as the profile's fall-off leaves it (diagnosis simulates the same), so the matrix fits
+        # the colours, not the vignetting across the chart
+        ideal = reference_colours() * 255.0 * patch_fall_off(base, reading)[:, None]
+        measured, noise, usable = reading.mean, reading.noise, ~reading.clipped
         curve = base.effect("tone_curve")
         if curve is not None and curve.enabled:  # fitted along, its black and white levels kept
             tone = {k: getattr(curve, k) for k in ("gamma", "toe_break", "black_dn", "white_dn")}

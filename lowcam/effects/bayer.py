@@ -5,9 +5,18 @@ Sensel planes are (4, rows, cols) in R, Gr, Gb, B order (:data:`lowcam.geometry.
 and green the mean of the Gr and Gb blocks; the camera's method is identified from the correlations of its
 temporal noise in 4x4 blocks (the paper's Fig. 4).
 
+A lens calibration, a plate and a tracked feature are all measured on the frames the camera delivers, after its
+demosaicing. The Fire-i's blocks move the picture by half a pixel left and half a pixel down (every sensel fills
+the block that has it in its top-right corner): a feature a sensel sees at pixel (u, v) is delivered at (u - 1/2,
+v + 1/2). So the sensel of pixel (u, v) sees the light the lens puts at (u, v) moved by its profile's
+:func:`sensel_shift_px` (the lens stage lays the working grid out so), and the lens's calibration holds on the
+delivered frame.
+
 Contents
 --------
 - :class:`BayerSampling`: samples the working image at every sensel of R, Gr, Gb and B (sec. 5.2 step 5)
+- :data:`DEMOSAIC_SHIFT_PX`: how far each demosaicing method moves the picture, (right, down) output px
+- :func:`sensel_shift_px`: where in the delivered frame a profile's sensels look, from their own pixels
 - :data:`WARPS_KEPT`: how many sets of Bayer sampling warps the process keeps
 - :func:`demosaic_block`: 2x2-block demosaicing of the Fire-i (sec. 4.4.1, Fig. 5)
 - :func:`mosaic`: interleave the four sensel planes (borders dropped) into one (H, W) Bayer frame
@@ -55,6 +64,25 @@ _COLOUR_PLANES = (slice(0, 1), slice(1, 3), slice(3, 4))
 WARPS_KEPT = 4
 _KEPT_WARPS: list = []     # (geometry, (ca_grid, sampling_offset, motion_taps) copies, (taps, warps))
 _KEPT_LOCK = threading.Lock()
+
+
+#: How far each demosaicing method moves the picture, (right, down) in output px: where a feature one sensel sees
+#: at its own pixel lies in the delivered frame, on average over the 2x2 cell. The blocks (sec. 4.4.1, Fig. 5):
+#: every sensel fills the 2x2 block that has it in its top-right corner, whose centre is half a pixel left of it
+#: and half a pixel below. The interpolating methods weigh each pixel's neighbours symmetrically: none.
+DEMOSAIC_SHIFT_PX = {"block": (-0.5, 0.5), "bilinear": (0.0, 0.0), "gradient_corrected": (0.0, 0.0),
+                     "edge_aware": (0.0, 0.0), "monochrome": (0.0, 0.0)}
+
+
+def sensel_shift_px(profile) -> tuple[float, float]:
+    """Where in the delivered frame ``profile``'s sensels look, (right, down) output px from their own pixels: its
+    demosaicing's :data:`DEMOSAIC_SHIFT_PX`. The sensel of pixel ``s`` sees the light the lens puts at ``s + d``,
+    and the delivered pixel ``s + d`` shows it: every ray lands where the lens puts it in the delivered frame.
+    None without a demosaicing stage (e.g. a raw-Bayer camera's plate)."""
+    demosaic = profile.effect("demosaic")
+    if demosaic is None or not demosaic.enabled:
+        return 0.0, 0.0
+    return DEMOSAIC_SHIFT_PX[demosaic.method]
 
 
 def _same(a, b) -> bool:

@@ -46,6 +46,7 @@ from ..errors import LowcamError, NotFitted
 from ..node_images import stmap
 from ..window import WindowedRemap
 from .base import Effect, NodeStage, Param, Search
+from .bayer import sensel_shift_px
 from .lens_models import (BLENDER_KEYS, BLENDER_MODELS, FULL_FRAME_HALF_DIAGONAL_MM, LENSFUN_FRAME_PARAMS,
                           LENSFUN_GEOMETRIES, LENSFUN_KEYS, LENSFUN_MODELS, MODEL_KEYS, BlenderLens, FovLens,
                           KannalaBrandtLens, LensfunLens, LensModel, OpenCVLens, border_points, field_needed,
@@ -371,13 +372,17 @@ class LensDistortion(Effect):
 
     def render_coordinates(self, state, render_shape) -> tuple[np.ndarray, np.ndarray]:
         """Render pixel coordinates (x, y), float32, of every supersampled working-grid pixel: where each one
-        looks in a render of ``render_shape`` (rows, cols); pixel centres are integers."""
+        looks in a render of ``render_shape`` (rows, cols); pixel centres are integers. The working grid is laid
+        out on the sensor: its pixel at ``s`` holds what the lens puts at ``s + d`` in the delivered frame, ``d``
+        where the demosaicing shows a sensel (:func:`~lowcam.effects.bayer.sensel_shift_px`; the Fire-i's blocks:
+        half a pixel left and down), so each ray lands where the calibration puts it."""
         u, v = state.geometry.working_pixel_centres(factor=2)
-        return self.render_pixel_coordinates(state.geometry, u, v, render_shape)
+        du, dv = sensel_shift_px(state.profile)
+        return self.render_pixel_coordinates(state.geometry, u + du, v + dv, render_shape)
 
     def render_warp(self, state, render_shape) -> WindowedRemap:
         """The warp from a render of ``render_shape`` (rows, cols) to the supersampled working grid, kept."""
-        key = (render_shape, state.geometry, self.enabled, repr(self.values()))
+        key = (render_shape, state.geometry, self.enabled, repr(self.values()), sensel_shift_px(state.profile))
         if key not in self._maps:
             if len(self._maps) > 8:
                 self._maps.clear()

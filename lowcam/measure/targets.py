@@ -46,6 +46,7 @@ Contents
 - :func:`earned_outliers`: the outlier regions that show evidence of something other than the camera
 - :class:`BoardNuisances`: the fitted paper white, black, illumination field, margins and outliers of one capture
 - :func:`flat_response`: the quiet profile's per-pixel output (channel mean, DN) for flat renders, cached
+- :data:`FALL_OFF_LEVELS`, :func:`patch_fall_off`: the share of each ColorChecker patch's light the profile passes
 - :func:`board_coordinates`: per output pixel, the board coordinates (in squares) through the lens and the pose
 - :func:`fit_board_nuisances`: white, black, illumination, margins and outliers from a capture's mean, pose and
   profile
@@ -158,6 +159,28 @@ def flat_response(profile) -> np.ndarray:
     while len(_RESPONSES) > 4:
         _RESPONSES.popitem(last=False)
     return table
+
+
+#: The flat render values between which :func:`patch_fall_off` reads the profile's gain (both well inside the
+#: output's range, above a toe and below white).
+FALL_OFF_LEVELS = (0.16, 0.5)
+
+
+def patch_fall_off(profile, reading) -> np.ndarray:
+    """(24,): the share of the light of each ColorChecker patch the profile passes to its output, relative to the
+    patch that keeps the most: its vignetting and whatever else gains or loses light across the frame (the lens's
+    stretching of the picture included), read over each patch's area (``reading``: its corners and centres, as
+    :func:`lowcam.colour_checker.read_patches` reads it) as the slope of the quiet profile's flat response
+    (:func:`flat_response`) between :data:`FALL_OFF_LEVELS`, its tone curve left out (the colour fit takes that
+    along)."""
+    curve = profile.effect("tone_curve")
+    linear = profile.without("tone_curve") if curve is not None and curve.enabled else profile
+    table = flat_response(linear)
+    lo, hi = (FLAT_LEVELS.index(v) for v in FALL_OFF_LEVELS)
+    slope = (table[hi] - table[lo]) / (FLAT_LEVELS[hi] - FLAT_LEVELS[lo])
+    gain = read_patches(np.repeat(slope[..., None], 3, axis=2), reading.corners, -np.inf, np.inf,
+                        reading.centres).mean[:, 0]
+    return gain / gain.max()
 
 
 def _invert_response(table: np.ndarray, measured: np.ndarray):
