@@ -240,3 +240,30 @@ def test_every_lossless_compression_gives_the_same_render_passes_and_frame(tmp_p
     for codec in LOSSLESS:
         assert frames[codec].tobytes() == expected.tobytes(), codec
     assert frames["PXR24"].tobytes() != expected.tobytes()   # the comparison sees a lossy codec's change
+
+
+@pytest.mark.parametrize("codec", LOSSLESS)
+def test_a_render_truncated_in_its_last_pass_names_the_layer_and_its_channels(tmp_path, codec):
+    """A multilayer render cut short inside its Vector part: the OpenEXR binding hands back the parts before it and
+    drops that one (its C core complains on stderr); the refusal names the file, the layer and its channels
+    instead of saying the pass was never rendered."""
+    from lowcam.passes import read_render_and_passes
+
+    rgba = np.random.default_rng(7).uniform(0, 1, (64, 80, 4)).astype(np.float32)
+    header = {"compression": getattr(OpenEXR, f"{codec}_COMPRESSION"), "type": OpenEXR.scanlineimage}
+    path = tmp_path / "cut.exr"
+    OpenEXR.File([OpenEXR.Part(dict(header), {f"ViewLayer.Combined.{c}": rgba[..., i].copy()
+                                              for i, c in enumerate("RGBA")}, "ViewLayer.Combined"),
+                  OpenEXR.Part(dict(header), {f"ViewLayer.Vector.{c}": rgba[..., i].copy()
+                                              for i, c in enumerate("XYZW")}, "ViewLayer.Vector")]).write(str(path))
+    whole = path.read_bytes()
+    path.write_bytes(whole[:len(whole) - len(whole) // 20])     # the last 5 %: inside the Vector part
+    for needs in (("Vector",), ()):
+        with pytest.raises(LowcamError) as e:
+            read_render_and_passes(path, None, needs, 24.0)
+        text = str(e.value)
+        assert text.startswith(f"{path}: not a readable OpenEXR file: layer 'ViewLayer.Vector' (channels "
+                               "ViewLayer.Vector.W, ViewLayer.Vector.X, ViewLayer.Vector.Y, ViewLayer.Vector.Z)")
+        assert "\n" not in text
+    path.write_bytes(whole)
+    assert read_render_and_passes(path, None, ("Vector",), 24.0)[0].rgba.tobytes() == rgba.tobytes()
