@@ -162,7 +162,7 @@ def cmd_render(args) -> int:
     frames = parse_frames(args.frames)
     bar = tqdm(total=len(frames), unit="frame", desc="lowcam render", disable=None)  # on a terminal only
     written = _side("addon.render").render(args.blend, frames, args.output, args.force,
-                                               progress=lambda f, p: bar.update(1))
+                                           progress=lambda f, p: bar.update(1), compression=args.render_compression)
     bar.close()
     print(f"{len(written)} composites in {written[0].parent if written else args.output}")
     return 0
@@ -231,6 +231,9 @@ def add_commands(sub) -> None:
     p.add_argument("-o", "--output", type=Writes("pattern"),
                    help="folder or #### pattern for the composites (default: the scene's)")
     p.add_argument("--force", action="store_true", help="redo frames whose composite exists")
+    p.add_argument("--render-compression", choices=("NONE", "RLE", "ZIPS", "ZIP", "PIZ"),
+                   help="how Blender compresses the renders Lowcam reads (lossless; the same composites): the "
+                        "scene's Render Compression by default (None, the fastest; ZIP, the smallest files)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("motion", help="write the camera motion of a .blend scene or of a gyro log as motion.json "

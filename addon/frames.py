@@ -130,9 +130,9 @@ def setup_render_camera(scene, render_width: int | None = None) -> dict:
 
 
 def setup_scene(scene, render_width: int | None = None) -> dict:
-    """Prepare ``scene`` for the render handler (:func:`setup_render_camera`, multilayer ZIP EXR output at the
-    settings' ``render_depth``, the passes and the overlay view layer); returns the render camera (field of view,
-    size)."""
+    """Prepare ``scene`` for the render handler (:func:`setup_render_camera`, multilayer EXR output at the
+    settings' ``render_depth`` and ``render_codec``, the passes and the overlay view layer); returns the render
+    camera (field of view, size)."""
     s = settings(scene)
     cam = setup_render_camera(scene, render_width)
     r = scene.render
@@ -141,7 +141,7 @@ def setup_scene(scene, render_width: int | None = None) -> dict:
     settings_ = r.image_settings
     set_multilayer_exr(settings_)
     settings_.color_depth = s.render_depth         # Blender keeps the Depth and Vector passes 32-bit
-    settings_.exr_codec = "ZIP"
+    settings_.exr_codec = s.render_codec            # lossless: every choice gives the same composite
     settings_.color_management = "FOLLOW_SCENE"     # the working space's linear light, named in the header
     _setup_overlay_layer(scene, s.exclude_collection)
     layer = scene.view_layers[main_layer(scene)]

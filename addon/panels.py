@@ -48,6 +48,7 @@ def draw_settings(layout, scene):
         col.prop(s, "aperture_mm")
     layout.prop(s, "exclude_collection")
     layout.prop(s, "render_depth")
+    layout.prop(s, "render_codec")
     layout.prop(s, "output")
     row = layout.row(align=True)
     row.operator("lowcam.setup_scene")

@@ -115,11 +115,20 @@ class LowcamSettings(bpy.types.PropertyGroup):
     use_clip_lens: BoolProperty(name="Clip Lens", default=False,
                                 description="Use the Movie Clip's tracking camera lens model instead of the profile's")
     render_depth: EnumProperty(name="Render Depth", items=[
-        ("32", "Float (32-bit)", "Renders written as Cycles or EEVEE computes them (OpenEXR, ZIP)"),
+        ("32", "Float (32-bit)", "Renders written as Cycles or EEVEE computes them"),
         ("16", "Half Float (16-bit)", "Renders in about a sixth of the disk and read faster; the composites differ "
                                       "slightly from a 32-bit render's (docs/blender.md). Depth and Vector passes "
                                       "stay 32-bit")],
-        default="32", description="How the renders the camera degrades are written (OpenEXR, ZIP)")
+        default="32", description="How the renders the camera degrades are written (OpenEXR)")
+    render_codec: EnumProperty(name="Render Compression", items=[
+        # the lossless OpenEXR compressions Blender writes: each gives the same composite (docs/benchmarks.md)
+        ("NONE", "None", "Uncompressed: the fastest for Blender to write and for Lowcam to read, the largest files"),
+        ("ZIP", "ZIP", "Lossless: the smallest files, slower to write and to read"),
+        ("PIZ", "PIZ", "Lossless wavelet compression"),
+        ("RLE", "RLE", "Lossless run-length compression"),
+        ("ZIPS", "ZIPS", "Lossless: ZIP one scanline at a time")],
+        default="NONE", description="How Blender compresses the renders the camera degrades (OpenEXR, lossless: "
+                                    "every choice gives the same composite)")
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
                            options=path_options(),
                            description="Degraded composites; #### is the frame number")

@@ -145,10 +145,14 @@ def render_frame(scene, frame: int, render_path: Path) -> Path:
 
 
 def render(blend, frame_list, output: str | None = None, force: bool = False, keep_renders: str | None = None,
-           progress=None) -> list[Path]:
+           progress=None, compression: str | None = None) -> list[Path]:
     """Render and degrade ``frame_list`` of ``blend``'s scene; frames whose composite exists are skipped unless
-    ``force`` (so an interrupted job resumes). ``output`` (a #### pattern) overrides the scene's setting."""
+    ``force`` (so an interrupted job resumes). ``output`` (a #### pattern) overrides the scene's setting, and
+    ``compression`` (an OpenEXR codec of Render Compression) the scene's. Renders are removed once their
+    composite is written, unless kept in the folder ``keep_renders``."""
     scene = open_scene(blend)
+    if compression:
+        scene.lowcam.render_codec = compression
     if output:
         scene.lowcam.output = str(Path(output).resolve()) if "#" in output or "%" in output else \
             str(Path(output).resolve() / "####.png")
@@ -168,6 +172,8 @@ def render(blend, frame_list, output: str | None = None, force: bool = False, ke
             else:
                 try:
                     written.append(render_frame(scene, frame, renders / f"{frame:04d}.exr"))
+                    if not keep_renders:   # an uncompressed render is large: gone once its composite is written
+                        (renders / f"{frame:04d}.exr").unlink(missing_ok=True)
                 except DiskFull as e:
                     done = sum(frames.output_path(scene, f).exists() for f in frame_list)
                     raise DiskFull(f"{e}; the render stopped there: {rendered} composite{'s' * (rendered != 1)} "

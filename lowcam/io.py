@@ -200,6 +200,8 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
         if complaint:
             reason = complaint[0].removeprefix(f"{path}: ").strip()
         raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})")
+    if complaint and "EXR_ERR" in complaint[0]:
+        _refuse_damaged_parts(path, parts, complaint[0].removeprefix(f"{path}: ").strip())
     channels: dict[str, np.ndarray] = {}
     for part_name, part_channels in parts:
         twice = sorted(set(channels) & set(part_channels))
@@ -212,6 +214,25 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     if isinstance(tags.get("colorInteropID"), bytes):
         tags["colorInteropID"] = tags["colorInteropID"].decode(errors="replace")
     return channels, tags
+
+
+def _refuse_damaged_parts(path: Path, parts: list, reason: str) -> None:
+    """Refuse a file whose C core complained while the binding handed back some parts: a part it dropped or cut
+    short (a file truncated in its last pass) is named with its channels, instead of a pass said to be absent."""
+    import OpenEXR
+
+    with quiet_stderr(stdout=True), OpenEXR.File(str(path), header_only=True) as f:
+        declared = [(part.name(), [c.name for c in part.header.get("channels", [])]) for part in f.parts]
+    read = dict(parts)
+    for name, names in declared:
+        got = set()
+        for key, pixels in read.get(name, {}).items():   # grouped layers ("RGBA", "L.Combined") by their channels
+            prefix = "" if key in ("RGB", "RGBA") else f"{key}."
+            got |= {prefix + c for c in "RGBA"[:pixels.shape[2]]} if pixels.ndim == 3 else {key}
+        lost = [n for n in names if n not in got]
+        if lost:
+            raise LowcamError(f"{path}: not a readable OpenEXR file: layer '{name}' (channels {', '.join(lost)}) is "
+                              f"truncated or damaged ({reason})")
 
 
 #: The view layer of excluded objects that the add-on adds ("Lowcam Overlay"); never taken for the render.

@@ -360,6 +360,32 @@ def test_motion_from_a_file_json_or_gyro_csv(rendered, tmp_path):
         frames.motion(scene, 2, 0.033)
 
 
+def test_renders_are_uncompressed_by_default_and_every_compression_gives_the_same_composite(tmp_path):
+    """Render Compression: Blender writes the add-on's renders uncompressed unless asked otherwise, and a ZIP render
+    of the same frame holds the same channel bits and gives the same composite, byte for byte."""
+    import OpenEXR
+
+    blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=400, samples=4)
+    scene = submodule("addon.render").open_scene(blend)
+    assert scene.lowcam.render_codec == "NONE"
+    channels, composites, sizes = {}, {}, {}
+    for codec in ("NONE", "ZIP"):
+        scene.lowcam.render_codec = codec
+        scene.lowcam.output = str(tmp_path / codec / "####.png")
+        submodule("addon.frames").setup_scene(scene, 400)
+        assert scene.render.image_settings.exr_codec == codec
+        path = tmp_path / codec / "render.exr"
+        composites[codec] = read_image(submodule("addon.render").render_frame(scene, 1, path)).tobytes()
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            assert {str(p.header["compression"]) for p in f.parts} == \
+                {f"Compression.{'NO' if codec == 'NONE' else codec}_COMPRESSION"}
+            channels[codec] = {name: c.pixels.tobytes() for part in f.parts for name, c in part.channels.items()}
+        sizes[codec] = path.stat().st_size
+    assert any(".Vector." in name for name in channels["NONE"]) and channels["NONE"] == channels["ZIP"]
+    assert composites["NONE"] == composites["ZIP"]
+    assert sizes["NONE"] > 5 * sizes["ZIP"]
+
+
 def test_half_float_renders_round_only_the_colour_and_nearly_keep_the_composite(tmp_path):
     """Render Depth "Half Float": Blender writes the Combined pass as half float (the 32-bit render's values
     rounded), keeps the Depth and Vector passes 32-bit, and the composite stands within the bounds the engine's

@@ -196,3 +196,74 @@ def test_a_half_float_render_gives_nearly_the_32_bit_renders_composite(tmp_path,
     diff = np.abs(frames["16"] - frames["32"])
     share, mean, largest = HALF_FLOAT_BOUNDS[name]
     assert 0 < (diff > 0).mean() <= share and diff.mean() <= mean and diff.max() <= largest
+
+
+#: The lossless OpenEXR compressions Blender writes (the add-on's Render Compression menu).
+LOSSLESS = ("NO", "RLE", "ZIPS", "ZIP", "PIZ")
+
+
+def test_every_lossless_compression_gives_the_same_render_passes_and_frame(tmp_path):
+    """A Blender-shaped render (one part per pass: the view layer's Combined and Vector, the overlay layer's
+    Combined) written in each lossless compression is read as the same bits, passes included, and gives the same
+    frame as the arrays in memory (object motion from the Vector pass); a lossy one (PXR24) does not."""
+    from lowcam.passes import from_blender, read_render_and_passes
+    from lowcam.profile import load_profile
+    from lowcam.sample import sample_plate, sample_render
+
+    render = sample_render("fire-i", 480)
+    h, w = render.shape[:2]
+    vector = (np.float32((-3.0, 1.0, -3.0, 1.0)) * (render[..., 3:] > 0)).astype(np.float32)   # moving right
+    overlay = np.zeros_like(render)
+    overlay[100:130, 150:250] = (0.0, 1.0, 0.0, 1.0)
+    profile = load_profile("fire-i").with_effect("object_motion")
+    plate = sample_plate("fire-i")
+    expected = lowcam.run(render, profile, plate, (0.05, 0.8, 0.1), seed=1, frame=2,
+                          passes=from_blender(vector, None, 24.0)).frame
+    frames = {}
+    for codec in (*LOSSLESS, "PXR24"):
+        path = tmp_path / f"{codec}.exr"
+        header = {"compression": getattr(OpenEXR, f"{codec}_COMPRESSION"), "type": OpenEXR.scanlineimage}
+        parts = [OpenEXR.Part(dict(header), {f"ViewLayer.Combined.{c}": render[..., i].copy() for i, c in enumerate("RGBA")},
+                              "ViewLayer.Combined"),
+                 OpenEXR.Part(dict(header), {f"ViewLayer.Vector.{c}": vector[..., i].copy() for i, c in enumerate("XYZW")},
+                              "ViewLayer.Vector"),
+                 OpenEXR.Part(dict(header), {f"Lowcam Overlay.Combined.{c}": overlay[..., i].copy()
+                                       for i, c in enumerate("RGBA")}, "Lowcam Overlay.Combined")]
+        OpenEXR.File(parts).write(str(path))
+        checked, passes = read_render_and_passes(path, None, ("Vector",), 24.0)
+        if codec in LOSSLESS:
+            assert checked.rgba.tobytes() == render.tobytes(), codec
+            assert passes.velocity_px_s.tobytes() == from_blender(vector, None, 24.0).velocity_px_s.tobytes(), codec
+        frames[codec] = lowcam.run(checked, profile, plate, (0.05, 0.8, 0.1), seed=1, frame=2, passes=passes).frame
+    sizes = {codec: (tmp_path / f"{codec}.exr").stat().st_size for codec in LOSSLESS}
+    assert sizes["NO"] > 10 * sizes["ZIP"]       # the files differ; what they hold does not
+    for codec in LOSSLESS:
+        assert frames[codec].tobytes() == expected.tobytes(), codec
+    assert frames["PXR24"].tobytes() != expected.tobytes()   # the comparison sees a lossy codec's change
+
+
+@pytest.mark.parametrize("codec", LOSSLESS)
+def test_a_render_truncated_in_its_last_pass_names_the_layer_and_its_channels(tmp_path, codec):
+    """A multilayer render cut short inside its Vector part: the OpenEXR binding hands back the parts before it and
+    drops that one (its C core complains on stderr); the refusal names the file, the layer and its channels
+    instead of saying the pass was never rendered."""
+    from lowcam.passes import read_render_and_passes
+
+    rgba = np.random.default_rng(7).uniform(0, 1, (64, 80, 4)).astype(np.float32)
+    header = {"compression": getattr(OpenEXR, f"{codec}_COMPRESSION"), "type": OpenEXR.scanlineimage}
+    path = tmp_path / "cut.exr"
+    OpenEXR.File([OpenEXR.Part(dict(header), {f"ViewLayer.Combined.{c}": rgba[..., i].copy()
+                                              for i, c in enumerate("RGBA")}, "ViewLayer.Combined"),
+                  OpenEXR.Part(dict(header), {f"ViewLayer.Vector.{c}": rgba[..., i].copy()
+                                              for i, c in enumerate("XYZW")}, "ViewLayer.Vector")]).write(str(path))
+    whole = path.read_bytes()
+    path.write_bytes(whole[:len(whole) - len(whole) // 20])     # the last 5 %: inside the Vector part
+    for needs in (("Vector",), ()):
+        with pytest.raises(LowcamError) as e:
+            read_render_and_passes(path, None, needs, 24.0)
+        text = str(e.value)
+        assert text.startswith(f"{path}: not a readable OpenEXR file: layer 'ViewLayer.Vector' (channels "
+                               "ViewLayer.Vector.W, ViewLayer.Vector.X, ViewLayer.Vector.Y, ViewLayer.Vector.Z)")
+        assert "\n" not in text
+    path.write_bytes(whole)
+    assert read_render_and_passes(path, None, ("Vector",), 24.0)[0].rgba.tobytes() == rgba.tobytes()
