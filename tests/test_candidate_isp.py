@@ -138,6 +138,16 @@ def test_the_stages_change_only_what_the_graphics_reach():
     assert np.array_equal(lowcam.run(render, disabled, plate).frame, plain.frame)
 
 
+@pytest.mark.parametrize("effect", ["noise_reduction", "edge_enhancement"])
+def test_the_node_group_refuses_the_stages_in_one_line(effect):
+    """Neither stage has a compositor node: the node bake names it instead of dropping it silently."""
+    from lowcam.errors import LowcamError
+    from lowcam.node_maps import bake
+
+    with pytest.raises(LowcamError, match=f"no node for {effect}"):
+        bake(lowcam.load_profile("fire-i").with_effect(effect), (120, 160))
+
+
 @pytest.mark.parametrize("effect,key,value", [("noise_reduction", "luma_strength_dn", -2.0),
                                               ("noise_reduction", "scale_px", 40.0),
                                               ("noise_reduction", "method", "median"),

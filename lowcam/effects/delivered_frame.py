@@ -26,6 +26,10 @@ References
 """
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+
 import numpy as np
 
 #: Full-range BT.601 RGB -> (Y, Cb, Cr), chroma centred on 0 [T871].
@@ -35,8 +39,11 @@ BT601_TO_YCC = np.array([[0.299, 0.587, 0.114],
 #: (Y, Cb, Cr) -> RGB, the inverse of :data:`BT601_TO_YCC`.
 BT601_FROM_YCC = np.linalg.inv(BT601_TO_YCC.astype(np.float64)).astype(np.float32)
 
-_CROP = (192, 256)  # rows, columns of the centre crop a fit scores (filters are local: a margin makes it exact)
+_CROP = (160, 224)  # rows, columns of the centre crop a fit scores (filters are local: a margin makes it exact)
 _MARGIN = 24        # px around the crop that the filters read
+_SHARES: OrderedDict = OrderedDict()  # (stage, frames' digest, values) -> one capture's share of a trial's score
+_SHARES_KEPT = 20000                  # shares kept (a few numbers each), least recently made out first
+_LOCK = threading.Lock()              # diagnosis fits candidates in threads
 
 
 def to_ycc(frame: np.ndarray) -> np.ndarray:
@@ -78,6 +85,38 @@ def _crop(shape) -> tuple[slice, slice, slice, slice]:
     return (slice(mr0, mr1), slice(mc0, mc1), slice(r0 - mr0, r0 - mr0 + ch), slice(c0 - mc0, c0 - mc0 + cw))
 
 
+def _moments(frames) -> tuple[np.ndarray, np.ndarray, int]:
+    f = np.asarray(frames, np.float32)
+    return f.mean(0), (f.var(0, ddof=1) if len(f) > 1 else None), len(f)
+
+
+def _partial(measured, simulated, mask) -> tuple[float, float, list]:
+    """One capture's share of :func:`frame_score`: the mean family's numerator and denominator and the variance
+    family's log ratios; ``measured`` as :func:`_moments` gives it."""
+    mf, vf, n = measured
+    mg, vg, k = _moments(simulated)
+    keep = np.ones(mf.shape[:2], bool) if mask is None else mask
+    num = float(np.square(mf - mg)[keep].sum())
+    den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+    logs = []
+    if vf is not None:
+        level = np.clip((mg // 16).astype(int), 0, 15)
+        for c in range(3):
+            lv, a, b = level[..., c][keep], vf[..., c][keep], vg[..., c][keep]
+            counts = np.bincount(lv, minlength=16)
+            sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
+            ok = (counts >= 100) & (sa > 0) & (sb > 0)
+            logs.extend(np.log(sa[ok] / sb[ok]).tolist())
+    return num, den, logs
+
+
+def _combined(parts) -> float:
+    num, den = sum(p[0] for p in parts), sum(p[1] for p in parts)
+    logs = [x for p in parts for x in p[2]]
+    e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
+    return num / max(den, 1e-12) + e_var ** 2
+
+
 def frame_score(measured: list, simulated: list, masks: list) -> float:
     """``e_mean^2 + e_var^2`` of model frames against measured ones, as :mod:`lowcam.measure.compare` defines them:
     ``e_mean^2 = sum R^2 / sum(var_F / n + var_G / K)`` of the temporal means' residual ``R``, and
@@ -85,27 +124,7 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     of at least 100 pixels). ``measured``, ``simulated``: per capture (n, h, w, 3) and (K, h, w, 3) frames;
     ``masks``: per capture (h, w) bool or None. A capture of one frame adds to the mean family only, with the
     model's variance for both."""
-    num = den = 0.0
-    logs = []
-    for f, g, m in zip(measured, simulated, masks):
-        f, g = np.asarray(f, np.float32), np.asarray(g, np.float32)
-        mf, mg = f.mean(0), g.mean(0)
-        vg = g.var(0, ddof=1)
-        vf = f.var(0, ddof=1) if len(f) > 1 else vg
-        keep = np.ones(mf.shape[:2], bool) if m is None else m
-        num += float(np.square(mf - mg)[keep].sum())
-        den += float((vf / len(f) + vg / len(g))[keep].sum())
-        if len(f) > 1:
-            level = np.clip((mg // 16).astype(int), 0, 15)
-            for c in range(3):
-                lv, a, b = level[..., c][keep], vf[..., c][keep], vg[..., c][keep]
-                counts = np.bincount(lv, minlength=16)
-                sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
-                ok = (counts >= 100) & (sa > 0) & (sb > 0)
-                logs.extend(np.log(sa[ok] / sb[ok]))
-    e_mean2 = num / max(den, 1e-12)
-    e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    return e_mean2 + e_var ** 2
+    return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
 
 
 def fit_delivered_stage(ctx, effect: str, process, searches):
@@ -117,44 +136,69 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
     the camera filtered. When the stage is the chain's last, the model's noisy frames of the context's few captures
     (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only processes them again; otherwise each trial
     re-simulates the chain (``ctx.simulate``). Trials are scored by :func:`frame_score` on a centre crop
-    (:data:`_CROP` with a :data:`_MARGIN` the filters read). ``process(values, frames) -> frames`` processes a
-    stack of uint8 frames with the stage at ``values``. ``searches``: ``(start, plan, screening_plan)`` triples
-    (one per form of the stage, e.g. a filter family), whose best result is returned: ``start`` the values before
-    the search, ``plan`` the steps of a coordinate search, each ``(key, options)`` where ``options`` is a list of
-    values or a function of the current values returning one (every option is tried and the best kept), and
-    ``screening_plan`` the steps while diagnosis screens (``ctx.screening``)."""
+    (:data:`_CROP` with a :data:`_MARGIN` the filters read); a capture's share of a trial's score depends on its
+    measured and model frames alone, so it is kept (by their digest) for the fits on the other folds. ``process(values, frames) -> frames`` processes a
+    stack of uint8 frames with the stage at ``values``. ``searches``: ``(start, plan, coarse_plan)`` triples,
+    one per form of the stage (a filter family): each form is searched from ``start`` by the steps of
+    ``coarse_plan``, and the best form then by those of ``plan`` (not while diagnosis screens, ``ctx.screening``).
+    A step is ``(key, options)``, ``options`` a list of values or a function of the current values returning one:
+    every option is tried and the best kept (a coordinate search)."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2])
-    measured = [caps[i].frames[:, rows, cols][:, ir, ic] for i in idx]
+    measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
-    count = lambda i: max(min(len(caps[i].frames), 6), 4)  # noqa: E731
+    count = 3  # model frames per capture: the same noise in every trial, so trials compare fairly
     with_it = p.with_effect(effect, **searches[0][0])
     names = [e.name for e in with_it.effects if e.enabled or e.always_runs]
     shortcut = names[-1] == effect
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [ctx.simulate(base, i, count(i))[:, rows, cols] for i in idx]
+        plain = [ctx.simulate(base, i, count)[:, rows, cols] for i in idx]
+        # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
+        digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
+                                   + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
+                                   digest_size=16).digest() for i, f, m in zip(idx, plain, masks)]
     scores: dict = {}
+
+    def share(j, values):
+        key = (effect, digests[j], tuple(sorted(values.items())))
+        with _LOCK:
+            got = _SHARES.get(key)
+        if got is None:
+            got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
+            with _LOCK:
+                _SHARES[key] = got
+                while len(_SHARES) > _SHARES_KEPT:
+                    _SHARES.popitem(last=False)
+        return got
 
     def score(values):
         key = tuple(sorted(values.items()))
         if key not in scores:
             if shortcut:
-                sims = [process(values, f)[:, ir, ic] for f in plain]
+                parts = [share(j, values) for j in range(len(idx))]
             else:
                 model = p.with_effect(effect, **values)
-                sims = [ctx.simulate(model, i, count(i))[:, rows, cols][:, ir, ic] for i in idx]
-            scores[key] = frame_score(measured, sims, masks)
+                parts = [_partial(measured[j], ctx.simulate(model, i, count)[:, rows, cols][:, ir, ic], masks[j])
+                         for j, i in enumerate(idx)]
+            scores[key] = _combined(parts)
         return scores[key]
 
-    best = None
-    for start, plan, screening_plan in searches:
+    def step(values, key, options):  # options on a lattice of 3 significant digits: folds share their trials
+        opts = options(values) if callable(options) else options
+        opts = [float(f"{o:.3g}") if isinstance(o, float) else o for o in opts]
+        values[key] = min(dict.fromkeys(opts), key=lambda v: score(dict(values, **{key: v})))
+
+    coarse = []
+    for start, plan, coarse_plan in searches:  # every form on its coarse steps
         values = dict(start)
-        for key, options in (screening_plan if getattr(ctx, "screening", False) else plan):
-            opts = options(values) if callable(options) else options
-            values[key] = min(dict.fromkeys(opts), key=lambda v: score(dict(values, **{key: v})))
-        if best is None or score(values) < score(best):
-            best = values
+        for key, options in coarse_plan:
+            step(values, key, options)
+        coarse.append((values, plan))
+    best, plan = min(coarse, key=lambda c: score(c[0]))
+    if not getattr(ctx, "screening", False):  # the best form on its finer steps
+        for key, options in plan:
+            step(best, key, options)
     return p.with_effect(effect, **best), dict(best), dict(best)

@@ -71,35 +71,29 @@ def _process(values, frames):
 
 
 def fit_edge_enhancement(ctx, effect):
-    """Diagnosis's fit (a :class:`Search` ``fit``): for luma and for RGB, the gain and radius on coarse grids,
-    the coring threshold and shape, the clamps of each side, then each finer
-    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: gain and radius on
-    the coarse grids, on the luma, soft coring, no clamps."""
+    """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
+    grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape, the clamps of each
+    side, then each finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
+    screens: the coarse grids only."""
     def finer(key, steps, lo, hi):
         return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
 
     clamps = (255.0, 60.0, 30.0, 15.0, 8.0, 4.0)
-    searches = []
-    for channels in CHANNELS:
-        plan = [("gain", (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)),
-                ("radius_px", (0.5, 0.8, 1.2, 1.8, 2.5, 3.5)),
-                ("gain", finer("gain", (0.8, 0.9, 1.0, 1.12, 1.25), 0.0, 8.0)),
-                ("coring_dn", (0.0, 1.0, 2.0, 4.0, 7.0, 11.0)),
-                ("coring", CORING),
-                ("overshoot_dn", clamps),
-                ("undershoot_dn", clamps),
-                ("radius_px", finer("radius_px", (0.85, 0.92, 1.0, 1.09, 1.18), 0.3, 6.0)),
-                ("gain", finer("gain", (0.9, 0.95, 1.0, 1.05, 1.11), 0.0, 8.0)),
-                ("coring_dn", lambda v: [max(v["coring_dn"] + k, 0.0) for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
-                ("overshoot_dn", finer("overshoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0)),
-                ("undershoot_dn", finer("undershoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0))]
-        screening = [("gain", (0.5, 1.0, 2.0, 3.0)), ("radius_px", (0.6, 1.2, 2.5))]
-        start = {"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
-                 "undershoot_dn": 255.0, "channels": channels}
-        searches.append((start, plan, screening if channels == "luma" else []))
-    return fit_delivered_stage(ctx, effect, _process, searches if not getattr(ctx, "screening", False)
-                               else searches[:1])
-
+    coarse = [("gain", (0.5, 1.0, 2.0, 3.0)), ("radius_px", (0.6, 1.2, 2.5))]
+    plan = [("gain", finer("gain", (0.7, 0.85, 1.0, 1.18, 1.4), 0.0, 8.0)),
+            ("radius_px", finer("radius_px", (0.7, 0.85, 1.0, 1.18, 1.4), 0.3, 6.0)),
+            ("coring_dn", (0.0, 1.0, 2.0, 4.0, 7.0, 11.0)),
+            ("coring", CORING),
+            ("overshoot_dn", clamps),
+            ("undershoot_dn", clamps),
+            ("radius_px", finer("radius_px", (0.88, 0.94, 1.0, 1.06, 1.13), 0.3, 6.0)),
+            ("gain", finer("gain", (0.9, 0.95, 1.0, 1.05, 1.11), 0.0, 8.0)),
+            ("coring_dn", lambda v: [max(v["coring_dn"] + k, 0.0) for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
+            ("overshoot_dn", finer("overshoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0)),
+            ("undershoot_dn", finer("undershoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0))]
+    searches = [({"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
+                  "undershoot_dn": 255.0, "channels": channels}, plan, coarse) for channels in CHANNELS]
+    return fit_delivered_stage(ctx, effect, _process, searches)
 
 class EdgeEnhancement(Effect):
     """Edge enhancement of the delivered frame: ``gain`` times its cored detail (the frame less its Gaussian blur
@@ -138,3 +132,6 @@ class EdgeEnhancement(Effect):
         if frame.ndim != 3:
             raise self.error("acts on an RGB frame; a raw camera delivers a colour-filter mosaic")
         return within_footprint(frame, footprint, self.process_frame, math.ceil(4 * self.radius_px) + 1), footprint
+
+
+fit_edge_enhancement.refines = True  # diagnosis calls it again, in full, for a promising candidate

@@ -98,24 +98,25 @@ def _process(values, frames):
 
 
 def fit_noise_reduction(ctx, effect):
-    """Diagnosis's fit (a :class:`Search` ``fit``): for each family, the luma strength on a coarse grid, the
-    scale, the luma strength again, the chroma strength, then both finer; the family that fits best
-    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the luma strength on
-    the coarse grid of each family, at its usual scale, no chroma."""
+    """Diagnosis's fit (a :class:`Search` ``fit``): for each family, the luma strength on a coarse grid at the
+    family's usual scale, no chroma; for the family that fits best, the luma strength finer, the scale, the chroma
+    strength and each finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
+    screens: the coarse grid only."""
     finer = lambda key, f: (lambda v: [min(max(v[key] * k, 0.0), 60.0) for k in f])  # noqa: E731
     searches = []
     for method in METHODS:
-        scales = (1.0, 1.5, 2.0, 3.0, 4.0) if method == "bilateral" else (2.0, 3.0, 5.0, 7.0, 10.0)
-        plan = [("luma_strength_dn", (2.0, 4.0, 7.0, 11.0, 16.0, 24.0, 35.0, 50.0)),
+        scales = (1.0, 1.5, 2.0, 3.0) if method == "bilateral" else (3.0, 5.0, 10.0)
+        coarse = [("luma_strength_dn", (3.0, 8.0, 20.0, 45.0))]
+        plan = [("luma_strength_dn", finer("luma_strength_dn", (0.6, 0.78, 1.0, 1.28, 1.65))),
                 ("scale_px", scales),
-                ("luma_strength_dn", finer("luma_strength_dn", (0.8, 0.9, 1.0, 1.12, 1.25))),
-                ("chroma_strength_dn", (0.0, 4.0, 8.0, 16.0, 32.0)),
+                ("luma_strength_dn", finer("luma_strength_dn", (0.85, 0.93, 1.0, 1.08, 1.17))),
+                ("chroma_strength_dn", (0.0, 5.0, 12.0, 30.0)),
                 ("chroma_strength_dn", finer("chroma_strength_dn", (0.7, 1.0, 1.4))),
                 ("scale_px", lambda v: [min(max(v["scale_px"] * k, 0.5), 12.0) for k in (0.85, 1.0, 1.18)]),
-                ("luma_strength_dn", finer("luma_strength_dn", (0.94, 1.0, 1.06)))]
-        screening = [("luma_strength_dn", (3.0, 8.0, 20.0, 45.0))]
-        start = {"method": method, "luma_strength_dn": 8.0, "chroma_strength_dn": 0.0, "scale_px": scales[2]}
-        searches.append((start, plan, screening))
+                ("luma_strength_dn", finer("luma_strength_dn", (0.95, 1.0, 1.05)))]
+        usual = 2.0 if method == "bilateral" else 5.0
+        start = {"method": method, "luma_strength_dn": 8.0, "chroma_strength_dn": 0.0, "scale_px": usual}
+        searches.append((start, plan, coarse))
     return fit_delivered_stage(ctx, effect, _process, searches)
 
 
@@ -154,3 +155,6 @@ class NoiseReduction(Effect):
             raise self.error("acts on an RGB frame; a raw camera delivers a colour-filter mosaic")
         reach = _window(self.method, self.scale_px) // 2 + 3
         return within_footprint(frame, footprint, self.process_frame, reach), footprint
+
+
+fit_noise_reduction.refines = True  # diagnosis calls it again, in full, for a promising candidate
