@@ -142,7 +142,8 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
     one per form of the stage (a filter family): each form is searched from ``start`` by the steps of
     ``coarse_plan``, and the best form then by those of ``plan`` (not while diagnosis screens, ``ctx.screening``).
     A step is ``(key, options)``, ``options`` a list of values or a function of the current values returning one:
-    every option is tried and the best kept (a coordinate search)."""
+    every option is tried and the best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a
+    tuple of their values, searched together."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2])
@@ -186,10 +187,14 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
             scores[key] = _combined(parts)
         return scores[key]
 
-    def step(values, key, options):  # options on a lattice of 3 significant digits: folds share their trials
+    def snap(o):  # options on a lattice of 3 significant digits: folds share their trials
+        return float(f"{o:.3g}") if isinstance(o, float) else o
+
+    def step(values, key, options):  # a key, or a tuple of keys whose options are tuples (searched together)
+        keys = key if isinstance(key, tuple) else (key,)
         opts = options(values) if callable(options) else options
-        opts = [float(f"{o:.3g}") if isinstance(o, float) else o for o in opts]
-        values[key] = min(dict.fromkeys(opts), key=lambda v: score(dict(values, **{key: v})))
+        opts = [tuple(map(snap, o)) if isinstance(key, tuple) else (snap(o),) for o in opts]
+        values.update(zip(keys, min(dict.fromkeys(opts), key=lambda o: score(dict(values, **dict(zip(keys, o)))))))
 
     coarse = []
     for start, plan, coarse_plan in searches:  # every form on its coarse steps

@@ -72,25 +72,31 @@ def _process(values, frames):
 
 def fit_edge_enhancement(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
-    grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape, the clamps of each
-    side, then each finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
+    grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape together, gain and
+    radius again, the coring again, the clamps of each side, then each finer (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
     screens: the coarse grids only."""
     def finer(key, steps, lo, hi):
         return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
 
+    def clamped(key):  # a clamp found finer, unless there is none (255)
+        return lambda v: [255.0] if v[key] >= 255.0 else finer(key, (0.8, 1.0, 1.25), 0.0, 255.0)(v)
+
     clamps = (255.0, 60.0, 30.0, 15.0, 8.0, 4.0)
     coarse = [("gain", (0.5, 1.0, 2.0, 3.0)), ("radius_px", (0.6, 1.2, 2.5))]
+    near = (0.88, 0.94, 1.0, 1.06, 1.13)
     plan = [("gain", finer("gain", (0.7, 0.85, 1.0, 1.18, 1.4), 0.0, 8.0)),
             ("radius_px", finer("radius_px", (0.7, 0.85, 1.0, 1.18, 1.4), 0.3, 6.0)),
-            ("coring_dn", (0.0, 1.0, 2.0, 4.0, 7.0, 11.0)),
-            ("coring", CORING),
+            (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
+            ("gain", finer("gain", (0.8, 0.9, 1.0, 1.12, 1.25), 0.0, 8.0)),
+            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            (("coring", "coring_dn"), lambda v: [(c, max(v["coring_dn"] + k, 0.0)) for c in CORING
+                                                 for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
             ("overshoot_dn", clamps),
             ("undershoot_dn", clamps),
-            ("radius_px", finer("radius_px", (0.88, 0.94, 1.0, 1.06, 1.13), 0.3, 6.0)),
-            ("gain", finer("gain", (0.9, 0.95, 1.0, 1.05, 1.11), 0.0, 8.0)),
-            ("coring_dn", lambda v: [max(v["coring_dn"] + k, 0.0) for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
-            ("overshoot_dn", finer("overshoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0)),
-            ("undershoot_dn", finer("undershoot_dn", (0.8, 1.0, 1.25), 0.0, 255.0))]
+            ("gain", finer("gain", near, 0.0, 8.0)),
+            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            ("overshoot_dn", clamped("overshoot_dn")),
+            ("undershoot_dn", clamped("undershoot_dn"))]
     searches = [({"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
                   "undershoot_dn": 255.0, "channels": channels}, plan, coarse) for channels in CHANNELS]
     return fit_delivered_stage(ctx, effect, _process, searches)
