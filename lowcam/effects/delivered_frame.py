@@ -133,17 +133,19 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
 
     The model keeps its noise: these filters are not linear (a bilateral or non-local-means filter smooths noise
     and keeps edges; coring passes small details through unchanged), so the model's frames must carry the noise
-    the camera filtered. When the stage is the chain's last, the model's noisy frames of the context's few captures
-    (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only processes them again; otherwise each trial
-    re-simulates the chain (``ctx.simulate``). Trials are scored by :func:`frame_score` on a centre crop
-    (:data:`_CROP` with a :data:`_MARGIN` the filters read); a capture's share of a trial's score depends on its
-    measured and model frames alone, so it is kept (by their digest) for the fits on the other folds. ``process(values, frames) -> frames`` processes a
-    stack of uint8 frames with the stage at ``values``. ``searches``: ``(start, plan, coarse_plan)`` triples,
-    one per form of the stage (a filter family): each form is searched from ``start`` by the steps of
-    ``coarse_plan``, and the best form then by those of ``plan`` (not while diagnosis screens, ``ctx.screening``).
-    A step is ``(key, options)``, ``options`` a list of values or a function of the current values returning one:
-    every option is tried and the best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a
-    tuple of their values, searched together."""
+    the camera filtered. When the stage is the chain's last, the model's noisy frames of the context's few
+    captures (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only
+    processes them again; otherwise each trial re-simulates the chain (``ctx.simulate``). Trials are scored by
+    :func:`frame_score` on a centre crop (:data:`_CROP` with a :data:`_MARGIN` the filters read); a capture's share
+    of a trial's score depends on its measured and model frames alone, so it is kept (by their digest) for the
+    fits on the other folds.
+
+    ``process(values, frames) -> frames`` processes a stack of uint8 frames with the stage at ``values``.
+    ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
+    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan`` (not while
+    diagnosis screens, ``ctx.screening``). A step is ``(key, options)``, ``options`` a list of values or a
+    function of the current values returning one: every option is tried and the best kept (a coordinate search);
+    ``key`` may be a tuple of keys, each option then a tuple of their values, searched together."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2])

@@ -73,8 +73,8 @@ def _process(values, frames):
 def fit_edge_enhancement(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
     grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape together, gain and
-    radius again, the coring again, the clamps of each side, then each finer (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
-    screens: the coarse grids only."""
+    radius again, the coring again, the clamps of each side, then each finer
+    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the coarse grids only."""
     def finer(key, steps, lo, hi):
         return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
 
