@@ -52,6 +52,9 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.saturation`: colour correction and the saturation control (sec. 4.4.2)
 - :mod:`~lowcam.effects.tone_curve`: the tone curve (not in the paper; sec. 8)
 - :mod:`~lowcam.effects.yuv`: YUV blending and 4:1:1 chroma (sec. 5.2 steps 8-10)
+- :mod:`~lowcam.effects.noise_reduction`: an image processor's spatial noise reduction (not in the paper)
+- :mod:`~lowcam.effects.edge_enhancement`: an image processor's edge enhancement with coring (not in the paper);
+  what both share in :mod:`~lowcam.effects.delivered_frame`
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
 
 References
@@ -74,12 +77,14 @@ from .chromatic_aberration import ChromaticAberration
 from .crosstalk import Crosstalk
 from .defocus import Defocus
 from .depth_of_field import DepthOfField
+from .edge_enhancement import EdgeEnhancement
 from .fixed_pattern import DSNU, HotPixels, PRNU, RowNoise
 from .half_sampling import HalfSampling
 from .jpeg import Jpeg
 from .lens import LensDistortion
 from .motion_blur import MotionBlur
 from .noise import Noise
+from .noise_reduction import NoiseReduction
 from .object_motion import ObjectMotion
 from .quantisation import Quantisation
 from .raw_blend import RawBlend
@@ -98,7 +103,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                Jpeg,
+                NoiseReduction, EdgeEnhancement, Jpeg,
                 # need render passes (velocity, depth): added by the Blender add-on when asked for
                 ObjectMotion, DepthOfField)
 }

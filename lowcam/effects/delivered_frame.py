@@ -1,0 +1,211 @@
+"""What the image-processor stages that act on the delivered 8-bit frame share: luma and chroma, where they act,
+and their diagnosis fit (noise reduction, :mod:`~lowcam.effects.noise_reduction`; edge enhancement,
+:mod:`~lowcam.effects.edge_enhancement`).
+
+A camera's image processor filters the frame in a luma-chroma space after demosaicing [Ramanath2005]. These stages
+act after the blend (and after the chroma subsampling), on the frame as delivered, before any encoder: the
+processed composite replaces the frame only where the graphics reach (the footprint), so the plate's own pixels,
+which the real camera processed already, keep their bytes.
+
+Contents
+--------
+- :data:`BT601_TO_YCC`, :data:`BT601_FROM_YCC`: full-range BT.601 RGB -> (Y, Cb, Cr) and back (as JFIF, [T871])
+- :func:`to_ycc`: a frame's luma and chroma planes (float32, DN; chroma centred on 0)
+- :func:`ycc_change_to_rgb`: an RGB change (float32, DN) from a change of luma and chroma
+- :func:`within_footprint`: a frame processed by a function of its pixels, kept where the graphics reach
+- :func:`frame_score`: how far model frames stand from measured ones: the mean and variance families of a
+  comparison (:mod:`lowcam.measure.compare`), over a crop
+- :func:`fit_delivered_stage`: diagnosis's fit of such a stage: a coordinate search over its parameters, each
+  trial processing the model's noisy frames again
+
+References
+----------
+- [T871] ITU-T Recommendation T.871, "JPEG File Interchange Format", 2011 (full-range BT.601 YCbCr).
+- [Ramanath2005] R. Ramanath, W. E. Snyder, Y. Yoo and M. S. Drew, "Color image processing pipeline", IEEE Signal
+  Processing Magazine 22(1), 34-43, 2005 (where noise reduction and sharpening sit in a camera's chain).
+"""
+from __future__ import annotations
+
+import hashlib
+import threading
+from collections import OrderedDict
+
+import numpy as np
+
+#: Full-range BT.601 RGB -> (Y, Cb, Cr), chroma centred on 0 [T871].
+BT601_TO_YCC = np.array([[0.299, 0.587, 0.114],
+                         [-0.168736, -0.331264, 0.5],
+                         [0.5, -0.418688, -0.081312]], np.float32)
+#: (Y, Cb, Cr) -> RGB, the inverse of :data:`BT601_TO_YCC`.
+BT601_FROM_YCC = np.linalg.inv(BT601_TO_YCC.astype(np.float64)).astype(np.float32)
+
+_CROP = (160, 224)  # rows, columns of the centre crop a fit scores (filters are local: a margin makes it exact)
+_MARGIN = 24        # px around the crop that the filters read
+_SHARES: OrderedDict = OrderedDict()  # (stage, frames' digest, values) -> one capture's share of a trial's score
+_SHARES_KEPT = 20000                  # shares kept (a few numbers each), least recently made out first
+_LOCK = threading.Lock()              # diagnosis fits candidates in threads
+
+
+def to_ycc(frame: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32: luma Y and chroma Cb, Cr (DN, chroma centred on 0) of an (H, W, 3) RGB frame."""
+    f = np.asarray(frame, np.float32)
+    return (f.reshape(-1, 3) @ BT601_TO_YCC.T).reshape(f.shape)
+
+
+def ycc_change_to_rgb(change: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32: the RGB change (DN) that changes luma and chroma by ``change`` (H, W, 3)."""
+    c = np.asarray(change, np.float32)
+    return (c.reshape(-1, 3) @ BT601_FROM_YCC.T).reshape(c.shape)
+
+
+def within_footprint(frame: np.ndarray, footprint: np.ndarray, process, reach: int) -> np.ndarray:
+    """``frame`` (H, W, 3) uint8 with ``process(crop) -> crop`` (uint8) applied where ``footprint`` (H, W) bool is
+    set; the crop holds the footprint's bounding box and ``reach`` px around it (what the filter reads). Pixels
+    outside the footprint keep their bytes."""
+    rows, cols = np.nonzero(footprint.any(axis=1))[0], np.nonzero(footprint.any(axis=0))[0]
+    if not len(rows):
+        return frame
+    h, w = footprint.shape
+    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + 1 + reach, h)
+    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + 1 + reach, w)
+    done = process(np.ascontiguousarray(frame[r0:r1, c0:c1]))
+    out = frame.copy()
+    inside = footprint[r0:r1, c0:c1]
+    out[r0:r1, c0:c1][inside] = done[inside]
+    return out
+
+
+def _crop(shape) -> tuple[slice, slice, slice, slice]:
+    """(rows, cols) of the centre crop with its margin, and the crop within that."""
+    h, w = shape
+    ch, cw = min(_CROP[0], h), min(_CROP[1], w)
+    r0, c0 = (h - ch) // 2, (w - cw) // 2
+    mr0, mc0 = max(r0 - _MARGIN, 0), max(c0 - _MARGIN, 0)
+    mr1, mc1 = min(r0 + ch + _MARGIN, h), min(c0 + cw + _MARGIN, w)
+    return (slice(mr0, mr1), slice(mc0, mc1), slice(r0 - mr0, r0 - mr0 + ch), slice(c0 - mc0, c0 - mc0 + cw))
+
+
+def _moments(frames) -> tuple[np.ndarray, np.ndarray, int]:
+    f = np.asarray(frames, np.float32)
+    return f.mean(0), (f.var(0, ddof=1) if len(f) > 1 else None), len(f)
+
+
+def _partial(measured, simulated, mask) -> tuple[float, float, list]:
+    """One capture's share of :func:`frame_score`: the mean family's numerator and denominator and the variance
+    family's log ratios; ``measured`` as :func:`_moments` gives it."""
+    mf, vf, n = measured
+    mg, vg, k = _moments(simulated)
+    keep = np.ones(mf.shape[:2], bool) if mask is None else mask
+    num = float(np.square(mf - mg)[keep].sum())
+    den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+    logs = []
+    if vf is not None:
+        level = np.clip((mg // 16).astype(int), 0, 15)
+        for c in range(3):
+            lv, a, b = level[..., c][keep], vf[..., c][keep], vg[..., c][keep]
+            counts = np.bincount(lv, minlength=16)
+            sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
+            ok = (counts >= 100) & (sa > 0) & (sb > 0)
+            logs.extend(np.log(sa[ok] / sb[ok]).tolist())
+    return num, den, logs
+
+
+def _combined(parts) -> float:
+    num, den = sum(p[0] for p in parts), sum(p[1] for p in parts)
+    logs = [x for p in parts for x in p[2]]
+    e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
+    return num / max(den, 1e-12) + e_var ** 2
+
+
+def frame_score(measured: list, simulated: list, masks: list) -> float:
+    """``e_mean^2 + e_var^2`` of model frames against measured ones, as :mod:`lowcam.measure.compare` defines them:
+    ``e_mean^2 = sum R^2 / sum(var_F / n + var_G / K)`` of the temporal means' residual ``R``, and
+    ``e_var = exp(rms |ln ratio|)`` of the temporal variances per channel and brightness bin (16 bins of 16 DN, bins
+    of at least 100 pixels). ``measured``, ``simulated``: per capture (n, h, w, 3) and (K, h, w, 3) frames;
+    ``masks``: per capture (h, w) bool or None. A capture of one frame adds to the mean family only, with the
+    model's variance for both."""
+    return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
+
+
+def fit_delivered_stage(ctx, effect: str, process, searches):
+    """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
+    (profile with it, values, values shown).
+
+    The model keeps its noise: these filters are not linear (a bilateral or non-local-means filter smooths noise
+    and keeps edges; coring passes small details through unchanged), so the model's frames must carry the noise
+    the camera filtered. When the stage is the chain's last, the model's noisy frames of the context's few
+    captures (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only
+    processes them again; otherwise each trial re-simulates the chain (``ctx.simulate``). Trials are scored by
+    :func:`frame_score` on a centre crop (:data:`_CROP` with a :data:`_MARGIN` the filters read); a capture's share
+    of a trial's score depends on its measured and model frames alone, so it is kept (by their digest) for the
+    fits on the other folds.
+
+    ``process(values, frames) -> frames`` processes a stack of uint8 frames with the stage at ``values``.
+    ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
+    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan`` (not while
+    diagnosis screens, ``ctx.screening``). A step is ``(key, options)``, ``options`` a list of values or a
+    function of the current values returning one: every option is tried and the best kept (a coordinate search);
+    ``key`` may be a tuple of keys, each option then a tuple of their values, searched together."""
+    p = ctx.profile
+    caps, idx = ctx.mset.captures, ctx.quick
+    rows, cols, ir, ic = _crop(ctx.means[0].shape[:2])
+    measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
+    masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
+    count = 3  # model frames per capture: the same noise in every trial, so trials compare fairly
+    with_it = p.with_effect(effect, **searches[0][0])
+    names = [e.name for e in with_it.effects if e.enabled or e.always_runs]
+    shortcut = names[-1] == effect
+    if shortcut:
+        have = p.effect(effect)
+        base = p.without(effect) if have is not None and have.enabled else p
+        plain = [ctx.simulate(base, i, count)[:, rows, cols] for i in idx]
+        # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
+        digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
+                                   + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
+                                   digest_size=16).digest() for i, f, m in zip(idx, plain, masks)]
+    scores: dict = {}
+
+    def share(j, values):
+        key = (effect, digests[j], tuple(sorted(values.items())))
+        with _LOCK:
+            got = _SHARES.get(key)
+        if got is None:
+            got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
+            with _LOCK:
+                _SHARES[key] = got
+                while len(_SHARES) > _SHARES_KEPT:
+                    _SHARES.popitem(last=False)
+        return got
+
+    def score(values):
+        key = tuple(sorted(values.items()))
+        if key not in scores:
+            if shortcut:
+                parts = [share(j, values) for j in range(len(idx))]
+            else:
+                model = p.with_effect(effect, **values)
+                parts = [_partial(measured[j], ctx.simulate(model, i, count)[:, rows, cols][:, ir, ic], masks[j])
+                         for j, i in enumerate(idx)]
+            scores[key] = _combined(parts)
+        return scores[key]
+
+    def snap(o):  # options on a lattice of 3 significant digits: folds share their trials
+        return float(f"{o:.3g}") if isinstance(o, float) else o
+
+    def step(values, key, options):  # a key, or a tuple of keys whose options are tuples (searched together)
+        keys = key if isinstance(key, tuple) else (key,)
+        opts = options(values) if callable(options) else options
+        opts = [tuple(map(snap, o)) if isinstance(key, tuple) else (snap(o),) for o in opts]
+        values.update(zip(keys, min(dict.fromkeys(opts), key=lambda o: score(dict(values, **dict(zip(keys, o)))))))
+
+    coarse = []
+    for start, plan, coarse_plan in searches:  # every form on its coarse steps
+        values = dict(start)
+        for key, options in coarse_plan:
+            step(values, key, options)
+        coarse.append((values, plan))
+    best, plan = min(coarse, key=lambda c: score(c[0]))
+    if not getattr(ctx, "screening", False):  # the best form on its finer steps
+        for key, options in plan:
+            step(best, key, options)
+    return p.with_effect(effect, **best), dict(best), dict(best)

@@ -1,0 +1,143 @@
+"""Edge enhancement of a camera's image processor: an unsharp mask with coring and clamped halos (not in the paper).
+
+A phone's or webcam's processor boosts edges after noise reduction and leaves flat areas alone [Ramanath2005]:
+
+    d = Y - G_r * Y                     (the detail: the frame less its Gaussian blur of sigma ``radius_px``)
+    c = d where |d| >= t, else 0        (``coring = "hard"``, t = ``coring_dn``), or
+    c = sign(d) max(|d| - t, 0)         (``coring = "soft"``: small details shrink smoothly)
+    b = clip(gain c, -undershoot_dn, overshoot_dn)
+    out = frame + b
+
+on the full-range BT.601 luma Y (``channels = "luma"``, the boost added to R, G and B alike) or on each of R, G, B
+(``channels = "rgb"``). The clamps limit the halos; unequal ones give the lopsided overshoot of phone sharpening
+(bright halos clipped harder than dark ones, or the reverse).
+
+Beside the paper's sharpening, not instead of it: :mod:`~lowcam.effects.sharpening` is the sensor-side horizontal
+filter on each colour plane before quantisation (the Fire-i's, sec. 4.4.3); this stage is the image processor's
+two-dimensional one on the delivered frame. A camera may have both, and a profile keeps either.
+
+Contents
+--------
+- :data:`CORING`, :data:`CHANNELS`: the coring shapes and the planes it acts on
+- :func:`enhance_edges`: an RGB frame with its edges enhanced
+- :func:`fit_edge_enhancement`: diagnosis's fit: gain, radius, coring and clamps whose enhanced noisy model frames
+  best match the measured frames (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
+- :class:`EdgeEnhancement`: the stage
+
+It has no compositor node yet: the node group refuses a profile with it (``lowcam.node_maps.bake``), and the
+render handler, which runs the engine, simulates it.
+
+References
+----------
+- [Ramanath2005] R. Ramanath, W. E. Snyder, Y. Yoo and M. S. Drew, "Color image processing pipeline", IEEE Signal
+  Processing Magazine 22(1), 34-43, 2005.
+- [Gonzalez2018] R. C. Gonzalez and R. E. Woods, "Digital Image Processing", 4th ed., Pearson 2018, sec. 3.6
+  (unsharp masking and high-boost filtering).
+- [T871] ITU-T Recommendation T.871, "JPEG File Interchange Format", 2011 (full-range BT.601 luma).
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .base import Effect, Param, Search
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, within_footprint
+
+#: Coring shapes: details under the threshold dropped ("hard") or every detail shrunk by it ("soft").
+CORING = ("hard", "soft")
+#: The planes enhanced: the luma (the boost added to R, G and B alike) or each of R, G, B.
+CHANNELS = ("luma", "rgb")
+
+
+def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: float = 0.0, coring: str = "soft",
+                  overshoot_dn: float = 255.0, undershoot_dn: float = 255.0, channels: str = "luma") -> np.ndarray:
+    """An (H, W, 3) uint8 RGB frame with its edges enhanced (the module's formulas), rounded (uint8)."""
+    f = np.asarray(frame, np.float32)
+    planes = (f @ BT601_TO_YCC[0])[..., None] if channels == "luma" else f
+    blurred = cv2.GaussianBlur(planes, (0, 0), radius_px, borderType=cv2.BORDER_REFLECT_101)
+    d = planes - (blurred[..., None] if blurred.ndim == 2 else blurred)
+    if coring_dn > 0:
+        d = np.where(np.abs(d) >= coring_dn, d, 0.0) if coring == "hard" else \
+            np.sign(d) * np.maximum(np.abs(d) - coring_dn, 0.0)
+    boost = np.clip(gain * d, -undershoot_dn, overshoot_dn)
+    return np.clip(np.rint(f + boost), 0, 255).astype(np.uint8)
+
+
+def _process(values, frames):
+    s = EdgeEnhancement(**values)
+    return np.stack([s.process_frame(f) for f in frames])
+
+
+def fit_edge_enhancement(ctx, effect):
+    """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
+    grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape together, gain and
+    radius again, the coring again, the clamps of each side, then each finer
+    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the coarse grids only."""
+    def finer(key, steps, lo, hi):
+        return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
+
+    def clamped(key):  # a clamp found finer, unless there is none (255)
+        return lambda v: [255.0] if v[key] >= 255.0 else finer(key, (0.8, 1.0, 1.25), 0.0, 255.0)(v)
+
+    clamps = (255.0, 60.0, 30.0, 15.0, 8.0, 4.0)
+    coarse = [("gain", (0.5, 1.0, 2.0, 3.0)), ("radius_px", (0.6, 1.2, 2.5))]
+    near = (0.88, 0.94, 1.0, 1.06, 1.13)
+    plan = [("gain", finer("gain", (0.7, 0.85, 1.0, 1.18, 1.4), 0.0, 8.0)),
+            ("radius_px", finer("radius_px", (0.7, 0.85, 1.0, 1.18, 1.4), 0.3, 6.0)),
+            (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
+            ("gain", finer("gain", (0.8, 0.9, 1.0, 1.12, 1.25), 0.0, 8.0)),
+            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            (("coring", "coring_dn"), lambda v: [(c, max(v["coring_dn"] + k, 0.0)) for c in CORING
+                                                 for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
+            ("overshoot_dn", clamps),
+            ("undershoot_dn", clamps),
+            ("gain", finer("gain", near, 0.0, 8.0)),
+            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            ("overshoot_dn", clamped("overshoot_dn")),
+            ("undershoot_dn", clamped("undershoot_dn"))]
+    searches = [({"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
+                  "undershoot_dn": 255.0, "channels": channels}, plan, coarse) for channels in CHANNELS]
+    return fit_delivered_stage(ctx, effect, _process, searches)
+
+class EdgeEnhancement(Effect):
+    """Edge enhancement of the delivered frame: ``gain`` times its cored detail (the frame less its Gaussian blur
+    of ``radius_px``, details under ``coring_dn`` dropped or shrunk), the boost clamped to ``overshoot_dn`` above
+    and ``undershoot_dn`` below (see the module's docstring)."""
+
+    name = "edge_enhancement"
+    section = "not in the paper"
+    writes = "output"
+    order = 274
+    searches = (Search("edge_enhancement", "edges boosted {gain:.2f}x at radius {radius_px:.2f} px on the "
+                       "{channels}, details under {coring_dn:.1f} DN cored ({coring}), halos clamped at "
+                       "+{overshoot_dn:.0f}/-{undershoot_dn:.0f} DN", fit=fit_edge_enhancement, changes_noise=True,
+                       captures="textured"),)
+    params = {
+        "gain": Param(1.0, low=0.0, high=8.0, doc="the detail's gain: 1 doubles an edge's step at its own scale"),
+        "radius_px": Param(1.2, low=0.3, high=6.0, unit="px", doc="sigma of the Gaussian blur the detail is taken "
+                                                                   "from"),
+        "coring_dn": Param(0.0, low=0.0, high=64.0, unit="DN", doc="details under this are dropped or shrunk"),
+        "coring": Param("soft", str, choices=CORING, doc="hard: small details dropped; soft: all shrunk by "
+                                                        "coring_dn"),
+        "overshoot_dn": Param(255.0, low=0.0, high=255.0, unit="DN", doc="the largest brightening (bright halo)"),
+        "undershoot_dn": Param(255.0, low=0.0, high=255.0, unit="DN", doc="the largest darkening (dark halo)"),
+        "channels": Param("luma", str, choices=CHANNELS, doc="luma: one boost for R, G and B; rgb: each its own"),
+    }
+
+    def process_frame(self, frame: np.ndarray) -> np.ndarray:
+        """The whole (H, W, 3) uint8 frame enhanced (:func:`enhance_edges`)."""
+        return enhance_edges(frame, self.gain, self.radius_px, self.coring_dn, self.coring, self.overshoot_dn,
+                             self.undershoot_dn, self.channels)
+
+    def apply(self, state):
+        """Nothing before the blend: the enhancement acts on the delivered frame (:meth:`finish`)."""
+
+    def finish(self, state, frame, footprint):
+        if frame.ndim != 3:
+            raise self.error("acts on an RGB frame; a raw camera delivers a colour-filter mosaic")
+        return within_footprint(frame, footprint, self.process_frame, math.ceil(4 * self.radius_px) + 1), footprint
+
+
+fit_edge_enhancement.refines = True  # diagnosis calls it again, in full, for a promising candidate
