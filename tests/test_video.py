@@ -428,3 +428,32 @@ def test_a_video_output_that_is_the_plate_is_refused_and_nothing_written(tmp_pat
     err = capsys.readouterr().err
     assert rc == 2 and "the output is the input" in err and len(err.strip().splitlines()) == 1
     assert plate.read_bytes() == before and not (tmp_path / "plate.mp4.frames").exists()
+
+
+def test_a_shot_over_image_plates_is_coded_as_the_default_h264(tmp_path, capsys):
+    from lowcam.cli import main
+    from lowcam.outputs import write_exr, write_png
+
+    for f in (1, 2):
+        write_exr(tmp_path / "renders" / f"{f:04d}.exr", np.zeros((150, 200, 4), np.float32))
+        write_png(tmp_path / "plates" / f"{f:04d}.png", cv2.resize(_picture(), (640, 480),
+                                                                   interpolation=cv2.INTER_NEAREST))
+    shot = tmp_path / "shot.mkv"
+    assert main(["batch", "--renders", str(tmp_path / "renders" / "####.exr"), "--plates",
+                 str(tmp_path / "plates" / "####.png"), "--frames", "1-2", "-o", str(shot), "--quiet"]) == 0
+    assert "Lowcam's default" in capsys.readouterr().out
+    with VideoReader(shot) as video:
+        assert (video.colour.matrix, video.colour.range, video.count) == ("bt709", "limited", 2)
+        red = video.frame(1)[230:250, 86:106].astype(int)
+        assert np.abs(red - PATCHES["red"]).max() <= 3
+
+
+def test_batch_over_an_hdr_plate_is_refused_in_one_line_and_writes_nothing(tmp_path, capsys):
+    from lowcam.cli import main
+
+    clip = _tagged_clip(tmp_path, "bt2020", "limited", 10, "hlg")
+    rc = main(["batch", "--renders", str(tmp_path / "r" / "####.exr"), "--plates", str(clip), "--frames", "1-2",
+               "-o", str(tmp_path / "out" / "####.png"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "HLG" in err and clip.name in err
+    assert not (tmp_path / "out").exists()
