@@ -459,6 +459,7 @@ def test_batch_over_an_hdr_plate_is_refused_in_one_line_and_writes_nothing(tmp_p
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_calibrate_plate_writes_the_clips_coding_into_the_profile_with_provenance(tmp_path, capsys):
     """A noisy ramp (as tests/test_plate.py films it) coded losslessly as BT.709 H.264 4:4:4: the estimated
     profile's [video] table holds what the bitstream says, with its provenance; the noise is still estimated."""
