@@ -51,7 +51,7 @@ from tqdm import tqdm
 from .effects import trust_plugins
 from .effects.noise import FRAME_RANGE
 from .errors import DiskFull, LowcamError
-from .io import check_plate, quiet_stderr, read_plate
+from .io import check_plate, read_plate
 from .motion import FrameMotion
 from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .passes import needed_passes, read_render_and_passes

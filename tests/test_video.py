@@ -428,3 +428,64 @@ def test_a_video_output_that_is_the_plate_is_refused_and_nothing_written(tmp_pat
     err = capsys.readouterr().err
     assert rc == 2 and "the output is the input" in err and len(err.strip().splitlines()) == 1
     assert plate.read_bytes() == before and not (tmp_path / "plate.mp4.frames").exists()
+
+
+def test_a_shot_over_image_plates_is_coded_as_the_default_h264(tmp_path, capsys):
+    from lowcam.cli import main
+    from lowcam.outputs import write_exr, write_png
+
+    for f in (1, 2):
+        write_exr(tmp_path / "renders" / f"{f:04d}.exr", np.zeros((150, 200, 4), np.float32))
+        write_png(tmp_path / "plates" / f"{f:04d}.png", cv2.resize(_picture(), (640, 480),
+                                                                   interpolation=cv2.INTER_NEAREST))
+    shot = tmp_path / "shot.mkv"
+    assert main(["batch", "--renders", str(tmp_path / "renders" / "####.exr"), "--plates",
+                 str(tmp_path / "plates" / "####.png"), "--frames", "1-2", "-o", str(shot), "--quiet"]) == 0
+    assert "Lowcam's default" in capsys.readouterr().out
+    with VideoReader(shot) as video:
+        assert (video.colour.matrix, video.colour.range, video.count) == ("bt709", "limited", 2)
+        red = video.frame(1)[230:250, 86:106].astype(int)
+        assert np.abs(red - PATCHES["red"]).max() <= 3
+
+
+def test_batch_over_an_hdr_plate_is_refused_in_one_line_and_writes_nothing(tmp_path, capsys):
+    from lowcam.cli import main
+
+    clip = _tagged_clip(tmp_path, "bt2020", "limited", 10, "hlg")
+    rc = main(["batch", "--renders", str(tmp_path / "r" / "####.exr"), "--plates", str(clip), "--frames", "1-2",
+               "-o", str(tmp_path / "out" / "####.png"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "HLG" in err and clip.name in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_calibrate_plate_writes_the_clips_coding_into_the_profile_with_provenance(tmp_path, capsys):
+    """A noisy ramp (as tests/test_plate.py films it) coded losslessly as BT.709 H.264 4:4:4: the estimated
+    profile's [video] table holds what the bitstream says, with its provenance; the noise is still estimated."""
+    from test_plate import W as PW, H as PH, _noisy, _profile
+
+    from lowcam.cli import main
+    from lowcam.profile import load_profile
+
+    rng = np.random.default_rng(7)
+    ramp = np.linspace(30, 200, PW)[None, :, None] * np.ones((PH, 1, 3))
+    planes = []
+    for _ in range(5):
+        rgb = np.round(_noisy(ramp, ((1.0, 0.01),) * 3, rng)) / 255.0
+        ycc = colour.RGB_to_YCbCr(rgb, K=WEIGHTS["bt709"], out_bits=8, out_legal=True, out_int=True).astype(np.uint8)
+        planes.append((ycc[..., 0], ycc[..., 1], ycc[..., 2]))
+    clip = _write(tmp_path / "ramp.mp4", planes, "libx264", "yuv444p", 1, 1, 1, options={"qp": "0", "x264-params": "keyint=2:min-keyint=2:scenecut=0"})
+    base = tmp_path / "base.toml"
+    _profile().save(base)
+    out = tmp_path / "mycam.toml"
+    assert main(["calibrate", "plate", str(clip), "--base", str(base), "-o", str(out)]) == 0
+    assert "(h264 High 4:4:4 Predictive, bt709,limited,sdr)" in capsys.readouterr().out
+    profile = load_profile(out)
+    assert profile.video["codec"] == "h264" and profile.video["frames"] == 5 and profile.video["gop_length"] == 2
+    assert profile.video["colour"] == "bt709,limited,sdr" and profile.video["encoder_rc"] == "cqp"
+    assert profile.provenance["video"].startswith(f"the bitstream of {clip}")
+    assert "noise.red" in profile.provenance
+    with pytest.raises(LowcamError, match="only a video has colour tags"):   # an override for frames: refused
+        from lowcam.calibrate.plate import calibrate_plate
+        calibrate_plate(tmp_path / "nothing", _profile(), plate_colour="bt709")
