@@ -260,7 +260,9 @@ class VideoReader:
         override = colour if isinstance(colour, dict) else parse_plate_colour(colour)
         self.container, self.stream = _open(self.path)
         try:
-            self.stream.thread_type = "AUTO"
+            # FFmpeg's decoding threads call PyAV's Python log callback while one is installed (av_log_capture),
+            # which can deadlock against the thread waiting for them: threads only where none is
+            self.stream.thread_type = "AUTO" if av.logging.get_level() is None else "NONE"
             self.colour = _resolve_colour(self.path, self.stream, override)
             self.times = self._presentation_times()
         except BaseException:
