@@ -240,7 +240,7 @@ def test_lowcam_render_delivers_each_sphere_where_opencv_projects_the_calibratio
     through the profile ``from-gyroflow`` makes on the Fire-i's sensor (2x2 blocks; 320x240, 16 samples) by the
     camera Set Up Scene gives it (the Pixel 8: a pinhole render; the GoPro: Cycles' equidistant fisheye). Their
     green centroids lie where ``cv2.fisheye.projectPoints`` puts the directions, the mean within 0.1 px (measured:
-    0.02 px) and each within 0.3 px (measured: 0.18 px). Before the sensels sampled the frame where the blocks
+    0.01 px) and each within 0.3 px (measured: 0.15 px). Before the sensels sampled the frame where the blocks
     deliver them, they lay (-0.5, +0.5) px off on both paths."""
     from lowcam.io import read_image
 
