@@ -32,7 +32,8 @@ from test_gyroflow import GOPRO
 #: "Google_Pixel 8_25mm_Full sensor motioncam_2k_4by3_2048x1536-24.00fps.json" (its numbers as published).
 PIXEL8 = {
     "name": "Google_Pixel 8_25mm_Full sensor motioncam_2k_4by3_2048x1536-24.00fps", "calibrated_by": "Sebastijan",
-    "camera_brand": "Google", "camera_model": "Pixel 8", "lens_model": "25mm", "camera_setting": "Full sensor motioncam",
+    "camera_brand": "Google", "camera_model": "Pixel 8", "lens_model": "25mm",
+    "camera_setting": "Full sensor motioncam",
     "calib_dimension": {"w": 2048, "h": 1536}, "frame_readout_time": 4.53, "fps": 24.003803,
     "fisheye_params": {"RMS_error": 0.47685433223703094,
                        "camera_matrix": [[1446.401372515127, 0.0, 1019.9445843158144],
