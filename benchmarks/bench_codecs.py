@@ -182,8 +182,8 @@ def main() -> None:
                 wall[key].append(time.perf_counter() - t)
                 cpu[key].append(time.process_time() - c)
         cv2.setNumThreads(cv2.getNumberOfCPUs())
-        print(f"\n{case} ({folder / f'{case}-ZIP.exr'}), medians of {args.repeats}: size MB; CPU / wall ms with 1 "
-              "and 2 threads")
+        print(f"\n{case} ({folder / f'{case}-ZIP.exr'}), medians of {args.repeats}: size MB; CPU / wall ms with "
+              f"{' and '.join(map(str, counts))} decoding threads")
         print("| codec | MB | reader | " + " | ".join(f"CPU {n} | wall {n}" for n in counts) + " |")
         print("|---|---|---|" + "---|---|" * len(counts))
         for codec, path in files.items():
