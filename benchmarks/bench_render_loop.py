@@ -11,6 +11,7 @@ the camera adds to Blender's own time per frame (target: at most 50 %).
 from __future__ import annotations
 
 import argparse
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -56,6 +57,7 @@ def main() -> None:
         print(f"  {codec:4s} renders: Blender alone {off:.2f} s wall ({off_c:.2f} s CPU), with the camera "
               f"{on:.2f} s ({on_c:.2f} s CPU): the camera adds {on / off - 1:.0%} of the wall time "
               f"({on_c / off_c - 1:.0%} of the CPU; target <= 50 %)", flush=True)
+    shutil.rmtree(tmp)
 
 
 if __name__ == "__main__":
