@@ -190,7 +190,7 @@ def drawn(seed, **ranges):
 def check(d, expected, bound=1.25):
     ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
     best = d.candidates[0]
-    assert d.error > 1.3, ranking      # the hidden stage shows
+    assert d.error > 1.2, ranking      # the hidden stage shows: the profile without it is not explained (1.1)
     assert best.effect == expected, ranking
     assert best.score <= bound, ranking  # held out
     print(f"{expected}: error {d.error:.2f} -> {best.score:.3f} held out ({best.params})")
