@@ -142,8 +142,9 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
 
     ``process(values, frames) -> frames`` processes a stack of uint8 frames with the stage at ``values``.
     ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
-    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan`` (not while
-    diagnosis screens, ``ctx.screening``). A step is ``(key, options)``, ``options`` a list of values or a
+    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan``; while
+    diagnosis screens (``ctx.screening``), the first form on its coarse steps only (screening is for every
+    candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``, ``options`` a list of values or a
     function of the current values returning one: every option is tried and the best kept (a coordinate search);
     ``key`` may be a tuple of keys, each option then a tuple of their values, searched together."""
     p = ctx.profile
@@ -198,14 +199,15 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         opts = [tuple(map(snap, o)) if isinstance(key, tuple) else (snap(o),) for o in opts]
         values.update(zip(keys, min(dict.fromkeys(opts), key=lambda o: score(dict(values, **dict(zip(keys, o)))))))
 
+    screening = getattr(ctx, "screening", False)
     coarse = []
-    for start, plan, coarse_plan in searches:  # every form on its coarse steps
+    for start, plan, coarse_plan in searches[:1] if screening else searches:  # each form on its coarse steps
         values = dict(start)
         for key, options in coarse_plan:
             step(values, key, options)
         coarse.append((values, plan))
     best, plan = min(coarse, key=lambda c: score(c[0]))
-    if not getattr(ctx, "screening", False):  # the best form on its finer steps
+    if not screening:  # the best form on its finer steps
         for key, options in plan:
             step(best, key, options)
     return p.with_effect(effect, **best), dict(best), dict(best)

@@ -76,7 +76,8 @@ def fit_edge_enhancement(ctx, effect):
     each other), the coring threshold and shape together, gain and radius finer, the coring and gain and radius again, the
     coring finer, the clamps of
     each side, then gain, radius and clamps finer
-    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the coarse grids only."""
+    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the luma's coarse
+    grids only."""
     def finer(key, steps, lo, hi):
         return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
 
