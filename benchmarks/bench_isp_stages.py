@@ -2,7 +2,8 @@
 
 Prints, per stage, the median ms to process one delivered 640x480 frame whose graphics cover it all (the stage's
 ``finish``), and the Fire-i chain's frame (a 1280x960 render of the sample scene over the sample plate) as the
-bundled profile has it (the stages absent), with the stages present but switched off, and with each one on (the four in turn, repeat by repeat).
+bundled profile has it (the stages absent), with the stages present but switched off, and with each one on (the
+four in turn, repeat by repeat).
 
     .venv/bin/python benchmarks/bench_isp_stages.py [--repeats 9]
 """

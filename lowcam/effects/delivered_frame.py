@@ -144,9 +144,10 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
     searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan``; while
     diagnosis screens (``ctx.screening``), the first form on its coarse steps only (screening is for every
-    candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``, ``options`` a list of values or a
-    function of the current values returning one: every option is tried and the best kept (a coordinate search);
-    ``key`` may be a tuple of keys, each option then a tuple of their values, searched together."""
+    candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``,
+    ``options`` a list of values or a function of the current values returning one: every option is tried and the
+    best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a tuple of their values,
+    searched together."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)

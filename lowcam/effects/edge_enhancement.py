@@ -73,9 +73,8 @@ def _process(values, frames):
 def fit_edge_enhancement(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
     grids (soft coring, no clamps); for the better, gain and radius together on a finer grid (they trade against
-    each other), the coring threshold and shape together, gain and radius finer, the coring and gain and radius again, the
-    coring finer, the clamps of
-    each side, then gain, radius and clamps finer
+    each other), the coring threshold and shape together, gain and radius finer, the coring and gain and radius
+    again, the coring finer, the clamps of each side, then gain, radius and clamps finer
     (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the luma's coarse
     grids only."""
     def finer(key, steps, lo, hi):
