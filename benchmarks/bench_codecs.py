@@ -13,6 +13,7 @@ calls it. CPU time is the process's (every thread's), from ``time.process_time``
 steadier than wall time. The configurations take turns within each repeat, so a burst of load hits them alike.
 
     .venv/bin/python benchmarks/bench_codecs.py [--repeats 9] [--renders FOLDER] [--cases sample,full,hd]
+        [--threads 1,2] [--readers OpenEXR]
 
 ``--renders FOLDER`` keeps the Blender renders there (made once, reused by later runs).
 """
@@ -151,6 +152,8 @@ def main() -> None:
     parser.add_argument("--renders", type=Path, default=None)
     parser.add_argument("--cases", default="sample,full,hd")
     parser.add_argument("--codecs", default=",".join(CODECS))
+    parser.add_argument("--threads", default="1,2", help="decoding threads to run, e.g. 1")
+    parser.add_argument("--readers", default="", help="only the readers whose name holds this text, e.g. OpenEXR")
     args = parser.parse_args()
     cases = args.cases.split(",")
     folder = args.renders or Path(tempfile.mkdtemp(prefix="lowcam-codecs-"))
@@ -165,8 +168,9 @@ def main() -> None:
             if not path.exists():
                 reencode(folder / f"{case}-ZIP.exr", path, codec)
             files[codec] = path
-        runs = {(codec, threads, name): fn for codec, path in files.items() for threads in (1, 2)
-                for name, fn in decoders(path, threads).items()}
+        counts = [int(n) for n in args.threads.split(",")]
+        runs = {(codec, threads, name): fn for codec, path in files.items() for threads in counts
+                for name, fn in decoders(path, threads).items() if args.readers in name}
         cpu = {k: [] for k in runs}
         wall = {k: [] for k in runs}
         for fn in runs.values():
@@ -178,16 +182,16 @@ def main() -> None:
                 wall[key].append(time.perf_counter() - t)
                 cpu[key].append(time.process_time() - c)
         cv2.setNumThreads(cv2.getNumberOfCPUs())
-        print(f"\n{case} ({folder / f'{case}-ZIP.exr'}), medians of {args.repeats}: size MB; CPU / wall ms with 1 "
-              "and 2 threads")
-        print("| codec | MB | reader | CPU 1 | wall 1 | CPU 2 | wall 2 |")
-        print("|---|---|---|---|---|---|---|")
+        print(f"\n{case} ({folder / f'{case}-ZIP.exr'}), medians of {args.repeats}: size MB; CPU / wall ms with "
+              f"{' and '.join(map(str, counts))} decoding threads")
+        print("| codec | MB | reader | " + " | ".join(f"CPU {n} | wall {n}" for n in counts) + " |")
+        print("|---|---|---|" + "---|---|" * len(counts))
         for codec, path in files.items():
             print(f"| {codec} | {path.stat().st_size / 1e6:.1f} | writing (OpenEXR, 1 thread) | "
-                  f"{encode_ms(path):.0f} | | | |")
-            for name in decoders(path, 1):
+                  f"{encode_ms(path):.0f} |" + " |" * (2 * len(counts) - 1))
+            for name in (n for n in decoders(path, 1) if args.readers in n):
                 cells = " | ".join(f"{np.median(cpu[(codec, n, name)]) * 1e3:.0f} | "
-                                   f"{np.median(wall[(codec, n, name)]) * 1e3:.0f}" for n in (1, 2))
+                                   f"{np.median(wall[(codec, n, name)]) * 1e3:.0f}" for n in counts)
                 print(f"| {codec} | {path.stat().st_size / 1e6:.1f} | {name} | {cells} |", flush=True)
 
 

@@ -2,13 +2,15 @@
 
 Prints, per stage, the median ms to process one delivered 640x480 frame whose graphics cover it all (the stage's
 ``finish``), and the Fire-i chain's frame (a 1280x960 render of the sample scene over the sample plate) as the
-bundled profile has it (the stages absent), with the stages present but switched off, and with each one on.
+bundled profile has it (the stages absent), with the stages present but switched off, and with each one on (the
+four in turn, repeat by repeat).
 
     .venv/bin/python benchmarks/bench_isp_stages.py [--repeats 9]
 """
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -66,10 +68,18 @@ def main() -> None:
     rows = [("fire-i as bundled (the stages absent)", profile), ("the stages present, switched off", off),
             ("with noise_reduction (bilateral) on", profile.with_effect("noise_reduction", **STAGES[1][1])),
             ("with edge_enhancement on", profile.with_effect("edge_enhancement", **STAGES[4][1]))]
-    for about, p in rows:
-        ms = median_ms(lambda: lowcam.simulate(render, p, plate, seed=0, frame=1), args.repeats)
-        print(f"{about:48s}{ms:10.1f}")
-
+    times: dict = {about: [] for about, _ in rows}
+    for about, p in rows:  # warm-up
+        lowcam.simulate(render, p, plate, seed=0, frame=1)
+    for _ in range(args.repeats):  # in turn, so that a busy machine slows every row alike
+        for about, p in rows:
+            t = time.perf_counter()
+            lowcam.simulate(render, p, plate, seed=0, frame=1)
+            times[about].append(1e3 * (time.perf_counter() - t))
+    for about, _ in rows:
+        print(f"{about:48s}{statistics.median(times[about]):10.1f}")
+    with open("/proc/loadavg") as f:
+        print(f"load average during the run: {f.read().split()[0]} (on {os.cpu_count()} cores)")
 
 if __name__ == "__main__":
     main()

@@ -367,6 +367,8 @@ def _moved_px(frames, corners: np.ndarray) -> list[float]:
     h, w = frames[0].shape[:2]
     x0, y0 = np.clip(np.floor(corners.min(axis=0)).astype(int), 0, [w - 1, h - 1])
     x1, y1 = np.clip(np.ceil(corners.max(axis=0)).astype(int) + 1, 1, [w, h])
+    if min(x1 - x0, y1 - y0) < 16:   # too small to read (read_patches says so): nothing to register
+        return [0.0] * len(frames)
 
     def grey(f):
         return np.asarray(f, np.float64)[y0:y1, x0:x1].reshape(y1 - y0, x1 - x0, -1).mean(axis=2)

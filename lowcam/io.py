@@ -221,8 +221,11 @@ def _refuse_damaged_parts(path: Path, parts: list, reason: str) -> None:
     short (a file truncated in its last pass) is named with its channels, instead of a pass said to be absent."""
     import OpenEXR
 
-    with quiet_stderr(stdout=True), OpenEXR.File(str(path), header_only=True) as f:
-        declared = [(part.name(), [c.name for c in part.header.get("channels", [])]) for part in f.parts]
+    try:
+        with quiet_stderr(stdout=True), OpenEXR.File(str(path), header_only=True) as f:
+            declared = [(part.name(), [c.name for c in part.header.get("channels", [])]) for part in f.parts]
+    except Exception:
+        raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})") from None
     read = dict(parts)
     for name, names in declared:
         got = set()

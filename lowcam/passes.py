@@ -82,8 +82,8 @@ def check_passes(passes: RenderPasses | None, render_shape, name: str = "render"
 
 def from_blender(vector: np.ndarray | None, depth: np.ndarray | None, fps: float,
                  metres_per_unit: float = 1.0) -> RenderPasses:
-    """Passes from Blender's Vector pass (H, W, 4) and Depth pass (H, W, scene units of ``metres_per_unit``) at
-    ``fps`` frames per second.
+    """Passes from Blender's Vector pass (H, W, 4), or its X, Y, Z and W channels as four (H, W) arrays, and Depth
+    pass (H, W, scene units of ``metres_per_unit``) at ``fps`` frames per second.
 
     Cycles stores ``(previous - current, current - next)`` positions in raster pixels (y up), so the forward
     velocity is ``-(X + Z) / 2`` and ``(Y + W) / 2`` pixels per frame in image axes (checked with a moving plane
@@ -91,8 +91,16 @@ def from_blender(vector: np.ndarray | None, depth: np.ndarray | None, fps: float
     """
     velocity = None
     if vector is not None:
-        vector = np.asarray(vector, np.float32)
-        velocity = np.stack([-(vector[..., 0] + vector[..., 2]), vector[..., 1] + vector[..., 3]], -1) * (fps / 2)
+        # X, Y, Z, W as four (H, W) planes (an (H, W, 4) array's views, or the file's separate channels): the
+        # velocity is written straight into its (H, W, 2) array, no (H, W, 4) copy; the same float32 operations
+        # in the same order as -(X + Z) and Y + W scaled by fps / 2
+        x, y, z, w = (np.asarray(c, np.float32) for c in
+                      ((vector[..., i] for i in range(4)) if isinstance(vector, np.ndarray) else vector))
+        scale = np.float32(fps / 2)
+        velocity = np.empty(x.shape + (2,), np.float32)
+        along = np.add(x, z)
+        np.multiply(np.negative(along, out=along), scale, out=velocity[..., 0])
+        np.multiply(np.add(y, w, out=along), scale, out=velocity[..., 1])
     if depth is not None:
         depth = np.asarray(depth, np.float32) * np.float32(metres_per_unit)
     return RenderPasses(velocity, depth)
@@ -121,24 +129,26 @@ def render_layer(channels: dict, layer: str | None = None) -> str:
     return layers[0] if len(layers) == 1 else ""
 
 
-def _stacked(channels: dict, base: str, axes: str) -> np.ndarray | None:
-    """``base`` as an (H, W, len(axes)) array: one grouped array, or one channel per axis; None when absent."""
+def _stacked(channels: dict, base: str, axes: str, planes: bool = False):
+    """``base`` as an (H, W, len(axes)) array: one grouped array, or one channel per axis; None when absent.
+    ``planes``: the file's separate channels as they are, a list of (H, W) arrays (no stacked copy)."""
     if base in channels and channels[base].ndim == 3 and channels[base].shape[2] == len(axes):
         return channels[base]
     keys = [f"{base}.{a}" for a in axes]
     if all(k in channels for k in keys):
-        return np.stack([channels[k] for k in keys], -1)
+        return [channels[k] for k in keys] if planes else np.stack([channels[k] for k in keys], -1)
     return None
 
 
-def find_blender_passes(channels: dict, layer: str) -> dict[str, np.ndarray]:
+def find_blender_passes(channels: dict, layer: str, planes: bool = False) -> dict[str, np.ndarray]:
     """View layer ``layer``'s Vector pass (H, W, 4) and Depth pass (H, W) among an OpenEXR file's ``channels``
     (:func:`lowcam.io.read_exr`), those present. Blender 4.x/5.x names them ``LAYER.Vector.X``..``W`` and
     ``LAYER.Depth.Z``; grouped arrays (``LAYER.Vector``, ``LAYER.Depth``) and the older ``LAYER.Z`` are taken too.
-    ``layer`` ``""`` looks for the unprefixed names of a single-layer file."""
+    ``layer`` ``""`` looks for the unprefixed names of a single-layer file. ``planes``: a Vector pass written as
+    separate channels comes as their list of four (H, W) arrays, as :func:`from_blender` takes it."""
     prefix = f"{layer}." if layer else ""
     found = {}
-    vector = _stacked(channels, prefix + "Vector", "XYZW")
+    vector = _stacked(channels, prefix + "Vector", "XYZW", planes)
     if vector is not None:
         found["Vector"] = vector
     for key in (prefix + "Depth.Z", prefix + "Depth", prefix + "Z", prefix + "Z.Z"):
@@ -159,7 +169,7 @@ def read_blender_passes(path, layer: str | None, fps: float, metres_per_unit: fl
     file, the layer, the pass and where to turn it on (:data:`PASS_HELP`)."""
     channels = read_exr(path) if channels is None else channels
     layer = render_layer(channels, layer)
-    found = find_blender_passes(channels, layer)
+    found = find_blender_passes(channels, layer, planes=True)
     for name in needs:
         if name not in found:
             where = f"view layer '{layer}'" if layer else "the file"

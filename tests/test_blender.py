@@ -304,6 +304,19 @@ def test_lowcam_render_resumes_and_leaves_no_scratch_renders(tmp_path, monkeypat
     assert first.stat().st_mtime_ns == before and second.is_file()
     assert "2 composites in" in capsys.readouterr().out
     assert list(scratch.iterdir()) == []
+    # each scratch render is gone once its composite is written; --render-compression sets the renders' codec
+    import OpenEXR
+
+    left = []
+    submodule("addon.render").render(blend, [1, 2], str(out), force=True,
+                                     progress=lambda f, p: left.append(sorted(scratch.rglob("*.exr"))))
+    assert left == [[], []]
+    assert main(["render", str(blend), "--frames", "1", "-o", str(out), "--force",
+                 "--render-compression", "ZIP"]) == 0
+    kept = tmp_path / "kept"
+    submodule("addon.render").render(blend, [1], str(out), force=True, keep_renders=str(kept), compression="PIZ")
+    with OpenEXR.File(str(kept / "0001.exr"), header_only=True) as f:
+        assert {str(part.header["compression"]) for part in f.parts} == {"Compression.PIZ_COMPRESSION"}
 
 
 def test_add_camera_node_gives_the_scene_the_render_the_node_is_baked_for(fire_i):

@@ -61,10 +61,11 @@ def test_noise_reduction_smooths_luma_noise_and_keeps_the_edge(method, scale):
     assert np.abs(ycbcr(out)[..., 1:] - ycbcr(frame)[..., 1:]).max() < 1.6
 
 
-def test_chroma_noise_reduction_leaves_the_luma():
+@pytest.mark.parametrize("method,strength", [("bilateral", 25.0), ("nl_means", 15.0)])
+def test_chroma_noise_reduction_leaves_the_luma(method, strength):
     rng = np.random.default_rng(1)
     frame = to_uint8(120 + 6 * rng.standard_normal((96, 128, 3)))
-    out = denoise_frame(frame, "bilateral", 0.0, 25.0, 2.0)
+    out = denoise_frame(frame, method, 0.0, strength, 3.0)
     assert np.abs(ycbcr(out)[..., 0] - ycbcr(frame)[..., 0]).max() < 1.2
     assert ycbcr(out)[..., 1:].std() < 0.5 * ycbcr(frame)[..., 1:].std()
     # strength 0 everywhere: the frame's bytes
@@ -190,7 +191,7 @@ def drawn(seed, **ranges):
 def check(d, expected, bound=1.25):
     ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
     best = d.candidates[0]
-    assert d.error > 1.3, ranking      # the hidden stage shows
+    assert d.error > 1.2, ranking      # the hidden stage shows: the profile without it is not explained (1.1)
     assert best.effect == expected, ranking
     assert best.score <= bound, ranking  # held out
     print(f"{expected}: error {d.error:.2f} -> {best.score:.3f} held out ({best.params})")

@@ -133,6 +133,23 @@ def test_chart_found_and_patches_read():
     assert 0.03 < np.median(reading.noise) < 0.12
 
 
+@pytest.mark.slow  # the chart found twice: about 4 s
+def test_noisy_frames_of_one_view_are_one_view_and_a_moving_one_is_named():
+    """Four frames of one view under heavy noise (8 DN) are read as one view: the chart found once, on their mean,
+    within a pixel of where it was drawn; the same frames with the third moved by 3 px are refused in one line
+    naming that frame."""
+    rng = np.random.default_rng(12)
+    k, _ = camera_matrix(rng)
+    frames, corners = shoot(rng, k, CURVES["sRGB"][0], frames=4, sigma_dn=8.0)
+    names = [f"f{i}.png" for i in range(4)]
+    reading = read_colour_checker(frames, names)
+    assert np.abs(reading.corners - corners).max() < 1.5
+    frames[2] = np.roll(frames[2], 3, axis=1)
+    with pytest.raises(LowcamError, match=r"^f2\.png: the ColorChecker moved by [0-9.]+ px against f0\.png") as e:
+        read_colour_checker(frames, names)
+    assert len(str(e.value).splitlines()) == 1
+
+
 def _calibrate(tmp_path, frames, base, saturation: float, name: str):
     from lowcam.cli import main
 
@@ -349,10 +366,13 @@ def test_calibration_through_a_wide_lens_explains_every_capture(tmp_path):
     """Charts filmed through the Fire-i (its 113 deg lens, its fall-off to 0.6 in the corners, its noise) with hidden
     crosstalk matrices drawn at random (seeded, colour-science's camera data): ``lowcam calibrate colour --target
     colorchecker`` takes a capture's four noisy frames of one view (the chart found once, on their mean), fits the
-    hidden crosstalk within 0.02 in every element (measured: 0.002; the fall-off across the chart is the
-    profile's) near the patches' noise (fit error 2.3), and ``compare`` of all three captures (straight on, turned
-    by 4 and -3 deg) with the calibrated profile is at most 1.5 (measured: 1.05; the Fire-i's own crosstalk: 5.4)."""
+    hidden crosstalk within 0.02 in every element (measured: 0.001-0.002; the fall-off across the chart is the
+    profile's) near the patches' noise (fit error at most 4; measured: 2.5-2.9), and ``compare`` of all three
+    captures (straight on, turned by 4 and -3 deg) with the calibrated profile is at most 1.5 (measured: 1.04-1.05;
+    the Fire-i's own crosstalk: 5.4). Diagnosis's ``colour_matrix`` candidate on the same captures finds the
+    calibration's crosstalk within 0.02 in every element (measured: 0.002)."""
     from lowcam.measure.compare import compare
+    from lowcam.measure.diagnose import diagnose
     from lowcam.measure.sets import load_set
     from lowcam.profile import load_profile
 
@@ -370,5 +390,11 @@ def test_calibration_through_a_wide_lens_explains_every_capture(tmp_path):
         print(f"{about}: fit error {numbers['fit_error']:.2f}, crosstalk off by {np.abs(fitted - k).max():.4f}, "
               f"compare {after.error:.2f}")
         assert np.abs(fitted - k).max() <= 0.02, (fitted, k)
-        assert numbers["fit_error"] <= 3.0
+        assert numbers["fit_error"] <= 4.0
         assert after.error <= 1.5
+        if trial == 0:  # diagnosis's colour_matrix candidate on the same captures finds the same crosstalk
+            d = diagnose(mset, base, only=["colour_matrix"], workdir=tmp_path / "work")
+            found = d.candidates[0].profile.effect("crosstalk").total_matrix()
+            calibrated = profile.effect("crosstalk").total_matrix()
+            print(f"diagnosis's crosstalk off the calibration's by {np.abs(found - calibrated).max():.4f}")
+            assert np.abs(found - calibrated).max() <= 0.02

@@ -77,7 +77,7 @@ FOCUS = {
     "defocus": (("chart", "noise-field"), ("vertical_blur", "asymmetric_sharpening")),
     "asymmetric_sharpening": (("chart", "noise-field"), ("horizontal_blur", "defocus")),
     "jpeg": (("photo", "noise-field"), ("chroma_subsampling", "defocus")),
-    "noise_reduction": (("flat-bright", "noise-field"), ("dsnu", "defocus")),
+    "noise_reduction": (("flat-bright", "photo", "noise-field"), ("dsnu", "defocus")),
     "edge_enhancement": (("chart", "noise-field"), ("asymmetric_sharpening", "defocus")),
     "veiling_glare": (("chart", "photo"), ("tone_curve", "vignetting")),
     "bilinear_demosaic": (("noise-field", "photo"), ("horizontal_blur", "chroma_subsampling")),

@@ -17,6 +17,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 import lowcam
+from lowcam.effects.bayer import sensel_shift_px
 from lowcam.errors import LowcamError
 from lowcam.gyroflow import profile_from_gyroflow
 from lowcam.pipeline import render_camera, render_field_of_view, simulate
@@ -172,9 +173,9 @@ def test_the_pinhole_paths_refuse_a_fisheye_render_and_the_pinhole_choice_keeps_
 def test_the_chain_puts_a_fisheye_renders_object_where_the_lens_sees_it(gopro):
     """A small white square (7 px, exact coverage) in a 512x512 equidistant render at the ray 62 deg from the axis,
     down-right, comes out of the lens stage (sparse render, windowed warp) where the lens puts that ray, within 0.05
-    output px,
-    and the whole chain runs on to the 8-bit frame, where it shows there too (within 1.5 px: the Fire-i's 4:1:1
-    chroma and blur move it a little)."""
+    output px (the working grid laid out on the sensor: moved by ``sensel_shift_px``, where the Fire-i's 2x2 blocks
+    deliver a sensel), and the whole chain runs on to the 8-bit frame, where it shows there too (within 1.5 px: the
+    Fire-i's 4:1:1 chroma and blur move it a little)."""
     lens, g = gopro.effect("lens_distortion"), gopro.geometry
     fov = lens.render_fisheye_field(g)
     theta, phi = np.radians(62.0), np.radians(30.0)
@@ -192,7 +193,7 @@ def test_the_chain_puts_a_fisheye_renders_object_where_the_lens_sees_it(gopro):
 
     result = lowcam.run(render, gopro, np.zeros((480, 640, 3), np.uint8), seed=1, keep_stages=True)
     working = next(out for name, out in result.stages.items() if name.endswith("lens_distortion"))
-    seen = centroid(working[..., 3].astype(np.float64), g.working_to_output)
+    seen = centroid(working[..., 3].astype(np.float64), g.working_to_output) + sensel_shift_px(gopro)
     assert np.hypot(*(seen - expected)) < 0.05
     frame = result.frame.astype(np.float64).mean(axis=-1)
     frame[frame < 0.3 * frame.max()] = 0.0
@@ -203,17 +204,19 @@ def test_the_chain_puts_a_fisheye_renders_object_where_the_lens_sees_it(gopro):
 
 def test_the_node_groups_lens_map_reads_the_fisheye_render(gopro):
     """The compositor node group's Map UV image (``lens_uv``) for a 256x256 fisheye render reads, at each
-    supersampled working pixel, the render pixel of Cycles' mapping of OpenCV-free Kannala-Brandt rays (the
-    model's ``undistort_ray``): within 1e-4 of a render pixel (float32 UV)."""
+    supersampled working pixel (moved by ``sensel_shift_px``: the grid is laid out on the sensor), the render pixel
+    of Cycles' mapping of OpenCV-free Kannala-Brandt rays (the model's ``undistort_ray``): within 1e-4 of a render
+    pixel (float32 UV)."""
     from types import SimpleNamespace
 
     from lowcam.node_maps import CameraBake
 
     g = gopro.geometry
     out = CameraBake(gopro, (256, 256), stages=["lens_distortion"])
-    gopro.effect("lens_distortion").bake_node(SimpleNamespace(geometry=g), out)   # what bake() calls
+    gopro.effect("lens_distortion").bake_node(SimpleNamespace(geometry=g, profile=gopro), out)   # what bake() calls
     uv = out.images["lens_uv"]
     u, v = g.working_pixel_centres(factor=2)
+    u, v = u + sensel_shift_px(gopro)[0], v + sensel_shift_px(gopro)[1]
     theta, phi = gopro.effect("lens_distortion").model_for(640, 480).undistort_ray(u[::7, ::7], v[::7, ::7])
     ex, ey = cycles_equidistant_pixel(theta, phi, gopro.effect("lens_distortion").render_fisheye_field(g), (256, 256))
     assert uv.shape[:2] == u.shape

@@ -32,7 +32,8 @@ from test_gyroflow import GOPRO
 #: "Google_Pixel 8_25mm_Full sensor motioncam_2k_4by3_2048x1536-24.00fps.json" (its numbers as published).
 PIXEL8 = {
     "name": "Google_Pixel 8_25mm_Full sensor motioncam_2k_4by3_2048x1536-24.00fps", "calibrated_by": "Sebastijan",
-    "camera_brand": "Google", "camera_model": "Pixel 8", "lens_model": "25mm", "camera_setting": "Full sensor motioncam",
+    "camera_brand": "Google", "camera_model": "Pixel 8", "lens_model": "25mm",
+    "camera_setting": "Full sensor motioncam",
     "calib_dimension": {"w": 2048, "h": 1536}, "frame_readout_time": 4.53, "fps": 24.003803,
     "fisheye_params": {"RMS_error": 0.47685433223703094,
                        "camera_matrix": [[1446.401372515127, 0.0, 1019.9445843158144],
@@ -182,9 +183,9 @@ def test_the_engine_delivers_each_ray_where_opencv_projects_the_calibration(lens
     """The profile ``from-gyroflow`` makes on the Fire-i's sensor (2x2 blocks; at 320x240): spots drawn into the
     render at the directions the frame sees (the Pixel 8 through a pinhole render, the GoPro through Cycles'
     equidistant fisheye) have their green centroids where ``cv2.fisheye.projectPoints`` puts them, the mean within
-    0.1 px (measured: 0.003 px) and each within 0.3 px (measured: 0.04 px). Before the sensels sampled the frame
-    where the blocks deliver them, every spot lay (-0.5, +0.5) px off. With bilinear demosaicing the sensels
-    sample their own pixels, and the spots lie as close."""
+    0.1 px (measured: 0.003 px) and each within 0.3 px (measured: 0.04 px). Before the lens stage laid the
+    working grid out where the blocks deliver each sensel, every spot lay (-0.5, +0.5) px off. With bilinear
+    demosaicing each sensel is delivered at its own pixel, and the spots lie as close."""
     block, _ = gyroflow_profile(tmp_path, lens, small_fire_i(tmp_path))
     assert render_camera(block)["projection"] == LENSES[lens][1]
     for profile in (block, block.with_effect("demosaic", method="bilinear")):
@@ -240,8 +241,8 @@ def test_lowcam_render_delivers_each_sphere_where_opencv_projects_the_calibratio
     through the profile ``from-gyroflow`` makes on the Fire-i's sensor (2x2 blocks; 320x240, 16 samples) by the
     camera Set Up Scene gives it (the Pixel 8: a pinhole render; the GoPro: Cycles' equidistant fisheye). Their
     green centroids lie where ``cv2.fisheye.projectPoints`` puts the directions, the mean within 0.1 px (measured:
-    0.02 px) and each within 0.3 px (measured: 0.18 px). Before the sensels sampled the frame where the blocks
-    deliver them, they lay (-0.5, +0.5) px off on both paths."""
+    0.01 px) and each within 0.3 px (measured: 0.15 px). Before the lens stage laid the working grid out where
+    the blocks deliver each sensel, they lay (-0.5, +0.5) px off on both paths."""
     from lowcam.io import read_image
 
     profile, path = gyroflow_profile(tmp_path, lens, small_fire_i(tmp_path))

@@ -345,3 +345,21 @@ def test_apply_smears_an_object_along_the_vector_pass_blender_rendered(tmp_path)
     grow_x = _extent(runs["moving"], 0) - _extent(runs["still"], 0)
     grow_y = _extent(runs["moving"], 1) - _extent(runs["still"], 1)
     assert grow_x >= 10 and grow_x > 1.5 * grow_y                     # twice as fast along x as along y
+
+
+def test_the_velocity_from_blenders_vector_pass_is_the_formulas_bits_from_planes_or_one_array():
+    """from_blender writes -(X + Z) fps / 2 and (Y + W) fps / 2 straight into the velocity array: the same float32
+    bits as the formula computed on a stacked (H, W, 4) array with numpy, whether the pass comes as one array or as
+    the file's four channels, for frame rates whose half float32 rounds (23.976, 29.97) and for extreme values."""
+    from lowcam.passes import from_blender
+
+    rng = np.random.default_rng(2026)
+    vector = (rng.standard_normal((48, 64, 4)) * rng.choice([1e-6, 1.0, 300.0, 3e37], (48, 64, 4))).astype(np.float32)
+    vector[0, :4] = [[0.0, -0.0, -0.0, 0.0], [np.inf, 1.0, -np.inf, 2.0], [np.nan, 0.0, 1.0, 0.0], [3e38, 3e38, 3e38, 3e38]]
+    for fps in (24.0, 23.976, 29.97, 60.0, 1000.0):
+        with np.errstate(all="ignore"):
+            formula = np.stack([-(vector[..., 0] + vector[..., 2]), vector[..., 1] + vector[..., 3]], -1) * (fps / 2)
+            grouped = from_blender(vector, None, fps).velocity_px_s
+            planes = from_blender([vector[..., i].copy() for i in range(4)], None, fps).velocity_px_s
+        assert formula.dtype == grouped.dtype == planes.dtype == np.float32
+        assert grouped.tobytes() == formula.tobytes() == planes.tobytes(), fps

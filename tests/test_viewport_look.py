@@ -107,7 +107,9 @@ def test_a_node_the_viewport_compositor_is_not_known_to_run_is_named():
 @pytest.mark.skipif(bpy.app.version < (5, 0, 0), reason="the viewport look needs Blender 5.0")
 def test_gpu_compositor_gives_the_cpu_compositors_frame(fire_i, tmp_path):
     """The viewport compositor's node implementations (the GPU compositor; here Mesa's software OpenGL) run the
-    whole group and give the CPU compositor's 8-bit frame within 1 DN."""
+    whole group and give the CPU compositor's 8-bit frame within 1 DN, but where a sensel's light lies on a 6-bit
+    level's edge to within the two compositors' rounding: there the level may differ by one step (4 DN; half of it
+    in green, the mean of two sensels), at a handful of values (2 of 230,400 seen)."""
     from lowcam.node_maps import bake
     from lowcam.sample import sample_plate, sample_render
 
@@ -122,7 +124,8 @@ def test_gpu_compositor_gives_the_cpu_compositors_frame(fire_i, tmp_path):
         frames[device] = parity.render_group(group, {"Image": render, "Plate": plate, "Noise": 0.0}, (240, 320),
                                              tmp_path / f"{device}.png").astype(np.int16)
     assert frames["CPU"].std() > 10                                  # a frame, not a blank
-    assert np.abs(frames["CPU"] - frames["GPU"]).max() <= 1
+    diff = np.abs(frames["CPU"] - frames["GPU"])
+    assert diff.max() <= 4 and (diff > 1).sum() <= 10, (diff.max(), (diff > 1).sum())
 
 
 @pytest.mark.slow

@@ -75,10 +75,10 @@ def within_footprint(frame: np.ndarray, footprint: np.ndarray, process, reach: i
     return out
 
 
-def _crop(shape) -> tuple[slice, slice, slice, slice]:
-    """(rows, cols) of the centre crop with its margin, and the crop within that."""
+def _crop(shape, crop) -> tuple[slice, slice, slice, slice]:
+    """(rows, cols) of the centre ``crop`` (rows, columns) with its margin, and the crop within that."""
     h, w = shape
-    ch, cw = min(_CROP[0], h), min(_CROP[1], w)
+    ch, cw = min(crop[0], h), min(crop[1], w)
     r0, c0 = (h - ch) // 2, (w - cw) // 2
     mr0, mc0 = max(r0 - _MARGIN, 0), max(c0 - _MARGIN, 0)
     mr1, mc1 = min(r0 + ch + _MARGIN, h), min(c0 + cw + _MARGIN, w)
@@ -127,7 +127,7 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
 
 
-def fit_delivered_stage(ctx, effect: str, process, searches):
+def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -136,19 +136,21 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
     the camera filtered. When the stage is the chain's last, the model's noisy frames of the context's few
     captures (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only
     processes them again; otherwise each trial re-simulates the chain (``ctx.simulate``). Trials are scored by
-    :func:`frame_score` on a centre crop (:data:`_CROP` with a :data:`_MARGIN` the filters read); a capture's share
-    of a trial's score depends on its measured and model frames alone, so it is kept (by their digest) for the
-    fits on the other folds.
+    :func:`frame_score` on a centre ``crop`` (rows, columns; :data:`_CROP` unless given) with a :data:`_MARGIN` the
+    filters read; a capture's share of a trial's score depends on its measured and model frames alone, so it is
+    kept (by their digest) for the fits on the other folds.
 
     ``process(values, frames) -> frames`` processes a stack of uint8 frames with the stage at ``values``.
     ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
-    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan`` (not while
-    diagnosis screens, ``ctx.screening``). A step is ``(key, options)``, ``options`` a list of values or a
-    function of the current values returning one: every option is tried and the best kept (a coordinate search);
-    ``key`` may be a tuple of keys, each option then a tuple of their values, searched together."""
+    searched from ``start`` by the steps of ``coarse_plan``, and the best form then by those of ``plan``; while
+    diagnosis screens (``ctx.screening``), the first form on its coarse steps only (screening is for every
+    candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``,
+    ``options`` a list of values or a function of the current values returning one: every option is tried and the
+    best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a tuple of their values,
+    searched together."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
-    rows, cols, ir, ic = _crop(ctx.means[0].shape[:2])
+    rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
     measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
     count = 3  # model frames per capture: the same noise in every trial, so trials compare fairly
@@ -198,14 +200,15 @@ def fit_delivered_stage(ctx, effect: str, process, searches):
         opts = [tuple(map(snap, o)) if isinstance(key, tuple) else (snap(o),) for o in opts]
         values.update(zip(keys, min(dict.fromkeys(opts), key=lambda o: score(dict(values, **dict(zip(keys, o)))))))
 
+    screening = getattr(ctx, "screening", False)
     coarse = []
-    for start, plan, coarse_plan in searches:  # every form on its coarse steps
+    for start, plan, coarse_plan in searches[:1] if screening else searches:  # each form on its coarse steps
         values = dict(start)
         for key, options in coarse_plan:
             step(values, key, options)
         coarse.append((values, plan))
     best, plan = min(coarse, key=lambda c: score(c[0]))
-    if not getattr(ctx, "screening", False):  # the best form on its finer steps
+    if not screening:  # the best form on its finer steps
         for key, options in plan:
             step(best, key, options)
     return p.with_effect(effect, **best), dict(best), dict(best)

@@ -72,9 +72,11 @@ def _process(values, frames):
 
 def fit_edge_enhancement(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
-    grids (soft coring, no clamps); for the better, both finer, the coring threshold and shape together, gain and
-    radius again, the coring again, the clamps of each side, then each finer
-    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the coarse grids only."""
+    grids (soft coring, no clamps); for the better, gain and radius together on a finer grid (they trade against
+    each other), the coring threshold and shape together, gain and radius finer, the coring and gain and radius
+    again, the coring finer, the clamps of each side, then gain, radius and clamps finer
+    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the luma's coarse
+    grids only."""
     def finer(key, steps, lo, hi):
         return lambda v: [min(max(v[key] * k, lo), hi) for k in steps]
 
@@ -83,23 +85,25 @@ def fit_edge_enhancement(ctx, effect):
 
     clamps = (255.0, 60.0, 30.0, 15.0, 8.0, 4.0)
     coarse = [("gain", (0.5, 1.0, 2.0, 3.0)), ("radius_px", (0.6, 1.2, 2.5))]
-    near = (0.88, 0.94, 1.0, 1.06, 1.13)
-    plan = [("gain", finer("gain", (0.7, 0.85, 1.0, 1.18, 1.4), 0.0, 8.0)),
-            ("radius_px", finer("radius_px", (0.7, 0.85, 1.0, 1.18, 1.4), 0.3, 6.0)),
+    def together(steps):  # gain and radius searched together: a wider blur with less gain looks alike
+        return lambda v: [(min(v["gain"] * a, 8.0), min(max(v["radius_px"] * b, 0.3), 6.0)) for a in steps
+                          for b in steps]
+
+    plan = [(("gain", "radius_px"), together((0.7, 0.85, 1.0, 1.18, 1.4))),
             (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
-            ("gain", finer("gain", (0.8, 0.9, 1.0, 1.12, 1.25), 0.0, 8.0)),
-            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            (("gain", "radius_px"), together((0.86, 0.93, 1.0, 1.08, 1.16))),
+            (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
+            (("gain", "radius_px"), together((0.9, 0.95, 1.0, 1.05, 1.1))),
             (("coring", "coring_dn"), lambda v: [(c, max(v["coring_dn"] + k, 0.0)) for c in CORING
                                                  for k in (-1.0, -0.5, 0.0, 0.5, 1.0)]),
             ("overshoot_dn", clamps),
             ("undershoot_dn", clamps),
-            ("gain", finer("gain", near, 0.0, 8.0)),
-            ("radius_px", finer("radius_px", near, 0.3, 6.0)),
+            (("gain", "radius_px"), together((0.96, 1.0, 1.04))),
             ("overshoot_dn", clamped("overshoot_dn")),
             ("undershoot_dn", clamped("undershoot_dn"))]
     searches = [({"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
                   "undershoot_dn": 255.0, "channels": channels}, plan, coarse) for channels in CHANNELS]
-    return fit_delivered_stage(ctx, effect, _process, searches)
+    return fit_delivered_stage(ctx, effect, _process, searches, crop=(320, 448))  # cheap trials: a wider crop
 
 class EdgeEnhancement(Effect):
     """Edge enhancement of the delivered frame: ``gain`` times its cored detail (the frame less its Gaussian blur

@@ -101,7 +101,8 @@ def fit_noise_reduction(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): for each family, the luma strength on a coarse grid at the
     family's usual scale, no chroma; for the family that fits best, the luma strength finer, the scale, the chroma
     strength and each finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis
-    screens: the coarse grid only."""
+    screens: the bilateral family's coarse grid only (it shows whether smoothing helps; the non-local means costs
+    5-10 times as much)."""
     finer = lambda key, f: (lambda v: [min(max(v[key] * k, 0.0), 60.0) for k in f])  # noqa: E731
     searches = []
     for method in METHODS:
