@@ -65,7 +65,9 @@ def gyroflow_profile(folder, lens: str, base="fire-i"):
     path = folder / f"{lens}.json"
     path.write_text(json.dumps(LENSES[lens][0]))
     made = folder / f"{lens}-made.toml"
-    assert main(["profile", "from-gyroflow", str(path), "--base", str(base), "-o", str(made)]) == 0
+    frame = lowcam.load_profile(base).geometry  # made at the base's frame (not the calibration's 2048 or 4000 px)
+    assert main(["profile", "from-gyroflow", str(path), "--base", str(base), "--size", f"{frame.width},{frame.height}",
+                 "-o", str(made)]) == 0
     profile = lowcam.load_profile(made).quiet()
     return profile, profile.save(folder / f"{lens}.toml")
 
