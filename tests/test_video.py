@@ -10,6 +10,7 @@ The long-GOP clip (libx264, CRF 18, key frame every 48 frames, 3 B-frames) codes
 picture (8 black or white blocks), so a frame read by seeking shows whether it is its own.
 """
 import concurrent.futures
+import multiprocessing
 import os
 from pathlib import Path
 
@@ -244,7 +245,8 @@ def test_frames_read_by_seeking_on_two_processes_are_each_their_own(long_gop):
     path, sequential, _ = long_gop
     rng = np.random.default_rng(37)
     orders = [list(rng.permutation(GOP_FRAMES)[:40]), list(rng.permutation(GOP_FRAMES)[:40])]
-    with concurrent.futures.ProcessPoolExecutor(2) as pool:
+    # spawned, not forked: a fork of this threaded process may inherit a lock another thread holds
+    with concurrent.futures.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
         results = list(pool.map(_read_in_order, [path, path], orders))
     for order, result in zip(orders, results):
         for i, index, data in result:
