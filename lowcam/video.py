@@ -342,18 +342,23 @@ class VideoReader:
                 self.times is not None and index > self._next + 2 * _GOP_GUESS):
             self._start(index)
         target = None if self.times is None else self.times[index]
-        for frame in self._frames:
-            i = self._frame_index(frame)
-            if i is None:
-                continue
-            self._next = i + 1
-            self._note(i, frame)
+        for i, frame in self._decoded():
             if i == index:
                 return self._converted(frame)
             if target is not None and frame.pts is not None and frame.pts > target:
                 break
         self._frames = None
         raise LowcamError(f"{self.path}: frame {index} (0-based) cannot be decoded")
+
+    def _decoded(self):
+        """The decoding generator's frames, each (index, frame), noted as they come."""
+        for frame in self._frames:
+            i = self._frame_index(frame)
+            if i is None:
+                continue
+            self._next = i + 1
+            self._note(i, frame)
+            yield i, frame
 
     def _frame_index(self, frame):
         if self.times is None:
@@ -369,12 +374,7 @@ class VideoReader:
     def frames(self, max_frames: int | None = None):
         """Frames in order from the first, each (index, uint8 RGB), at most ``max_frames``."""
         self._start(0)
-        for frame in self._frames:
-            i = self._frame_index(frame)
-            if i is None:
-                continue
-            self._next = i + 1
-            self._note(i, frame)
+        for i, frame in self._decoded():
             yield i, self._converted(frame)
             if max_frames is not None and self._next >= max_frames:
                 return
