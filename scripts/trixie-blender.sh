@@ -22,8 +22,10 @@ BPY_SPEC='bpy==5.2.*'
 # Lowcam's runtime imports for Python 3.13 (pyproject.toml pins Python 3.11 for the bpy 5.0 tier, so the project
 # itself is put on PYTHONPATH rather than pip-installed here).
 # OpenCV as the extension bundles it (pyproject.toml: <4.12); numpy is whatever bpy 5.2 takes (2.x).
+# PyAV as pyproject.toml pins it (video plates); telemetry-parser has no wheel for Python 3.13 (a clip's own gyro
+# is refused there in one line).
 RUNTIME_DEPS=("opencv-contrib-python-headless>=4.8,<4.12" "OpenEXR>=3.3" scipy scikit-image matplotlib tomli-w tqdm
-  tifffile rapidfuzz "colour-science>=0.4.4,<0.5" pytest)
+  tifffile rapidfuzz "colour-science>=0.4.4,<0.5" "av>=18.1,<19" pytest)
 
 skip() { echo "trixie-blender: skipped: $*" >&2; exit 77; }
 
