@@ -213,6 +213,7 @@ def test_the_engine_films_the_rays_lensfun_sees(tmp_path):
     working grid holds the ray lensfun's reverse conversion gives its place in the frame (2x2 supersampled: the
     mean of four rays)."""
     import lowcam
+    from lowcam.effects.bayer import sensel_shift_px
 
     profile = make(tmp_path, "fire-i", "GoPro", "HERO4", 3.0)
     lens = database_lens("GoPro", "HERO4")
@@ -229,6 +230,8 @@ def test_the_engine_films_the_rays_lensfun_sees(tmp_path):
     render[..., 2] = 0.0
     working = lowcam.run(render, profile, None, stop_after="lens_distortion").state.working
     u, v = geo.working_pixel_centres(factor=1)
+    du, dv = sensel_shift_px(profile)  # the working grid is laid out on the sensor, where the 2x2 blocks deliver it
+    u, v = u + du, v + dv
     # every third working pixel sits on lensfun's unit grid (working scale 1.5): lensfun's reverse conversion there
     assert geo.working_scale == (1.5, 1.5)
     m = lensfunpy.Modifier(lens, lens.crop_factor, geo.width, geo.height)

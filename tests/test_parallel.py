@@ -91,8 +91,10 @@ def test_a_forked_child_runs_its_own_threads(opencv_threads):
     assert child.exitcode == 0 and queue.get(timeout=5) == sum(range(1, 101))
 
 
-#: SHA-256 of frame 1 of the full-frame case below, as the chain gave it before its stages were cut into strips.
-FULL_FRAME_SHA256 = "a40a7b09b9ff5d0b90101b3e748a2786306f52fd6d065c87d2376dc711ba546d"
+#: SHA-256 of frame 1 of the full-frame case below, as the chain gave it on one thread, with the Fire-i's working
+#: grid laid out where its 2x2 blocks deliver each sensel (``bayer.sensel_shift_px``; before that:
+#: a40a7b09b9ff5d0b90101b3e748a2786306f52fd6d065c87d2376dc711ba546d).
+FULL_FRAME_SHA256 = "b13db1578a8f1b742d9b816039830e5b017fed9fa48c99acfadab9f9b30c2887"
 
 
 def test_a_full_frame_keeps_its_bytes_on_one_thread_and_on_four(opencv_threads):
