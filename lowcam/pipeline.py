@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .effects.bayer import demosaic_bilinear, mosaic, unmosaic
+from .effects.bayer import demosaic_bilinear, mosaic, sensel_shift_px, unmosaic
 from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
 from .geometry import grid_points, sample_texture
@@ -371,8 +371,11 @@ def deterministic_prefix(profile, until: str | None = None) -> int:
 
 
 def prefix_key(profile, count: int) -> str:
-    """Identifies the first ``count`` effects of a profile (and its camera) for caching their output."""
-    return repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects[:count]]))
+    """Identifies the first ``count`` effects of a profile (and its camera) for caching their output, with where
+    its demosaicing delivers each sensel (:func:`~lowcam.effects.bayer.sensel_shift_px`), which the lens stage
+    lays the working grid out by: a later effect's method moves the earlier stages' output."""
+    return repr((profile.camera.values(), sensel_shift_px(profile),
+                 [(e.name, e.enabled, e.values()) for e in profile.effects[:count]]))
 
 
 def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
