@@ -239,12 +239,13 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
     r = mF - mG
-    every = (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64)))
-    if mask is not None:  # left-out pixels carry no residual and no noise
+    every = None
+    if mask is not None:  # left-out pixels carry no residual and no noise (summed once over all, for beside)
+        every = (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64)))
         r = r * mask[..., None]
         noise = noise * mask[..., None]
-    sums = {"mean": (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64))),
-            "mean_unmasked": every,
+    mean = (float((r.astype(np.float64) ** 2).sum()), float(noise.sum(dtype=np.float64)))
+    sums = {"mean": mean, "mean_unmasked": every or mean,
             "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
             "noise_map": noise, "variance_map": vF, "mask": mask,
             "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
