@@ -214,6 +214,7 @@ def av_log_capture():
     """FFmpeg's warnings and errors while the block runs (every thread's), kept off the terminal: yields a list
     that holds them, one ``"name: message"`` string each, once the block ends."""
     said: list[str] = []
+    close_videos()   # the kept readers' decoding threads would call the Python callback too
     level = av.logging.get_level()
     av.logging.set_level(av.logging.WARNING)
     try:

@@ -110,8 +110,10 @@ def with_demosaicer(ideal, profile, seed, frame, demosaic) -> np.ndarray:
     """The profile's frame with its demosaicing replaced by ``demosaic(cfa, pattern) -> (H, W, 3)``: the chain
     runs to the demosaic stage, the external demosaicer rebuilds the colour from the sensel mosaic (border
     sensels included, then cropped to the frame, as a camera demosaics its whole active area), and the rest of
-    the chain runs on that."""
-    result = run(ideal, profile, seed=seed, frame=frame, stop_after="demosaic")
+    the chain runs on that. The sensels are laid out as an interpolating demosaicer delivers them (no shift:
+    ``bayer.DEMOSAIC_SHIFT_PX``), not where the profile's own 2x2 blocks would."""
+    result = run(ideal, profile.with_effect("demosaic", method="bilinear"), seed=seed, frame=frame,
+                 stop_after="demosaic")
     state, g = result.state, profile.geometry
     by, bx = BAYER_BORDER
     full = demosaic(sensor_mosaic(state.bayer, g), g.bayer_pattern)
