@@ -46,6 +46,7 @@ References
 """
 from __future__ import annotations
 
+import contextlib
 import re
 import sys
 from dataclasses import dataclass, field, replace
@@ -152,8 +153,10 @@ def _read_video(path: Path, max_frames: int, colour: str | None = None):
     range and transfer, ``colour`` overriding them), its frame rate (or None) and what its bitstream says of its
     coding (:func:`lowcam.video.stream_facts`)."""
     frames = []
-    with VideoReader(path, colour) as video:
+    with contextlib.ExitStack() as open_video:
         with av_log_capture() as said:   # FFmpeg conceals damage (grey blocks) and says so
+            # opened under the capture, so it decodes on this thread only (see VideoReader)
+            video = open_video.enter_context(VideoReader(path, colour))
             try:
                 for _, rgb in video.frames(max_frames):
                     frames.append(rgb)
