@@ -127,8 +127,7 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
 
 
-def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP,
-                        whole_frame: bool = False):
+def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -138,9 +137,8 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     captures (the flattest and the most textured, ``ctx.quick``) are simulated once without it and each trial only
     processes them again; otherwise each trial re-simulates the chain (``ctx.simulate``). Trials are scored by
     :func:`frame_score` on a centre ``crop`` (rows, columns; :data:`_CROP` unless given) with a :data:`_MARGIN` the
-    filters read (``whole_frame``: a stage whose output depends on the whole frame, a tone mapper's regions, is
-    given the whole model frames and scored on the crop); a capture's share of a trial's score depends on its
-    measured and model frames alone, so it is kept (by their digest) for the fits on the other folds.
+    filters read; a capture's share of a trial's score depends on its measured and model frames alone, so it is
+    kept (by their digest) for the fits on the other folds.
 
     ``process(values, frames) -> frames`` processes a stack of uint8 frames with the stage at ``values``.
     ``searches``: ``(start, plan, coarse_plan)`` triples, one per form of the stage (a filter family): each form is
@@ -162,12 +160,7 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [ctx.simulate(base, i, count) for i in idx]
-        if whole_frame:  # processed whole, scored on the crop: the crop taken from the whole frame
-            ir, ic = (slice(m.start + c.start, m.start + c.stop) for m, c in ((rows, ir), (cols, ic)))
-            rows, cols = slice(None), slice(None)
-        else:
-            plain = [f[:, rows, cols] for f in plain]
+        plain = [ctx.simulate(base, i, count)[:, rows, cols] for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
