@@ -157,8 +157,18 @@ def test_scikit_image_clahe_on_the_luma_is_named_local_tone_mapping(tmp_path):
     check(d, "local_tone_mapping")
 
 
-@pytest.mark.slow  # diagnoses take tens of seconds
-@pytest.mark.parametrize("seed", [52, 53])
+#: Draws whose case is known to stop short: seed -> why (strict: a pass fails it).
+SHORT = {
+    53: "clip 0.0062 over 10x10 regions (1.5x the mean bin count), mixed at 0.57: the equalisation is weak, and "
+        "what shows most is scikit-image's own level shift (256 levels binned into 253 of its 256 bins, the clipped "
+        "excess spread over all 256), which no CLAHE of OpenCV's expresses: error 7.60, veiling_glare first at 5.12 "
+        "held out, local_tone_mapping 6.02 (no candidate reaches 1.25: unexplained)",
+}
+
+
+@pytest.mark.slow  # diagnoses take minutes
+@pytest.mark.parametrize("seed", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORT[s])) if s in SHORT
+                                  else s for s in (52, 53, 55)])
 def test_scikit_image_clahe_at_random_parameters_is_named_local_tone_mapping(tmp_path, seed):
     p = drawn(seed, clip_limit=(0.006, 0.02), regions=[6, 8, 10], strength=(0.4, 0.9))
     d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", *TM_DECOYS, "noise_reduction"], rounds=1,
