@@ -83,7 +83,7 @@ def _process(values, frames):
 def fit_local_tone_mapping(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): the tile count and clip limit together on a coarse grid at full
     strength, then the strength; then clip limit and strength together finer, the tile count by one or two either
-    side, and clip limit and strength finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`).
+    side, clip limit and strength twice more as broadly (other regions want another clip), and finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`).
     The crop is larger than any frame: each trial tone-maps the whole model frames (a region's curve depends on all
     of it) and is scored on all of them (on a centre crop the border regions are left out, and the fit to
     scikit-image's CLAHE held out 1.247 where the whole frame gives 1.214). While diagnosis screens: the coarse
@@ -94,8 +94,11 @@ def fit_local_tone_mapping(ctx, effect):
 
     coarse = [(("tiles", "clip_limit"), [(t, c) for t in (2, 4, 8, 16) for c in (1.5, 2.5, 4.0, 8.0)]),
               ("strength", (0.25, 0.5, 0.75, 1.0))]
-    plan = [(("clip_limit", "strength"), together((0.7, 0.85, 1.0, 1.18, 1.4), (0.8, 0.9, 1.0, 1.1, 1.25))),
+    broad = together((0.7, 0.85, 1.0, 1.18, 1.4), (0.8, 0.9, 1.0, 1.1, 1.25))
+    plan = [(("clip_limit", "strength"), broad),
             ("tiles", lambda v: sorted({min(max(v["tiles"] + k, 1), 32) for k in (-2, -1, 0, 1, 2)})),
+            (("clip_limit", "strength"), broad),  # other regions, another clip: searched broadly again
+            (("clip_limit", "strength"), broad),
             (("clip_limit", "strength"), together((0.9, 0.95, 1.0, 1.05, 1.1), (0.93, 1.0, 1.07))),
             (("clip_limit", "strength"), together((0.97, 1.0, 1.03), (0.97, 1.0, 1.03)))]
     start = {"clip_limit": 2.5, "tiles": 8, "strength": 1.0}
