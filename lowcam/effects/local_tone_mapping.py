@@ -83,16 +83,20 @@ def _process(values, frames):
 def fit_local_tone_mapping(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): the tile count and clip limit together on a coarse grid at full
     strength, then the strength; then clip limit and strength together finer, the tile count by one or two either
-    side, clip limit and strength twice more as broadly (other regions want another clip), and finer again (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`).
+    side, clip limit and strength twice more as broadly (other regions want another clip), and finer again
+    (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`).
     The crop is larger than any frame: each trial tone-maps the whole model frames (a region's curve depends on all
     of it) and is scored on all of them (on a centre crop, which leaves the border regions out, a fit to
-    scikit-image's CLAHE held out worse: 1.247 against 1.214). While diagnosis screens: the coarse grid only."""
+    scikit-image's CLAHE held out worse: 1.247 against 1.214). While diagnosis screens: a coarser grid of 4 tile
+    counts and clips and 2 strengths only."""
     def together(steps_clip, steps_strength):  # a higher clip at a lower strength looks alike
         return lambda v: [(min(max(v["clip_limit"] * a, 1.0), 40.0), min(max(v["strength"] * b, 0.0), 1.0))
                           for a in steps_clip for b in steps_strength]
 
     coarse = [(("tiles", "clip_limit"), [(t, c) for t in (2, 4, 8, 16) for c in (1.5, 2.5, 4.0, 8.0)]),
               ("strength", (0.25, 0.5, 0.75, 1.0))]
+    if getattr(ctx, "screening", False):  # screening shows whether it helps at all: 6 trials, not 20
+        coarse = [(("tiles", "clip_limit"), [(t, c) for t in (4, 8) for c in (2.5, 6.0)]), ("strength", (0.5, 1.0))]
     broad = together((0.7, 0.85, 1.0, 1.18, 1.4), (0.8, 0.9, 1.0, 1.1, 1.25))
     plan = [(("clip_limit", "strength"), broad),
             ("tiles", lambda v: sorted({min(max(v["tiles"] + k, 1), 32) for k in (-2, -1, 0, 1, 2)})),

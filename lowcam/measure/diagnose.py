@@ -41,8 +41,6 @@ Contents
 - :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
 - :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its held-out error is within this
   factor of the best screened candidate's
-- :data:`REFINE_GAIN`: a screened candidate is fitted to convergence only when its screened error is below the
-  profile's own by at least this fraction
 - :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
 - :data:`TILE_PX`, :data:`UNDETERMINED_SPREAD`, :data:`AT_BOUND`: the folds' image tiles, and when a fitted number
@@ -105,9 +103,6 @@ UNEXPLAINED_ABOVE = 1.25
 NAMED_GAIN = 0.03
 FITTED = 4
 REFINE_WITHIN = 1.5
-#: A screened candidate is fitted to convergence only when its screened error is below the profile's own by at
-#: least this fraction: a candidate that does not help at screening is not fitted further (nor named).
-REFINE_GAIN = 0.01
 FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
@@ -1061,7 +1056,8 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     2. The :data:`FITTED` best by held-out error (within :data:`REFINE_WITHIN` of the best), and every fit that
        screens coarsely on purpose (``refines``) whose error in sample is within that, are fitted on every
        fold to convergence, so that every capture is measured with a fit that did not see it (leaving one capture
-       out, every fold is screened already).
+       out, every fold is screened already); none when the profile's error is explained already (at most
+       :data:`~lowcam.measure.compare.EXPLAINED_BELOW`), where no candidate will be named.
     3. Every candidate's errors are estimated, in sample and held out; the finalists' fitted numbers get their
        spread between the folds, and keys the data do not determine are held at the profile's value and the
        candidate refitted.
@@ -1101,12 +1097,13 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         held = {t.name: _held_out(ctx, t) for t in trials if t.folds}
         errors = sorted((h[0], t.name) for t in trials if (h := held.get(t.name)) is not None)
         top = errors[0][0] if errors else np.inf
-        worth = min(REFINE_WITHIN * top, (1 - REFINE_GAIN) * base_error)   # fitted further only if it helps
-        finalists = [by_name[n] for e, n in errors if e <= worth][:FITTED]
+        if base_error <= EXPLAINED_BELOW:   # explained already: nothing will be named, nothing fitted further
+            return
+        finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
         # a fit whose screening is coarse on purpose (``refines``) is refined when its error in sample could win
         finalists += [t for t in trials if t.folds and t not in finalists and t.folds[0][2] is not None
                       and getattr(t.folds[0][2].search.fit, "refines", False) and t.folds[0][2].fitted() is not None
-                      and _in_sample(ctx, t)[0] <= worth]
+                      and _in_sample(ctx, t)[0] <= REFINE_WITHIN * top]
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:
             t.every = True
