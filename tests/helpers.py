@@ -140,3 +140,25 @@ def film_through_mapping(folder, profile, mapping, margin, focal_px, hfov, seed,
         shots = [simulate(warped, profile, None, omega, None, seed, n) for n in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
     return write_set(folder, captures)
+
+
+def drawn(seed, **ranges):
+    """Seeded parameters for an independent implementation: a list is drawn from, a (low, high) pair drawn uniformly
+    within."""
+    rng = np.random.default_rng(seed)
+    return {k: v[int(rng.integers(len(v)))] if isinstance(v, list) else float(rng.uniform(*v))
+            for k, v in ranges.items()}
+
+
+def check_named_first(d, expected, bound=1.25):
+    """The diagnosis ``d`` of a set hiding ``expected``: the hidden stage shows (the profile without it is not
+    explained), comes first with a held-out error at most ``bound``, and a verdict that names an effect names it.
+    Returns the candidate."""
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    best = d.candidates[0]
+    assert d.error > 1.2, ranking
+    assert best.effect == expected, ranking
+    assert best.score <= bound, ranking  # held out
+    assert d.verdict != "missing-effect" or d.best.effect == expected, d.summary()
+    print(f"{expected}: error {d.error:.2f} -> {best.score:.3f} held out ({best.params}); {d.verdict}")
+    return best

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from helpers import diagnose_set, quiet_fire_i
+from helpers import check_named_first, diagnose_set, drawn, quiet_fire_i
 from lowcam.effects.delivered_frame import to_ycc
 from lowcam.effects.local_tone_mapping import tone_map_frame
 from lowcam.errors import ProfileError
@@ -68,35 +68,6 @@ def test_a_clip_limit_of_one_leaves_a_flat_histogram_region_nearly_untouched():
     assert np.abs(out.astype(float) - frame).mean() < 1.5
 
 
-def test_the_stage_changes_only_what_the_graphics_reach():
-    profile = quiet_fire_i().with_effect("local_tone_mapping", clip_limit=4.0, tiles=8, strength=1.0)
-    h, w = profile.camera.height, profile.camera.width
-    rng = np.random.default_rng(4)
-    plate = to_uint8(rng.uniform(0, 255, (h, w, 3)))
-    from lowcam.sample import sample_render
-
-    render = sample_render(profile, 1000)
-    render[:, : render.shape[1] // 2] = 0  # graphics on the right half only
-    result = lowcam.run(render, profile, plate)
-    plain = lowcam.run(render, profile.without("local_tone_mapping"), plate)
-    fp = result.footprint
-    assert 0.05 < fp.mean() < 0.5
-    assert np.array_equal(result.frame[~fp], plate[~fp])
-    assert np.abs(result.frame[fp].astype(int) - plain.frame[fp]).mean() > 1.0
-    disabled = profile.copy()
-    disabled.effect("local_tone_mapping").enabled = False
-    assert np.array_equal(lowcam.run(render, disabled, plate).frame, plain.frame)
-
-
-def test_the_node_group_refuses_the_stage_in_one_line():
-    """No compositor node builds a region's histogram: the node bake names the stage instead of dropping it."""
-    from lowcam.errors import LowcamError
-    from lowcam.node_maps import bake
-
-    with pytest.raises(LowcamError, match="no node for local_tone_mapping"):
-        bake(lowcam.load_profile("fire-i").with_effect("local_tone_mapping"), (120, 160))
-
-
 @pytest.mark.parametrize("key,value", [("clip_limit", 0.5), ("tiles", 0), ("tiles", 2.5), ("strength", 1.5)])
 def test_out_of_range_parameters_are_refused_naming_the_key(key, value):
     with pytest.raises(ProfileError, match=key) as e:
@@ -125,26 +96,6 @@ def scikit_image_clahe(clip_limit, regions, strength):
     return post
 
 
-def drawn(seed, **ranges):
-    """Seeded parameters: a list is drawn from, a (low, high) pair drawn uniformly within."""
-    rng = np.random.default_rng(seed)
-    return {k: v[int(rng.integers(len(v)))] if isinstance(v, list) else float(rng.uniform(*v))
-            for k, v in ranges.items()}
-
-
-def check(d, expected, bound=1.25):
-    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
-    print(ranking)
-    best = d.candidates[0]
-    assert d.error > 1.2, ranking      # the hidden stage shows
-    assert best.effect == expected, ranking
-    assert best.score <= bound, ranking  # held out
-    # never confidently wrong: a verdict that names an effect names the hidden one
-    assert d.verdict != "missing-effect" or d.best.effect == expected, d.summary()
-    print(f"{expected}: error {d.error:.2f} -> {best.score:.3f} held out ({best.params}); {d.verdict}")
-    return best
-
-
 TM_DECOYS = ["tone_curve", "veiling_glare"]  # a global curve, a veil lifting the shadows
 SCENES = ("flat-dark", "photo", "chart")
 
@@ -154,7 +105,7 @@ def test_scikit_image_clahe_on_the_luma_is_named_local_tone_mapping(tmp_path):
     0.7, on three scenes of three frames."""
     d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", *TM_DECOYS], rounds=1, scenes=SCENES,
                      frames=3, post=scikit_image_clahe(0.01, 8, 0.7), seed=51)
-    check(d, "local_tone_mapping")
+    check_named_first(d, "local_tone_mapping")
 
 
 #: Draws whose case is known to stop short: seed -> why (strict: a pass fails it).
@@ -174,7 +125,7 @@ def test_scikit_image_clahe_at_random_parameters_is_named_local_tone_mapping(tmp
     d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", *TM_DECOYS, "noise_reduction"], rounds=1,
                      scenes=("flat-dark", "flat-bright", "photo", "chart"), post=scikit_image_clahe(**p), seed=seed)
     print(p)
-    check(d, "local_tone_mapping")
+    check_named_first(d, "local_tone_mapping")
 
 
 def test_a_set_without_tone_mapping_does_not_get_it_first(tmp_path):
