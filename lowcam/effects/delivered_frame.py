@@ -15,6 +15,7 @@ Contents
 - :func:`within_footprint`: a frame processed by a function of its pixels, kept where the graphics reach
 - :func:`frame_score`: how far model frames stand from measured ones: the mean and variance families of a
   comparison (:mod:`lowcam.measure.compare`), over a crop
+- :func:`processed_by`: the ``process`` of :func:`fit_delivered_stage` for a stage class with ``process_frame``
 - :func:`fit_delivered_stage`: diagnosis's fit of such a stage: a coordinate search over its parameters, each
   trial processing the model's noisy frames again
 
@@ -125,6 +126,15 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     ``masks``: per capture (h, w) bool or None. A capture of one frame adds to the mean family only, with the
     model's variance for both."""
     return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
+
+
+def processed_by(stage_class):
+    """``process(values, frames) -> frames`` for :func:`fit_delivered_stage`: each uint8 frame of the stack through
+    ``stage_class(**values).process_frame``."""
+    def process(values, frames):
+        stage = stage_class(**values)
+        return np.stack([stage.process_frame(f) for f in frames])
+    return process
 
 
 def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP):

@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 from .base import Effect, Param, Search
-from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, within_footprint
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, within_footprint
 
 #: Coring shapes: details under the threshold dropped ("hard") or every detail shrunk by it ("soft").
 CORING = ("hard", "soft")
@@ -63,11 +63,6 @@ def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: f
             np.sign(d) * np.maximum(np.abs(d) - coring_dn, 0.0)
     boost = np.clip(gain * d, -undershoot_dn, overshoot_dn)
     return np.clip(np.rint(f + boost), 0, 255).astype(np.uint8)
-
-
-def _process(values, frames):
-    s = EdgeEnhancement(**values)
-    return np.stack([s.process_frame(f) for f in frames])
 
 
 def fit_edge_enhancement(ctx, effect):
@@ -103,7 +98,8 @@ def fit_edge_enhancement(ctx, effect):
             ("undershoot_dn", clamped("undershoot_dn"))]
     searches = [({"gain": 1.0, "radius_px": 1.2, "coring_dn": 0.0, "coring": "soft", "overshoot_dn": 255.0,
                   "undershoot_dn": 255.0, "channels": channels}, plan, coarse) for channels in CHANNELS]
-    return fit_delivered_stage(ctx, effect, _process, searches, crop=(320, 448))  # cheap trials: a wider crop
+    # cheap trials: a wider crop
+    return fit_delivered_stage(ctx, effect, processed_by(EdgeEnhancement), searches, crop=(320, 448))
 
 class EdgeEnhancement(Effect):
     """Edge enhancement of the delivered frame: ``gain`` times its cored detail (the frame less its Gaussian blur

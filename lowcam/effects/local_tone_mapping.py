@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 from .base import Effect, Param, Search
-from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, within_footprint
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, within_footprint
 
 
 def equalise_luma(luma: np.ndarray, clip_limit: float, tiles: int, strength: float) -> np.ndarray:
@@ -73,11 +73,6 @@ def tone_map_frame(frame: np.ndarray, clip_limit: float, tiles: int, strength: f
     y = f @ BT601_TO_YCC[0]
     change = equalise_luma(y, clip_limit, tiles, strength) - y
     return np.clip(np.rint(f + change[..., None]), 0, 255).astype(np.uint8)
-
-
-def _process(values, frames):
-    s = LocalToneMapping(**values)
-    return np.stack([s.process_frame(f) for f in frames])
 
 
 def fit_local_tone_mapping(ctx, effect):
@@ -106,7 +101,7 @@ def fit_local_tone_mapping(ctx, effect):
             (("clip_limit", "strength"), together((0.97, 1.0, 1.03), (0.97, 1.0, 1.03)))]
     start = {"clip_limit": 2.5, "tiles": 8, "strength": 1.0}
     whole = (1 << 16, 1 << 16)  # a crop larger than any frame: processed and scored whole, no margin
-    return fit_delivered_stage(ctx, effect, _process, [(start, plan, coarse)], crop=whole)
+    return fit_delivered_stage(ctx, effect, processed_by(LocalToneMapping), [(start, plan, coarse)], crop=whole)
 
 
 class LocalToneMapping(Effect):

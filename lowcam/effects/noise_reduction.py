@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from .base import Effect, Param, Search
-from .delivered_frame import fit_delivered_stage, to_ycc, within_footprint, ycc_change_to_rgb
+from .delivered_frame import fit_delivered_stage, processed_by, to_ycc, within_footprint, ycc_change_to_rgb
 
 #: The filter families: OpenCV's bilateral filter and its fast non-local means.
 METHODS = ("bilateral", "nl_means")
@@ -92,11 +92,6 @@ def denoise_frame(frame: np.ndarray, method: str, luma_strength_dn: float, chrom
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
-def _process(values, frames):
-    s = NoiseReduction(**values)
-    return np.stack([s.process_frame(f) for f in frames])
-
-
 def fit_noise_reduction(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): for each family, the luma strength on a coarse grid at the
     family's usual scale, no chroma; for the family that fits best, the luma strength finer, the scale, the chroma
@@ -118,7 +113,7 @@ def fit_noise_reduction(ctx, effect):
         usual = 2.0 if method == "bilateral" else 5.0
         start = {"method": method, "luma_strength_dn": 8.0, "chroma_strength_dn": 0.0, "scale_px": usual}
         searches.append((start, plan, coarse))
-    return fit_delivered_stage(ctx, effect, _process, searches)
+    return fit_delivered_stage(ctx, effect, processed_by(NoiseReduction), searches)
 
 
 class NoiseReduction(Effect):
