@@ -16,6 +16,7 @@ Contents
 --------
 - :data:`POLL_S`: how often the timer polls a running job (s)
 - :data:`JOB_NICENESS`: how far below Blender a job's processes run (POSIX ``nice``; below normal on Windows)
+- :data:`REDRAW_S`: the shortest time between two redraws of a running job's progress (s)
 - :class:`Job`: one or more ``lowcam`` commands in a child process, their output, progress, result or error
 - :func:`lowcam_command`: the command line that runs ``lowcam ARGS`` in a child process, and its environment
 - :func:`current`: the job running now (one at a time), or None
@@ -231,14 +232,19 @@ def poll() -> bool:
     return False
 
 
-_shown: list = [None]       # the progress line on show: the panels redraw only when it changes
+#: The shortest time between two redraws for a running job's changing progress line (s): each one redraws the
+#: panels, which a software-drawn window (no GPU) pays for in tenths of a second on a busy machine.
+REDRAW_S = 0.5
+_shown: list = [None, 0.0]       # the progress line on show and when it was drawn (time.monotonic(), s)
 
 
 def _redraw(text: str | None) -> None:
-    """The panels and the status bar show ``text`` (None clears the status bar); nothing when it is on show."""
-    if text == _shown[0]:
+    """The panels and the status bar show ``text`` (None clears the status bar); nothing when it is on show, or when
+    a job's line changed within :data:`REDRAW_S` of the last redraw (the job's start and end redraw at once)."""
+    now = time.monotonic()
+    if text == _shown[0] or (None not in (text, _shown[0]) and now - _shown[1] < REDRAW_S):
         return
-    _shown[0] = text
+    _shown[:] = text, now
     wm = getattr(bpy.context, "window_manager", None)
     for window in getattr(wm, "windows", ()):
         workspace = getattr(window, "workspace", None)

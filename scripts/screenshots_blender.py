@@ -146,8 +146,9 @@ def menu_steps():
 def match_steps():
     """The Match loop run in this Blender: the Match panel alone in Output Properties (the tab's other panels are
     unregistered for the pictures) before, after Compare and Diagnose (the list filled) and after Add Best (the
-    history plot). A probe timer every 0.05 s measures how long Blender's main thread is held while the jobs run;
-    the numbers go to OUT_DIR/match.json. ARGS: OUT_DIR match SET_DIR."""
+    history plot). A probe timer every 0.05 s measures how long Blender's main thread waits between two calls
+    (wall clock) and how much of that it spent working (its own CPU time) while the jobs run; the numbers go to
+    OUT_DIR/match.json. ARGS: OUT_DIR match SET_DIR."""
     import importlib
     import json
     import time
@@ -163,12 +164,13 @@ def match_steps():
             bpy.utils.unregister_class(cls)
     area = yield from output_properties()
     shoot("match-before")
-    gaps, last = [], [time.perf_counter()]
+    gaps, last = [], [time.perf_counter(), time.thread_time()]
 
     def probe():
-        now = time.perf_counter()
-        gaps.append((now - last[0], name, now - t0))    # the gap, the step, when in the step (s)
-        last[0] = now
+        now, cpu = time.perf_counter(), time.thread_time()
+        # the gap, the main thread's CPU time in it, the step, when in the step (s)
+        gaps.append((now - last[0], cpu - last[1], name, now - t0))
+        last[:] = now, cpu
         return 0.05
 
     numbers = {}
@@ -176,7 +178,7 @@ def match_steps():
         with override(area):
             getattr(bpy.ops.lowcam, op)()              # with a window the operator returns at once
         t0 = time.perf_counter()
-        last[0] = t0
+        last[:] = t0, time.thread_time()
         bpy.app.timers.register(probe, first_interval=0.05)
         while jobs.current() is not None:
             yield 0.25
@@ -197,7 +199,8 @@ def match_steps():
                             f"for m in ({modules})}}))"], env=env, capture_output=True, text=True, timeout=120)
     numbers["packages"] = json.loads(where.stdout) if where.returncode == 0 else where.stderr.strip()[-500:]
     numbers.update(versions=[[v.label, v.error] for v in m.versions], probe_calls=len(gaps),
-                   longest_gap_s=max(g for g, _, _ in gaps), longest_gaps=sorted(gaps, reverse=True)[:6])
+                   longest_gap_s=max(g[0] for g in gaps), longest_gaps=sorted(gaps, reverse=True)[:6],
+                   busiest_gap_cpu_s=max(g[1] for g in gaps))
     (OUT / "match.json").write_text(json.dumps(numbers, indent=1))
 
 

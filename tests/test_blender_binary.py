@@ -177,8 +177,11 @@ def test_match_loop_runs_in_blender_with_a_window_and_blender_stays_responsive(t
     """The installed add-on's Match panel in Blender 4.3 under Xvfb, with nothing on Blender's path but the root's
     Python and numpy and the extension: Compare, Diagnose and Add Best on a set with a hidden tone curve. The loop's
     processes find SciPy, Matplotlib, tifffile, tqdm, OpenCV and the engine in the extension's wheels; the panel
-    differs at each step; the real event loop's probe timer (every 0.05 s) never waits 0.5 s while the jobs run;
-    the docs/ pictures of the panel exist."""
+    differs at each step; while the jobs run, the real event loop's probe timer (every 0.05 s) finds that the main
+    thread never worked 0.25 s between two calls (its own CPU time) and never waited 1.5 s; the docs/ pictures of
+    the panel exist. (The wall-clock gaps also hold the software GL drawing and the X server, which share the 2-core
+    machine with the slow tier's lane: around 0.3 s per redraw there, 5-30 ms of it the main thread's; loading the
+    pictures after a job takes the main thread about 65 ms.)"""
     import cv2
 
     user, blend = scene
@@ -190,7 +193,7 @@ def test_match_loop_runs_in_blender_with_a_window_and_blender_stays_responsive(t
     assert numbers["compare"]["error"] > 1.25 and numbers["candidates"][0] == "tone_curve"
     assert numbers["add"]["error"] <= 1.25
     assert [label for label, _ in numbers["versions"]] == ["fire-i", "+ tone_curve"]
-    assert numbers["longest_gap_s"] < 0.5 and numbers["probe_calls"] > 100
+    assert numbers["busiest_gap_cpu_s"] < 0.25 and numbers["longest_gap_s"] < 1.5 and numbers["probe_calls"] > 100
     steps = [cv2.imread(str(pictures[name])) for name in shots.MATCH_DOCS]
     for before, after in zip(steps, steps[1:]):
         box = shots.changed_box(after, before)
