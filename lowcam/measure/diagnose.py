@@ -1225,7 +1225,8 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     """Rank the candidates (all of :func:`candidates` and :func:`removal_candidates`, or ``only``) for a
     measurement set.
 
-    Forward selection: when the best candidate alone leaves the error above 1.1, the others are fitted again
+    Forward selection: when the best candidate alone leaves the error above 1.1 (held out, and in sample: a
+    round after one that explains its captures could name nothing), the others are fitted again
     with it added (up to ``rounds`` rounds), so effects that hide together surface one after the other; each
     later candidate's ``error_after`` then includes the ones before it, and the best of the last round has every
     added effect refitted together (:func:`polish`) before its full error is computed. ``refit``: candidates
@@ -1240,7 +1241,8 @@ def diagnose(mset, profile, only=None, workdir=None, progress=None, rounds: int 
     ranked, failed = rank(ctx, base.error, names, progress, refit)
     chosen: list[Candidate] = []
     for _ in range(rounds - 1):
-        if not ranked or ranked[0].score <= EXPLAINED_BELOW or ranked[0].score >= base.error:
+        if not ranked or min(ranked[0].score, ranked[0].error_after) <= EXPLAINED_BELOW or \
+                ranked[0].score >= base.error:
             break
         best = ranked[0]
         chosen.append(best)
