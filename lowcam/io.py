@@ -33,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections import ChainMap
 from pathlib import Path
 from typing import NamedTuple
 
@@ -42,6 +43,7 @@ import numpy as np
 from .errors import LowcamError
 from .parallel import thread_map, threads
 from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
+from .uncompressed_exr import read_uncompressed_exr
 from .window import nonzero_window
 
 
@@ -174,8 +176,14 @@ def render_space_of(path, stated=None, tags=None):
 
 def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list), for
-    :func:`render_space_of`."""
+    :func:`render_space_of`. An uncompressed scan-line file (the add-on's renders) is mapped into memory and each
+    channel read when taken (:mod:`lowcam.uncompressed_exr`); any other file is read by the OpenEXR library: the
+    same channels, grouped the same way."""
     path = _exists(path)
+    mapped = read_uncompressed_exr(path, _float32)
+    if mapped is not None:
+        parts, tags = mapped
+        return _merged_parts(path, parts), tags
     if _exr_core_too_old():
         return _read_exr_in_child(path)
     import OpenEXR
@@ -202,18 +210,27 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
         raise LowcamError(f"{path}: not a readable OpenEXR file ({reason})")
     if complaint and "EXR_ERR" in complaint[0]:
         _refuse_damaged_parts(path, parts, complaint[0].removeprefix(f"{path}: ").strip())
-    channels: dict[str, np.ndarray] = {}
-    for part_name, part_channels in parts:
-        twice = sorted(set(channels) & set(part_channels))
-        if twice:
-            raise LowcamError(f"{path}: part '{part_name}' holds channel '{twice[0]}' again; write one part per "
-                              "view layer, with the layer in the channel names")
-        channels.update(part_channels)
     if "chromaticities" in tags:
         tags["chromaticities"] = [float(v) for v in np.ravel(np.asarray(tags["chromaticities"], float))]
     if isinstance(tags.get("colorInteropID"), bytes):
         tags["colorInteropID"] = tags["colorInteropID"].decode(errors="replace")
-    return channels, tags
+    return _merged_parts(path, parts), tags
+
+
+def _merged_parts(path: Path, parts):
+    """Every part's channels in one mapping, in the parts' order (Blender writes one part per view layer, the
+    layer in the channel names): a dict, or for mapped parts a :class:`collections.ChainMap` of them, which reads
+    a channel only when it is taken. A channel two parts hold is refused."""
+    seen: set = set()
+    for part_name, part_channels in parts:
+        twice = sorted(seen & set(part_channels))
+        if twice:
+            raise LowcamError(f"{path}: part '{part_name}' holds channel '{twice[0]}' again; write one part per "
+                              "view layer, with the layer in the channel names")
+        seen |= set(part_channels)
+    if any(not isinstance(part_channels, dict) for _, part_channels in parts):
+        return ChainMap(*reversed([part_channels for _, part_channels in parts]))  # iterates in the parts' order
+    return {name: pixels for _, part_channels in parts for name, pixels in part_channels.items()}
 
 
 def _refuse_damaged_parts(path: Path, parts: list, reason: str) -> None:

@@ -1,0 +1,271 @@
+"""Uncompressed scan-line OpenEXR files read straight from their bytes: a part is read when one of its channels is
+first taken and each channel is a strided view of those bytes, so reading a render costs only the parts a caller
+takes (a shot takes the Combined and Vector passes and leaves the overlay layer unread), and no library decodes
+anything.
+
+The layout read here is OpenEXR's own ("OpenEXR File Layout", openexr.com): the magic number and version field;
+the header (a multi-part file: one per part, and an empty one after them), a list of attributes each written as
+its name and type (null-terminated), its size (int32) and its value, ended by a null byte; one offset table per
+part (a uint64 file offset per chunk, in increasing y); then the chunks: a multi-part file's begin with the part's
+number (int32), then the line's y (int32), the data size (int32) and, uncompressed (one line a chunk), the line's
+channels one after another in the header's order, ``width`` little-endian samples each (UINT 4 bytes, HALF 2,
+FLOAT 4).
+
+Only the common case is read: every part scan-line and uncompressed, no subsampled channel, the chunks of a part
+evenly spaced in increasing y (as the OpenEXR library and Blender write them) and all within the file. For
+anything else :func:`read_uncompressed_exr` returns None and the caller reads the file with the OpenEXR library,
+which gives the same channels grouped the same way (:func:`group_names`) and its own refusals (a truncated or
+damaged file, a group of mixed pixel types). The file is read, not mapped into memory: a render cut short or
+replaced by another process while it is read (a frame rendered again) is a one-line error, where a mapping would
+end the process.
+
+Contents
+--------
+- :func:`read_uncompressed_exr`: the parts' channels (read when taken) and the first part's colour tags, or None
+- :func:`group_names`: channel names grouped as the OpenEXR Python binding groups them (``RGBA``, ``layer.pass``)
+- :class:`LazyChannels`: a part's channels by the binding's names, its bytes read from the file when one is taken
+"""
+from __future__ import annotations
+
+import os
+import struct
+from collections.abc import Mapping
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import LowcamError
+
+_MAGIC = 20000630
+_TILED, _DEEP, _MULTIPART = 0x200, 0x800, 0x1000
+#: OpenEXR pixel types: UINT, HALF, FLOAT.
+_PIXEL_TYPES = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}
+#: The colour channels the binding groups into one (H, W, 3 or 4) array, in its order.
+_GROUPED = ("R", "G", "B", "A")
+#: The first bytes read for the headers and offset tables (more when they are longer).
+_HEAD_BYTES = 1 << 20
+
+
+class _Unread(Exception):
+    """The file is not the common case read here: the OpenEXR library reads it instead."""
+
+
+class _Short(Exception):
+    """The headers and offset tables go on past the bytes read so far."""
+
+
+def _string(buffer: bytes, at: int) -> tuple[str, int]:
+    end = buffer.find(b"\0", at)
+    if end < 0:
+        raise _Short
+    return buffer[at:end].decode("utf-8", "replace"), end + 1
+
+
+def _channel_list(value: bytes) -> list[tuple[str, np.dtype]]:
+    """A ``chlist`` attribute: (name, dtype) per channel; a subsampled channel or an unknown type is not read."""
+    channels, at = [], 0
+    while at < len(value) and value[at] != 0:
+        try:
+            name, at = _string(value, at)
+        except _Short:                  # within one attribute: a damaged list
+            raise _Unread from None
+        pixel_type, _linear, x_sampling, y_sampling = struct.unpack_from("<iB3xii", value, at)
+        at += 16
+        if pixel_type not in _PIXEL_TYPES or (x_sampling, y_sampling) != (1, 1):
+            raise _Unread
+        channels.append((name, _PIXEL_TYPES[pixel_type]))
+    return channels
+
+
+def _headers(buffer: bytes, multipart: bool) -> tuple[list[dict], int]:
+    """The parts' headers ({attribute name: (type, raw value)}) and where the offset tables begin."""
+    headers, at = [], 8
+    while True:
+        header: dict = {}
+        while _byte(buffer, at) != 0:
+            name, at = _string(buffer, at)
+            kind, at = _string(buffer, at)
+            (size,) = struct.unpack_from("<i", _within(buffer, at + 4), at)
+            at += 4
+            if size < 0:
+                raise _Unread
+            header[name] = (kind, _within(buffer, at + size)[at:at + size])
+            at += size
+        at += 1
+        headers.append(header)
+        if not multipart or _byte(buffer, at) == 0:
+            return headers, at + (1 if multipart else 0)
+
+
+def _within(buffer: bytes, end: int) -> bytes:
+    if end > len(buffer):
+        raise _Short
+    return buffer
+
+
+def _byte(buffer: bytes, at: int) -> int:
+    return _within(buffer, at + 1)[at]
+
+
+def group_names(names: list[str]) -> list[tuple[str, list[str]]]:
+    """(key, channel names) in the order the OpenEXR Python binding gives a part's channels: ``R``, ``G``, ``B``
+    (and ``A``) of one prefix become one entry, keyed ``RGB``/``RGBA`` without a prefix and by the prefix
+    (``ViewLayer.Combined``) with one, placed where its first channel comes in ``names`` (the header's
+    alphabetical order); every other channel is its own entry."""
+    members: dict[str, dict[str, str]] = {}
+    for name in names:
+        prefix, _, last = name.rpartition(".")
+        if last in _GROUPED:
+            members.setdefault(prefix, {})[last] = name
+    groups = {prefix: [found[c] for c in _GROUPED if c in found] for prefix, found in members.items()
+              if all(c in found for c in "RGB")}
+    out, placed = [], set()
+    for name in names:
+        prefix, _, last = name.rpartition(".")
+        if prefix in groups and last in _GROUPED:
+            if prefix not in placed:
+                placed.add(prefix)
+                key = prefix or "".join(_GROUPED[:len(groups[prefix])])
+                out.append((key, groups[prefix]))
+        else:
+            out.append((name, [name]))
+    return out
+
+
+class LazyChannels(Mapping):
+    """A part's channels by the binding's names (:func:`group_names`): the part's bytes are read from the file
+    when one of them is first taken, and each channel taken is its own array (H, W) or (H, W, C) of the file's
+    pixel type, as the OpenEXR binding gives it, passed through ``convert``. ``layout``: the part's place in the
+    file, (its first chunk's offset, the chunks' stride, their count, the lead before each line's channels) and
+    each channel's (dtype, offset in a line); ``identity``: the file's (device, inode, size, modification time),
+    which must not change before the part is read. The part's bytes are kept until every entry is taken."""
+
+    def __init__(self, path: Path, identity: tuple, layout: tuple, channels: dict, groups: list, convert=None):
+        self._path, self._identity, self._layout, self._channels = path, identity, layout, channels
+        self._groups = dict(groups)
+        self._convert = convert or (lambda pixels: pixels)
+        self._taken: dict[str, np.ndarray] = {}
+        self._data: np.ndarray | None = None          # the part's bytes, once read
+
+    def _views(self, names: list[str]) -> list[np.ndarray]:
+        """Views of the channels ``names`` on the part's bytes, read once (kept until every entry is taken)."""
+        first, stride, count, lead, width = self._layout
+        if self._data is None:
+            size = stride * (count - 1) + lead + sum(width * dtype.itemsize for dtype, _ in self._channels.values())
+            self._data = np.empty(size, np.uint8)
+            with open(self._path, "rb") as f:
+                if _identity(f) != self._identity:
+                    raise LowcamError(f"{self._path}: the file changed while it was read (rendered again?); read "
+                                      "it again once it is written")
+                f.seek(first)
+                if f.readinto(memoryview(self._data)) != size:
+                    raise LowcamError(f"{self._path}: the file was cut short while it was read (rendered again?); "
+                                      "read it again once it is written")
+        return [np.ndarray((count, width), self._channels[n][0], self._data, lead + self._channels[n][1],
+                           (stride, self._channels[n][0].itemsize)) for n in names]
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        if key not in self._taken:
+            views = self._views(self._groups[key])    # KeyError for a channel the part does not hold
+            if len(views) == 1:
+                pixels = np.array(views[0])
+            elif views[0].dtype == np.uint32:                       # a type OpenCV has not
+                pixels = np.stack(views, -1)
+            else:
+                pixels = cv2.merge(views)                           # interleaved, about 2.5x np.stack's speed
+            self._taken[key] = self._convert(pixels)
+            if len(self._taken) == len(self._groups):
+                self._data = None                                   # every entry is its own array now
+        return self._taken[key]
+
+    def __iter__(self):
+        return iter(self._groups)
+
+    def __len__(self) -> int:
+        return len(self._groups)
+
+
+def _identity(f) -> tuple:
+    st = os.fstat(f.fileno())
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _colour_tags(header: dict) -> dict:
+    tags = {}
+    if header.get("chromaticities", ("",))[0] == "chromaticities" and len(header["chromaticities"][1]) == 32:
+        tags["chromaticities"] = [float(v) for v in struct.unpack("<8f", header["chromaticities"][1])]
+    if header.get("colorInteropID", ("",))[0] == "string":
+        tags["colorInteropID"] = header["colorInteropID"][1].decode("utf-8", "replace")
+    return tags
+
+
+def read_uncompressed_exr(path, convert=None) -> tuple[list[tuple[str, LazyChannels]], dict] | None:
+    """``([(part name, its channels), ...], the first part's colour tags)`` of an uncompressed scan-line OpenEXR
+    file, each part read from the file when one of its channels is taken (:class:`LazyChannels`, arrays passed
+    through ``convert``); the tags ``chromaticities`` (8 floats) and ``colorInteropID`` where the header has them.
+    None where the file is not that common case (module docstring): the caller reads it with the OpenEXR
+    library."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            identity, wanted = _identity(f), _HEAD_BYTES
+            while True:
+                f.seek(0)
+                head = f.read(wanted)
+                try:
+                    found = _read(f, head, identity[2])
+                    break
+                except _Short:
+                    if len(head) < wanted:          # the whole file is read: it ends inside its headers
+                        return None
+                    wanted *= 4
+    except (OSError, _Unread, struct.error, IndexError, ValueError):
+        return None
+    return [(name, LazyChannels(path, identity, layout, channels, groups, convert))
+            for name, layout, channels, groups in found[0]], found[1]
+
+
+def _read(f, head: bytes, file_size: int):
+    """The parts' (name, layout, channels, groups) and the colour tags, from ``head`` (the file's first bytes)
+    and, for the first and last chunks' own fields, ``f``."""
+    magic, version = struct.unpack_from("<ii", _within(head, 8), 0)
+    if magic != _MAGIC or version & 0xFF != 2 or version & (_TILED | _DEEP):
+        raise _Unread
+    multipart = bool(version & _MULTIPART)
+    headers, at = _headers(head, multipart)
+    parts = []
+    for number, header in enumerate(headers):
+        if header.get("compression", ("", b"\1"))[1] != b"\0" or \
+                header.get("type", ("", b"scanlineimage"))[1] != b"scanlineimage":
+            raise _Unread
+        x0, y0, x1, y1 = struct.unpack("<4i", header["dataWindow"][1])
+        width, height = x1 - x0 + 1, y1 - y0 + 1
+        chunks = struct.unpack("<i", header["chunkCount"][1])[0] if multipart else height
+        if width < 1 or height < 1 or chunks != height:
+            raise _Unread
+        offsets = np.frombuffer(_within(head, at + 8 * chunks), "<u8", chunks, at).astype(np.int64)
+        at += 8 * chunks
+        channel_list = _channel_list(header["channels"][1])
+        line = sum(width * dtype.itemsize for _, dtype in channel_list)
+        lead = 12 if multipart else 8                     # (part number,) y, data size
+        stride = int(offsets[1] - offsets[0]) if chunks > 1 else lead + line
+        if stride < lead + line or np.any(np.diff(offsets) != stride) or offsets[0] < at or \
+                int(offsets[-1]) + lead + line > file_size:
+            raise _Unread
+        for k in (0, chunks - 1):                         # the first and last chunks say what they are
+            f.seek(int(offsets[k]))
+            fields = struct.unpack("<iii" if multipart else "<ii", f.read(lead))
+            if fields[:-2] != ((number,) if multipart else ()) or fields[-2:] != (y0 + k, line):
+                raise _Unread
+        channels, start = {}, 0
+        for name, dtype in channel_list:
+            channels[name] = (dtype, start)
+            start += width * dtype.itemsize
+        groups = group_names([name for name, _ in channel_list])
+        for _key, names in groups:
+            if len({channels[n][0] for n in names}) > 1:     # the binding refuses a group of mixed types
+                raise _Unread
+        name = header["name"][1].decode("utf-8", "replace") if "name" in header else ""
+        parts.append((name, (int(offsets[0]), stride, chunks, lead, width), channels, groups))
+    return parts, _colour_tags(headers[0])
