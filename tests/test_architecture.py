@@ -30,6 +30,7 @@ ROOT = ENGINE.parent  # the repository: also the Blender extension's package (lo
 #: a fit that needs the whole chain receives it (``Context.simulate``, ``film``) from the layer that runs it.
 LAYERS = (
     ("helpers", ("lowcam.errors", "lowcam.geometry", "lowcam.parallel", "lowcam.window", "lowcam.schema",
+                 "lowcam.uncompressed_exr",
                  "lowcam.io", "lowcam.outputs", "lowcam.registration", "lowcam.reports", "lowcam.captures",
                  "lowcam.motion", "lowcam.gyro_logs", "lowcam.passes", "lowcam.chart", "lowcam.plate_estimate",
                  "lowcam.arguments", "lowcam.node_images", "lowcam.render_spaces", "lowcam.colour_checker", "lowcam.video")),
