@@ -242,7 +242,7 @@ def _read(f, head: bytes, file_size: int):
         x0, y0, x1, y1 = struct.unpack("<4i", header["dataWindow"][1])
         width, height = x1 - x0 + 1, y1 - y0 + 1
         chunks = struct.unpack("<i", header["chunkCount"][1])[0] if multipart else height
-        if width < 1 or height < 1 or chunks != height:
+        if width < 1 or height < 1 or chunks != height or at + 8 * chunks > file_size:
             raise _Unread
         offsets = np.frombuffer(_within(head, at + 8 * chunks), "<u8", chunks, at).astype(np.int64)
         at += 8 * chunks

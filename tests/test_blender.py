@@ -390,9 +390,12 @@ def test_motion_from_a_file_json_or_gyro_csv(rendered, tmp_path):
 
 
 def test_renders_are_uncompressed_by_default_and_every_compression_gives_the_same_composite(tmp_path):
-    """Render Compression: Blender writes the add-on's renders uncompressed unless asked otherwise, and a ZIP render
-    of the same frame holds the same channel bits and gives the same composite, byte for byte."""
+    """Render Compression: Blender writes the add-on's renders uncompressed unless asked otherwise, Lowcam reads them
+    itself as the OpenEXR binding does, and a ZIP render of the same frame holds the same channel bits and gives the
+    same composite, byte for byte."""
     import OpenEXR
+
+    from lowcam.uncompressed_exr import read_uncompressed_exr
 
     blend = submodule("addon.sample").build_sample_scene(tmp_path / "scene", render_width=400, samples=4)
     scene = submodule("addon.render").open_scene(blend)
@@ -410,6 +413,13 @@ def test_renders_are_uncompressed_by_default_and_every_compression_gives_the_sam
                 {f"Compression.{'NO' if codec == 'NONE' else codec}_COMPRESSION"}
             channels[codec] = {name: c.pixels.tobytes() for part in f.parts for name, c in part.channels.items()}
         sizes[codec] = path.stat().st_size
+        if codec == "NONE":      # Lowcam reads Blender's uncompressed render itself: the binding's channels, bits
+            parts, _ = read_uncompressed_exr(path)
+            mine = {name: pixels for _, part in parts for name, pixels in part.items()}
+            with OpenEXR.File(str(path)) as f:
+                theirs = {name: c.pixels for part in f.parts for name, c in part.channels.items()}
+            assert list(mine) == list(theirs) and len(parts) == 3
+            assert all(mine[n].dtype == theirs[n].dtype and mine[n].tobytes() == theirs[n].tobytes() for n in theirs)
     assert any(".Vector." in name for name in channels["NONE"]) and channels["NONE"] == channels["ZIP"]
     assert composites["NONE"] == composites["ZIP"]
     assert sizes["NONE"] > 2 * sizes["ZIP"]   # bpy 5.0: over 5x; bpy 5.2: 3.1x
