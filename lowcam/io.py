@@ -176,9 +176,9 @@ def render_space_of(path, stated=None, tags=None):
 
 def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list), for
-    :func:`render_space_of`. An uncompressed scan-line file (the add-on's renders) is mapped into memory and each
-    channel read when taken (:mod:`lowcam.uncompressed_exr`); any other file is read by the OpenEXR library: the
-    same channels, grouped the same way."""
+    :func:`render_space_of`. An uncompressed scan-line file (the add-on's renders) is read by Lowcam itself, each
+    part when one of its channels is taken (:mod:`lowcam.uncompressed_exr`); any other file by the OpenEXR library:
+    the same channels, grouped the same way."""
     path = _exists(path)
     mapped = read_uncompressed_exr(path, _float32)
     if mapped is not None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import os
 import struct
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -147,37 +148,49 @@ class LazyChannels(Mapping):
         self._convert = convert or (lambda pixels: pixels)
         self._taken: dict[str, np.ndarray] = {}
         self._data: np.ndarray | None = None          # the part's bytes, once read
+        self._lock = threading.Lock()                 # one read of the part, whichever thread takes first
 
-    def _views(self, names: list[str]) -> list[np.ndarray]:
-        """Views of the channels ``names`` on the part's bytes, read once (kept until every entry is taken)."""
+    def _read_part(self) -> np.ndarray:
+        """The part's bytes, from its first chunk to the end of its last, checked whole."""
         first, stride, count, lead, width = self._layout
-        if self._data is None:
-            size = stride * (count - 1) + lead + sum(width * dtype.itemsize for dtype, _ in self._channels.values())
-            self._data = np.empty(size, np.uint8)
+        size = stride * (count - 1) + lead + sum(width * dtype.itemsize for dtype, _ in self._channels.values())
+        data = np.empty(size, np.uint8)
+        again = "(rendered again?); read it again once it is written"
+        try:
             with open(self._path, "rb") as f:
                 if _identity(f) != self._identity:
-                    raise LowcamError(f"{self._path}: the file changed while it was read (rendered again?); read "
-                                      "it again once it is written")
+                    raise LowcamError(f"{self._path}: the file changed while it was read {again}")
                 f.seek(first)
-                if f.readinto(memoryview(self._data)) != size:
-                    raise LowcamError(f"{self._path}: the file was cut short while it was read (rendered again?); "
-                                      "read it again once it is written")
-        return [np.ndarray((count, width), self._channels[n][0], self._data, lead + self._channels[n][1],
-                           (stride, self._channels[n][0].itemsize)) for n in names]
+                if f.readinto(memoryview(data)) != size:
+                    raise LowcamError(f"{self._path}: the file was cut short while it was read {again}")
+        except OSError as e:
+            raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
+        return data
 
     def __getitem__(self, key: str) -> np.ndarray:
-        if key not in self._taken:
-            views = self._views(self._groups[key])    # KeyError for a channel the part does not hold
-            if len(views) == 1:
-                pixels = np.array(views[0])
-            elif views[0].dtype == np.uint32:                       # a type OpenCV has not
-                pixels = np.stack(views, -1)
-            else:
-                pixels = cv2.merge(views)                           # interleaved, about 2.5x np.stack's speed
-            self._taken[key] = self._convert(pixels)
-            if len(self._taken) == len(self._groups):
-                self._data = None                                   # every entry is its own array now
-        return self._taken[key]
+        with self._lock:
+            if key not in self._taken:
+                names = self._groups[key]               # KeyError for a channel the part does not hold
+                if self._data is None:
+                    self._data = self._read_part()
+                _, stride, count, lead, width = self._layout
+                views = [np.ndarray((count, width), self._channels[n][0], self._data, lead + self._channels[n][1],
+                                    (stride, self._channels[n][0].itemsize)) for n in names]
+                itemsize = views[0].dtype.itemsize
+                if len(views) == 1:
+                    pixels = np.array(views[0])
+                elif views[0].dtype == np.uint32 or stride % itemsize or \
+                        any((lead + self._channels[n][1]) % itemsize for n in names):
+                    pixels = np.stack(views, -1)        # a type or a line alignment OpenCV does not take
+                else:
+                    pixels = cv2.merge(views)           # interleaved, about 2.5x np.stack's speed
+                self._taken[key] = self._convert(pixels)
+                if len(self._taken) == len(self._groups):
+                    self._data = None                   # every entry is its own array now
+            return self._taken[key]
+
+    def __contains__(self, key) -> bool:
+        return key in self._groups                      # without reading anything
 
     def __iter__(self):
         return iter(self._groups)
@@ -206,7 +219,7 @@ def read_uncompressed_exr(path, convert=None) -> tuple[list[tuple[str, LazyChann
     through ``convert``); the tags ``chromaticities`` (8 floats) and ``colorInteropID`` where the header has them.
     None where the file is not that common case (module docstring): the caller reads it with the OpenEXR
     library."""
-    path = Path(path)
+    path = Path(path).absolute()
     try:
         with open(path, "rb") as f:
             identity, wanted = _identity(f), _HEAD_BYTES
@@ -220,7 +233,7 @@ def read_uncompressed_exr(path, convert=None) -> tuple[list[tuple[str, LazyChann
                     if len(head) < wanted:          # the whole file is read: it ends inside its headers
                         return None
                     wanted *= 4
-    except (OSError, _Unread, struct.error, IndexError, ValueError):
+    except (OSError, _Unread, struct.error, LookupError, ValueError):   # LookupError: a missing attribute
         return None
     return [(name, LazyChannels(path, identity, layout, channels, groups, convert))
             for name, layout, channels, groups in found[0]], found[1]
@@ -263,6 +276,8 @@ def _read(f, head: bytes, file_size: int):
             channels[name] = (dtype, start)
             start += width * dtype.itemsize
         groups = group_names([name for name, _ in channel_list])
+        if len({key for key, _ in groups}) < len(groups) or any(name.startswith(".") for name, _ in channel_list):
+            raise _Unread                                # a channel named as a group, or an empty prefix
         for _key, names in groups:
             if len({channels[n][0] for n in names}) > 1:     # the binding refuses a group of mixed types
                 raise _Unread

@@ -1,4 +1,4 @@
-"""Uncompressed OpenEXR files read by mapping them (:mod:`lowcam.uncompressed_exr`) against the OpenEXR library:
+"""Uncompressed OpenEXR files read by Lowcam itself (:mod:`lowcam.uncompressed_exr`) against the OpenEXR library:
 files of random layout written by the OpenEXR binding give the binding's own channels, names, order, pixel types
 and bits, and every file outside the common case is left to the library."""
 import numpy as np
@@ -139,7 +139,8 @@ def test_groups_are_named_as_the_binding_names_them():
 @pytest.mark.parametrize("change", ("rendered again", "cut short"))
 def test_a_render_changed_before_its_channels_are_taken_is_refused_in_one_line(tmp_path, change):
     """The header is read first and a part's bytes when a channel is taken: a file rendered again (replaced) or
-    cut short in between is refused naming it, never read as a mixture of the two."""
+    cut short in between is refused naming it, and again when asked again, never read as a mixture of the two.
+    (A file cut short during the part's own read, after its size was checked, is refused the same way.)"""
     from lowcam import LowcamError
 
     rgba = np.random.default_rng(9).uniform(0, 1, (40, 50, 4)).astype(np.float32)
@@ -156,11 +157,40 @@ def test_a_render_changed_before_its_channels_are_taken_is_refused_in_one_line(t
         (tmp_path / "next.exr").replace(path)
     else:
         path.write_bytes(path.read_bytes()[:-1000])
-    with pytest.raises(LowcamError) as e:
-        channels["RGBA"]
-    assert str(e.value).startswith(f"{path}: the file ") and "\n" not in str(e.value)
+    assert "RGBA" in channels                # asking does not read
+    for _ in range(2):
+        with pytest.raises(LowcamError) as e:
+            channels["RGBA"]
+        assert str(e.value).startswith(f"{path}: the file changed while it was read") and "\n" not in str(e.value)
     if change == "rendered again":          # read again: the new render
         assert read_exr_tagged(path)[0]["RGBA"].tobytes() == rgba[::-1].tobytes()
     else:                                   # read again: the OpenEXR library's refusal of a truncated file
         with pytest.raises(LowcamError, match="not a readable OpenEXR file"):
             read_exr_tagged(path)[0]["RGBA"]
+
+
+@pytest.mark.parametrize("channels", [
+    {"R": np.float32, "G": np.float32, "B": np.float32, "Z": np.float16},      # lines of 2 bytes past a float's
+    {".R": np.float32, "R": np.float32, "G": np.float32, "B": np.float32},      # an empty prefix
+    {"p": np.float32, "p.R": np.float32, "p.G": np.float32, "p.B": np.float32},  # a channel named as its group
+], ids=["odd line", "empty prefix", "named as its group"])
+def test_awkward_layouts_read_as_the_binding_reads_them(tmp_path, channels):
+    """A line whose length leaves float samples off their 4-byte grid (an odd width and a half channel), and names
+    the binding groups its own way: read_exr_tagged gives the binding's channels and bits, or its refusal."""
+    from lowcam import LowcamError
+
+    pixels = {n: np.random.default_rng(1).uniform(0, 1, (6, 3)).astype(t) for n, t in channels.items()}
+    path = tmp_path / "awkward.exr"
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage}, pixels).write(str(path))
+    try:
+        with OpenEXR.File(str(path)) as f:
+            expected = {n: c.pixels for n, c in f.parts[0].channels.items()}
+    except ValueError:                       # "p" beside p.R, p.G, p.B: the binding refuses to group them
+        assert read_uncompressed_exr(path) is None
+        with pytest.raises(LowcamError, match="not a readable OpenEXR file .*collides"):
+            read_exr_tagged(path)
+        return
+    got, _ = read_exr_tagged(path)
+    assert list(got) == list(expected)
+    for n, p in expected.items():
+        assert got[n].tobytes() == p.astype(np.float32).tobytes(), n     # read_exr_tagged gives float32
