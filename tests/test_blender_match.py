@@ -297,3 +297,18 @@ def test_estimate_takes_the_tracked_cameras_motion_as_its_gyro(scene, tmp_path):
     doc = json.loads((Path(match.work_folder()) / "estimate.json").read_text())
     gyro = doc["calibrations"][0]["numbers"]["gyro_motion"]["footage"]
     assert abs(gyro["median_speed_rad_s"] - rate) < 1e-3 and abs(gyro["max_speed_rad_s"] - rate) < 1e-3, gyro
+
+
+def test_a_running_jobs_progress_redraws_the_panels_at_most_every_redraw_s(monkeypatch):
+    """Each redraw costs a software-drawn window tenths of a second: a job's changing progress line is shown at
+    most every ``REDRAW_S``, while a job's start and its end are shown at once."""
+    clock = [100.0]
+    monkeypatch.setattr(jobs.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(jobs, "_shown", [None, 0.0])
+    shown = []
+    for step_s, line in ((0.0, "diagnosing: 0 s"), (0.1, "diagnosing: 1 s"), (jobs.REDRAW_S, "diagnosing: 2 s"),
+                         (0.01, None), (0.01, "comparing: 0 s")):
+        clock[0] += step_s
+        jobs._redraw(line)
+        shown.append(jobs._shown[0])
+    assert shown == ["diagnosing: 0 s", "diagnosing: 0 s", "diagnosing: 2 s", None, "comparing: 0 s"]
