@@ -34,6 +34,7 @@ import sys
 import tempfile
 import threading
 from collections import ChainMap
+from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
 
@@ -157,7 +158,7 @@ def _float32(pixels: np.ndarray) -> np.ndarray:
     return np.asarray(pixels, np.float32)
 
 
-def read_exr(path) -> dict[str, np.ndarray]:
+def read_exr(path) -> Mapping[str, np.ndarray]:
     """All channels of an OpenEXR file as ``{name: float32 array}`` (grouped layers such as ``'RGBA'`` or
     ``'ViewLayer.Combined'`` come as (H, W, C) arrays). In a process that holds an older libOpenEXRCore (Debian's
     Blender) the file is read in a child Python."""
@@ -174,15 +175,15 @@ def render_space_of(path, stated=None, tags=None):
     return header_space(tags or {}, path) or LINEAR_REC709
 
 
-def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
+def read_exr_tagged(path) -> tuple[Mapping[str, np.ndarray], dict]:
     """:func:`read_exr` and the first part's colour tags (``colorInteropID``, ``chromaticities`` as a list), for
     :func:`render_space_of`. An uncompressed scan-line file (the add-on's renders) is read by Lowcam itself, each
     part when one of its channels is taken (:mod:`lowcam.uncompressed_exr`); any other file by the OpenEXR library:
     the same channels, grouped the same way."""
     path = _exists(path)
-    mapped = read_uncompressed_exr(path, _float32)
-    if mapped is not None:
-        parts, tags = mapped
+    direct = read_uncompressed_exr(path, _float32)
+    if direct is not None:
+        parts, tags = direct
         return _merged_parts(path, parts), tags
     if _exr_core_too_old():
         return _read_exr_in_child(path)
@@ -217,10 +218,10 @@ def read_exr_tagged(path) -> tuple[dict[str, np.ndarray], dict]:
     return _merged_parts(path, parts), tags
 
 
-def _merged_parts(path: Path, parts):
+def _merged_parts(path: Path, parts) -> ChainMap:
     """Every part's channels in one mapping, in the parts' order (Blender writes one part per view layer, the
-    layer in the channel names): a dict, or for mapped parts a :class:`collections.ChainMap` of them, which reads
-    a channel only when it is taken. A channel two parts hold is refused."""
+    layer in the channel names), each read only when it is taken where the part reads lazily. A channel two parts
+    hold is refused."""
     seen: set = set()
     for part_name, part_channels in parts:
         twice = sorted(seen & set(part_channels))
@@ -228,9 +229,7 @@ def _merged_parts(path: Path, parts):
             raise LowcamError(f"{path}: part '{part_name}' holds channel '{twice[0]}' again; write one part per "
                               "view layer, with the layer in the channel names")
         seen |= set(part_channels)
-    if any(not isinstance(part_channels, dict) for _, part_channels in parts):
-        return ChainMap(*reversed([part_channels for _, part_channels in parts]))  # iterates in the parts' order
-    return {name: pixels for _, part_channels in parts for name, pixels in part_channels.items()}
+    return ChainMap(*reversed([part_channels for _, part_channels in parts]))  # iterates in the parts' order
 
 
 def _refuse_damaged_parts(path: Path, parts: list, reason: str) -> None:

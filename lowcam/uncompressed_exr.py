@@ -138,8 +138,8 @@ class LazyChannels(Mapping):
     """A part's channels by the binding's names (:func:`group_names`): the part's bytes are read from the file
     when one of them is first taken, and each channel taken is its own array (H, W) or (H, W, C) of the file's
     pixel type, as the OpenEXR binding gives it, passed through ``convert``. ``layout``: the part's place in the
-    file, (its first chunk's offset, the chunks' stride, their count, the lead before each line's channels) and
-    each channel's (dtype, offset in a line); ``identity``: the file's (device, inode, size, modification time),
+    file, (its first chunk's offset, the chunks' stride, their count, the lead before each line's channels, the
+    width, a line's bytes) and each channel's (dtype, offset in a line); ``identity``: the file's (device, inode, size, modification time),
     which must not change before the part is read. The part's bytes are kept until every entry is taken."""
 
     def __init__(self, path: Path, identity: tuple, layout: tuple, channels: dict, groups: list, convert=None):
@@ -152,8 +152,8 @@ class LazyChannels(Mapping):
 
     def _read_part(self) -> np.ndarray:
         """The part's bytes, from its first chunk to the end of its last, checked whole."""
-        first, stride, count, lead, width = self._layout
-        size = stride * (count - 1) + lead + sum(width * dtype.itemsize for dtype, _ in self._channels.values())
+        first, stride, count, lead, _, line = self._layout
+        size = stride * (count - 1) + lead + line
         data = np.empty(size, np.uint8)
         again = "(rendered again?); read it again once it is written"
         try:
@@ -173,7 +173,7 @@ class LazyChannels(Mapping):
                 names = self._groups[key]               # KeyError for a channel the part does not hold
                 if self._data is None:
                     self._data = self._read_part()
-                _, stride, count, lead, width = self._layout
+                _, stride, count, lead, width, _ = self._layout
                 views = [np.ndarray((count, width), self._channels[n][0], self._data, lead + self._channels[n][1],
                                     (stride, self._channels[n][0].itemsize)) for n in names]
                 itemsize = views[0].dtype.itemsize
@@ -282,5 +282,5 @@ def _read(f, head: bytes, file_size: int):
             if len({channels[n][0] for n in names}) > 1:     # the binding refuses a group of mixed types
                 raise _Unread
         name = header["name"][1].decode("utf-8", "replace") if "name" in header else ""
-        parts.append((name, (int(offsets[0]), stride, chunks, lead, width), channels, groups))
+        parts.append((name, (int(offsets[0]), stride, chunks, lead, width, line), channels, groups))
     return parts, _colour_tags(headers[0])
