@@ -56,6 +56,8 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.edge_enhancement`: an image processor's edge enhancement with coring (not in the paper);
   what both share in :mod:`~lowcam.effects.delivered_frame`
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
+- :mod:`~lowcam.effects.video_codec`: H.264 or HEVC video coding with x264 or x265, over a sequence of frames
+  (not in the paper)
 
 References
 ----------
@@ -93,6 +95,7 @@ from .saturation import Saturation
 from .sharpening import Sharpening
 from .tone_curve import ToneCurve
 from .veiling_glare import VeilingGlare
+from .video_codec import VideoCodec
 from .vignetting import Vignetting
 from .yuv import ChromaSubsampling, YuvBlend
 
@@ -103,7 +106,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                NoiseReduction, EdgeEnhancement, Jpeg,
+                NoiseReduction, EdgeEnhancement, Jpeg, VideoCodec,
                 # need render passes (velocity, depth): added by the Blender add-on when asked for
                 ObjectMotion, DepthOfField)
 }

@@ -127,7 +127,7 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
 
 
-def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP):
+def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -147,13 +147,14 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``,
     ``options`` a list of values or a function of the current values returning one: every option is tried and the
     best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a tuple of their values,
-    searched together."""
+    searched together. ``count``: model frames per capture (3; a stage that acts across frames, a video encoder,
+    asks for as many as the captures have)."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
     measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
-    count = 3  # model frames per capture: the same noise in every trial, so trials compare fairly
+    # ``count`` model frames per capture: the same noise in every trial, so trials compare fairly
     with_it = p.with_effect(effect, **searches[0][0])
     names = [e.name for e in with_it.effects if e.enabled or e.always_runs]
     shortcut = names[-1] == effect

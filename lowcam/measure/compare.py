@@ -53,7 +53,7 @@ import numpy as np
 
 from ..effects.fixed_pattern import row_noise_variance
 from ..errors import LowcamError
-from ..pipeline import deterministic_prefix, prefix_key, prepare, resume
+from ..pipeline import deterministic_prefix, prefix_key, prepare, resume_sequence
 from .targets import ideal_from_target
 
 EXPLAINED_BELOW = 1.1
@@ -165,8 +165,10 @@ def _shared_plate(key, plate: np.ndarray) -> np.ndarray:
 
 def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
                      until: str | None = None) -> np.ndarray:
-    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``); the
-    deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it."""
+    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``), in order as one
+    sequence (a temporal effect, a video encoder, codes them together: frame 0 an I-frame,
+    :func:`lowcam.pipeline.resume_sequence`); the deterministic part of the chain runs once, and not at all when
+    ``cache`` (a dict) already holds it."""
     ideal, plate, _ = inputs or capture_inputs(profile, capture)
     key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
     token = cache.pop(key, None) if cache is not None else None
@@ -182,7 +184,7 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
                 cache.pop(next(iter(cache)))
             except (KeyError, StopIteration, RuntimeError):  # another thread changed it meanwhile
                 break
-    return np.stack([resume(token, seed, k, profile) for k in range(count)])
+    return resume_sequence(token, seed, count, profile)
 
 
 def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> list[float]:
