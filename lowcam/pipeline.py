@@ -28,6 +28,7 @@ Contents
 - :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
 - :func:`prepare`: run the chain up to its first random effect: the same for every frame of a static scene
 - :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
+- :func:`has_temporal`: whether a profile has an effect that acts across frames (a video encoder)
 - :func:`finish_sequence`: frames of one shot or capture through the chain's temporal effects (a video encoder)
 - :func:`resume_sequence`: frames ``0..count-1`` from a :func:`prepare` token as one sequence
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
@@ -270,6 +271,11 @@ def _sequence_tail(profile: Profile) -> list:
     effects = [e for e in profile.effects if e.enabled or e.always_runs]
     first = next((i for i, e in enumerate(effects) if e.temporal), None)
     return [] if first is None else effects[first:]
+
+
+def has_temporal(profile: Profile) -> bool:
+    """Whether an enabled effect of ``profile`` acts across frames (:attr:`~lowcam.effects.Effect.temporal`)."""
+    return bool(_sequence_tail(profile))
 
 
 def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from lowcam.measure.diagnose import diagnose
 from lowcam.measure.sets import load_set, write_set
 from lowcam.measure.synth import scenes
 from lowcam.pipeline import simulate
+from lowcam.video import PlateColour, to_rgb
 
 av = pytest.importorskip("av")
 
@@ -29,8 +30,9 @@ DECOYS = ["jpeg", "noise_reduction", "defocus"]
 
 
 def pyav_code(frames: np.ndarray, encoder: str, crf: int, gop: int, b_frames: int) -> np.ndarray:
-    """``frames`` (T, H, W, 3) uint8 RGB coded as one sequence by ``encoder`` (libx264, libx265) through PyAV and
-    decoded by FFmpeg, the colour converted by swscale both ways (its BT.601 limited-range default)."""
+    """``frames`` (T, H, W, 3) uint8 RGB coded as one sequence by ``encoder`` (libx264, libx265) through PyAV, the
+    colour converted to 4:2:0 by swscale (its BT.601 limited-range default), decoded by FFmpeg and read back as
+    Lowcam reads footage (:func:`lowcam.video.to_rgb`; swscale's own fast YUV -> RGB path is about 1 DN dark)."""
     h, w = frames.shape[1:3]
     enc = av.CodecContext.create(encoder, "w")
     enc.width, enc.height, enc.pix_fmt = w, h, "yuv420p"
@@ -39,6 +41,7 @@ def pyav_code(frames: np.ndarray, encoder: str, crf: int, gop: int, b_frames: in
     enc.options = {"crf": str(crf), **({"x265-params": gop_text + ":log-level=error"} if encoder == "libx265"
                                         else {"x264-params": gop_text})}
     dec = av.CodecContext.create("hevc" if encoder == "libx265" else "h264", "r")
+    colour = PlateColour("bt601", "limited", "sdr")
     out = []
     packets = []
     for i, f in enumerate(frames):
@@ -47,8 +50,8 @@ def pyav_code(frames: np.ndarray, encoder: str, crf: int, gop: int, b_frames: in
         packets += enc.encode(picture)
     packets += enc.encode(None)
     for p in packets:
-        out += [d.to_ndarray(format="rgb24") for d in dec.decode(p)]
-    out += [d.to_ndarray(format="rgb24") for d in dec.decode(None)]
+        out += [to_rgb(d, colour) for d in dec.decode(p)]
+    out += [to_rgb(d, colour) for d in dec.decode(None)]
     assert len(out) == len(frames)
     return np.stack(out)
 
@@ -129,8 +132,8 @@ def test_the_coding_is_deterministic_and_odd_sizes_are_kept():
 
 
 def test_a_frame_alone_is_an_i_frame_and_a_capture_is_one_sequence(fire_i):
-    """``simulate`` codes its frame on its own; a capture's frames are coded together (frame 0 alike: an
-    I-frame either way)."""
+    """``simulate`` codes its frame on its own; a capture's frames are coded together (frame 0 is an I-frame
+    either way, but not the same bytes: the encoder's rate control looks ahead at the frames after it)."""
     profile = fire_i.with_effect("video_codec", crf=34, gop_frames=250)
     every = scenes(profile, 640)
     ideal, omega = every["photo"]
@@ -142,7 +145,6 @@ def test_a_frame_alone_is_an_i_frame_and_a_capture_is_one_sequence(fire_i):
     together = simulate_capture(profile, capture, 4, seed=5)
     plain = simulate_capture(fire_i, capture, 4, seed=5)
     assert together.tobytes() == code_sequence(plain, "h264", 34, 250).tobytes()
-    assert together[0].tobytes() == code_sequence(plain[:1], "h264", 34, 250)[0].tobytes()
 
 
 def test_the_effect_is_declared_and_refuses_bad_options(fire_i):

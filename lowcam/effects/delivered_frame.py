@@ -90,14 +90,20 @@ def _moments(frames) -> tuple[np.ndarray, np.ndarray, int]:
     return f.mean(0), (f.var(0, ddof=1) if len(f) > 1 else None), len(f)
 
 
-def _partial(measured, simulated, mask) -> tuple[float, float, list]:
+def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]:
     """One capture's share of :func:`frame_score`: the mean family's numerator and denominator and the variance
-    family's log ratios; ``measured`` as :func:`_moments` gives it."""
+    family's log ratios; ``measured`` as :func:`_moments` gives it. ``again``: a second model sequence (other
+    noise) of a stage that holds noise from frame to frame (a video encoder): the mean family's denominator is
+    then ``sum (mean(simulated) - mean(again))^2`` (at least the independent frames'), and each pixel's variance
+    at least 1/12 DN^2 (the rounding's), as :func:`lowcam.measure.compare.capture_stats` has them."""
     mf, vf, n = measured
     mg, vg, k = _moments(simulated)
     keep = np.ones(mf.shape[:2], bool) if mask is None else mask
     num = float(np.square(mf - mg)[keep].sum())
     den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+    if again is not None:
+        vf, vg = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12)
+        den = max(den, float(np.square(mg - np.asarray(again, np.float32).mean(0))[keep].sum()))
     logs = []
     if vf is not None:
         level = np.clip((mg // 16).astype(int), 0, 15)
@@ -127,7 +133,8 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
     return _combined([_partial(_moments(f), g, m) for f, g, m in zip(measured, simulated, masks)])
 
 
-def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3):
+def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3,
+                        frozen_noise: bool = False):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -148,7 +155,10 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     ``options`` a list of values or a function of the current values returning one: every option is tried and the
     best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a tuple of their values,
     searched together. ``count``: model frames per capture (3; a stage that acts across frames, a video encoder,
-    asks for as many as the captures have)."""
+    asks for as many as the captures have). ``frozen_noise``: the stage holds noise from frame to frame (a video
+    encoder's predicted frames), so the frames' temporal variance no longer measures the noise of their mean: each
+    trial processes a second sequence of ``count`` frames of other noise too, and the mean family's noise is
+    measured from the two (:func:`_partial`'s ``again``), as the comparison does."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
@@ -161,11 +171,12 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [ctx.simulate(base, i, count)[:, rows, cols] for i in idx]
+        plain = [ctx.simulate(base, i, 2 * count if frozen_noise else count)[:, rows, cols] for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
                                    digest_size=16).digest() for i, f, m in zip(idx, plain, masks)]
+
     scores: dict = {}
 
     def share(j, values):
@@ -173,7 +184,12 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         with _LOCK:
             got = _SHARES.get(key)
         if got is None:
-            got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
+            if frozen_noise:  # two sequences of independent noise: the noise of the mean from their difference
+                first, second = plain[j][:count], plain[j][count:]
+                got = _partial(measured[j], process(values, first)[:, ir, ic], masks[j],
+                               process(values, second)[:, ir, ic])
+            else:
+                got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
             with _LOCK:
                 _SHARES[key] = got
                 while len(_SHARES) > _SHARES_KEPT:

@@ -23,10 +23,11 @@ frames of one shot or one capture are made together (the ``count`` frames of a m
 diagnosis and ``compare`` simulate), they are coded as one sequence, frame 0 an I-frame
 (:meth:`VideoCodec.finish_frames`). A frame made on its own (``lowcam.simulate``, ``lowcam run``, and each frame
 of ``lowcam batch`` written as image files, which the farm's workers make independently) is coded as one
-I-frame (:meth:`VideoCodec.finish`): the same bytes whichever worker makes it. The whole frame is coded, so the
-frames' pixels carry the coding everywhere; in a shot over a plate, the plate's pixels that the graphics do not
-reach are put back with their own bytes (the plate was coded by the real camera already), and only the inserted
-region carries this coding. A shot written as a video (``lowcam batch -o shot.mp4``) is coded as a whole by the
+I-frame (:meth:`VideoCodec.finish`): the same bytes whichever worker makes it. The whole frame is coded, and the
+coded pixels are kept where the graphics reach (the footprint); the plate's pixels that they do not reach keep
+their own bytes (the real camera coded them already), so only the inserted region carries this coding (in a shot
+of image files, an I-frame's blocks and ringing; not the held noise of predicted frames, nor the coding's spill
+from the graphics' blocks onto the plate around them). A shot written as a video (``lowcam batch -o shot.mp4``) is coded as a whole by the
 writer (:func:`lowcam.video.write_video`), with the plate's own coding where it can be read.
 
 The coding is deterministic: the encoders run on one thread (x264 ``threads=1``; x265 ``pools=none``,
@@ -147,6 +148,8 @@ def code_sequence(frames: np.ndarray, codec: str = "h264", crf: float = 23.0, go
 _COARSE_CRF = (18, 24, 28, 32, 36, 42)
 _COARSE_GOP = (1, 2, 4, 8, 16, 250)
 _COARSE_B = (0, 2, 3)
+#: Rows, columns of the centre crop a trial codes (and scores, less a margin): a quarter of a 640x480 frame.
+_CROP = (256, 320)
 
 
 def _process(values, frames):
@@ -162,7 +165,9 @@ def fit_video_codec(ctx, effect):
     The model keeps its noise, and as many frames as the captures have (at least 4): a predicted frame holds the
     noise of the frame it is predicted from, so what the coding does to the frames' variance depends on the GOP
     and on the noise itself. The model's noisy frames are simulated once without the codec and each trial codes
-    them again, whole (the encoder's rate control looks at the whole frame). Per codec: a coarse CRF grid
+    them again: two sequences of independent noise, whose means' difference measures the noise of the mean (the
+    frames' temporal variance no longer does), on a centre crop of :data:`_CROP` px and a margin (the encoder's
+    decisions are local; its rate control sees the crop's content, about the frame's). Per codec: a coarse CRF grid
     (:data:`_COARSE_CRF`), the GOP length (:data:`_COARSE_GOP`) and B-frames (:data:`_COARSE_B`); for the better
     codec the CRF in steps of 2 and 1, the GOP around its value and the CRF again. The matrix, range and preset
     stay the profile's (or the defaults)."""
@@ -184,8 +189,7 @@ def fit_video_codec(ctx, effect):
     plan = [("crf", near("crf", (-1, 0, 1), 0, 51)), ("gop_frames", gop_near), ("b_frames", [0, 1, 2, 3]),
             ("crf", near("crf", (-1, 0, 1), 0, 51))]
     searches = [(dict(fixed, codec=codec, crf=28, gop_frames=250, b_frames=0), plan, coarse) for codec in CODECS]
-    h, w = ctx.means[0].shape[:2]
-    return fit_delivered_stage(ctx, effect, _process, searches, crop=(h, w), count=count)
+    return fit_delivered_stage(ctx, effect, _process, searches, crop=_CROP, count=count, frozen_noise=True)
 
 
 fit_video_codec.refines = True  # diagnosis calls it again, in full, for a promising candidate
@@ -193,8 +197,8 @@ fit_video_codec.refines = True  # diagnosis calls it again, in full, for a promi
 
 class VideoCodec(Effect):
     """H.264 or HEVC coding of the delivered frames (x264, x265) and decoding again: a sequence of frames as one
-    coded video (:meth:`finish_frames`), a frame on its own as an I-frame (:meth:`finish`); see the module's
-    docstring."""
+    coded video (:meth:`finish_frames`), a frame on its own as an I-frame (:meth:`finish`), kept where the graphics
+    reach; see the module's docstring."""
 
     name = "video_codec"
     section = "not in the paper"
@@ -232,10 +236,14 @@ class VideoCodec(Effect):
             raise LowcamError(f"{self.source}: effect '{self.name}': {e}") from None
 
     def finish(self, state, frame, footprint):
-        """One frame on its own, coded as an I-frame; every pixel changes."""
-        return self._code(frame[None])[0], np.ones_like(footprint)
+        """One frame on its own, coded as an I-frame; kept where the graphics reach (``footprint``), the plate's
+        own bytes elsewhere."""
+        coded = self._code(frame[None])[0]
+        return np.where(footprint[..., None], coded, frame), footprint
 
     def finish_frames(self, frames, footprints):
-        """The frames (T, H, W, 3) uint8 coded in order as one sequence, frame 0 an I-frame; every pixel
-        changes."""
-        return self._code(np.asarray(frames)), np.ones_like(footprints)
+        """The frames (T, H, W, 3) uint8 coded in order as one sequence, frame 0 an I-frame; kept where the
+        graphics reach (``footprints`` (T, H, W)), the plate's own bytes elsewhere."""
+        frames = np.asarray(frames)
+        coded = self._code(frames)
+        return np.where(footprints[..., None], coded, frames), footprints

@@ -24,6 +24,8 @@ Contents
 - :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
 - :data:`EDGE_SHARE`, :data:`EDGES_HOLD`: the pixels counted as edges, and when the residual is said to be there
 - :data:`SIM_SEED`: the first noise seed of the simulated frames
+- :data:`SEQUENCE_SEED_STEP`, :data:`NOISE_OF_MEAN_PX`: the second model sequence that measures the noise of the
+  mean where frames are not independent (a video encoder), and the squares it is averaged over
 - :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
 - :data:`CACHED_FRONTS`: deterministic fronts of the chain a shared cache keeps
 - :data:`WORKERS`: captures simulated at a time by a comparison made from the main thread
@@ -53,7 +55,7 @@ import numpy as np
 
 from ..effects.fixed_pattern import row_noise_variance
 from ..errors import LowcamError
-from ..pipeline import deterministic_prefix, prefix_key, prepare, resume_sequence
+from ..pipeline import deterministic_prefix, has_temporal, prefix_key, prepare, resume_sequence
 from .targets import ideal_from_target
 
 EXPLAINED_BELOW = 1.1
@@ -62,6 +64,11 @@ EDGE_SHARE = 0.1
 #: The residual is at edges (:func:`residual_family`) when they hold this many times their share of it.
 EDGES_HOLD = 3.0
 SIM_SEED = 1000
+#: The second model sequence of a profile whose frames are not independent starts at ``SIM_SEED`` plus this
+#: (:func:`capture_stats`'s ``again``).
+SEQUENCE_SEED_STEP = 500
+#: Side (px) of the squares over which the noise of the mean measured from two model sequences is averaged.
+NOISE_OF_MEAN_PX = 9
 INTENSITY_BINS = np.linspace(0, 256, 17)
 #: Deterministic fronts of the chain a shared ``cache`` keeps (:func:`simulate_capture`), least recently used out
 #: first.
@@ -223,13 +230,19 @@ def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None,
-                  mask: np.ndarray | None = None) -> CaptureStats:
+                  mask: np.ndarray | None = None, again: np.ndarray | None = None) -> CaptureStats:
     """The error sums of one capture's measured frames F against simulated frames G (see the module docstring),
     over the pixels ``mask`` (H, W) keeps (all when None).
 
     With one measured frame its noise cannot be measured: the per-pixel variance ``assumed_noise`` (the diagnosed
     profile's, fixed while candidates are compared) stands for both, or the model's own when None. Then a model
-    cannot lower its error by adding noise."""
+    cannot lower its error by adding noise.
+
+    ``again``: a second model sequence of the capture (other noise seeds), for a profile whose frames are not
+    independent (a video encoder's predicted frames hold the noise of the frame before): the temporal variance
+    then understates the noise of the mean, which is measured instead as ``(mean(G) - mean(again))^2`` (twice the
+    model mean's variance, standing for the measured mean's and the model's), averaged over
+    :data:`NOISE_OF_MEAN_PX` squares, and at least the independent frames' ``var_F / n + var_G / K``."""
     n, k = len(F), len(G)
     mF, squares_F = _mean_and_squares(F)
     mG, squares_G = _mean_and_squares(G)
@@ -240,6 +253,9 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     else:  # one frame: its noise is assumed
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
+    if again is not None:
+        d2 = np.square(mG.astype(np.float32) - again.astype(np.float32).mean(axis=0))
+        noise = np.maximum(noise, cv2.blur(d2, (NOISE_OF_MEAN_PX, NOISE_OF_MEAN_PX)))
     r = mF - mG
     every = None
     if mask is not None:  # left-out pixels carry no residual and no noise (summed once over all, for beside)
@@ -417,9 +433,15 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
     def one(i):
         cap = mset.captures[i]
         here = CaptureInputs(*inputs[i]) if inputs else capture_inputs(profile, cap)
-        sim = simulate_capture(profile, cap, sim_frames or max(len(cap.frames), 4), inputs=here, cache=cache,
+        count = sim_frames or max(len(cap.frames), 4)
+        sim = simulate_capture(profile, cap, count, inputs=here, cache=cache,
                                until="bayer_sampling")  # the front diagnosis's noise-free frames share
-        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask)
+        again = None
+        if has_temporal(profile):  # frames not independent: a second sequence measures the noise of the mean
+            again = simulate_capture(profile, cap, count, SIM_SEED + SEQUENCE_SEED_STEP, inputs=here, cache=cache,
+                                     until="bayer_sampling")
+        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask,
+                             again)
 
     if WORKERS > 1 and len(chosen) > 1 and threading.current_thread() is threading.main_thread():
         with ThreadPoolExecutor(WORKERS) as pool:
