@@ -194,7 +194,9 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
     return resume_sequence(token, seed, count, profile)
 
 
-def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> list[float]:
+def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=None) -> list[float]:
+    """Log ratios of the measured over the model's temporal variance per channel and brightness bin; ``vA``: the
+    variance of a second model sequence (:func:`_beyond_spread`)."""
     out = []
     nb = len(INTENSITY_BINS) - 1
     keep = slice(None) if mask is None else mask.ravel()
@@ -206,13 +208,29 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> lis
         for b in np.nonzero(count >= min_pixels)[0]:
             mf, mg = sf[b] / count[b], sg[b] / count[b]
             if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
-                out.append(float(np.log(mf / mg)))
+                if vA is None:
+                    out.append(float(np.log(mf / mg)))
+                else:
+                    ma = np.bincount(idx, vA[..., c].ravel()[keep], nb)[b] / count[b]
+                    out.append(_beyond_spread(np.log(mf / mg), np.log(max(ma, 0.05) / mg)))
     return out
 
 
-def _row_log_ratios(F, G) -> list[float]:
+def _beyond_spread(log_ratio: float, spread: float) -> float:
+    """A noise family's log ratio, measured over model, less what two model sequences of other noise differ by
+    (``spread``, their log ratio): ``sign(r) max(|r| - |spread|, 0)``. Where frames are not independent (a video
+    encoder holds the noise of one frame in the next), a noise statistic of a few frames scatters from one noise
+    draw to the next by a factor of 2 or more; what the model's own draws show of that is not counted."""
+    return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
+
+
+def _row_log_ratios(F, G, A=None) -> list[float]:
     rf, rg = row_noise_variance(F), row_noise_variance(G)
-    return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
+    if A is None:
+        return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
+    ra = row_noise_variance(A)
+    return [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b)) for a, b, c in zip(rf, rg, ra)
+            if a > 1e-9 and b > 1e-9]
 
 
 def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,7 +260,8 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     independent (a video encoder's predicted frames hold the noise of the frame before): the temporal variance
     then understates the noise of the mean, which is measured instead as ``(mean(G) - mean(again))^2`` (twice the
     model mean's variance, standing for the measured mean's and the model's), averaged over
-    :data:`NOISE_OF_MEAN_PX` squares, and at least the independent frames' ``var_F / n + var_G / K``."""
+    :data:`NOISE_OF_MEAN_PX` squares, and at least the independent frames' ``var_F / n + var_G / K``; the noise
+    families count only what lies beyond the two model sequences' own difference (:func:`_beyond_spread`)."""
     n, k = len(F), len(G)
     mF, squares_F = _mean_and_squares(F)
     mG, squares_G = _mean_and_squares(G)
@@ -253,8 +272,11 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     else:  # one frame: its noise is assumed
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
+    vA = None
     if again is not None:
-        d2 = np.square(mG.astype(np.float32) - again.astype(np.float32).mean(axis=0))
+        mA, squares_A = _mean_and_squares(again)
+        vA = np.maximum(squares_A / (len(again) - 1), 1 / 12)
+        d2 = np.square(mG - mA)
         noise = np.maximum(noise, cv2.blur(d2, (NOISE_OF_MEAN_PX, NOISE_OF_MEAN_PX)))
     r = mF - mG
     every = None
@@ -266,9 +288,9 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     sums = {"mean": mean, "mean_unmasked": every or mean,
             "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
             "noise_map": noise, "variance_map": vF, "mask": mask,
-            "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
-            "variance_unmasked": _variance_log_ratios(vF, vG, mG) if n > 1 and mask is not None else None,
-            "rows": _row_log_ratios(F, G) if n > 1 else []}
+            "variance": _variance_log_ratios(vF, vG, mG, mask=mask, vA=vA) if n > 1 else [],
+            "variance_unmasked": _variance_log_ratios(vF, vG, mG, vA=vA) if n > 1 and mask is not None else None,
+            "rows": _row_log_ratios(F, G, again) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 
