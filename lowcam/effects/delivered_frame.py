@@ -32,6 +32,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from .fixed_pattern import row_noise_variance
+
 #: Full-range BT.601 RGB -> (Y, Cb, Cr), chroma centred on 0 [T871].
 BT601_TO_YCC = np.array([[0.299, 0.587, 0.114],
                          [-0.168736, -0.331264, 0.5],
@@ -96,14 +98,20 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
     noise) of a stage that holds noise from frame to frame (a video encoder): the mean family's denominator is
     then ``sum (mean(simulated) - mean(again))^2`` (at least the independent frames'), and each pixel's variance
     at least 1/12 DN^2 (the rounding's), as :func:`lowcam.measure.compare.capture_stats` has them."""
-    mf, vf, n = measured
+    mf, vf, n = measured[:3]
     mg, vg, k = _moments(simulated)
     keep = np.ones(mf.shape[:2], bool) if mask is None else mask
     num = float(np.square(mf - mg)[keep].sum())
     den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+    va, rows = None, []
     if again is not None:
-        vf, vg = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12)
-        den = max(den, float(np.square(mg - np.asarray(again, np.float32).mean(0))[keep].sum()))
+        ma, va, _ = _moments(again)
+        vf, vg, va = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12), np.maximum(va, 1 / 12)
+        den = max(den, float(np.square(mg - ma)[keep].sum()))
+        if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
+            rg, ra = row_noise_variance(np.asarray(simulated)), row_noise_variance(np.asarray(again))
+            rows = [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
+                    for a, b, c in zip(measured[3], rg, ra) if a > 1e-9 and b > 1e-9]
     logs = []
     if vf is not None:
         level = np.clip((mg // 16).astype(int), 0, 15)
@@ -112,15 +120,27 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
             counts = np.bincount(lv, minlength=16)
             sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
             ok = (counts >= 100) & (sa > 0) & (sb > 0)
-            logs.extend(np.log(sa[ok] / sb[ok]).tolist())
-    return num, den, logs
+            if va is None:
+                logs.extend(np.log(sa[ok] / sb[ok]).tolist())
+            else:
+                sc = np.bincount(lv, va[..., c][keep], 16)
+                logs.extend(_beyond_spread(x, y) for x, y in zip(np.log(sa[ok] / sb[ok]), np.log(sc[ok] / sb[ok])))
+    return num, den, logs, rows
+
+
+def _beyond_spread(log_ratio: float, spread: float) -> float:
+    """``sign(r) max(|r| - |spread|, 0)``: a noise family's log ratio less what two model sequences of other noise
+    differ by (as :func:`lowcam.measure.compare.capture_stats` counts it for frames that are not independent)."""
+    return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
 
 
 def _combined(parts) -> float:
     num, den = sum(p[0] for p in parts), sum(p[1] for p in parts)
     logs = [x for p in parts for x in p[2]]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    return num / max(den, 1e-12) + e_var ** 2
+    rows = [x for p in parts for x in p[3]]
+    e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 0.0  # only with a second sequence
+    return num / max(den, 1e-12) + e_var ** 2 + e_rows ** 2
 
 
 def frame_score(measured: list, simulated: list, masks: list) -> float:
@@ -158,11 +178,15 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     asks for as many as the captures have). ``frozen_noise``: the stage holds noise from frame to frame (a video
     encoder's predicted frames), so the frames' temporal variance no longer measures the noise of their mean: each
     trial processes a second sequence of ``count`` frames of other noise too, and the mean family's noise is
-    measured from the two (:func:`_partial`'s ``again``), as the comparison does."""
+    measured from the two (:func:`_partial`'s ``again``), as the comparison does; the noise families count only
+    what lies beyond the two sequences' own difference, and the rows family (the variance of per-frame row means,
+    :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is scored too."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
     measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
+    if frozen_noise:  # the row family too: a coded sequence's row means show where the noise is held
+        measured = [m + (row_noise_variance(caps[i].frames[:, rows, cols][:, ir, ic]),) for m, i in zip(measured, idx)]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
     # ``count`` model frames per capture: the same noise in every trial, so trials compare fairly
     with_it = p.with_effect(effect, **searches[0][0])
