@@ -38,8 +38,9 @@ Contents
 - :data:`CODECS`: the codecs, name -> (encoder, decoder)
 - :data:`PRESETS`: the encoders' speed presets
 - :func:`code_sequence`: a sequence of 8-bit RGB frames coded as H.264 or HEVC and decoded again
-- :func:`fit_video_codec`: diagnosis's fit: the codec, CRF, GOP length and B-frames whose coded noisy model
-  sequences best match the measured frames (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
+- :func:`i_frames`: where coded captures' noise is drawn afresh: their I-frames
+- :func:`fit_video_codec`: diagnosis's fit: the GOP length read off the frames, then the codec, CRF and
+  B-frames whose coded noisy model sequences best match the measured frames (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`VideoCodec`: the stage
 
 It has no compositor node: the node group refuses a profile with it (``lowcam.node_maps.bake``), and the render
@@ -144,12 +145,15 @@ def code_sequence(frames: np.ndarray, codec: str = "h264", crf: float = 23.0, go
     return np.stack(out)
 
 
-#: Coarse plan of :func:`fit_video_codec`: CRF, then GOP length, then B-frames.
+#: Coarse plan of :func:`fit_video_codec`: CRF, then B-frames.
 _COARSE_CRF = (18, 24, 28, 32, 36, 42)
-_COARSE_GOP = (1, 2, 4, 8, 16, 250)
 _COARSE_B = (0, 2, 3)
 #: Rows, columns of the centre crop a trial codes (and scores, less a margin): a quarter of a 640x480 frame.
 _CROP = (256, 320)
+#: A frame is an I-frame when its mean squared change from the frame before is this many times the median change,
+#: at least half the largest, and above :data:`_MIN_CHANGE` (DN^2).
+_I_FRAME_JUMP = 10.0
+_MIN_CHANGE = 0.01
 
 
 def _process(values, frames):
@@ -157,39 +161,57 @@ def _process(values, frames):
                          values["preset"], values["matrix"], values["range"])
 
 
-def fit_video_codec(ctx, effect):
-    """Diagnosis's fit (a :class:`Search` ``fit``): the codec (H.264 or HEVC), CRF, GOP length and B-frames whose
-    coded noisy model sequences best match the measured frames' temporal means and variances
-    (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`, :func:`~lowcam.effects.delivered_frame.frame_score`).
+def i_frames(captures) -> list[int]:
+    """The frame indices (after frame 0) at which coded captures' noise is drawn afresh: the I-frames. A predicted
+    frame holds the noise of the frame before, an I-frame codes its own, so the mean squared change from the frame
+    before, summed over the ``captures`` ((T, H, W, 3) stacks of one length), jumps there: frames whose change is
+    at least :data:`_I_FRAME_JUMP` times the median change and half the largest (B- and P-frames change a little
+    too). [] when no frame jumps."""
+    changes = sum(np.square(np.diff(np.asarray(f, np.float32), axis=0)).mean(axis=(1, 2, 3)) for f in captures)
+    changes = np.atleast_1d(changes)
+    if len(changes) < 2:
+        return []
+    top = float(changes.max())
+    jump = (changes >= _I_FRAME_JUMP * np.median(changes)) & (changes >= 0.5 * top) & (changes > _MIN_CHANGE)
+    return [int(k) + 1 for k in np.nonzero(jump)[0]]
 
-    The model keeps its noise, and as many frames as the captures have (at least 4): a predicted frame holds the
-    noise of the frame it is predicted from, so what the coding does to the frames' variance depends on the GOP
-    and on the noise itself. The model's noisy frames are simulated once without the codec and each trial codes
-    them again: two sequences of independent noise, whose means' difference measures the noise of the mean (the
-    frames' temporal variance no longer does), on a centre crop of :data:`_CROP` px and a margin (the encoder's
-    decisions are local; its rate control sees the crop's content, about the frame's). Per codec: a coarse CRF grid
-    (:data:`_COARSE_CRF`), the GOP length (:data:`_COARSE_GOP`) and B-frames (:data:`_COARSE_B`); for the better
-    codec the CRF in steps of 2 and 1, the GOP around its value and the CRF again. The matrix, range and preset
-    stay the profile's (or the defaults)."""
+
+def fit_video_codec(ctx, effect):
+    """Diagnosis's fit (a :class:`Search` ``fit``): the GOP length read off the frames, then the codec (H.264 or
+    HEVC), CRF and B-frames whose coded noisy model sequences best match the measured frames' temporal means and
+    variances (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`,
+    :func:`~lowcam.effects.delivered_frame.frame_score`, with its rows family).
+
+    The GOP: the first I-frame after frame 0 (:func:`i_frames`) over the captures with the most frames; when none
+    shows, the GOP is at least as long as the captures (their frame count is taken). The model keeps its noise,
+    and as many frames as the captures have (at least 4): a predicted frame holds the noise of the frame it is
+    predicted from, so what the coding does to the frames' variance depends on the GOP and on the noise itself.
+    The model's noisy frames are simulated once without the codec and each trial codes them again: two sequences
+    of independent noise, whose means' difference measures the noise of the mean (the frames' temporal variance no
+    longer does), on a centre crop of :data:`_CROP` px and a margin (the encoder's decisions are local). Per codec
+    a coarse CRF grid (:data:`_COARSE_CRF`), then the B-frames (:data:`_COARSE_B`) and the CRF in steps of 2; for
+    the better codec the CRF in steps of 1, the B-frames from 0 to 3 and the CRF again. The matrix, range and
+    preset stay the profile's (or the defaults)."""
     p = ctx.profile
     have = p.effect(effect)
     fixed = {k: getattr(have, k) if have is not None else VideoCodec.params[k].default
              for k in ("preset", "matrix", "range")}
-    count = max(4, max(len(ctx.mset.captures[i].frames) for i in ctx.quick))
+    caps = ctx.mset.captures
+    count = max(4, max(len(caps[i].frames) for i in ctx.quick))
+    longest = max(len(c.frames) for c in caps)
+    jumps = i_frames([c.frames for c in caps if len(c.frames) == longest]) if longest > 2 else []
+    gop = int(jumps[0]) if jumps else max(longest, 1)
 
-    def near(key, steps, low, high):
-        return lambda v: sorted({int(min(high, max(low, v[key] + d))) for d in steps})
+    def near(steps):
+        return lambda v: sorted({int(min(51, max(0, v["crf"] + d))) for d in steps})
 
-    def gop_near(v):
-        g = v["gop_frames"]
-        return sorted({max(1, min(600, x)) for x in (g // 2, g - 2, g - 1, g, g + 1, g + 2, 2 * g)})
-
-    coarse = [("crf", list(_COARSE_CRF)), ("gop_frames", list(_COARSE_GOP)), ("b_frames", list(_COARSE_B)),
-              ("crf", near("crf", (-4, -2, 0, 2, 4), 0, 51))]
-    plan = [("crf", near("crf", (-1, 0, 1), 0, 51)), ("gop_frames", gop_near), ("b_frames", [0, 1, 2, 3]),
-            ("crf", near("crf", (-1, 0, 1), 0, 51))]
-    searches = [(dict(fixed, codec=codec, crf=28, gop_frames=250, b_frames=0), plan, coarse) for codec in CODECS]
-    return fit_delivered_stage(ctx, effect, _process, searches, crop=_CROP, count=count, frozen_noise=True)
+    coarse = [("crf", list(_COARSE_CRF)), ("b_frames", list(_COARSE_B)), ("crf", near((-2, 0, 2)))]
+    plan = [("crf", near((-1, 0, 1))), ("b_frames", [0, 1, 2, 3]), ("crf", near((-1, 0, 1)))]
+    searches = [(dict(fixed, codec=codec, crf=28, gop_frames=gop, b_frames=0), plan, coarse) for codec in CODECS]
+    out, values, shown = fit_delivered_stage(ctx, effect, _process, searches, crop=_CROP, count=count,
+                                             frozen_noise=True)
+    shown["gop_frames"] = f"{gop}" if jumps else f"at least {gop}"
+    return out, values, shown
 
 
 fit_video_codec.refines = True  # diagnosis calls it again, in full, for a promising candidate
