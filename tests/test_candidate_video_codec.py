@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import lowcam
-from lowcam.effects.video_codec import VideoCodec, code_sequence
+from lowcam.effects.video_codec import VideoCodec, code_sequence, i_frames
 from lowcam.measure.compare import simulate_capture
 from lowcam.measure.diagnose import diagnose
 from lowcam.measure.sets import load_set, write_set
@@ -121,6 +121,13 @@ def test_a_higher_crf_codes_further_from_the_input(codec):
                                - frames) ** 2)) for c in (10, 30, 45)]
     assert errors[0] < errors[1] < errors[2], errors
     assert np.sqrt(np.mean((code_sequence(frames, codec, crf=45, gop_frames=4)[0] - clean) ** 2)) < 12
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_the_i_frames_are_read_off_the_coded_frames(codec):
+    frames = still_noisy(frames=9)
+    assert i_frames([code_sequence(frames, codec, crf=32, gop_frames=4)]) == [4, 8]
+    assert i_frames([code_sequence(frames, codec, crf=32, gop_frames=250)]) == []
 
 
 def test_the_coding_is_deterministic_and_odd_sizes_are_kept():
