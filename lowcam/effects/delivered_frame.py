@@ -154,7 +154,7 @@ def frame_score(measured: list, simulated: list, masks: list) -> float:
 
 
 def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3,
-                        frozen_noise: bool = False):
+                        frozen_noise: bool = False, screened_forms: int = 1):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -178,7 +178,9 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     asks for as many as the captures have). ``frozen_noise``: the stage holds noise from frame to frame (a video
     encoder's predicted frames), so the frames' temporal variance no longer measures the noise of their mean: each
     trial processes a second sequence of ``count`` frames of other noise too, and the mean family's noise is
-    measured from the two (:func:`_partial`'s ``again``), as the comparison does; the noise families count only
+    measured from the two (:func:`_partial`'s ``again``), as the comparison does. ``screened_forms``: how many
+    forms screening tries (the first; a video encoder's two codecs code noise too differently for one to stand for
+    the other); the noise families count only
     what lies beyond the two sequences' own difference, and the rows family (the variance of per-frame row means,
     :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is scored too."""
     p = ctx.profile
@@ -243,7 +245,7 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
 
     screening = getattr(ctx, "screening", False)
     coarse = []
-    for start, plan, coarse_plan in searches[:1] if screening else searches:  # each form on its coarse steps
+    for start, plan, coarse_plan in searches[:screened_forms] if screening else searches:  # each on its coarse steps
         values = dict(start)
         for key, options in coarse_plan:
             step(values, key, options)
