@@ -25,6 +25,7 @@ Contents
 - :func:`plate`: the plate for a frame as uint8 RGB at the camera's size, or None
 - :func:`motion`: the camera's angular velocity over a frame's exposure from the chosen motion source
 - :func:`output_path`: where a frame's degraded composite goes
+- :func:`write_shot_video`: the scene's composites coded into its Video Output, as the plate clip was coded
 - :func:`degrade`: simulate the camera on the frame Blender wrote; returns the composite's path
 """
 from __future__ import annotations
@@ -289,6 +290,25 @@ def output_path(scene, frame: int) -> Path:
     from lowcam.batch import expand_pattern
 
     return Path(expand_pattern(bpy.path.abspath(settings(scene).output), frame))
+
+
+def write_shot_video(scene) -> str:
+    """The scene's composites of every frame (start to end, by its step) coded into its Video Output
+    (:func:`lowcam.video.write_shot_video`: as the plate Movie Clip was coded, else H.264 at the scene's frame
+    rate); one line saying how. Refused in one line while a frame's composite is missing."""
+    from lowcam.video import write_shot_video as code
+
+    s = settings(scene)
+    frames = range(scene.frame_start, scene.frame_end + 1, max(scene.frame_step, 1))
+    files = [output_path(scene, f) for f in frames]
+    missing = [f for f, file in zip(frames, files) if not file.is_file()]
+    path = bpy.path.abspath(s.video_output)
+    if missing:
+        raise LowcamError(f"{path}: not written until every frame is made ({len(missing)} of {len(files)} missing, "
+                          f"first frame {missing[0]}); render the animation again")
+    clip = s.plate_clip if s.plate_source == "CLIP" else None
+    plate = bpy.path.abspath(clip.filepath) if clip is not None and clip.source == "MOVIE" else None
+    return code(path, files, scene.render.fps / scene.render.fps_base, plate)
 
 
 def degrade(scene, render_path, frame: int) -> Path:

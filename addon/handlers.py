@@ -7,6 +7,7 @@ Contents
 --------
 - :func:`on_render_init`: render_init handler: sets the scene up (render camera, passes) when Simulate Camera is on
 - :func:`on_render_write`: render_write handler: degrades every frame Blender writes
+- :func:`on_render_complete`: render_complete handler: codes the shot into the Video Output, when one is set
 - :data:`HANDLERS`: (Blender handler list, function) pairs
 - :func:`register`: append the handlers to Blender's handler lists
 - :func:`unregister`: remove them
@@ -21,10 +22,12 @@ from bpy.app.handlers import persistent
 from lowcam.errors import LowcamError
 
 suspended = False  # set while an operator degrades frames itself
+_frames_written: set[int] = set()  # the composites written since the render began
 
 
 @persistent
 def on_render_init(scene, *args):
+    _frames_written.clear()
     if scene.lowcam.enabled and not suspended:
         from .frames import setup_scene
 
@@ -44,12 +47,29 @@ def on_render_write(scene, *args):
     written = bpy.path.abspath(scene.render.frame_path(frame=frame))
     try:
         path = degrade(scene, written, frame)
+        _frames_written.add(frame)
         print(f"lowcam: frame {frame} -> {path}", flush=True)
     except LowcamError as e:
         print(f"lowcam: frame {frame}: {e}", file=sys.stderr, flush=True)
 
 
-HANDLERS = ((bpy.app.handlers.render_init, on_render_init), (bpy.app.handlers.render_write, on_render_write))
+@persistent
+def on_render_complete(scene, *args):
+    """After an animation render (more than one composite written, or the scene's only frame): the Video Output."""
+    if not scene.lowcam.enabled or suspended or not scene.lowcam.video_output or not _frames_written:
+        return
+    if len(_frames_written) < 2 and scene.frame_end > scene.frame_start:
+        return   # a still of one frame of a longer shot
+    from .frames import write_shot_video
+
+    try:
+        print(f"lowcam: {write_shot_video(scene)}", flush=True)
+    except LowcamError as e:
+        print(f"lowcam: {e}", file=sys.stderr, flush=True)
+
+
+HANDLERS = ((bpy.app.handlers.render_init, on_render_init), (bpy.app.handlers.render_write, on_render_write),
+            (bpy.app.handlers.render_complete, on_render_complete))
 
 
 def register():

@@ -47,6 +47,7 @@ import tempfile
 from pathlib import Path
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, CollectionProperty, FloatProperty, IntProperty, StringProperty
 
 from lowcam.errors import LowcamError
@@ -251,6 +252,28 @@ def _show_comparison(m, doc: dict) -> None:
     m.where = "; ".join(where_lines(doc.get("where", {})))
 
 
+#: The longest side (px) of a panel picture's preview: Blender makes previews of 256 px, too small to read a plot.
+PREVIEW_PX = 1200
+
+
+def _full_size_preview(image) -> None:
+    """The image's panel preview (its icon) at the image's own resolution, up to :data:`PREVIEW_PX` on the longer
+    side (every other row and column dropped until it fits), so that text in the picture can be read."""
+    try:
+        preview = image.preview_ensure() or image.preview
+        width, height = image.size
+        if not (width and height and preview):
+            return
+        pixels = np.empty(width * height * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+        step = -(-max(width, height) // PREVIEW_PX)
+        pixels = np.ascontiguousarray(pixels.reshape(height, width, 4)[::step, ::step])
+        preview.image_size = (pixels.shape[1], pixels.shape[0])
+        preview.image_pixels_float.foreach_set(pixels.ravel())
+    except (AttributeError, RuntimeError, TypeError, ValueError):
+        pass   # a Blender without writable previews keeps its own 256 px one
+
+
 def _load_image(name: str, path: Path, show: bool = False):
     """``path`` as the Blender image ``name`` (a new image each time, so that its panel preview is new too);
     ``show``: in every Image Editor."""
@@ -261,10 +284,7 @@ def _load_image(name: str, path: Path, show: bool = False):
         bpy.data.images.remove(old)
     image = bpy.data.images.load(str(path))
     image.name = name
-    try:
-        image.preview_ensure()
-    except (AttributeError, RuntimeError):
-        pass
+    _full_size_preview(image)
     if show:
         for window in getattr(bpy.context.window_manager, "windows", ()):
             for area in window.screen.areas:

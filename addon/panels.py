@@ -50,6 +50,7 @@ def draw_settings(layout, scene):
     layout.prop(s, "render_depth")
     layout.prop(s, "render_codec")
     layout.prop(s, "output")
+    layout.prop(s, "video_output")
     row = layout.row(align=True)
     row.operator("lowcam.setup_scene")
     row.operator("lowcam.apply")
@@ -90,11 +91,17 @@ class LOWCAM_PT_compositor(_CompositorSidebar, bpy.types.Panel):
         self.layout.operator("lowcam.add_camera_node")
 
 
-def _image(layout, name: str, scale: float = 12.0) -> None:
+def _image(layout, name: str) -> None:
+    """The picture ``name`` (its full-size preview, made when it was loaded) in a square box as wide as the panel
+    (the pictures are drawn near square), at least 12 UI units."""
     image = bpy.data.images.get(name)
-    icon = getattr(getattr(image, "preview", None), "icon_id", 0)   # made when the image was loaded
-    if icon:
-        layout.template_icon(icon_value=icon, scale=scale)
+    icon = getattr(getattr(image, "preview", None), "icon_id", 0)
+    if not icon:
+        return
+    region = getattr(bpy.context, "region", None)
+    unit = 20 * getattr(bpy.context.preferences.system, "ui_scale", 1.0)
+    width_units = (region.width - 2 * unit) / unit if region is not None and region.width > 0 else 12.0
+    layout.template_icon(icon_value=icon, scale=max(12.0, width_units))
 
 
 class LOWCAM_UL_candidates(bpy.types.UIList):

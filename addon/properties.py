@@ -132,6 +132,11 @@ class LowcamSettings(bpy.types.PropertyGroup):
     output: StringProperty(name="Output", subtype="FILE_PATH", default="//lowcam/####.png",
                            options=path_options(),
                            description="Degraded composites; #### is the frame number")
+    video_output: StringProperty(
+        name="Video Output", subtype="FILE_PATH", default="", options=path_options(),
+        description="Also code the composites into this video (.mp4, .mov, .mkv) once an animation render has made "
+                    "every frame: as the plate Movie Clip was coded (codec, GOP, B-frames, colour tags), else H.264. "
+                    "Empty: image files only")
 
     def profile_ref(self) -> str:
         """:func:`profile_ref` of these settings (the compositor's camera node asks the scene's settings so, without

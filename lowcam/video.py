@@ -45,6 +45,8 @@ Contents
 - :func:`coding_of_plate`: the coding of a plate video, read from its bitstream
 - :func:`rgb_to_ycbcr`: uint8 R'G'B' -> 4:2:0 Y'CbCr code values (the inverse of :func:`ycbcr_matrix`)
 - :func:`write_video`: frames coded into a video file, tagged, written atomically
+- :func:`write_shot_video`: a shot's frame files coded as its plate video was (``batch -o shot.mp4``, the
+  add-on's Video Output)
 
 References
 ----------
@@ -56,6 +58,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import time
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -65,6 +68,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .io import read_image
 from .outputs import atomic_write_with
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp",
@@ -629,6 +633,29 @@ def write_video(path, frames, coding: VideoCoding) -> Path:
         return atomic_write_with(path, write)
     except av.FFmpegError as e:
         raise LowcamError(f"{path}: the encoder {coding.encoder} refused ({_first_line(e)})") from None
+
+
+def write_shot_video(path, frame_files, fps: float | None = None, plate=None, plate_colour: str | None = None) -> str:
+    """A shot's frames (image files, in frame order) coded into the video ``path`` as the ``plate`` video was coded
+    (:func:`coding_of_plate`: its codec, bit depth, colour tags, GOP, B-frames and rate), else as
+    :class:`VideoCoding`'s default at ``fps`` (24 when None). Returns one line saying how it was coded. Used by
+    ``lowcam batch -o shot.mp4`` and the add-on's Video Output."""
+    if plate is not None and is_video(plate):
+        coding = coding_of_plate(open_video(plate, plate_colour), fps)
+    else:
+        coding = VideoCoding(fps=fps or 24.0)
+    frame_files = list(frame_files)
+    t = time.perf_counter()
+
+    def rgb(file):
+        img = read_image(file)
+        return np.dstack([img] * 3) if img.ndim == 2 else img[..., :3]
+
+    write_video(path, (rgb(f) for f in frame_files), coding)
+    rate = f"CRF {coding.crf:g}" if coding.crf is not None else f"{coding.bitrate_bps} bit/s"
+    return (f"{path}: {len(frame_files)} frames coded by {coding.encoder} ({rate}, GOP {coding.gop}, "
+            f"{coding.b_frames} B-frames, {coding.matrix} {coding.range}) as {coding.source} in "
+            f"{time.perf_counter() - t:.1f} s")
 
 
 def _video_stream(out, coding: VideoCoding, width: int, height: int):

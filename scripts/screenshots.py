@@ -36,7 +36,7 @@ TIMES: dict[str, float] = {}
 #: The Match loop's pictures -> the docs/ file name; its X screen (the Properties editor with the Match panel alone).
 MATCH_DOCS = {"match-before": "lowcam-match-before.png", "match-diagnosed": "lowcam-match-diagnosed.png",
               "match-added": "lowcam-match-added.png"}
-MATCH_GEOMETRY = (760, 1500)
+MATCH_GEOMETRY = (760, 2400)
 
 
 class Unavailable(Exception):

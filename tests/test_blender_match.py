@@ -98,7 +98,10 @@ def test_compare_diagnose_add_undo_give_the_command_lines_numbers(scene, measure
     where = m.where.split("; ")
     assert [w.split()[0] for w in where] == ["channel", "region", "band", "level"]
     assert where[2].startswith(f"band {max(first['where']['bands'], key=lambda e: e['error'])['band']} ")
-    assert Path(m.report).is_file() and bpy.data.images["Lowcam Residual Map"].size[0] > 0
+    maps = bpy.data.images["Lowcam Residual Map"]
+    assert Path(m.report).is_file() and maps.size[0] > 0
+    assert tuple(maps.preview.image_size) == tuple(maps.size)   # the panel shows it at its own size, not 256 px
+    assert 0.7 < maps.size[0] / maps.size[1] < 1.4              # near square, as the panel's box
     assert [(v.label, round(v.error, 3)) for v in m.versions] == [("fire-i", round(first["error"], 3))]
 
     # Diagnose: the hidden tone curve first; the main thread is never held for 0.5 s meanwhile
@@ -126,7 +129,8 @@ def test_compare_diagnose_add_undo_give_the_command_lines_numbers(scene, measure
     assert m.error <= 1.25 and m.error == pytest.approx(added["error"], rel=1e-6)
     assert [v.label for v in m.versions] == ["fire-i", "+ tone_curve"]
     assert m.versions[1].error == pytest.approx(added["error"], rel=1e-6)
-    assert bpy.data.images["Lowcam Error History"].size[0] > 0
+    history = bpy.data.images["Lowcam Error History"]
+    assert tuple(history.preview.image_size) == tuple(history.size) and history.size[0] >= 500
     assert not m.candidates                      # they were ranked for fire-i
 
     # Undo to the first version: fire-i again, with its error; comparing again gives that error

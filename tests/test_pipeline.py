@@ -183,7 +183,7 @@ def _every_effect(profile):
     from lowcam.effects import EFFECTS
 
     raw_only, not_raw = {"raw_blend"}, {"yuv_blend", "chroma_subsampling", "jpeg", "saturation", "noise_reduction",
-                                     "edge_enhancement"}
+                                     "local_tone_mapping", "edge_enhancement"}
     for name in EFFECTS:
         if name in (not_raw if profile.is_raw else raw_only) or (profile.effect(name) and profile.effect(name).enabled):
             continue

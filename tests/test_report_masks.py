@@ -45,7 +45,7 @@ def test_the_report_draws_a_grid_of_residual_maps_and_names_the_masked_share(mas
 
     page = write_compare_report(masked_comparison, tmp_path / "report", "masks")
     width, height = Image.open(tmp_path / "report" / "residual_maps.png").size
-    assert width <= 1800 and height >= 1000, (width, height)  # 4 columns, 4 rows; not one strip 13 maps long
+    assert width <= 1800 and height >= 1000, (width, height)  # 3 columns, 5 rows: near square, not a strip
     text = page.read_text()
     assert "Left out of the comparison" in text and "of the residual energy" in text
     numbers = json.loads(html.unescape(text.split("<pre>")[-1].split("</pre>")[0]))

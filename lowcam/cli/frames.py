@@ -23,7 +23,7 @@ from ..arguments import Number, Reads, Text, Writes, angular_velocity, bounded_i
 from ..batch import Shot, check_shot_outputs, parse_frames, run_shot, summary
 from ..effects import trusted_modules
 from ..errors import LowcamError
-from ..io import read_image, read_plate, read_render
+from ..io import read_plate, read_render
 from ..gyro_logs import gyro_log_motion
 from ..motion import read_motion_json
 from ..outputs import IMAGE_SUFFIXES, check_image_output, check_output, check_output_folder, make_output_folder, write_image, write_png
@@ -31,7 +31,7 @@ from ..passes import needed_passes, read_render_and_passes
 from ..pipeline import run
 from ..profile import load_profile
 from ..sample import sample_plate, sample_render
-from ..video import VIDEO_OUTPUTS, VideoCoding, coding_of_plate, is_video, open_video, write_video
+from ..video import VIDEO_OUTPUTS, is_video, write_shot_video
 from .common import EXPOSURE_S, FPS, FRAMES, LAYER, METRES_PER_UNIT, PROFILE, RENDER_SPACE, plate_colour_option
 
 
@@ -173,25 +173,9 @@ def cmd_batch(args) -> int:
     if video_out and failed:
         print(f"{video_out}: not written until every frame is made; run the same command again", file=sys.stderr)
     elif video_out:
-        _write_shot_video(video_out, shot, frames, args.fps)
+        print(write_shot_video(video_out, [shot.output_path(f) for f in frames], args.fps, shot.plates,
+                               shot.plate_colour))
     return 1 if failed else 0
-
-
-def _write_shot_video(path: str, shot, frames: list[int], fps: float | None) -> None:
-    """The shot's frames (PNG files, in frame order) coded into ``path`` as the plate video was coded (its codec,
-    bit depth, colour tags, GOP, B-frames and rate), else as :class:`lowcam.video.VideoCoding`'s default."""
-    if is_video(shot.plates):
-        coding = coding_of_plate(open_video(shot.plates, shot.plate_colour), fps)
-    else:
-        coding = VideoCoding(fps=fps or 24.0)
-    t = time.perf_counter()
-    def rgb(f):
-        img = read_image(shot.output_path(f))
-        return np.dstack([img] * 3) if img.ndim == 2 else img[..., :3]
-    write_video(path, (rgb(f) for f in frames), coding)
-    crf = f"CRF {coding.crf:g}" if coding.crf is not None else f"{coding.bitrate_bps} bit/s"
-    print(f"{path}: {len(frames)} frames coded by {coding.encoder} ({crf}, GOP {coding.gop}, {coding.b_frames} "
-          f"B-frames, {coding.matrix} {coding.range}) as {coding.source} in {time.perf_counter() - t:.1f} s")
 
 
 def add_commands(sub) -> None:

@@ -53,8 +53,9 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.tone_curve`: the tone curve (not in the paper; sec. 8)
 - :mod:`~lowcam.effects.yuv`: YUV blending and 4:1:1 chroma (sec. 5.2 steps 8-10)
 - :mod:`~lowcam.effects.noise_reduction`: an image processor's spatial noise reduction (not in the paper)
+- :mod:`~lowcam.effects.local_tone_mapping`: an image processor's local tone mapping (CLAHE; not in the paper)
 - :mod:`~lowcam.effects.edge_enhancement`: an image processor's edge enhancement with coring (not in the paper);
-  what both share in :mod:`~lowcam.effects.delivered_frame`
+  what these three share in :mod:`~lowcam.effects.delivered_frame`
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
 - :mod:`~lowcam.effects.video_codec`: H.264 or HEVC video coding with x264 or x265, over a sequence of frames
   (not in the paper)
@@ -84,6 +85,7 @@ from .fixed_pattern import DSNU, HotPixels, PRNU, RowNoise
 from .half_sampling import HalfSampling
 from .jpeg import Jpeg
 from .lens import LensDistortion
+from .local_tone_mapping import LocalToneMapping
 from .motion_blur import MotionBlur
 from .noise import Noise
 from .noise_reduction import NoiseReduction
@@ -106,7 +108,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                NoiseReduction, EdgeEnhancement, Jpeg, VideoCodec,
+                NoiseReduction, LocalToneMapping, EdgeEnhancement, Jpeg, VideoCodec,
                 # need render passes (velocity, depth): added by the Blender add-on when asked for
                 ObjectMotion, DepthOfField)
 }

@@ -1,6 +1,6 @@
 """What the image-processor stages that act on the delivered 8-bit frame share: luma and chroma, where they act,
-and their diagnosis fit (noise reduction, :mod:`~lowcam.effects.noise_reduction`; edge enhancement,
-:mod:`~lowcam.effects.edge_enhancement`).
+and their diagnosis fit (noise reduction, :mod:`~lowcam.effects.noise_reduction`; local tone mapping,
+:mod:`~lowcam.effects.local_tone_mapping`; edge enhancement, :mod:`~lowcam.effects.edge_enhancement`).
 
 A camera's image processor filters the frame in a luma-chroma space after demosaicing [Ramanath2005]. These stages
 act after the blend (and after the chroma subsampling), on the frame as delivered, before any encoder: the

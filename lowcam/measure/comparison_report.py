@@ -69,6 +69,12 @@ def masked_shares(cmp) -> dict:
     return out
 
 
+def _square_grid_columns(count: int, cell_aspect: float) -> int:
+    """The columns of a grid of ``count`` cells (each ``cell_aspect`` wide to high) that make it most nearly
+    square: the Match panel shows a picture in a square box, the report at the page's width."""
+    return min(range(1, count + 1), key=lambda c: abs(np.log(c * cell_aspect / -(-count // c))))
+
+
 def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
     """Every probe as (title, PNG path)."""
     stats = cmp.captures
@@ -79,7 +85,7 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
 
     # residual maps, in units of the noise of the means, one panel per capture; masked regions tinted
     shares = masked_shares(cmp)
-    cols = min(len(stats), 4)
+    cols = _square_grid_columns(len(stats), 4.2 / 3.2)
     rows = -(-len(stats) // cols)
 
     def residual_maps(f):
@@ -97,9 +103,9 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
                 ax.contour(~mask, [0.5], colors="cyan", linewidths=0.6)
                 share = shares[s.name]
                 title += f": masked {share['pixels']:.1%} of pixels, {share['residual']:.0%} of residual"
-            ax.set_title(title, fontsize=8)
+            ax.set_title(title, fontsize=10)
             ax.axis("off")
-            f.colorbar(im, ax=ax, fraction=0.035, pad=0.02).ax.tick_params(labelsize=6)
+            f.colorbar(im, ax=ax, fraction=0.035, pad=0.02).ax.tick_params(labelsize=9)
     fig("residual_maps", "Residual maps (|residual| / noise; masked regions tinted, not compared)", residual_maps,
         (4.2 * cols, 3.2 * rows))
 
@@ -306,15 +312,16 @@ def record_history(mset_path, profile_name: str, cmp) -> list[dict]:
 def history_figure(entries, folder: Path) -> Path:
     def draw(f):
         ax = f.add_subplot(1, 1, 1)
-        ax.plot(range(len(entries)), [e["error"] for e in entries], "o-")
-        ax.axhline(1.0, color="k", lw=0.8, label="noise floor")
-        ax.axhline(1.1, color="grey", lw=0.8, ls="--", label="explained")
+        ax.plot(range(len(entries)), [e["error"] for e in entries], "o-", lw=2, ms=8)
+        ax.axhline(1.0, color="k", lw=1, label="noise floor")
+        ax.axhline(1.1, color="grey", lw=1, ls="--", label="explained")
         ax.set_xticks(range(len(entries)), [Path(e["profile"]).stem for e in entries], rotation=30, ha="right",
-                      fontsize=7)
-        ax.set_ylabel("error (1 = noise)")
-        ax.set_title("error against model version", fontsize=9)
-        ax.legend()
-    return figure(folder / "history.png", draw, (7, 4))
+                      fontsize=12)
+        ax.tick_params(axis="y", labelsize=12)
+        ax.set_ylabel("error (1 = noise)", fontsize=13)
+        ax.set_title("error against model version", fontsize=14)
+        ax.legend(fontsize=12)
+    return figure(folder / "history.png", draw, (6, 5))   # near square, large type: also the Match panel's
 
 
 def _with_uncertainty(params: dict, uncertainty: dict) -> str:

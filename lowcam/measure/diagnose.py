@@ -41,6 +41,8 @@ Contents
 - :data:`FITTED`: how many screened candidates are fitted to convergence (at most)
 - :data:`REFINE_WITHIN`: a screened candidate is fitted to convergence when its held-out error is within this
   factor of the best screened candidate's
+- :data:`REFINE_GAIN`: a screened candidate is fitted to convergence only when its screened error is below the
+  profile's own by at least this fraction
 - :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
 - :data:`TILE_PX`, :data:`UNDETERMINED_SPREAD`, :data:`AT_BOUND`: the folds' image tiles, and when a fitted number
@@ -103,6 +105,9 @@ UNEXPLAINED_ABOVE = 1.25
 NAMED_GAIN = 0.03
 FITTED = 4
 REFINE_WITHIN = 1.5
+#: A screened candidate is fitted to convergence only when its screened error is below the profile's own by at
+#: least this fraction: a candidate that does not help at screening is not fitted further (nor named).
+REFINE_GAIN = 0.01
 FULL_ERRORS = 3
 #: Candidates renamed after their effect; the old names are still accepted.
 RENAMED_CANDIDATES = {"gamma": "tone_curve"}
@@ -1096,11 +1101,12 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         held = {t.name: _held_out(ctx, t) for t in trials if t.folds}
         errors = sorted((h[0], t.name) for t in trials if (h := held.get(t.name)) is not None)
         top = errors[0][0] if errors else np.inf
-        finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
+        worth = min(REFINE_WITHIN * top, (1 - REFINE_GAIN) * base_error)   # fitted further only if it helps
+        finalists = [by_name[n] for e, n in errors if e <= worth][:FITTED]
         # a fit whose screening is coarse on purpose (``refines``) is refined when its error in sample could win
         finalists += [t for t in trials if t.folds and t not in finalists and t.folds[0][2] is not None
                       and getattr(t.folds[0][2].search.fit, "refines", False) and t.folds[0][2].fitted() is not None
-                      and _in_sample(ctx, t)[0] <= REFINE_WITHIN * top]
+                      and _in_sample(ctx, t)[0] <= worth]
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:
             t.every = True

@@ -1,0 +1,191 @@
+"""An image processor's local tone mapping (CLAHE), hidden by code no one here wrote, behind the Fire-i.
+
+The hidden stage is scikit-image's contrast-limited adaptive histogram equalisation (``skimage.exposure``'s
+``_clahe``, the core of ``equalize_adapthist``: its own histogram clipping, redistribution, padding and
+interpolation) on the luma of OpenCV's YCrCb conversion, the chroma passed through, mixed with the original luma at
+seeded random clip limits, region sizes and strengths. The public wrapper also stretches each frame's own minimum
+and maximum to the full range before and after, which no camera does frame by frame (a flat field's noise would be
+stretched to 0-255); the core is called on the fixed 8-bit range instead.
+
+Diagnosis must name ``local_tone_mapping`` first with a verdict that is not confidently wrong; a set without tone
+mapping gets it not named first. The stage's own physics is checked against analytic constructions.
+"""
+import numpy as np
+import pytest
+
+import lowcam
+from helpers import diagnose_set, quiet_fire_i
+from lowcam.effects.delivered_frame import to_ycc
+from lowcam.effects.local_tone_mapping import tone_map_frame
+from lowcam.errors import ProfileError
+
+skimage_clahe = pytest.importorskip("skimage.exposure._adapthist")
+
+
+def to_uint8(x):
+    return np.clip(np.round(x), 0, 255).astype(np.uint8)
+
+
+# --- the physics --------------------------------------------------------------------------------------------------
+
+def low_contrast_steps(shape=(240, 320), seed=0):
+    """Grey blocks of 100 and 112 DN in a checkerboard of 40 px cells, with 1 DN of noise."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    grey = np.where(((yy // 40) + (xx // 40)) % 2 == 0, 100.0, 112.0)
+    return to_uint8(grey[..., None] + rng.standard_normal(shape + (3,)))
+
+
+def test_tone_mapping_raises_local_contrast_and_keeps_the_chroma():
+    frame = low_contrast_steps()
+    out = tone_map_frame(frame, clip_limit=3.0, tiles=4, strength=1.0)
+    y_in, y_out = to_ycc(frame), to_ycc(out)
+    dark, bright = (slice(5, 35), slice(5, 35)), (slice(5, 35), slice(45, 75))
+    step_in = y_in[bright][..., 0].mean() - y_in[dark][..., 0].mean()
+    step_out = y_out[bright][..., 0].mean() - y_out[dark][..., 0].mean()
+    # each region: two levels ~5 bins wide, far over a clip of 3x the mean bin count; the clipped excess spread
+    # over 256 bins leaves a slope of ~0.9 elsewhere and ~3.9 within each level: the step about doubles
+    assert abs(step_in - 12.0) < 0.5 and 1.6 * step_in < step_out < 3.0 * step_in, (step_in, step_out)
+    steeper = to_ycc(tone_map_frame(frame, clip_limit=6.0, tiles=4, strength=1.0))
+    assert steeper[bright][..., 0].mean() - steeper[dark][..., 0].mean() > step_out + 5.0  # a higher clip: steeper
+    assert np.abs(y_out[..., 1:] - y_in[..., 1:]).max() < 1.0  # the change is the same in R, G and B: chroma kept
+
+
+def test_strength_zero_is_the_identity_and_the_strength_mixes_linearly():
+    frame = low_contrast_steps(seed=1)
+    assert np.array_equal(tone_map_frame(frame, 4.0, 8, 0.0), frame)
+    full = tone_map_frame(frame, 4.0, 8, 1.0).astype(float) - frame
+    half = tone_map_frame(frame, 4.0, 8, 0.5).astype(float) - frame
+    assert np.abs(half - 0.5 * full).max() <= 1.0  # the luma's change halved, each rounded once
+    assert np.abs(full).mean() > 3.0
+
+
+def test_a_clip_limit_of_one_leaves_a_flat_histogram_region_nearly_untouched():
+    """A clip at the mean bin count flattens every region's histogram: its tone curve is the identity."""
+    rng = np.random.default_rng(2)
+    frame = np.repeat(rng.integers(0, 256, (240, 320, 1), dtype=np.uint8), 3, axis=2)
+    out = tone_map_frame(frame, clip_limit=1.0, tiles=4, strength=1.0)
+    assert np.abs(out.astype(float) - frame).mean() < 1.5
+
+
+def test_the_stage_changes_only_what_the_graphics_reach():
+    profile = quiet_fire_i().with_effect("local_tone_mapping", clip_limit=4.0, tiles=8, strength=1.0)
+    h, w = profile.camera.height, profile.camera.width
+    rng = np.random.default_rng(4)
+    plate = to_uint8(rng.uniform(0, 255, (h, w, 3)))
+    from lowcam.sample import sample_render
+
+    render = sample_render(profile, 1000)
+    render[:, : render.shape[1] // 2] = 0  # graphics on the right half only
+    result = lowcam.run(render, profile, plate)
+    plain = lowcam.run(render, profile.without("local_tone_mapping"), plate)
+    fp = result.footprint
+    assert 0.05 < fp.mean() < 0.5
+    assert np.array_equal(result.frame[~fp], plate[~fp])
+    assert np.abs(result.frame[fp].astype(int) - plain.frame[fp]).mean() > 1.0
+    disabled = profile.copy()
+    disabled.effect("local_tone_mapping").enabled = False
+    assert np.array_equal(lowcam.run(render, disabled, plate).frame, plain.frame)
+
+
+def test_the_node_group_refuses_the_stage_in_one_line():
+    """No compositor node builds a region's histogram: the node bake names the stage instead of dropping it."""
+    from lowcam.errors import LowcamError
+    from lowcam.node_maps import bake
+
+    with pytest.raises(LowcamError, match="no node for local_tone_mapping"):
+        bake(lowcam.load_profile("fire-i").with_effect("local_tone_mapping"), (120, 160))
+
+
+@pytest.mark.parametrize("key,value", [("clip_limit", 0.5), ("tiles", 0), ("tiles", 2.5), ("strength", 1.5)])
+def test_out_of_range_parameters_are_refused_naming_the_key(key, value):
+    with pytest.raises(ProfileError, match=key) as e:
+        lowcam.load_profile("fire-i").with_effect("local_tone_mapping", **{key: value})
+    assert "\n" not in str(e.value)
+
+
+# --- hidden by other code, named by diagnosis ---------------------------------------------------------------------
+
+def scikit_image_clahe(clip_limit, regions, strength):
+    """Each delivered frame through OpenCV's YCrCb: its 8-bit luma equalised by scikit-image's CLAHE core with
+    ``clip_limit`` (scikit-image's, a share of a region's pixels) over regions of 1/``regions`` of the frame's
+    height and width, mixed with the luma by ``strength``; chroma kept, back to RGB."""
+    import cv2
+
+    gray = skimage_clahe.NR_OF_GRAY - 1
+
+    def post(frame):
+        ycc = cv2.cvtColor(frame, cv2.COLOR_RGB2YCrCb)
+        y = ycc[..., 0].astype(np.float64)
+        kernel = [max(s // regions, 1) for s in y.shape]
+        eq = skimage_clahe._clahe(np.round(y * gray / 255).astype(np.uint16), kernel, clip_limit, 256)
+        eq = eq.astype(np.float64) * 255 / gray  # its 14-bit levels back to 8-bit DN
+        ycc[..., 0] = to_uint8(y + strength * (eq - y))
+        return cv2.cvtColor(ycc, cv2.COLOR_YCrCb2RGB)
+    return post
+
+
+def drawn(seed, **ranges):
+    """Seeded parameters: a list is drawn from, a (low, high) pair drawn uniformly within."""
+    rng = np.random.default_rng(seed)
+    return {k: v[int(rng.integers(len(v)))] if isinstance(v, list) else float(rng.uniform(*v))
+            for k, v in ranges.items()}
+
+
+def check(d, expected, bound=1.25):
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    print(ranking)
+    best = d.candidates[0]
+    assert d.error > 1.2, ranking      # the hidden stage shows
+    assert best.effect == expected, ranking
+    assert best.score <= bound, ranking  # held out
+    # never confidently wrong: a verdict that names an effect names the hidden one
+    assert d.verdict != "missing-effect" or d.best.effect == expected, d.summary()
+    print(f"{expected}: error {d.error:.2f} -> {best.score:.3f} held out ({best.params}); {d.verdict}")
+    return best
+
+
+TM_DECOYS = ["tone_curve", "veiling_glare"]  # a global curve, a veil lifting the shadows
+SCENES = ("flat-dark", "photo", "chart")
+
+
+def test_scikit_image_clahe_on_the_luma_is_named_local_tone_mapping(tmp_path):
+    """The fast case: scikit-image's CLAHE at its default clip limit and region size (1/8 of the frame), mixed at
+    0.7, on three scenes of three frames."""
+    d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", *TM_DECOYS], rounds=1, scenes=SCENES,
+                     frames=3, post=scikit_image_clahe(0.01, 8, 0.7), seed=51)
+    check(d, "local_tone_mapping")
+
+
+#: Draws whose case is known to stop short: seed -> why (strict: a pass fails it).
+SHORT = {
+    53: "clip 0.0062 over 10x10 regions (1.5x the mean bin count), mixed at 0.57: the equalisation is weak, and "
+        "what shows most is scikit-image's own level shift (256 levels binned into 253 of its 256 bins, the clipped "
+        "excess spread over all 256), which no CLAHE of OpenCV's expresses: error 7.60, veiling_glare first at 5.12 "
+        "held out, local_tone_mapping 5.76 (no candidate reaches 1.25: unexplained)",
+}
+
+
+@pytest.mark.slow  # diagnoses take minutes
+@pytest.mark.parametrize("seed", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORT[s])) if s in SHORT
+                                  else s for s in (52, 53, 55)])
+def test_scikit_image_clahe_at_random_parameters_is_named_local_tone_mapping(tmp_path, seed):
+    p = drawn(seed, clip_limit=(0.006, 0.02), regions=[6, 8, 10], strength=(0.4, 0.9))
+    d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", *TM_DECOYS, "noise_reduction"], rounds=1,
+                     scenes=("flat-dark", "flat-bright", "photo", "chart"), post=scikit_image_clahe(**p), seed=seed)
+    print(p)
+    check(d, "local_tone_mapping")
+
+
+def test_a_set_without_tone_mapping_does_not_get_it_first(tmp_path):
+    """A global tone curve (a power law on the delivered frames, written here) is no local tone mapping: the
+    tone curve comes first, and a verdict that names an effect does not name the tone mapping."""
+    def power_law(frame):
+        return to_uint8(255.0 * (frame / 255.0) ** 0.75)
+
+    d = diagnose_set(tmp_path, quiet_fire_i(), ["local_tone_mapping", "tone_curve"], rounds=1, scenes=SCENES,
+                     frames=3, post=power_law, seed=54)
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    print(f"error {d.error:.2f}: {ranking}; {d.verdict}")
+    assert d.candidates[0].effect != "local_tone_mapping", ranking
+    assert d.verdict != "missing-effect" or d.best.effect != "local_tone_mapping", d.summary()
