@@ -28,6 +28,9 @@ Contents
 - :func:`prefix_key`: identifies the first ``count`` effects of a profile (and its camera) for caching their output
 - :func:`prepare`: run the chain up to its first random effect: the same for every frame of a static scene
 - :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
+- :func:`has_temporal`: whether a profile has an effect that acts across frames (a video encoder)
+- :func:`finish_sequence`: frames of one shot or capture through the chain's temporal effects (a video encoder)
+- :func:`resume_sequence`: frames ``0..count-1`` from a :func:`prepare` token as one sequence
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
 - :func:`stage_image`: a displayable picture of the state after a stage
 - :func:`plain_composite`: the standard compositing the paper compares against: lens warp and alpha blend only
@@ -237,9 +240,11 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
     return np.rint(a, out=a).astype(np.uint8)
 
 
-def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
-    effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order."""
+    effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order.
+    ``in_sequence``: the frame is one of a sequence, and the finishing stops before the first temporal effect
+    (:func:`finish_sequence` goes on from there)."""
     frame = plate_u8.copy()
     footprint = np.empty(plate_u8.shape[:2], bool)
 
@@ -254,8 +259,34 @@ def _finish(state: SimState, plate_u8: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
     thread_map(blend, row_strips(frame.shape[0], min_rows=256))
     for effect in state.applied:
+        if in_sequence and effect.temporal:
+            break
         frame, footprint = effect.finish(state, frame, footprint)
     return frame, footprint
+
+
+def _sequence_tail(profile: Profile) -> list:
+    """The enabled effects from the profile's first temporal one (:attr:`~lowcam.effects.Effect.temporal`) on, or
+    [] when it has none."""
+    effects = [e for e in profile.effects if e.enabled or e.always_runs]
+    first = next((i for i, e in enumerate(effects) if e.temporal), None)
+    return [] if first is None else effects[first:]
+
+
+def has_temporal(profile: Profile) -> bool:
+    """Whether an enabled effect of ``profile`` acts across frames (:attr:`~lowcam.effects.Effect.temporal`)."""
+    return bool(_sequence_tail(profile))
+
+
+def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames (T, H, W, 3) uint8 of one shot or capture, in order, finished up to the profile's first temporal
+    effect, and their footprints (T, H, W) bool, taken through the rest of the chain: each temporal effect's
+    :meth:`~lowcam.effects.Effect.finish_frames` on the sequence, each other effect after the first temporal one
+    frame by frame (:meth:`~lowcam.effects.Effect.finish` without a state: the stages that need the frame's
+    state, a raw blend, stand before the encoders)."""
+    for effect in _sequence_tail(profile):
+        frames, footprints = effect.finish_frames(frames, footprints)
+    return frames, footprints
 
 
 #: Peak memory of the chain per working-grid pixel (bytes), measured on the bundled profiles (about 380), with
@@ -393,9 +424,10 @@ def prepare(render: np.ndarray, profile, plate=None, angular_velocity=(0.0, 0.0,
     return state, start, plate_u8
 
 
-def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None) -> np.ndarray:
+def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None, in_sequence: bool = False):
     """The 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token (which it leaves untouched).
-    ``profile`` may replace the token's for the remaining effects (its leading effects must be the same)."""
+    ``profile`` may replace the token's for the remaining effects (its leading effects must be the same).
+    ``in_sequence``: (frame, footprint) finished up to the first temporal effect, for :func:`resume_sequence`."""
     prefix, start, plate_u8 = token
     state = copy.copy(prefix)
     if profile is not None:
@@ -407,7 +439,22 @@ def resume(token, seed: int = 0, frame: int = 0, profile: Profile | None = None)
     state._windows = dict(prefix._windows)
     state.seed, state.frame = int(seed), int(frame)
     _walk(state, start=start)
+    if in_sequence:
+        return _finish(state, plate_u8, in_sequence=True)
     return _finish(state, plate_u8)[0]
+
+
+def resume_sequence(token, seed: int = 0, count: int = 1, profile: Profile | None = None) -> np.ndarray:
+    """Frames ``0..count-1`` of ``seed`` from a :func:`prepare` token as one sequence (T, H, W, 3) uint8: each
+    frame as :func:`resume` makes it up to the chain's first temporal effect (a video encoder), and the frames
+    together through the rest (:func:`finish_sequence`). Without a temporal effect, frame k equals
+    ``resume(token, seed, k, profile)``."""
+    prof = profile if profile is not None else token[0].profile
+    if not _sequence_tail(prof):
+        return np.stack([resume(token, seed, k, profile) for k in range(count)])
+    done = [resume(token, seed, k, profile, in_sequence=True) for k in range(count)]
+    frames, _ = finish_sequence(prof, np.stack([d[0] for d in done]), np.stack([d[1] for d in done]))
+    return frames
 
 
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,

@@ -57,6 +57,8 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.edge_enhancement`: an image processor's edge enhancement with coring (not in the paper);
   what these three share in :mod:`~lowcam.effects.delivered_frame`
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
+- :mod:`~lowcam.effects.video_codec`: H.264 or HEVC video coding with x264 or x265, over a sequence of frames
+  (not in the paper)
 
 References
 ----------
@@ -95,6 +97,7 @@ from .saturation import Saturation
 from .sharpening import Sharpening
 from .tone_curve import ToneCurve
 from .veiling_glare import VeilingGlare
+from .video_codec import VideoCodec
 from .vignetting import Vignetting
 from .yuv import ChromaSubsampling, YuvBlend
 
@@ -105,7 +108,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                NoiseReduction, LocalToneMapping, EdgeEnhancement, Jpeg,
+                NoiseReduction, LocalToneMapping, EdgeEnhancement, Jpeg, VideoCodec,
                 # need render passes (velocity, depth): added by the Blender add-on when asked for
                 ObjectMotion, DepthOfField)
 }

@@ -38,6 +38,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
+
 from .. import schema
 from ..errors import ProfileError
 from ..node_images import mosaic_kernel, planes_to_mosaic
@@ -197,6 +199,10 @@ class Effect(ParamSet):
     #: True for an effect whose output moves in steps (quantisation): an objective through it is not smooth, so
     #: fits leave it out with the random ones (:meth:`lowcam.profile.Profile.quiet`).
     stepped: ClassVar[bool] = False
+    #: True for an effect that acts across the frames of a shot or capture in order (a video encoder's groups of
+    #: pictures, a temporal filter): where frames are made together, :meth:`finish_frames` gets them all
+    #: (:func:`lowcam.pipeline.resume_sequence`); a frame made on its own gets :meth:`finish`.
+    temporal: ClassVar[bool] = False
     #: The render pass the effect reads (``"velocity"`` or ``"depth"``, see :mod:`lowcam.passes`), or "".
     needs_pass: ClassVar[str] = ""
     #: Where the effect stands in a complete chain (:func:`lowcam.effects.canonical_order`); an effect added to
@@ -247,6 +253,14 @@ class Effect(ParamSet):
         graphics changed, and return both (the chroma groups, a JPEG encode, a raw frame). The default keeps
         them."""
         return frame, footprint
+
+    def finish_frames(self, frames, footprints):
+        """After the blend, for a :attr:`temporal` effect: change the 8-bit ``frames`` (T, H, W, 3) of one shot or
+        capture, in order, and their ``footprints`` (T, H, W) bool, and return both (a video encoder codes them
+        as groups of pictures). Whatever the effect carries from frame to frame lives here, not in the effect
+        between calls. The default finishes each frame on its own (:meth:`finish`, without a state)."""
+        done = [self.finish(None, f, m) for f, m in zip(frames, footprints)]
+        return np.stack([d[0] for d in done]), np.stack([d[1] for d in done])
 
     def error(self, message: str) -> ProfileError:
         return ProfileError(f"{self.source}: effect '{self.name}': {message}")

@@ -33,6 +33,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from .fixed_pattern import row_noise_variance
+
 #: Full-range BT.601 RGB -> (Y, Cb, Cr), chroma centred on 0 [T871].
 BT601_TO_YCC = np.array([[0.299, 0.587, 0.114],
                          [-0.168736, -0.331264, 0.5],
@@ -91,14 +93,26 @@ def _moments(frames) -> tuple[np.ndarray, np.ndarray, int]:
     return f.mean(0), (f.var(0, ddof=1) if len(f) > 1 else None), len(f)
 
 
-def _partial(measured, simulated, mask) -> tuple[float, float, list]:
+def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]:
     """One capture's share of :func:`frame_score`: the mean family's numerator and denominator and the variance
-    family's log ratios; ``measured`` as :func:`_moments` gives it."""
-    mf, vf, n = measured
+    family's log ratios; ``measured`` as :func:`_moments` gives it. ``again``: a second model sequence (other
+    noise) of a stage that holds noise from frame to frame (a video encoder): the mean family's denominator is
+    then ``sum (mean(simulated) - mean(again))^2`` (at least the independent frames'), and each pixel's variance
+    at least 1/12 DN^2 (the rounding's), as :func:`lowcam.measure.compare.capture_stats` has them."""
+    mf, vf, n = measured[:3]
     mg, vg, k = _moments(simulated)
     keep = np.ones(mf.shape[:2], bool) if mask is None else mask
     num = float(np.square(mf - mg)[keep].sum())
     den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+    va, rows = None, []
+    if again is not None:
+        ma, va, _ = _moments(again)
+        vf, vg, va = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12), np.maximum(va, 1 / 12)
+        den = max(den, float(np.square(mg - ma)[keep].sum()))
+        if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
+            rg, ra = row_noise_variance(np.asarray(simulated)), row_noise_variance(np.asarray(again))
+            rows = [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
+                    for a, b, c in zip(measured[3], rg, ra) if a > 1e-9 and b > 1e-9]
     logs = []
     if vf is not None:
         level = np.clip((mg // 16).astype(int), 0, 15)
@@ -107,15 +121,27 @@ def _partial(measured, simulated, mask) -> tuple[float, float, list]:
             counts = np.bincount(lv, minlength=16)
             sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
             ok = (counts >= 100) & (sa > 0) & (sb > 0)
-            logs.extend(np.log(sa[ok] / sb[ok]).tolist())
-    return num, den, logs
+            if va is None:
+                logs.extend(np.log(sa[ok] / sb[ok]).tolist())
+            else:
+                sc = np.bincount(lv, va[..., c][keep], 16)
+                logs.extend(_beyond_spread(x, y) for x, y in zip(np.log(sa[ok] / sb[ok]), np.log(sc[ok] / sb[ok])))
+    return num, den, logs, rows
+
+
+def _beyond_spread(log_ratio: float, spread: float) -> float:
+    """``sign(r) max(|r| - |spread|, 0)``: a noise family's log ratio less what two model sequences of other noise
+    differ by (as :func:`lowcam.measure.compare.capture_stats` counts it for frames that are not independent)."""
+    return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
 
 
 def _combined(parts) -> float:
     num, den = sum(p[0] for p in parts), sum(p[1] for p in parts)
     logs = [x for p in parts for x in p[2]]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    return num / max(den, 1e-12) + e_var ** 2
+    rows = [x for p in parts for x in p[3]]
+    e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 0.0  # only with a second sequence
+    return num / max(den, 1e-12) + e_var ** 2 + e_rows ** 2
 
 
 def frame_score(measured: list, simulated: list, masks: list) -> float:
@@ -137,7 +163,8 @@ def processed_by(stage_class):
     return process
 
 
-def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP):
+def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3,
+                        frozen_noise: bool = False, screened_forms: int = 1):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -157,24 +184,35 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     candidate of every diagnosis: it only needs to show whether the stage helps). A step is ``(key, options)``,
     ``options`` a list of values or a function of the current values returning one: every option is tried and the
     best kept (a coordinate search); ``key`` may be a tuple of keys, each option then a tuple of their values,
-    searched together."""
+    searched together. ``count``: model frames per capture (3; a stage that acts across frames, a video encoder,
+    asks for as many as the captures have). ``frozen_noise``: the stage holds noise from frame to frame (a video
+    encoder's predicted frames), so the frames' temporal variance no longer measures the noise of their mean: each
+    trial processes a second sequence of ``count`` frames of other noise too, and the mean family's noise is
+    measured from the two (:func:`_partial`'s ``again``), as the comparison does; the noise families count only
+    what lies beyond the two sequences' own difference, and the rows family (the variance of per-frame row means,
+    :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is scored too. ``screened_forms``: how many forms
+    screening tries (the first; a video encoder's two codecs code noise too differently for one to stand for the
+    other)."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
     measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
+    if frozen_noise:  # the row family too: a coded sequence's row means show where the noise is held
+        measured = [m + (row_noise_variance(caps[i].frames[:, rows, cols][:, ir, ic]),) for m, i in zip(measured, idx)]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
-    count = 3  # model frames per capture: the same noise in every trial, so trials compare fairly
+    # ``count`` model frames per capture: the same noise in every trial, so trials compare fairly
     with_it = p.with_effect(effect, **searches[0][0])
     names = [e.name for e in with_it.effects if e.enabled or e.always_runs]
     shortcut = names[-1] == effect
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [ctx.simulate(base, i, count)[:, rows, cols] for i in idx]
+        plain = [ctx.simulate(base, i, 2 * count if frozen_noise else count)[:, rows, cols] for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
                                    digest_size=16).digest() for i, f, m in zip(idx, plain, masks)]
+
     scores: dict = {}
 
     def share(j, values):
@@ -182,7 +220,12 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         with _LOCK:
             got = _SHARES.get(key)
         if got is None:
-            got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
+            if frozen_noise:  # two sequences of independent noise: the noise of the mean from their difference
+                first, second = plain[j][:count], plain[j][count:]
+                got = _partial(measured[j], process(values, first)[:, ir, ic], masks[j],
+                               process(values, second)[:, ir, ic])
+            else:
+                got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
             with _LOCK:
                 _SHARES[key] = got
                 while len(_SHARES) > _SHARES_KEPT:
@@ -212,7 +255,7 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
 
     screening = getattr(ctx, "screening", False)
     coarse = []
-    for start, plan, coarse_plan in searches[:1] if screening else searches:  # each form on its coarse steps
+    for start, plan, coarse_plan in searches[:screened_forms] if screening else searches:  # each on its coarse steps
         values = dict(start)
         for key, options in coarse_plan:
             step(values, key, options)

@@ -24,6 +24,8 @@ Contents
 - :data:`EXPLAINED_BELOW`: the error, in noise floors, up to which the verdict is ``explained`` (1.1)
 - :data:`EDGE_SHARE`, :data:`EDGES_HOLD`: the pixels counted as edges, and when the residual is said to be there
 - :data:`SIM_SEED`: the first noise seed of the simulated frames
+- :data:`SEQUENCE_SEED_STEP`, :data:`NOISE_OF_MEAN_PX`: the second model sequence that measures the noise of the
+  mean where frames are not independent (a video encoder), and the squares it is averaged over
 - :data:`INTENSITY_BINS`: the brightness bins (DN) of the variance comparison
 - :data:`CACHED_FRONTS`: deterministic fronts of the chain a shared cache keeps
 - :data:`WORKERS`: captures simulated at a time by a comparison made from the main thread
@@ -53,7 +55,7 @@ import numpy as np
 
 from ..effects.fixed_pattern import row_noise_variance
 from ..errors import LowcamError
-from ..pipeline import deterministic_prefix, prefix_key, prepare, resume
+from ..pipeline import deterministic_prefix, has_temporal, prefix_key, prepare, resume_sequence
 from .targets import ideal_from_target
 
 EXPLAINED_BELOW = 1.1
@@ -62,6 +64,11 @@ EDGE_SHARE = 0.1
 #: The residual is at edges (:func:`residual_family`) when they hold this many times their share of it.
 EDGES_HOLD = 3.0
 SIM_SEED = 1000
+#: The second model sequence of a profile whose frames are not independent starts at ``SIM_SEED`` plus this
+#: (:func:`capture_stats`'s ``again``).
+SEQUENCE_SEED_STEP = 500
+#: Side (px) of the squares over which the noise of the mean measured from two model sequences is averaged.
+NOISE_OF_MEAN_PX = 9
 INTENSITY_BINS = np.linspace(0, 256, 17)
 #: Deterministic fronts of the chain a shared ``cache`` keeps (:func:`simulate_capture`), least recently used out
 #: first.
@@ -165,8 +172,10 @@ def _shared_plate(key, plate: np.ndarray) -> np.ndarray:
 
 def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=None, cache=None,
                      until: str | None = None) -> np.ndarray:
-    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``); the
-    deterministic part of the chain runs once, and not at all when ``cache`` (a dict) already holds it."""
+    """``count`` frames of the capture through ``profile`` (noise frames 0..count-1 of ``seed``), in order as one
+    sequence (a temporal effect, a video encoder, codes them together: frame 0 an I-frame,
+    :func:`lowcam.pipeline.resume_sequence`); the deterministic part of the chain runs once, and not at all when
+    ``cache`` (a dict) already holds it."""
     ideal, plate, _ = inputs or capture_inputs(profile, capture)
     key = (id(capture), prefix_key(profile, deterministic_prefix(profile, until)))
     token = cache.pop(key, None) if cache is not None else None
@@ -182,10 +191,12 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
                 cache.pop(next(iter(cache)))
             except (KeyError, StopIteration, RuntimeError):  # another thread changed it meanwhile
                 break
-    return np.stack([resume(token, seed, k, profile) for k in range(count)])
+    return resume_sequence(token, seed, count, profile)
 
 
-def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> list[float]:
+def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=None) -> list[float]:
+    """Log ratios of the measured over the model's temporal variance per channel and brightness bin; ``vA``: the
+    variance of a second model sequence (:func:`_beyond_spread`)."""
     out = []
     nb = len(INTENSITY_BINS) - 1
     keep = slice(None) if mask is None else mask.ravel()
@@ -197,13 +208,29 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None) -> lis
         for b in np.nonzero(count >= min_pixels)[0]:
             mf, mg = sf[b] / count[b], sg[b] / count[b]
             if mf > 0.05 and mg > 0.05:  # skip clipped bins, which carry no noise
-                out.append(float(np.log(mf / mg)))
+                if vA is None:
+                    out.append(float(np.log(mf / mg)))
+                else:
+                    ma = np.bincount(idx, vA[..., c].ravel()[keep], nb)[b] / count[b]
+                    out.append(_beyond_spread(np.log(mf / mg), np.log(max(ma, 0.05) / mg)))
     return out
 
 
-def _row_log_ratios(F, G) -> list[float]:
+def _beyond_spread(log_ratio: float, spread: float) -> float:
+    """A noise family's log ratio, measured over model, less what two model sequences of other noise differ by
+    (``spread``, their log ratio): ``sign(r) max(|r| - |spread|, 0)``. Where frames are not independent (a video
+    encoder holds the noise of one frame in the next), a noise statistic of a few frames scatters from one noise
+    draw to the next by a factor of 2 or more; what the model's own draws show of that is not counted."""
+    return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
+
+
+def _row_log_ratios(F, G, A=None) -> list[float]:
     rf, rg = row_noise_variance(F), row_noise_variance(G)
-    return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
+    if A is None:
+        return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
+    ra = row_noise_variance(A)
+    return [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b)) for a, b, c in zip(rf, rg, ra)
+            if a > 1e-9 and b > 1e-9]
 
 
 def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -221,13 +248,20 @@ def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: np.ndarray | None = None,
-                  mask: np.ndarray | None = None) -> CaptureStats:
+                  mask: np.ndarray | None = None, again: np.ndarray | None = None) -> CaptureStats:
     """The error sums of one capture's measured frames F against simulated frames G (see the module docstring),
     over the pixels ``mask`` (H, W) keeps (all when None).
 
     With one measured frame its noise cannot be measured: the per-pixel variance ``assumed_noise`` (the diagnosed
     profile's, fixed while candidates are compared) stands for both, or the model's own when None. Then a model
-    cannot lower its error by adding noise."""
+    cannot lower its error by adding noise.
+
+    ``again``: a second model sequence of the capture (other noise seeds), for a profile whose frames are not
+    independent (a video encoder's predicted frames hold the noise of the frame before): the temporal variance
+    then understates the noise of the mean, which is measured instead as ``(mean(G) - mean(again))^2`` (twice the
+    model mean's variance, standing for the measured mean's and the model's), averaged over
+    :data:`NOISE_OF_MEAN_PX` squares, and at least the independent frames' ``var_F / n + var_G / K``; the noise
+    families count only what lies beyond the two model sequences' own difference (:func:`_beyond_spread`)."""
     n, k = len(F), len(G)
     mF, squares_F = _mean_and_squares(F)
     mG, squares_G = _mean_and_squares(G)
@@ -238,6 +272,12 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     else:  # one frame: its noise is assumed
         vF = vG if assumed_noise is None else assumed_noise
         noise = vF * (1 / n + 1 / k)
+    vA = None
+    if again is not None:
+        mA, squares_A = _mean_and_squares(again)
+        vA = np.maximum(squares_A / (len(again) - 1), 1 / 12)
+        d2 = np.square(mG - mA)
+        noise = np.maximum(noise, cv2.blur(d2, (NOISE_OF_MEAN_PX, NOISE_OF_MEAN_PX)))
     r = mF - mG
     every = None
     if mask is not None:  # left-out pixels carry no residual and no noise (summed once over all, for beside)
@@ -248,9 +288,9 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     sums = {"mean": mean, "mean_unmasked": every or mean,
             "model_noise": float((vG if mask is None else vG * mask[..., None]).sum(dtype=np.float64)) / k,
             "noise_map": noise, "variance_map": vF, "mask": mask,
-            "variance": _variance_log_ratios(vF, vG, mG, mask=mask) if n > 1 else [],
-            "variance_unmasked": _variance_log_ratios(vF, vG, mG) if n > 1 and mask is not None else None,
-            "rows": _row_log_ratios(F, G) if n > 1 else []}
+            "variance": _variance_log_ratios(vF, vG, mG, mask=mask, vA=vA) if n > 1 else [],
+            "variance_unmasked": _variance_log_ratios(vF, vG, mG, vA=vA) if n > 1 and mask is not None else None,
+            "rows": _row_log_ratios(F, G, again) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 
@@ -415,9 +455,15 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
     def one(i):
         cap = mset.captures[i]
         here = CaptureInputs(*inputs[i]) if inputs else capture_inputs(profile, cap)
-        sim = simulate_capture(profile, cap, sim_frames or max(len(cap.frames), 4), inputs=here, cache=cache,
+        count = sim_frames or max(len(cap.frames), 4)
+        sim = simulate_capture(profile, cap, count, inputs=here, cache=cache,
                                until="bayer_sampling")  # the front diagnosis's noise-free frames share
-        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask)
+        again = None
+        if has_temporal(profile):  # frames not independent: a second sequence measures the noise of the mean
+            again = simulate_capture(profile, cap, count, SIM_SEED + SEQUENCE_SEED_STEP, inputs=here, cache=cache,
+                                     until="bayer_sampling")
+        return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask,
+                             again)
 
     if WORKERS > 1 and len(chosen) > 1 and threading.current_thread() is threading.main_thread():
         with ThreadPoolExecutor(WORKERS) as pool:

@@ -72,7 +72,7 @@ import numpy as np
 
 from ..errors import LowcamError
 from ..outputs import make_output_folder
-from ..pipeline import prepare, render_camera, resume
+from ..pipeline import prepare, render_camera, resume_sequence
 from ..plate_estimate import register_footage
 from ..registration import register_frames
 from ..reports import figure, image, numbers_block, write_page
@@ -166,7 +166,7 @@ def model_frames(footage, profile, frames: int = 4, seed: int = 0, downscale: in
     small = similar_content(footage, max(16, w // downscale), max(16, h // downscale))
     ideal = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
     token = prepare(ideal, profile)
-    return np.stack([resume(token, seed, k, profile).astype(np.float32) for k in range(frames)])
+    return resume_sequence(token, seed, frames, profile).astype(np.float32)
 
 
 def tile_slices(height: int, width: int, tiles: tuple[int, int] = TILES) -> list[tuple[slice, slice]]:
