@@ -55,7 +55,7 @@ from .io import check_plate, read_plate
 from .motion import FrameMotion
 from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .passes import needed_passes, read_render_and_passes
-from .pipeline import simulate
+from .pipeline import follows_previous, simulate
 from .profile import load_profile
 from .video import VIDEO_SUFFIXES, close_videos, is_video, read_video_frame  # noqa: F401  (the shot's reader)
 
@@ -190,18 +190,33 @@ def _read_inputs(shot: Shot, frame: int, profile):
     return render, passes, _read_plate(shot, frame, profile) if shot.plates else None
 
 
-def _simulate_inputs(shot: Shot, frame: int, profile, motion: FrameMotion, inputs):
+def _simulate_inputs(shot: Shot, frame: int, profile, motion: FrameMotion, inputs, previous=None):
     render, passes, plate = inputs
-    return simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame, passes)
+    return simulate(render, profile, plate, motion.angular_velocity, motion.exposure_s, shot.seed, frame, passes,
+                    previous)
+
+
+def _previous_output(shot: Shot, frame: int, profile):
+    """The shot's written frame ``frame - 1``, for a profile whose frames follow the one before
+    (:func:`~lowcam.pipeline.follows_previous`: a temporal filter); None where it has none (or is not written)."""
+    if not follows_previous(profile):
+        return None
+    path = shot.output_path(frame - 1)
+    if not path.is_file():
+        return None
+    c = profile.camera
+    return read_plate(path, c.width, c.height, 3)
 
 
 def _failed(frame: int, error: LowcamError, read_s: float = 0.0, simulate_s: float = 0.0) -> FrameResult:
     return FrameResult(frame, "failed", " ".join(str(error).splitlines()), read_s, simulate_s)  # one line
 
 
-def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
+def process_frame(shot: Shot, frame: int, force: bool = False, after=None) -> FrameResult:
     """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead. A full disk
-    (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot."""
+    (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot. A profile whose
+    frames follow the one before (a temporal filter) reads the shot's written frame ``frame - 1``; ``after``
+    (ignored) is the task Dask runs it after."""
     out = shot.output_path(frame)
     if out.exists() and not force:
         return FrameResult(frame, "skipped")
@@ -210,7 +225,8 @@ def process_frame(shot: Shot, frame: int, force: bool = False) -> FrameResult:
         profile = shot.load_profile()
         motion = _frame_motion(shot, frame)
         inputs, read_s = _timed(_read_inputs, shot, frame, profile)
-        image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs)
+        previous = _previous_output(shot, frame, profile)
+        image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs, previous)
         _, write_s = _timed(write_image, out, image)
     except DiskFull:
         raise  # every later frame would fail alike: the shot stops (run_shot)
@@ -254,6 +270,7 @@ def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
         upcoming = iter(frames)
         queue = deque((f, start(f)) for f in itertools.islice(upcoming, READ_AHEAD))
         writing = None
+        made = (None, None)  # the last frame made and its image: the next frame may follow it
         try:
             while queue:
                 frame, started = queue.popleft()
@@ -268,7 +285,9 @@ def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
                 try:
                     inputs, read_s = read.result()
                     del read, started   # the frame's inputs go as soon as it is simulated
-                    image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs)
+                    previous = made[1] if made[0] == frame - 1 else _previous_output(shot, frame, profile)
+                    image, simulate_s = _timed(_simulate_inputs, shot, frame, profile, motion, inputs, previous)
+                    made = (frame, image if follows_previous(profile) else None)
                 except LowcamError as e:
                     done(_failed(frame, e, read_s))
                     continue
@@ -355,11 +374,15 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
 
 
 def _run_on_dask(shot: Shot, frames: list[int], force: bool, workers: int, scheduler: str | None, done) -> None:
-    """Each frame a :func:`process_frame` task on Dask; ``done(result)`` as each finishes."""
+    """Each frame a :func:`process_frame` task on Dask; ``done(result)`` as each finishes. A profile whose frames
+    follow the one before (:func:`~lowcam.pipeline.follows_previous`) has each task run after the frame before it."""
     with _dask_client(workers, scheduler) as client:
         client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
-        futures = [client.submit(process_frame, shot, f, force, pure=False, key=f"lowcam-frame-{f}")
-                   for f in frames]
+        ordered = follows_previous(shot.load_profile())  # each frame after the one before (a temporal filter)
+        futures = []
+        for f in frames:
+            after = futures[-1] if ordered and futures else None
+            futures.append(client.submit(process_frame, shot, f, force, after, pure=False, key=f"lowcam-frame-{f}"))
         from dask.distributed import as_completed
 
         try:

@@ -29,6 +29,7 @@ Contents
 - :func:`prepare`: run the chain up to its first random effect: the same for every frame of a static scene
 - :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
 - :func:`has_temporal`: whether a profile has an effect that acts across frames (a video encoder)
+- :func:`follows_previous`: whether a profile's shot frames depend on the frame delivered before (made in order)
 - :func:`finish_sequence`: frames of one shot or capture through the chain's temporal effects (a video encoder)
 - :func:`resume_sequence`: frames ``0..count-1`` from a :func:`prepare` token as one sequence
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
@@ -240,11 +241,13 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
     return np.rint(a, out=a).astype(np.uint8)
 
 
-def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False,
+            previous: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
     effect's :meth:`~lowcam.effects.Effect.finish` (the chroma groups, JPEG, a raw frame) in chain order.
     ``in_sequence``: the frame is one of a sequence, and the finishing stops before the first temporal effect
-    (:func:`finish_sequence` goes on from there)."""
+    (:func:`finish_sequence` goes on from there). ``previous``: the frame delivered before this one in a shot,
+    handed to the effects that follow it (:meth:`~lowcam.effects.Effect.finish_after`)."""
     frame = plate_u8.copy()
     footprint = np.empty(plate_u8.shape[:2], bool)
 
@@ -261,8 +264,18 @@ def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False) ->
     for effect in state.applied:
         if in_sequence and effect.temporal:
             break
-        frame, footprint = effect.finish(state, frame, footprint)
+        if previous is not None and effect.follows_previous:
+            frame, footprint = effect.finish_after(previous, frame, footprint)
+        else:
+            frame, footprint = effect.finish(state, frame, footprint)
     return frame, footprint
+
+
+def follows_previous(profile: Profile) -> bool:
+    """Whether an enabled effect of ``profile`` finishes a shot's frame from the frame delivered before it
+    (:attr:`~lowcam.effects.Effect.follows_previous`, a recursive temporal filter): a shot's frames are then made
+    in order."""
+    return any(e.follows_previous and e.enabled for e in profile.effects)
 
 
 def _sequence_tail(profile: Profile) -> list:
@@ -381,13 +394,14 @@ def _walk(state: SimState, start: int = 0, stop: int | None = None, stages=None,
 
 def run(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None, angular_velocity=(0.0, 0.0, 0.0),
         exposure_s: float | None = None, seed: int = 0, frame: int = 0, keep_stages: bool = False,
-        stop_after: str | None = None, passes: RenderPasses | None = None) -> Result:
+        stop_after: str | None = None, passes: RenderPasses | None = None,
+        previous: np.ndarray | None = None) -> Result:
     """Simulate the camera on one frame; see :func:`simulate`. ``keep_stages`` records every stage's output
     (as displayable arrays, see :func:`stage_image`); ``stop_after`` ends the chain after that effect."""
     state, plate_u8 = _start(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes)
     stages: OrderedDict = OrderedDict()
     _walk(state, stages=stages if keep_stages else None, plate_u8=plate_u8, stop_after=stop_after)
-    result_frame, footprint = _finish(state, plate_u8) if state.rgb is not None else (None, None)
+    result_frame, footprint = _finish(state, plate_u8, previous=previous) if state.rgb is not None else (None, None)
     return Result(result_frame, footprint, stages, state)
 
 
@@ -448,18 +462,22 @@ def resume_sequence(token, seed: int = 0, count: int = 1, profile: Profile | Non
     """Frames ``0..count-1`` of ``seed`` from a :func:`prepare` token as one sequence (T, H, W, 3) uint8: each
     frame as :func:`resume` makes it up to the chain's first temporal effect (a video encoder), and the frames
     together through the rest (:func:`finish_sequence`). Without a temporal effect, frame k equals
-    ``resume(token, seed, k, profile)``."""
+    ``resume(token, seed, k, profile)``. A temporal effect that needs frames before the first
+    (:meth:`~lowcam.effects.Effect.lead_frames`, a recursive filter) gets them: noise frames ``count`` on, put
+    before frame 0 and dropped after."""
     prof = profile if profile is not None else token[0].profile
-    if not _sequence_tail(prof):
+    tail = _sequence_tail(prof)
+    if not tail:
         return np.stack([resume(token, seed, k, profile) for k in range(count)])
-    done = [resume(token, seed, k, profile, in_sequence=True) for k in range(count)]
+    lead = max(e.lead_frames() for e in tail)
+    done = [resume(token, seed, k, profile, in_sequence=True) for k in (*range(count, count + lead), *range(count))]
     frames, _ = finish_sequence(prof, np.stack([d[0] for d in done]), np.stack([d[1] for d in done]))
-    return frames
+    return frames[lead:]
 
 
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,
              angular_velocity=(0.0, 0.0, 0.0), exposure_s: float | None = None, seed: int = 0,
-             frame: int = 0, passes: RenderPasses | None = None) -> np.ndarray:
+             frame: int = 0, passes: RenderPasses | None = None, previous: np.ndarray | None = None) -> np.ndarray:
     """The camera's 8-bit RGB frame (H, W, 3) for a premultiplied RGBA ``render`` composited over ``plate``.
 
     Parameters
@@ -473,6 +491,8 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
     seed, frame : the noise of a frame depends on these two numbers only.
     passes : the render's velocity and depth (:class:`lowcam.passes.RenderPasses`), for the ``object_motion`` and
         ``depth_of_field`` effects.
+    previous : the (H, W, 3) uint8 frame the shot delivered before this one, for an effect that carries from frame
+        to frame (``temporal_noise_reduction``); None: the frame is made on its own.
 
     Examples
     --------
@@ -483,7 +503,8 @@ def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = No
     >>> out.shape, out.dtype
     ((480, 640, 3), dtype('uint8'))
     """
-    return run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes).frame
+    return run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes,
+               previous=previous).frame
 
 
 def stage_image(state: SimState, writes: str, plate_u8: np.ndarray) -> np.ndarray:

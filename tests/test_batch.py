@@ -280,3 +280,43 @@ def test_the_farm_recipe_with_concurrent_one_frame_tasks_never_fails(shot_dir, t
         assert "failed" not in r.stderr and "Traceback" not in r.stderr
         assert frame_bytes(out) == frame_bytes(serial)
         assert not list(out.glob(".lowcam-*"))
+
+
+def _read_rgb(path):
+    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+
+
+@pytest.mark.parametrize("workers", [0, pytest.param(2, marks=pytest.mark.slow)], ids=["serial", "dask"])
+def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_bytes(shot_dir, tmp_path, fire_i,
+                                                                                   workers):
+    """Each frame's graphics averaged with the shot's frame before, as written: ``out_k = round(x_k + w (out_{k-1}
+    - x_k))``, ``w = 0.7 (1 - |luma change| / 255)``, ``x_k`` the frame without the filter; the first frame has
+    none before it. A resumed run, and Dask's workers, make the same bytes."""
+    frames = [1, 2, 3, 4]
+    profile = fire_i.with_effect("temporal_noise_reduction", strength=0.7, motion_threshold_dn=255.0)
+    motion = read_motion_json(shot_dir / "motion.json")
+    args = (str(shot_dir / "renders/####.exr"),)
+    plates = str(shot_dir / "plates/####.png")
+    plain = Shot("fire-i", *args, str(tmp_path / "plain/####.png"), plates, motion, True)
+    shot = Shot(str(profile.save(tmp_path / "tnr.toml")), *args, str(tmp_path / "tnr/####.png"), plates, motion, True)
+    run_shot(plain, frames, quiet=True)
+    assert [r.status for r in run_shot(shot, frames, workers=workers, quiet=True)] == ["written"] * 4
+    got = {f: _read_rgb(shot.output_path(f)).astype(float) for f in frames}
+    x = {f: _read_rgb(plain.output_path(f)).astype(float) for f in frames}
+    assert np.array_equal(got[1], x[1])
+    for f in frames[1:]:
+        plate = _read_rgb(shot_dir / f"plates/{f:04d}.png").astype(float)
+        graphics = np.any(x[f] != plate, axis=2)
+        assert 0.02 < graphics.mean() < 0.5
+        w = 0.7 * (1 - np.abs((got[f - 1] - x[f]) @ np.array([0.299, 0.587, 0.114])) / 255)
+        expected = np.rint(x[f] + w[..., None] * (got[f - 1] - x[f]))
+        assert np.abs(got[f] - expected)[graphics].max() <= 1
+        # the footprint reaches past the pixels that changed: the blur's faint edge, the 4:1:1 groups
+        near = cv2.dilate(graphics.astype(np.uint8), np.ones((41, 41), np.uint8)).astype(bool)
+        assert np.array_equal(got[f][~near], plate[~near])
+        assert np.abs(got[f] - x[f])[graphics].mean() > 1.0
+    made = frame_bytes(tmp_path / "tnr")
+    for f in (3, 4):
+        shot.output_path(f).unlink()
+    run_shot(shot, frames, quiet=True)
+    assert frame_bytes(tmp_path / "tnr") == made

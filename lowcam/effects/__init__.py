@@ -52,10 +52,12 @@ Modules, in chain order (sections of [Klein2010]):
 - :mod:`~lowcam.effects.saturation`: colour correction and the saturation control (sec. 4.4.2)
 - :mod:`~lowcam.effects.tone_curve`: the tone curve (not in the paper; sec. 8)
 - :mod:`~lowcam.effects.yuv`: YUV blending and 4:1:1 chroma (sec. 5.2 steps 8-10)
+- :mod:`~lowcam.effects.temporal_noise_reduction`: an image processor's recursive, motion-adaptive temporal noise
+  reduction, over a sequence of frames (not in the paper)
 - :mod:`~lowcam.effects.noise_reduction`: an image processor's spatial noise reduction (not in the paper)
 - :mod:`~lowcam.effects.local_tone_mapping`: an image processor's local tone mapping (CLAHE; not in the paper)
 - :mod:`~lowcam.effects.edge_enhancement`: an image processor's edge enhancement with coring (not in the paper);
-  what these three share in :mod:`~lowcam.effects.delivered_frame`
+  what these four share in :mod:`~lowcam.effects.delivered_frame`
 - :mod:`~lowcam.effects.jpeg`: JPEG compression (not in the paper)
 - :mod:`~lowcam.effects.video_codec`: H.264 or HEVC video coding with x264 or x265, over a sequence of frames
   (not in the paper)
@@ -97,6 +99,7 @@ from .saturation import Saturation
 from .sharpening import Sharpening
 from .tone_curve import ToneCurve
 from .veiling_glare import VeilingGlare
+from .temporal_noise_reduction import TemporalNoiseReduction
 from .video_codec import VideoCodec
 from .vignetting import Vignetting
 from .yuv import ChromaSubsampling, YuvBlend
@@ -108,7 +111,7 @@ EFFECTS: dict[str, type[Effect]] = {
                 Saturation, YuvBlend, ChromaSubsampling,
                 # beyond the paper: candidates for what a camera does that a profile lacks
                 Defocus, VeilingGlare, RollingShutter, RowNoise, VerticalBlur, PRNU, DSNU, HotPixels, ToneCurve,
-                NoiseReduction, LocalToneMapping, EdgeEnhancement, Jpeg, VideoCodec,
+                TemporalNoiseReduction, NoiseReduction, LocalToneMapping, EdgeEnhancement, Jpeg, VideoCodec,
                 # need render passes (velocity, depth): added by the Blender add-on when asked for
                 ObjectMotion, DepthOfField)
 }

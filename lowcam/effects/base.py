@@ -146,7 +146,9 @@ class Search:
     determine only where their compared, rendered pixels reach this far from the centre (a share of the
     half-diagonal; a fall-off's rho^4 term needs the corners): otherwise the key is held at the profile's value.
     ``changes_noise``: the fitted effect changes the frames' noise, which the screening's noise-free estimate
-    cannot see (the candidate is always compared in full).
+    cannot see (the candidate is always compared in full). ``held_noise``: the effect holds noise from one frame to
+    the next (a temporal filter, a video encoder): it is fitted only where the captures' noise is held more than
+    the profile's (:attr:`lowcam.measure.compare.Comparison.held_noise`), its own evidence.
     ``evidence`` is formatted with the fitted values (``{key}``) and the profile's (``{was_key}``).
     """
 
@@ -167,6 +169,7 @@ class Search:
     per_pixel: bool = False
     reach: dict = field(default_factory=dict)
     changes_noise: bool = False
+    held_noise: bool = False
 
 
 class Effect(ParamSet):
@@ -203,6 +206,10 @@ class Effect(ParamSet):
     #: pictures, a temporal filter): where frames are made together, :meth:`finish_frames` gets them all
     #: (:func:`lowcam.pipeline.resume_sequence`); a frame made on its own gets :meth:`finish`.
     temporal: ClassVar[bool] = False
+    #: True for a :attr:`temporal` effect whose frame depends on the frame delivered before it and on nothing
+    #: earlier (a recursive filter): a shot made frame by frame hands it that frame (:meth:`finish_after`), so
+    #: ``lowcam batch`` makes such a shot's frames in order.
+    follows_previous: ClassVar[bool] = False
     #: The render pass the effect reads (``"velocity"`` or ``"depth"``, see :mod:`lowcam.passes`), or "".
     needs_pass: ClassVar[str] = ""
     #: Where the effect stands in a complete chain (:func:`lowcam.effects.canonical_order`); an effect added to
@@ -261,6 +268,19 @@ class Effect(ParamSet):
         between calls. The default finishes each frame on its own (:meth:`finish`, without a state)."""
         done = [self.finish(None, f, m) for f, m in zip(frames, footprints)]
         return np.stack([d[0] for d in done]), np.stack([d[1] for d in done])
+
+    def finish_after(self, previous, frame, footprint):
+        """For a :attr:`follows_previous` effect in a shot made frame by frame: finish ``frame`` (H, W, 3) uint8
+        and its ``footprint`` given ``previous``, the frame the shot delivered before it. The default finishes the
+        frame on its own (:meth:`finish`, without a state)."""
+        return self.finish(None, frame, footprint)
+
+    def lead_frames(self) -> int:
+        """For a :attr:`temporal` effect: how many frames before a sequence's first it needs to reach its steady
+        state (a recursive filter's memory): :func:`lowcam.pipeline.resume_sequence` makes them (other noise) and
+        drops them after :meth:`finish_frames`, so a measurement capture's frames stand mid-stream, as a real
+        camera's do. 0 by default."""
+        return 0
 
     def error(self, message: str) -> ProfileError:
         return ProfileError(f"{self.source}: effect '{self.name}': {message}")

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import weakref
 from collections import OrderedDict
 
 import numpy as np
@@ -47,6 +48,8 @@ _MARGIN = 24        # px around the crop that the filters read
 _SHARES: OrderedDict = OrderedDict()  # (stage, frames' digest, values) -> one capture's share of a trial's score
 _SHARES_KEPT = 20000                  # shares kept (a few numbers each), least recently made out first
 _LOCK = threading.Lock()              # diagnosis fits candidates in threads
+_PLAIN: OrderedDict = OrderedDict()   # (capture's id, profile, count, crop) -> (capture's weakref, model frames)
+_PLAIN_BYTES = 64 << 20               # model frames kept for the other folds' fits, least recently made out first
 
 
 def to_ycc(frame: np.ndarray) -> np.ndarray:
@@ -163,6 +166,24 @@ def processed_by(stage_class):
     return process
 
 
+def _plain_frames(ctx, profile, i: int, count: int, rows: slice, cols: slice) -> np.ndarray:
+    """``ctx.simulate(profile, i, count)`` within ``rows``, ``cols``, kept (up to :data:`_PLAIN_BYTES`) for the
+    other folds' fits, which see the same capture (a temporal stage's fit asks for dozens of frames)."""
+    capture = ctx.mset.captures[i]
+    key = (id(capture), repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects])),
+           count, rows.start, rows.stop, cols.start, cols.stop)
+    with _LOCK:
+        kept = _PLAIN.get(key)
+    if kept is not None and kept[0]() is capture:
+        return kept[1]
+    frames = np.ascontiguousarray(ctx.simulate(profile, i, count)[:, rows, cols])
+    with _LOCK:
+        _PLAIN[key] = (weakref.ref(capture), frames)
+        while sum(f.nbytes for _, f in _PLAIN.values()) > _PLAIN_BYTES and len(_PLAIN) > 1:
+            _PLAIN.popitem(last=False)
+    return frames
+
+
 def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3,
                         frozen_noise: bool = False, screened_forms: int = 1):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
@@ -207,7 +228,7 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [ctx.simulate(base, i, 2 * count if frozen_noise else count)[:, rows, cols] for i in idx]
+        plain = [_plain_frames(ctx, base, i, 2 * count if frozen_noise else count, rows, cols) for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),

@@ -233,7 +233,7 @@ class VideoCodec(Effect):
     order = 290
     temporal = True
     searches = (Search("video_codec", "{codec} video at CRF {crf:g}, a GOP of {gop_frames} frames, up to "
-                       "{b_frames} B-frames", fit=fit_video_codec, changes_noise=True),)
+                       "{b_frames} B-frames", fit=fit_video_codec, changes_noise=True, held_noise=True),)
     params = {
         "codec": Param("h264", str, choices=tuple(CODECS), doc="h264: x264 (ITU-T H.264); hevc: x265 (ITU-T "
                                                                  "H.265)"),

@@ -43,6 +43,8 @@ Contents
   factor of the best screened candidate's
 - :data:`FULL_ERRORS`: how many runners-up at most get the full noise-aware error besides the best
 - :data:`RENAMED_CANDIDATES`: candidates renamed after their effect; the old names are still accepted
+- :data:`HELD_NOISE`: how much more held from frame to frame the captures' noise must be than the profile's for
+  a temporal candidate to be fitted
 - :data:`TILE_PX`, :data:`UNDETERMINED_SPREAD`, :data:`AT_BOUND`: the folds' image tiles, and when a fitted number
   is not determined or at its bound
 - :class:`Candidate`: one fitted candidate: its errors in sample and held out, params, uncertainties and evidence
@@ -119,6 +121,11 @@ LEAVE_ONE_OUT_UP_TO = 5
 UNDETERMINED_SPREAD = 0.5
 #: A fitted parameter within this share of its searched range from a bound is flagged as at the bound.
 AT_BOUND = 0.01
+#: A candidate that holds noise from frame to frame (``Search.held_noise``: a temporal filter, a video encoder) is
+#: fitted only when the captures' noise is held by at least this much more than the profile's
+#: (:attr:`~lowcam.measure.compare.Comparison.held_noise`, a frame-to-frame correlation; raw frames read within
+#: 0.01 of the model's).
+HELD_NOISE = 0.1
 #: The ideal renders hold colour when their chroma varies by at least this (render units) on opaque pixels
 #: (:meth:`Context.scene_has_colour`).
 SCENE_CHROMA = 0.01
@@ -239,6 +246,21 @@ class Context:
         self._model_noise = np.array([s.sums["model_noise"] for s in first.captures])
         self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - \
             self._sse_per_capture(self.profile) - self._model_noise
+
+    @property
+    def holds_noise(self) -> bool:
+        """Whether the captures' noise is held from frame to frame more than the profile's (by :data:`HELD_NOISE`):
+        the evidence a temporal candidate needs."""
+        held = self.base.held_noise
+        return held is not None and held >= HELD_NOISE
+
+    @property
+    def holds_noise_reason(self) -> str:
+        held = self.base.held_noise
+        if held is None:
+            return "no capture has 3 frames to show noise held from frame to frame"
+        return (f"the captures' noise is held from frame to frame no more than the profile's (correlation "
+                f"{held:+.2f} beyond it, under {HELD_NOISE})")
 
     def view(self, indices, masks=None) -> "Context":
         """This context over the captures ``indices`` only, and within them the pixels ``masks`` (one (H, W)
@@ -640,6 +662,8 @@ def _fits(ctx, name, hold=()):
             reasons.append("no capture moves")
         elif search.captures == "textured" and not ctx.textured:
             reasons.append("no capture has texture")
+        elif search.held_noise and not ctx.holds_noise:
+            reasons.append(ctx.holds_noise_reason)
         elif search.per_pixel and any(len(c.frames) < 2 for c in ctx.mset.captures):
             # a dense map fitted to one frame cannot tell the sensor's pattern from that frame's noise
             reasons.append("a per-pixel map needs several frames per capture")

@@ -1,0 +1,187 @@
+"""Temporal noise reduction of a camera's image processor: a recursive, motion-adaptive filter over the delivered
+frames (not in the paper).
+
+Phones, action cameras, drones and webcams average each pixel with the frame they delivered before, where the
+pixel does not move [Brailean1995]: a first-order recursive (IIR) filter, ``out_t = k in_t`` ... more exactly
+
+    ``out_t = (1 - k_t) in_t + k_t out_{t-1}``,  ``k_t = strength * max(0, 1 - |Y(in_t) - Y(out_{t-1})| / T)``
+
+per pixel, with ``Y`` the full-range BT.601 luma, ``T`` = ``motion_threshold_dn`` and ``strength`` the share of
+the last frame kept on a still pixel; the filter keeps its output at full precision (an image processor's is
+wider than 8 bits) and delivers it rounded. The weight is the same for R, G and B. On a still scene, at a constant
+``k``, the noise's variance falls to ``(1 - k) / (1 + k)`` of the input's (and the rounding's 1/12 DN^2 is added)
+and the noise is held from one frame to the next (correlation ``k``); where the luma changes by ``T`` or more (motion, a cut) the pixel takes
+the new frame alone, so moving edges leave a short trail below that.
+
+The previous output is the frame the camera delivered: where the graphics reach in a frame the stage filters them
+with the frame before; elsewhere the plate keeps its bytes (it went through the camera's filter already) and is
+what the next frame's graphics are averaged with.
+
+Frames in sequence and single frames
+------------------------------------
+The filter acts on sequences (``temporal``): the frames of one capture of a measurement set (and the model's
+frames that ``compare`` and diagnosis simulate) are filtered as one sequence, after :meth:`lead_frames` frames
+of other noise that bring the filter to its steady state, as a real camera is mid-stream when it is recorded.
+In a shot (``lowcam batch``) each frame is filtered with the frame the shot delivered before it (its written
+8-bit output, :meth:`TemporalNoiseReduction.finish_after`: within half a DN of the filter's own state, and what a
+resumed shot reads again), so the shot's frames are made in order; the stage comes after
+the spatial stages, before a JPEG or video coder, so that frame is the filter's own output unless a coder
+follows. The shot's first frame, and a frame made on its own (``lowcam.simulate`` without ``previous``), have no
+frame before them and leave the stage unchanged.
+
+Contents
+--------
+- :func:`filter_sequence`: (T, H, W, 3) uint8 frames through the recursive filter
+- :func:`fit_temporal_noise_reduction`: diagnosis's fit: strength and motion threshold whose filtered noisy model
+  sequences best match the measured frames' means and noise
+  (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
+- :class:`TemporalNoiseReduction`: the stage
+
+It has no compositor node: a compositor node tree computes one frame from that frame's inputs and holds nothing
+from the frame before, so ``lowcam.node_maps.bake`` refuses a profile with it; the render handler, which runs
+the engine, simulates it.
+
+References
+----------
+- [Brailean1995] J. C. Brailean, R. P. Kleihorst, S. Efstratiadis, A. K. Katsaggelos and R. L. Lagendijk, "Noise
+  reduction filters for dynamic image sequences: a review", Proceedings of the IEEE 83(9), 1272-1292, 1995
+  (recursive temporal filters, motion-adaptive weights, sec. III).
+- [T871] ITU-T Recommendation T.871, "JPEG File Interchange Format", 2011 (full-range BT.601 luma).
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .base import Effect, Param, Search
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage
+
+#: The largest share of the last frame the stage keeps (a filter that keeps more never settles over a shot).
+MAX_STRENGTH = 0.9
+#: The weight left on the frame before the lead frames when the sequence's first frame is delivered.
+_SETTLED = 0.05
+_LUMA = BT601_TO_YCC[0]
+
+
+def lead_frames(strength: float) -> int:
+    """Frames a filter of ``strength`` needs before its output no longer shows where it started: the smallest
+    ``L`` with ``strength^L <= 0.05`` (0 for a strength of 0)."""
+    if strength <= 0:
+        return 0
+    return int(math.ceil(math.log(_SETTLED) / math.log(min(strength, MAX_STRENGTH))))
+
+
+def filter_sequence(frames: np.ndarray, strength: float, motion_threshold_dn: float, footprints=None) -> np.ndarray:
+    """``frames`` (T, H, W, 3) uint8 through the recursive filter of the module's docstring, in order: (T, H, W, 3)
+    uint8, frame 0 as it is (the filter's state at full precision, each output rounded). ``footprints`` (T, H, W) bool: where the filter acts in each frame (all when None);
+    elsewhere a frame keeps its bytes, and those are what the next frame is averaged with."""
+    frames = np.asarray(frames)
+    out = np.empty_like(frames)
+    if len(frames) == 0:
+        return out
+    out[0] = frames[0]
+    if strength <= 0:
+        out[1:] = frames[1:]
+        return out
+    luma = _LUMA.reshape(1, 3).astype(np.float32)
+    slope = np.float32(strength / motion_threshold_dn)
+    previous = frames[0].astype(np.float32)
+    for t in range(1, len(frames)):  # a mean of 0-255 values needs no clipping
+        current = frames[t].astype(np.float32)
+        step = cv2.subtract(previous, current)  # the last output less this frame
+        k = np.abs(cv2.transform(step, luma))   # |luma change| ...
+        k *= -slope
+        k += np.float32(strength)
+        np.maximum(k, 0.0, out=k)               # ... as the weight of the last output
+        if footprints is not None:
+            k *= footprints[t]
+        previous = cv2.add(current, cv2.multiply(step, cv2.merge((k, k, k))))
+        out[t] = cv2.convertScaleAbs(previous)  # rounded
+    return out
+
+
+def fit_temporal_noise_reduction(ctx, effect):
+    """Diagnosis's fit (a :class:`Search` ``fit``): the strength on a coarse grid at a motion threshold of 16 DN,
+    then the threshold, then each finer (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). The model
+    keeps its noise and is simulated once without the stage, as many frames as the captures have and the lead
+    frames of the strongest filter searched before them; each trial filters those again (with the lead frames its
+    own strength needs) and drops the lead. The
+    filter holds noise from frame to frame, so two sequences of independent noise measure the noise of the mean
+    (``frozen_noise``)."""
+    caps = ctx.mset.captures
+    frames = max(3, max(len(caps[i].frames) for i in ctx.quick))
+    lead = lead_frames(MAX_STRENGTH)
+
+    def process(values, stack):  # the trial's own lead frames only: fewer for a weaker filter
+        own = lead_frames(values["strength"])
+        return filter_sequence(stack[lead - own:], values["strength"], values["motion_threshold_dn"])[own:]
+
+    def finer(key, factors, low, high):
+        return lambda v: sorted({round(min(max(v[key] * f, low), high), 3) for f in factors})
+
+    coarse = [("strength", (0.2, 0.4, 0.6, 0.75, 0.85))]
+    plan = [("motion_threshold_dn", (4.0, 8.0, 16.0, 32.0, 64.0)),
+            ("strength", finer("strength", (0.85, 0.93, 1.0, 1.07, 1.15), 0.05, MAX_STRENGTH)),
+            ("motion_threshold_dn", finer("motion_threshold_dn", (0.7, 0.85, 1.0, 1.2, 1.4), 1.0, 255.0)),
+            ("strength", finer("strength", (0.96, 1.0, 1.04), 0.05, MAX_STRENGTH))]
+    start = {"strength": 0.5, "motion_threshold_dn": 16.0}
+    return fit_delivered_stage(ctx, effect, process, [(start, plan, coarse)], count=frames + lead,
+                               frozen_noise=True)
+
+
+fit_temporal_noise_reduction.refines = True  # diagnosis calls it again, in full, for a promising candidate
+
+
+class TemporalNoiseReduction(Effect):
+    """Temporal noise reduction of the delivered frames: each pixel averaged with the last delivered frame by a
+    share ``strength`` that falls to 0 as its luma changes by ``motion_threshold_dn`` (see the module's
+    docstring)."""
+
+    name = "temporal_noise_reduction"
+    section = "not in the paper"
+    writes = "output"
+    order = 276  # after the spatial stages, before a coder: the delivered frame is what the next is averaged with
+    temporal = True
+    searches = (Search("temporal_noise_reduction", "noise held from frame to frame: {strength:.2f} of the last "
+                       "frame kept on still pixels, none where the luma changes by {motion_threshold_dn:.0f} DN",
+                       fit=fit_temporal_noise_reduction, changes_noise=True, held_noise=True),)
+    params = {
+        "strength": Param(0.5, low=0.0, high=MAX_STRENGTH,
+                          doc="the share of the last delivered frame kept on a still pixel; 0: off"),
+        "motion_threshold_dn": Param(16.0, low=1.0, high=255.0, unit="DN",
+                                     doc="the luma change from the last delivered frame at which a pixel counts "
+                                         "as moving and keeps none of it"),
+    }
+
+    follows_previous = True
+
+    def lead_frames(self) -> int:
+        return lead_frames(self.strength)
+
+    def finish_after(self, previous, frame, footprint):
+        """``frame`` filtered with ``previous``, the frame the shot delivered before it, where the graphics reach
+        (:func:`filter_sequence` of the two)."""
+        if frame.ndim != 3 or np.shape(previous) != frame.shape:
+            raise self.error(f"needs the frame before as {frame.shape} RGB, got {np.shape(previous)}")
+        pair = np.stack([previous, frame])
+        return filter_sequence(pair, self.strength, self.motion_threshold_dn, np.stack([footprint, footprint]))[1], \
+            footprint
+
+    def apply(self, state):
+        """Nothing before the blend: the filter acts on the delivered frames (:meth:`finish_frames`)."""
+
+    def finish(self, state, frame, footprint):
+        """A frame on its own has no frame before it: unchanged."""
+        if frame.ndim != 3:
+            raise self.error("acts on an RGB frame; a raw camera delivers a colour-filter mosaic")
+        return frame, footprint
+
+    def finish_frames(self, frames, footprints):
+        """The frames (T, H, W, 3) uint8 filtered in order where the graphics reach (``footprints``), the plate's
+        own bytes elsewhere (:func:`filter_sequence`)."""
+        frames = np.asarray(frames)
+        if frames.ndim != 4:
+            raise self.error("acts on RGB frames; a raw camera delivers a colour-filter mosaic")
+        return filter_sequence(frames, self.strength, self.motion_threshold_dn, footprints), footprints

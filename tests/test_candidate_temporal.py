@@ -1,0 +1,201 @@
+"""Temporal noise reduction, and the evidence a temporal candidate needs, against code no one here wrote.
+
+- The filter's physics: a still pixel's noise variance and frame-to-frame correlation against the analytic values
+  of a first-order recursive filter, and the whole sequence against OpenCV's running average
+  (``cv2.accumulateWeighted``).
+- Hidden behind the Fire-i by OpenCV: its running average where the luma (OpenCV's YCrCb) changes by less than a
+  threshold, the frame itself where it changes more (``cv2.accumulateWeighted`` with a mask, ``cv2.copyTo``), at
+  seeded random strengths and thresholds, each capture's frames filtered in order after 30 frames that settle the
+  filter. Diagnosis must name ``temporal_noise_reduction`` first, at a held-out error of at most 1.25, before the
+  spatial noise reduction and the video codec, which also lower the noise.
+- A set whose frames draw their noise anew each frame gets no temporal candidate fitted, and says why.
+"""
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+import lowcam
+from helpers import drawn, quiet_fire_i
+from lowcam.effects.temporal_noise_reduction import filter_sequence, lead_frames
+from lowcam.errors import LowcamError, ProfileError
+from lowcam.measure.compare import frame_to_frame_correlation, simulate_capture
+from lowcam.measure.diagnose import HELD_NOISE, diagnose
+from lowcam.measure.sets import load_set, write_set
+from lowcam.measure.synth import scenes
+from lowcam.pipeline import simulate
+
+SETTLE = 30  # frames each hidden filter runs before a capture's first
+
+
+def still(frames=40, sigma=2.0, level=120.0, shape=(64, 80), seed=0):
+    rng = np.random.default_rng(seed)
+    return np.clip(np.rint(level + sigma * rng.standard_normal((frames,) + shape + (3,))), 0, 255).astype(np.uint8)
+
+
+def opencv_running_average(frames, alpha, threshold=None):
+    """OpenCV's running average, ``acc = (1 - alpha) acc + alpha frame`` (``cv2.accumulateWeighted``), where the
+    luma of OpenCV's YCrCb changed by less than ``threshold`` from the average (everywhere when None); elsewhere the
+    average restarts at the frame (``cv2.copyTo``). Each output is the average rounded."""
+    acc = frames[0].astype(np.float32)
+    out = [frames[0]]
+    for f in frames[1:]:
+        if threshold is None:
+            cv2.accumulateWeighted(f, acc, alpha)
+        else:
+            luma = cv2.cvtColor(f, cv2.COLOR_RGB2YCrCb)[..., 0]
+            average = cv2.cvtColor(np.clip(np.rint(acc), 0, 255).astype(np.uint8), cv2.COLOR_RGB2YCrCb)[..., 0]
+            still_px = (cv2.absdiff(luma, average) < threshold).astype(np.uint8)
+            cv2.accumulateWeighted(f, acc, alpha, mask=still_px)
+            cv2.copyTo(f.astype(np.float32), 1 - still_px, acc)
+        out.append(np.clip(np.rint(acc), 0, 255).astype(np.uint8))
+    return np.stack(out)
+
+
+# --- the physics --------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("strength", [0.3, 0.6, 0.85])
+def test_a_still_pixel_keeps_the_analytic_share_of_its_noise(strength):
+    """``y_t = (1 - k) in_t + k y_{t-1}`` on white noise of variance s^2 (rounded: q = 1/12 more), delivered rounded
+    (q again): variance ``(s^2 + q) (1 - k) / (1 + k) + q`` and correlation ``k`` from one frame to the next of its
+    held part, once settled (a threshold far above the noise keeps ``k``)."""
+    sigma = 6.0  # well above the 1 DN steps (a filter that moves less than half a step holds its value)
+    frames = still(frames=200, sigma=sigma)
+    out = filter_sequence(frames, strength, 255.0)[lead_frames(strength) + 5:].astype(np.float64)
+    noise = out - 120.0  # the scene's level (the frames' mean would take part of a slow filter's noise)
+    k = strength * (1 - 3.4 / 255)  # the weight at the noise's typical luma change (0.8 x 0.67 sigma)
+    q = 1 / 12
+    held = (sigma ** 2 + q) * (1 - k) / (1 + k)
+    expected = held + q
+    assert abs(noise.var() / expected - 1) < 0.1, (noise.var(), expected)
+    lag = float((noise[1:] * noise[:-1]).mean() / noise.var())
+    assert abs(lag - k * held / expected) < 0.06, (lag, k * held / expected)
+    assert frame_to_frame_correlation(out) > strength - 0.25
+    assert abs(frame_to_frame_correlation(frames.astype(np.float64))) < 0.02
+
+
+def test_a_still_sequence_matches_opencvs_running_average():
+    frames = still(frames=20, sigma=3.0, seed=1)
+    ours = filter_sequence(frames, 0.7, 255.0).astype(int)
+    theirs = opencv_running_average(frames, 0.3).astype(int)
+    # the same recursion; ours lowers the weight by |luma change| / 255 (about 1 % here)
+    assert np.abs(ours - theirs).max() <= 2 and np.abs(ours - theirs).mean() < 0.5
+
+
+def test_motion_beyond_the_threshold_takes_the_new_frame_and_below_it_leaves_a_trail():
+    frames = np.full((3, 8, 8, 3), 100, np.uint8)
+    frames[1:, :, 4:] = 160     # the right half brightens by 60 DN in frame 1
+    frames[1:, :, :2] = 110     # the left quarter by 10 DN
+    out = filter_sequence(frames, 0.8, 40.0).astype(float)
+    assert np.all(out[1, :, 4:] == 160)                          # moving: the frame itself
+    k = 0.8 * (1 - 10 / 40)
+    assert np.allclose(out[1, :, :2], np.rint(110 + k * (100 - 110)))  # a trail of the frame before
+    assert np.all(out[:, :, 2:4] == 100)                         # still: unchanged
+
+
+def test_only_the_graphics_are_filtered_and_the_plate_is_what_they_are_averaged_with():
+    frames = still(frames=6, sigma=4.0, seed=2)
+    footprints = np.zeros(frames.shape[:3], bool)
+    footprints[:, :, 40:] = True
+    out = filter_sequence(frames, 0.8, 255.0, footprints)
+    assert np.array_equal(out[:, :, :40], frames[:, :, :40])
+    assert out[1:, :, 40:].astype(float).var(axis=0).mean() < 0.5 * frames[1:, :, 40:].astype(float).var(axis=0).mean()
+    # where the graphics arrive in a frame, the frame before is the plate's bytes
+    late = footprints.copy()
+    late[:3] = False
+    got = filter_sequence(frames, 0.8, 255.0, late)[3].astype(float)
+    previous, current = frames[2].astype(float), frames[3].astype(float)
+    change = np.abs((current - previous) @ np.array([0.299, 0.587, 0.114]))
+    k = (0.8 * np.clip(1 - change / 255, 0, 1))[..., None]
+    assert np.abs(got - np.rint(current + k * (previous - current)))[:, 40:].max() <= 1
+
+
+def test_a_capture_is_filtered_from_the_steady_state_and_a_frame_alone_is_not(fire_i):
+    profile = quiet_fire_i().with_effect("temporal_noise_reduction", strength=0.8, motion_threshold_dn=64.0)
+    ideal, omega = scenes(profile, 640)["flat-bright"]
+    capture = SimpleNamespace(ideal=ideal, plate=None, mask=None, angular_velocity=omega, exposure_s=None)
+    filtered = simulate_capture(profile, capture, 6, seed=5).astype(np.float64)
+    raw = simulate_capture(quiet_fire_i(), capture, 40, seed=6).astype(np.float64)  # other noise
+    clean = raw.mean(axis=0)
+    first, last = (np.square(filtered[k] - clean).mean() for k in (0, -1))
+    assert first < 0.3 * np.square(raw[0] - clean).mean()      # frame 0 is mid-stream, not a raw frame
+    assert abs(first / last - 1) < 0.1, (first, last)
+    alone = simulate(ideal, profile, None, omega, None, 5, 0)
+    assert alone.tobytes() == simulate(ideal, quiet_fire_i(), None, omega, None, 5, 0).tobytes()
+
+
+def test_the_node_group_refuses_it_in_one_line():
+    from lowcam.node_maps import bake
+
+    with pytest.raises(LowcamError, match="no node for temporal_noise_reduction"):
+        bake(lowcam.load_profile("fire-i").with_effect("temporal_noise_reduction"), (120, 160))
+
+
+@pytest.mark.parametrize("key,value", [("strength", 0.95), ("strength", -0.1), ("motion_threshold_dn", 0.0)])
+def test_out_of_range_parameters_are_refused_naming_the_key(key, value):
+    with pytest.raises(ProfileError, match=key) as e:
+        lowcam.load_profile("fire-i").with_effect("temporal_noise_reduction", **{key: value})
+    assert "\n" not in str(e.value)
+
+
+def test_the_command_line_refuses_it_out_of_range_in_one_line_and_writes_nothing(tmp_path):
+    out = tmp_path / "set"
+    r = subprocess.run([sys.executable, "-m", "lowcam.cli", "synth", "--add", "temporal_noise_reduction:strength=2",
+                        "-o", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "strength" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not out.exists()
+
+
+# --- evidence and diagnosis ---------------------------------------------------------------------------------------
+
+def filtered_set(folder, profile, post, names, frames=6, lead=SETTLE, seed=61):
+    """A measurement set of bundled scenes through ``profile``, each capture's ``lead + frames`` delivered frames
+    through ``post`` in order and the first ``lead`` dropped."""
+    every = scenes(profile, 640)
+    captures = []
+    for i, name in enumerate(names):
+        ideal, omega = every[name]
+        shots = np.stack([simulate(ideal, profile, None, omega, None, seed + 1000 * i, k)
+                          for k in range(lead + frames)])
+        captures.append({"name": name, "ideal": ideal, "frames": list(post(shots)[lead:]),
+                         "angular_velocity": omega})
+    return write_set(folder, captures)
+
+
+def test_frames_with_fresh_noise_get_no_temporal_candidate_and_say_why(tmp_path):
+    profile = quiet_fire_i()
+    folder = filtered_set(tmp_path / "set", profile, lambda s: s, ("flat-bright", "photo"), frames=4, lead=0)
+    d = diagnose(load_set(folder, profile), profile, only=["temporal_noise_reduction", "video_codec"],
+                 workdir=tmp_path / "work", rounds=1)
+    assert abs(d.comparison.held_noise) < HELD_NOISE / 2, d.comparison.held_noise
+    assert not d.candidates
+    for name in ("temporal_noise_reduction", "video_codec"):
+        assert "held from frame to frame" in d.not_fitted[name], d.not_fitted
+
+
+#: Decoys that lower a set's noise too: spatial noise reduction (and a fixed pattern).
+DECOYS = ["noise_reduction", "dsnu"]
+
+
+@pytest.mark.slow  # a diagnosis takes about a minute
+@pytest.mark.parametrize("seed,decoys", [(72, DECOYS), (75, DECOYS + ["video_codec"])])
+def test_opencvs_motion_adaptive_running_average_is_named_temporal_noise_reduction(tmp_path, seed, decoys):
+    p = drawn(seed, strength=(0.4, 0.85), threshold=[6, 10, 16, 24])
+    profile = quiet_fire_i()
+    folder = filtered_set(tmp_path / "set", profile,
+                          lambda s: opencv_running_average(s, 1 - p["strength"], p["threshold"]),
+                          ("flat-dark", "flat-bright", "photo", "noise-field"))
+    d = diagnose(load_set(folder, profile), profile, only=["temporal_noise_reduction", *decoys],
+                 workdir=tmp_path / "work", rounds=1)
+    ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
+    print(p, ranking, d.comparison.held_noise)
+    assert d.comparison.held_noise >= HELD_NOISE
+    best = d.candidates[0]
+    assert d.error > 1.5 and best.effect == "temporal_noise_reduction", ranking
+    assert best.score <= 1.25, ranking
+    assert d.verdict == "missing-effect" and d.best.effect == "temporal_noise_reduction", d.summary()
+    assert abs(best.params["strength"] - p["strength"]) < 0.2, best.params
