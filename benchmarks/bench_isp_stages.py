@@ -1,7 +1,7 @@
 """Benchmark: the image-processor stages on a 640x480 frame, and the Fire-i frame with them off and on.
 
 Prints, per stage, the median ms to process one delivered 640x480 frame whose graphics cover it all (the stage's
-``finish``), and the Fire-i chain's frame (a 1280x960 render of the sample scene over the sample plate) as the
+``finish``; temporal noise reduction's ``finish_after``, given the frame before), and the Fire-i chain's frame (a 1280x960 render of the sample scene over the sample plate) as the
 bundled profile has it (the stages absent), with the stages present but switched off, and with each one on (the
 four in turn, repeat by repeat).
 
@@ -58,6 +58,11 @@ def main() -> None:
         effect = lowcam.effects.effect_class(name)(**values)
         ms = median_ms(lambda: effect.finish(None, frame, footprint), args.repeats)
         print(f"{name:18s}{about:48s}{ms:10.1f}")
+    # a shot's frame after the one before it (the recursive filter's step)
+    before = np.clip(frame.astype(np.int16) + rng.integers(-6, 7, frame.shape), 0, 255).astype(np.uint8)
+    effect = lowcam.effects.effect_class("temporal_noise_reduction")(strength=0.6, motion_threshold_dn=16.0)
+    ms = median_ms(lambda: effect.finish_after(before, frame, footprint), args.repeats)
+    print(f"{'temporal_nr':18s}{'strength 0.6, threshold 16 DN, after the frame before':48s}{ms:10.1f}")
 
     profile = lowcam.load_profile("fire-i")
     render, plate = sample_render(profile, 1280), sample_plate(profile)

@@ -192,7 +192,8 @@ def test_opencvs_motion_adaptive_running_average_is_named_temporal_noise_reducti
     d = diagnose(load_set(folder, profile), profile, only=["temporal_noise_reduction", *decoys],
                  workdir=tmp_path / "work", rounds=1)
     ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
-    print(p, ranking, d.comparison.held_noise)
+    print(f"{p}: error {d.error:.2f}, held noise {d.comparison.held_noise:+.2f}; {ranking}; "
+          f"{d.candidates[0].params if d.candidates else ''}")
     assert d.comparison.held_noise >= HELD_NOISE
     best = d.candidates[0]
     assert d.error > 1.5 and best.effect == "temporal_noise_reduction", ranking

@@ -48,6 +48,9 @@ HIDDEN = {
                                                 "coring_dn": draw(18, 1.0, 4.0)})], []),
     "local_tone_mapping": ([("local_tone_mapping", {"clip_limit": draw(19, 2.0, 4.0),
                                                     "strength": draw(20, 0.5, 0.9)})], []),
+    "temporal_noise_reduction": ([("temporal_noise_reduction", {"strength": draw(21, 0.4, 0.8),
+                                                                "motion_threshold_dn": draw(22, 8.0, 32.0)})], []),
+    "video_codec": ([("video_codec", {"crf": int(draw(23, 26, 34)), "gop_frames": 250})], []),
     "veiling_glare": ([("veiling_glare", {"strength": draw(12, 0.05, 0.1), "radius_px": draw(12, 40, 80)})], []),
     "bilinear_demosaic": ([("demosaic", {"method": "bilinear"})], []),
     "gradient_corrected_demosaic": ([("demosaic", {"method": "gradient_corrected"})], []),
@@ -82,6 +85,8 @@ FOCUS = {
     "noise_reduction": (("flat-bright", "photo", "noise-field"), ("dsnu", "defocus")),
     "edge_enhancement": (("chart", "noise-field"), ("asymmetric_sharpening", "defocus")),
     "local_tone_mapping": (("flat-dark", "photo", "chart"), ("tone_curve", "veiling_glare")),
+    "temporal_noise_reduction": (("flat-bright", "photo"), ("noise_reduction", "video_codec")),
+    "video_codec": (("flat-bright", "photo"), ("jpeg", "temporal_noise_reduction")),
     "veiling_glare": (("chart", "photo"), ("tone_curve", "vignetting")),
     "bilinear_demosaic": (("noise-field", "photo"), ("horizontal_blur", "chroma_subsampling")),
     "gradient_corrected_demosaic": (("noise-field", "photo"), ("bilinear_demosaic", "horizontal_blur")),
@@ -135,8 +140,17 @@ def test_every_candidate_has_a_hidden_case_and_a_focused_set():
     assert set(HIDDEN) == set(FOCUS) == set(candidates())
 
 
+#: Focused-set cases known to stop short: candidate -> why (strict: a pass fails it).
+SHORT_ON_A_FOCUSED_SET = {
+    "video_codec": "named first and 1.04 in sample, but 2.03 held out: fitted on one capture of held noise, its "
+                   "CRF and GOP (32, 4 of 31, 250) do not carry to the other",
+}
+
+
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
-@pytest.mark.parametrize("candidate", list(HIDDEN))
+@pytest.mark.parametrize("candidate", [
+    pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=SHORT_ON_A_FOCUSED_SET[c]))
+    if c in SHORT_ON_A_FOCUSED_SET else c for c in HIDDEN])
 def test_a_hidden_effect_beats_its_decoys_on_a_small_focused_set(tmp_path, fire_i, candidate):
     """A small focused set: 4 frames of 2-3 scenes that show the effect, the candidate against two it could be
     mistaken for."""
@@ -158,10 +172,16 @@ SHORT_OF_THE_FLOOR = {
 }
 
 
+#: Left out of the standard set: with every candidate and forward selection, a coded set's diagnosis runs over 10
+#: minutes (once the codec is added, each later candidate's comparison codes every capture twice); the video codec
+#: is judged on its focused set and in tests/test_candidate_video_codec.py.
+NOT_ON_THE_STANDARD_SET = ("video_codec",)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("candidate", [
     pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=SHORT_OF_THE_FLOOR[c])) if c in SHORT_OF_THE_FLOOR
-    else c for c in HIDDEN])
+    else c for c in HIDDEN if c not in NOT_ON_THE_STANDARD_SET])
 def test_a_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(tmp_path, fire_i, candidate):
     """The slow tier: the standard set (6 frames of every scene) against every candidate."""
     add, remove, diagnosed = hidden_case(fire_i, candidate)

@@ -16,7 +16,7 @@ import numpy as np
 from ..chart import make_chart
 from ..errors import LowcamError
 from ..outputs import make_output_folder
-from ..pipeline import render_field_of_view, simulate
+from ..pipeline import has_temporal, prepare, render_field_of_view, resume_sequence, simulate
 from ..sample import photograph
 from .sets import write_set
 
@@ -88,7 +88,9 @@ def hidden_profile(profile, add=(), remove=()):
 def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int = 640, seed: int = 7,
                only_scenes=None):
     """Write a measurement set made by ``profile`` with hidden changes; returns its folder. ``only_scenes``
-    limits it to those of :func:`scenes` (a small, focused set)."""
+    limits it to those of :func:`scenes` (a small, focused set). With an effect that acts across frames (a
+    temporal filter, a video encoder) each capture's frames are one sequence
+    (:func:`~lowcam.pipeline.resume_sequence`)."""
     camera = hidden_profile(profile, add, remove)
     captures = []
     every = scenes(profile, width)
@@ -99,6 +101,9 @@ def synthesise(profile, folder, add=(), remove=(), frames: int = 6, width: int =
         if only_scenes and name not in only_scenes:
             continue
         # each capture its own noise (a noise repeated across captures would look like a fixed pattern)
-        shots = [simulate(ideal, camera, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
+        if has_temporal(camera):  # a capture's frames as one sequence (a temporal filter, a video encoder)
+            shots = list(resume_sequence(prepare(ideal, camera, None, omega), seed + 1000 * i, frames, camera))
+        else:
+            shots = [simulate(ideal, camera, None, omega, None, seed + 1000 * i, k) for k in range(frames)]
         captures.append({"name": name, "ideal": ideal, "frames": shots, "angular_velocity": omega})
     return write_set(make_output_folder(folder), captures)
