@@ -15,12 +15,14 @@ Contents
 - :func:`pair_starts`: the first frames of pairs of consecutive frames spread over a shot
 - :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
   start with the best of the next few frames
+- :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Callable
 
+import cv2
 import numpy as np
 
 from .registration import register_frames
@@ -118,3 +120,35 @@ def register_footage(footage, count: int = 12, cache: dict | None = None):
     :data:`lowcam.registration.PAIR_GAP` frames that nearest-neighbour sampling reads most exactly
     (:func:`lowcam.registration.register_frames`; ``cache``: its consecutive registrations, to share)."""
     return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
+
+
+def still_segments(footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
+    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames of ``footage`` (anything with
+    ``frame(i)`` and a length, e.g. :class:`lowcam.measure.plate.Footage`) in which nothing moves.
+
+    Two frames of a still scene differ by noise alone, which a Gaussian blur (sigma 2 px) removes almost
+    entirely (white noise keeps about 1/(2 sqrt(pi) 2) = 14 % of its standard deviation, noise correlated over a
+    few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
+    still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
+    absolute value is below 2 DN."""
+    n = min(len(footage), max_frames)
+    if n < 2:
+        return []
+    still = []
+    prev = footage.frame(0).mean(axis=2)
+    for i in range(1, n):
+        cur = footage.frame(i).mean(axis=2)
+        d = cur - prev
+        sd = float(d.std())
+        kept = float(cv2.GaussianBlur(d, (0, 0), 2.0).std())
+        still.append(sd > 0 and kept < 0.4 * sd and float(np.abs(cv2.GaussianBlur(d, (0, 0), 2.0)).mean()) < 2.0)
+        prev = cur
+    runs, start = [], None
+    for i, s_ in enumerate(still + [False]):
+        if s_ and start is None:
+            start = i
+        elif not s_ and start is not None:
+            if i + 1 - start >= min_length:
+                runs.append((start, i + 1))
+            start = None
+    return runs

@@ -290,7 +290,7 @@ def _read_rgb(path):
 def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_bytes(shot_dir, tmp_path, fire_i,
                                                                                    workers):
     """Each frame's graphics averaged with the shot's frame before, as written: ``out_k = round(x_k + w (out_{k-1}
-    - x_k))``, ``w = 0.7 (1 - |luma change| / 255)``, ``x_k`` the frame without the filter; the first frame has
+    - x_k))``, ``w = 0.7 clip(2 - 2 |luma change| / 255, 0, 1)``, ``x_k`` the frame without the filter; the first frame has
     none before it. A resumed run, and Dask's workers, make the same bytes."""
     frames = [1, 2, 3, 4]
     profile = fire_i.with_effect("temporal_noise_reduction", strength=0.7, motion_threshold_dn=255.0)
@@ -308,7 +308,7 @@ def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_byte
         plate = _read_rgb(shot_dir / f"plates/{f:04d}.png").astype(float)
         graphics = np.any(x[f] != plate, axis=2)
         assert 0.02 < graphics.mean() < 0.5
-        w = 0.7 * (1 - np.abs((got[f - 1] - x[f]) @ np.array([0.299, 0.587, 0.114])) / 255)
+        w = 0.7 * np.clip(2 - 2 * np.abs((got[f - 1] - x[f]) @ np.array([0.299, 0.587, 0.114])) / 255, 0, 1)
         expected = np.rint(x[f] + w[..., None] * (got[f - 1] - x[f]))
         assert np.abs(got[f] - expected)[graphics].max() <= 1
         # the footprint reaches past the pixels that changed: the blur's faint edge, the 4:1:1 groups

@@ -488,7 +488,9 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     ``proportions`` (red, green, blue): the sensels' sigmas are ``sigma_dn`` times these, and the one gain
     returned is the luma's (:func:`noise_level_statistic` with ``luma``): a luma sigma divided by it is the
     sigma that those proportions scale to each channel's.
-    A JPEG at the end of the chain is left out: what it does to noise depends on the scene (it flattens the
+    A temporal filter (``temporal_noise_reduction``) is in it: the grey is filmed as a sequence, settled first,
+    since the filter holds noise from frame to frame and the registered differences of consecutive frames see
+    less of it (what it leaves depends on the noise's level: the plate estimate asks again at the footage's). A JPEG at the end of the chain is left out: what it does to noise depends on the scene (it flattens the
     noise of flat blocks and keeps much of a textured block's), which a flat grey cannot tell, so the law read
     through this gain is the noise the frames carried into their coding.
     ``film(profile, make_ideal, seed, frame)``: the profile's frame (float32 DN) of the ideal
@@ -506,8 +508,17 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     clean = film(profile.without("noise") if profile.effect("noise") else profile, ideal)
     h, w = clean.shape[:2]
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
-    diffs = np.stack([film(noisy, ideal, seed=1, frame=k)[crop] - clean[crop] + 128.0
-                      for k in range(frames if method != "spatial" else 1)])
+    count = frames if method != "spatial" else 1
+    following = [e for e in profile.effects if e.enabled and e.follows_previous]
+    lead = max((e.lead_frames() for e in following), default=0)
+    shots = np.stack([film(noisy, ideal, seed=1, frame=k) for k in range(count + lead)])
+    if following:  # a temporal filter holds noise: the frames in order, settled first
+        shots = np.clip(np.rint(shots), 0, 255).astype(np.uint8)
+        reach = np.ones(shots.shape[:3], bool)
+        for effect in following:
+            shots, reach = effect.finish_frames(shots, reach)
+        shots = shots.astype(np.float32)
+    diffs = shots[lead:, crop[0], crop[1]] - clean[crop] + 128.0
     stat = noise_level_statistic(diffs, method, luma=proportions is not None)
     gains = [float(np.median(sig)) / sigma_dn if sig else 0.0 for sig in stat["sigma_dn"].values()]
     if min(gains) <= 0:
@@ -630,6 +641,11 @@ def noise_level_function_from_plate(footage, base, film):
                 f"; {repeated} more where the codec repeats or flattens pixels" if repeated else ""))
     proportions = channel_proportions(base) if luma else None
     gains = noise_gain(base, method, film, proportions=proportions)
+    if any(e.enabled and e.follows_previous for e in base.effects):
+        # what a temporal filter leaves of the noise depends on its level (the 8-bit rounding, the motion
+        # threshold): the gain again at the footage's own per-sensel sigma
+        level = float(np.median([np.median(stat["sigma_dn"][ch]) / g for ch, g in zip(channels, gains)]))
+        gains = noise_gain(base, method, film, sigma_dn=max(level, 0.5), proportions=proportions)
     params = {"law": law}
     measured["gain"] = gains
     worst = 0.0

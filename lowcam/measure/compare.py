@@ -38,7 +38,6 @@ Contents
 - :func:`combine`: the error and its families over all captures
 - :data:`BANDS`: the radial spatial-frequency bands of :func:`where` and :func:`noise_texture`
 - :func:`noise_texture`: how a capture's temporal noise is correlated in space (neighbours, frequency bands) and time
-- :func:`frame_to_frame_correlation`: how much of a static capture's noise is held from one frame to the next
 - :func:`residual_family`: the kind of residual left (edges, levels, space or time), with its numbers
 - :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
 - :func:`compare`: compare a profile with a measurement set (the error above)
@@ -55,6 +54,7 @@ import cv2
 import numpy as np
 
 from ..effects.fixed_pattern import row_noise_variance
+from ..effects.temporal_noise_reduction import frame_to_frame_correlation
 from ..errors import LowcamError
 from ..pipeline import deterministic_prefix, has_temporal, prefix_key, prepare, resume_sequence
 from .targets import ideal_from_target
@@ -387,28 +387,6 @@ def where(stats: list[CaptureStats]) -> dict:
 BANDS = ((0.0, 0.05, "low"), (0.05, 0.2, "mid"), (0.2, 0.71, "high"))
 
 
-def _grey_noise(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The frames' grey (channel mean), its temporal noise ``N_t = F_t - mean(F)`` and that noise's variance."""
-    grey = np.asarray(frames).astype(np.float32).mean(-1)
-    noise = grey - grey.mean(0)
-    return grey, noise, float(np.mean(noise ** 2))
-
-
-def frame_to_frame_correlation(frames: np.ndarray, grey_noise=None) -> float | None:
-    """The correlation of a static capture's temporal noise from one frame to the next (n >= 3 frames (n, H, W, 3)),
-    ``1 - var(F_{t+1} - F_t) / (2 var(N) n / (n - 1))`` on the grey, ``N_t = F_t - mean(F)``: 0 for noise drawn
-    anew each frame, above 0 where a stage holds it (a temporal filter, a video encoder's predicted frames; see
-    :func:`noise_texture`), 1.0 for frames that hold no temporal noise at all. None with fewer than 3 frames."""
-    n = len(frames)
-    if n < 3:
-        return None
-    grey, _, var = grey_noise or _grey_noise(frames)
-    if var <= 1e-9:
-        return 1.0
-    step = float(np.mean(np.diff(grey, axis=0) ** 2))
-    return float(1.0 - step / (2.0 * var * n / (n - 1)))
-
-
 def noise_texture(frames: np.ndarray) -> dict | None:
     """How the temporal noise of a static capture's frames (n, H, W, 3; n >= 3) is correlated, in space and time:
     what tells a denoised camera from a raw one of the same noise variance.
@@ -424,12 +402,14 @@ def noise_texture(frames: np.ndarray) -> dict | None:
     """
     if len(frames) < 3:
         return None
-    grey, noise, var = _grey_noise(frames)
+    grey = np.asarray(frames).astype(np.float32).mean(-1)
+    noise = grey - grey.mean(0)
+    var = float(np.mean(noise ** 2))
     if var <= 1e-9:
         return None
     lag_x = float(np.mean(noise[:, :, 1:] * noise[:, :, :-1]) / var)
     lag_y = float(np.mean(noise[:, 1:, :] * noise[:, :-1, :]) / var)
-    lag_t = frame_to_frame_correlation(frames, (grey, noise, var))
+    lag_t = frame_to_frame_correlation(frames)
     h, w = grey.shape[1:]
     spec = (np.abs(np.fft.rfft2(noise)) ** 2).sum(0)
     fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.rfftfreq(w), indexing="ij")

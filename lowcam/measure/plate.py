@@ -25,7 +25,8 @@ Contents
 - :func:`plate_probes`: every plate probe the effects declare, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
 - :func:`film`: the profile's frame of an ideal scene (how the effects' estimators ask the model)
-- :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences)
+- :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still (frame differences;
+  from :mod:`lowcam.plate_estimate`, where the effects' estimators find it)
 - :func:`similar_content`: the footage's denoised median frame as an opaque ideal render, downscaled
 - :func:`simulate_similar`: frames of the profile filming :func:`similar_content`
 - :func:`headline`: the few numbers of a statistic worth a table (sigma at 64/128/192 DN, edge widths, ...)
@@ -60,8 +61,8 @@ from ..captures import expand_paths, load_frames
 from ..effects import known_effects
 from ..errors import LowcamError, NotFitted
 from ..gyro_logs import log_kind, read_gyro_log
-from ..pipeline import render_camera, simulate
-from ..plate_estimate import PlateEstimate, PlateProbe
+from ..pipeline import prepare, render_camera, resume_sequence, simulate
+from ..plate_estimate import PlateEstimate, PlateProbe, still_segments  # noqa: F401  (still_segments: the API)
 from ..profile import load_profile
 from ..video import VideoReader, av_log_capture, is_video, stream_facts
 
@@ -257,37 +258,6 @@ def plate_probes() -> list[PlateProbe]:
     return sorted(probes, key=lambda p: p.order)
 
 
-def still_segments(footage: Footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
-    """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames in which nothing moves.
-
-    Two frames of a still scene differ by noise alone, which a Gaussian blur (sigma 2 px) removes almost
-    entirely (white noise keeps about 1/(2 sqrt(pi) 2) = 14 % of its standard deviation, noise correlated over a
-    few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
-    still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
-    absolute value is below 2 DN."""
-    n = min(len(footage), max_frames)
-    if n < 2:
-        return []
-    still = []
-    prev = footage.frame(0).mean(axis=2)
-    for i in range(1, n):
-        cur = footage.frame(i).mean(axis=2)
-        d = cur - prev
-        sd = float(d.std())
-        kept = float(cv2.GaussianBlur(d, (0, 0), 2.0).std())
-        still.append(sd > 0 and kept < 0.4 * sd and float(np.abs(cv2.GaussianBlur(d, (0, 0), 2.0)).mean()) < 2.0)
-        prev = cur
-    runs, start = [], None
-    for i, s_ in enumerate(still + [False]):
-        if s_ and start is None:
-            start = i
-        elif not s_ and start is not None:
-            if i + 1 - start >= min_length:
-                runs.append((start, i + 1))
-            start = None
-    return runs
-
-
 def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
     """A denoised frame of the footage, scaled to ``width`` x ``height``, as an opaque premultiplied RGBA ideal
     render (0-1): the per-pixel temporal median of its longest still segment (up to 15 frames), or, where the
@@ -309,11 +279,12 @@ def similar_content(footage: Footage, width: int, height: int) -> np.ndarray:
 
 def simulate_similar(footage: Footage, profile, frames: int = 4, seed: int = 0) -> np.ndarray:
     """``frames`` frames (T, H, W, 3) float32 DN of ``profile`` filming :func:`similar_content` (a still
-    camera), each with its own noise."""
+    camera), each with its own noise, in order (:func:`lowcam.pipeline.resume_sequence`: a temporal filter holds
+    some of it)."""
     profile = load_profile(profile) if isinstance(profile, (str, Path)) else profile
     cam = render_camera(profile, profile.camera.width)
     ideal = similar_content(footage, cam["width"], cam["height"])
-    return np.stack([simulate(ideal, profile, None, seed=seed, frame=k).astype(np.float32) for k in range(frames)])
+    return resume_sequence(prepare(ideal, profile), seed, frames, profile).astype(np.float32)
 
 
 def model_statistics(footage: Footage, profile, estimates: list[PlateEstimate], frames: int = 4) -> None:
