@@ -312,7 +312,8 @@ def write_shot_video(scene) -> str:
 
 
 def degrade(scene, render_path, frame: int) -> Path:
-    """Simulate the camera on the frame Blender wrote to ``render_path``; returns the composite's path."""
+    """Simulate the camera on the frame Blender wrote to ``render_path``; returns the composite's path. A profile
+    whose frames follow the one before (a temporal filter) follows the composite of ``frame - 1``."""
     from lowcam.scene import degrade_frame
 
     s = settings(scene)
@@ -322,4 +323,5 @@ def degrade(scene, render_path, frame: int) -> Path:
     return degrade_frame(render_path, output_path(scene, frame), profile, plate(scene, frame, profile),
                          m.angular_velocity, s.exposure_s, s.seed, frame, main_layer(scene), overlay,
                          fps=scene.render.fps / scene.render.fps_base,
-                         metres_per_unit=scene.unit_settings.scale_length)
+                         metres_per_unit=scene.unit_settings.scale_length,
+                         previous_path=output_path(scene, frame - 1))

@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
-from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_tagged, render_space_of
+from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_tagged, read_plate, render_space_of
 from .outputs import write_image
 from .passes import RenderPasses, needed_passes, read_blender_passes
-from .pipeline import run
+from .pipeline import follows_previous, run
 from .profile import load_profile
 from .render_spaces import to_camera_space
 
@@ -82,17 +82,33 @@ def over_frame(frame: np.ndarray, overlay: np.ndarray) -> np.ndarray:
 def degrade_frame(render_path, output_path, profile, plate=None, angular_velocity=(0.0, 0.0, 0.0),
                   exposure_s=None, seed: int = 0, frame: int = 0, layer: str = "ViewLayer",
                   overlay_layer: str | None = None, fps: float = 24.0, metres_per_unit: float = 1.0,
-                  render_space: str | None = None) -> Path:
+                  render_space: str | None = None, previous_path=None) -> Path:
     """Simulate the camera on the frame Blender wrote to ``render_path`` and write the composite (atomically).
     The view layer's Vector and Depth passes (a scene at ``fps``, ``metres_per_unit``) feed the effects that
     need them (``object_motion``, ``depth_of_field``). The render's colour space is ``render_space`` (a name) when
-    given, else the one the file's header names (Blender 5's working space), else linear Rec.709."""
+    given, else the one the file's header names (Blender 5's working space), else linear Rec.709.
+    ``previous_path``: the composite of the frame before, for a profile whose frames follow it (a temporal filter,
+    :func:`~lowcam.pipeline.follows_previous`): the camera's frame made for it in this process (before any
+    overlay), else the file when no overlay covers it, else none (the frame is then made on its own)."""
     profile = load_profile(profile)
     channels, tags = read_exr_tagged(render_path)
     space = render_space_of(render_path, render_space, tags)
     render, overlay = read_layers(render_path, layer, overlay_layer, channels, space)
     needs = needed_passes(profile)
     passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)
-    result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes)
+    previous = None
+    if previous_path is not None and follows_previous(profile):
+        previous = _CAMERA_FRAMES.get(str(previous_path))
+        if previous is None and overlay is None and Path(previous_path).is_file():
+            previous = read_plate(previous_path, profile.camera.width, profile.camera.height, 3)
+    result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes, previous=previous)
+    if follows_previous(profile):  # the next frame follows this one: the camera's frame, without the overlay
+        _CAMERA_FRAMES.clear()
+        _CAMERA_FRAMES[str(output_path)] = result.frame
     image = result.frame if overlay is None else over_frame(result.frame, overlay_in_frame(overlay, profile))
     return write_image(output_path, image)
+
+
+#: The camera's last frame made by :func:`degrade_frame` (by its output path) for a profile whose frames follow
+#: the one before: the next frame's previous frame, without the overlay drawn over the composite.
+_CAMERA_FRAMES: dict = {}

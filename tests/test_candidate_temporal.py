@@ -261,3 +261,32 @@ def test_a_plate_without_a_filter_moving_or_coded_is_not_taken_for_one(still_sho
     coded = probe.estimate(Footage(filtered, video={"codec": "h264", "gop_length": 30, "frame_types": "I 1, P 9"}),
                            profile, film)
     assert coded.params["strength"] > 0.4 and coded.confidence < MIN_CONFIDENCE and "predicted" in coded.reason
+
+
+def test_blenders_render_handler_follows_the_frame_before(tmp_path, fire_i):
+    """What the add-on's handler calls per rendered frame (``lowcam.scene.degrade_frame`` with the composite path
+    of the frame before): frame 2 follows frame 1's camera frame as made in this process, and the same bytes
+    when frame 1's file is all there is (a render resumed in a new Blender). Frame 1, with none before it, is the
+    frame without the filter."""
+    from helpers import disk_render
+    from lowcam.io import read_image
+    from lowcam.outputs import write_exr
+    from lowcam.sample import sample_plate
+    from lowcam.scene import _CAMERA_FRAMES, degrade_frame
+
+    profile = fire_i.with_effect("temporal_noise_reduction", strength=0.7, motion_threshold_dn=64.0)
+    plate = sample_plate(fire_i)
+    renders = [write_exr(tmp_path / f"{f:04d}.exr", disk_render(fire_i, 0.2, centre=(0.03 * f, 0.0), width=800))
+               for f in (1, 2)]
+    out = [tmp_path / "out" / f"{f:04d}.png" for f in (1, 2)]
+    first = degrade_frame(renders[0], out[0], profile, plate, frame=1, previous_path=tmp_path / "out/0000.png")
+    second = read_image(degrade_frame(renders[1], out[1], profile, plate, frame=2, previous_path=out[0]))
+    alone = read_image(degrade_frame(renders[1], tmp_path / "alone.png", fire_i, plate, frame=2))
+    assert np.array_equal(read_image(first), read_image(degrade_frame(renders[0], tmp_path / "p1.png", fire_i, plate,
+                                                                      frame=1)))
+    moved = np.any(second != alone, axis=2)
+    assert 0.01 < moved.mean() < 0.3            # the graphics, averaged with frame 1's
+    _CAMERA_FRAMES.clear()
+    again = read_image(degrade_frame(renders[1], tmp_path / "again.png", profile, plate, frame=2,
+                                     previous_path=out[0]))
+    assert np.array_equal(again, second)
