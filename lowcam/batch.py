@@ -55,7 +55,7 @@ from .io import check_plate, read_plate
 from .motion import FrameMotion
 from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .passes import needed_passes, read_render_and_passes
-from .pipeline import follows_previous, simulate
+from .pipeline import check_followed_output, follows_previous, simulate
 from .profile import load_profile
 from .video import VIDEO_SUFFIXES, close_videos, is_video, read_video_frame  # noqa: F401  (the shot's reader)
 
@@ -342,7 +342,7 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
              quiet: bool = False) -> list[FrameResult]:
     """Process ``frames`` of ``shot``: serially (``workers`` 0), on a Dask LocalCluster of ``workers`` processes,
     or on the Dask cluster at ``scheduler`` (``tcp://host:port``). Returns one result per frame, in frame order."""
-    shot.load_profile()  # a bad profile fails here, once, before any frame
+    check_followed_output(shot.load_profile(), shot.output)  # a bad profile fails here, once, before any frame
     if _is_video(shot.plates):
         read_video_frame(shot.plates, 0, shot.plate_colour)  # an unreadable video fails once, not once per frame
     if scheduler and not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s/]+(:\d+)?/?", scheduler):

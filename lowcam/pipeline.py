@@ -30,6 +30,7 @@ Contents
 - :func:`resume`: the 8-bit frame for ``(seed, frame)`` from a :func:`prepare` token
 - :func:`has_temporal`: whether a profile has an effect that acts across frames (a video encoder)
 - :func:`follows_previous`: whether a profile's shot frames depend on the frame delivered before (made in order)
+- :func:`check_followed_output`: such a shot's frames must be PNG (the next frame reads them)
 - :func:`finish_sequence`: frames of one shot or capture through the chain's temporal effects (a video encoder)
 - :func:`resume_sequence`: frames ``0..count-1`` from a :func:`prepare` token as one sequence
 - :func:`simulate`: the camera's 8-bit RGB frame for a premultiplied RGBA ``render`` composited over ``plate``
@@ -45,6 +46,7 @@ from __future__ import annotations
 
 import copy
 import os
+from pathlib import Path
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -278,6 +280,16 @@ def follows_previous(profile: Profile) -> bool:
     return any(e.follows_previous and e.enabled for e in profile.effects)
 
 
+def check_followed_output(profile: Profile, path) -> None:
+    """Refuse, in one line, a shot output other than PNG for a profile whose frames follow the one before
+    (:func:`follows_previous`): the next frame reads this one as written, and a JPEG or EXR would change it (and
+    a resumed shot's bytes)."""
+    if follows_previous(profile) and Path(str(path)).suffix.lower() != ".png":
+        name = next(e.name for e in profile.effects if e.follows_previous and e.enabled)
+        raise LowcamError(f"{path}: the profile's {name} follows each frame with the next, which reads it as "
+                          "written: write PNG frames")
+
+
 def _sequence_tail(profile: Profile) -> list:
     """The enabled effects from the profile's first temporal one (:attr:`~lowcam.effects.Effect.temporal`) on, or
     [] when it has none."""
@@ -291,14 +303,22 @@ def has_temporal(profile: Profile) -> bool:
     return bool(_sequence_tail(profile))
 
 
-def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray,
+                    lead: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Frames (T, H, W, 3) uint8 of one shot or capture, in order, finished up to the profile's first temporal
     effect, and their footprints (T, H, W) bool, taken through the rest of the chain: each temporal effect's
     :meth:`~lowcam.effects.Effect.finish_frames` on the sequence, each other effect after the first temporal one
     frame by frame (:meth:`~lowcam.effects.Effect.finish` without a state: the stages that need the frame's
-    state, a raw blend, stand before the encoders)."""
-    for effect in _sequence_tail(profile):
+    state, a raw blend, stand before the encoders). The first ``lead`` frames settle the temporal effects that need
+    them (:meth:`~lowcam.effects.Effect.lead_frames`): each effect gets as many of them as it or a later temporal
+    effect needs, the rest dropped before it (a video encoder's frame 0 is then the sequence's own), and none is
+    returned."""
+    tail = _sequence_tail(profile)
+    count = len(frames) - lead
+    for k, effect in enumerate(tail):
         frames, footprints = effect.finish_frames(frames, footprints)
+        keep = count + max((e.lead_frames() for e in tail[k + 1:] if e.temporal), default=0)
+        frames, footprints = frames[len(frames) - keep:], footprints[len(footprints) - keep:]
     return frames, footprints
 
 
@@ -471,8 +491,8 @@ def resume_sequence(token, seed: int = 0, count: int = 1, profile: Profile | Non
         return np.stack([resume(token, seed, k, profile) for k in range(count)])
     lead = max(e.lead_frames() for e in tail)
     done = [resume(token, seed, k, profile, in_sequence=True) for k in (*range(count, count + lead), *range(count))]
-    frames, _ = finish_sequence(prof, np.stack([d[0] for d in done]), np.stack([d[1] for d in done]))
-    return frames[lead:]
+    frames, _ = finish_sequence(prof, np.stack([d[0] for d in done]), np.stack([d[1] for d in done]), lead)
+    return frames
 
 
 def simulate(render: np.ndarray, profile="fire-i", plate: np.ndarray | None = None,

@@ -23,7 +23,7 @@ from .errors import LowcamError
 from .io import OVERLAY_LAYER, _rgba_from_exr, check_render, read_exr_tagged, read_plate, render_space_of
 from .outputs import write_image
 from .passes import RenderPasses, needed_passes, read_blender_passes
-from .pipeline import follows_previous, run
+from .pipeline import check_followed_output, follows_previous, run
 from .profile import load_profile
 from .render_spaces import to_camera_space
 
@@ -96,19 +96,29 @@ def degrade_frame(render_path, output_path, profile, plate=None, angular_velocit
     render, overlay = read_layers(render_path, layer, overlay_layer, channels, space)
     needs = needed_passes(profile)
     passes = read_passes(render_path, layer, fps, metres_per_unit, needs, channels)
-    previous = None
-    if previous_path is not None and follows_previous(profile):
-        previous = _CAMERA_FRAMES.get(str(previous_path))
-        if previous is None and overlay is None and Path(previous_path).is_file():
+    previous, follows = None, follows_previous(profile)
+    if follows:
+        check_followed_output(profile, output_path)
+    if previous_path is not None and follows and Path(previous_path).is_file():
+        kept = _CAMERA_FRAMES.get("frame")
+        if kept is not None and kept[0] == _written(previous_path):
+            previous = kept[1]
+        elif overlay is None:
             previous = read_plate(previous_path, profile.camera.width, profile.camera.height, 3)
     result = run(render, profile, plate, angular_velocity, exposure_s, seed, frame, passes=passes, previous=previous)
-    if follows_previous(profile):  # the next frame follows this one: the camera's frame, without the overlay
-        _CAMERA_FRAMES.clear()
-        _CAMERA_FRAMES[str(output_path)] = result.frame
     image = result.frame if overlay is None else over_frame(result.frame, overlay_in_frame(overlay, profile))
-    return write_image(output_path, image)
+    written = write_image(output_path, image)
+    if follows:  # the next frame follows this one: the camera's frame, without the overlay
+        _CAMERA_FRAMES["frame"] = (_written(written), result.frame)
+    return written
 
 
-#: The camera's last frame made by :func:`degrade_frame` (by its output path) for a profile whose frames follow
-#: the one before: the next frame's previous frame, without the overlay drawn over the composite.
+#: The camera's last frame made by :func:`degrade_frame` for a profile whose frames follow the one before, with
+#: the file it went into (path, size, modification time): the next frame's previous frame, without the overlay
+#: drawn over the composite, while that file is the one written.
 _CAMERA_FRAMES: dict = {}
+
+
+def _written(path) -> tuple:
+    st = Path(path).stat()
+    return str(Path(path).resolve()), st.st_size, st.st_mtime_ns

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from lowcam.batch import Shot, expand_pattern, parse_frames, process_frame, run_shot
+from lowcam.errors import LowcamError
 from lowcam.motion import FrameMotion, read_motion_json, write_motion_json
 from lowcam.outputs import write_exr
 from lowcam.sample import sample_plate
@@ -318,5 +319,11 @@ def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_byte
     made = frame_bytes(tmp_path / "tnr")
     for f in (3, 4):
         shot.output_path(f).unlink()
-    run_shot(shot, frames, quiet=True)
+    run_shot(shot, frames, workers=workers, quiet=True)
     assert frame_bytes(tmp_path / "tnr") == made
+    # JPEG or EXR frames would change what the next frame reads: refused in one line before any frame
+    for suffix in ("jpg", "exr"):
+        shot.output = str(tmp_path / f"lossy/####.{suffix}")
+        with pytest.raises(LowcamError, match="write PNG frames") as e:
+            run_shot(shot, frames, quiet=True)
+        assert "\n" not in str(e.value) and not (tmp_path / "lossy").exists()

@@ -264,3 +264,52 @@ def test_a_set_with_neither_gets_neither_named(tmp_path):
     ranking = [(c.effect, round(c.score, 3)) for c in d.candidates]
     assert d.candidates[0].effect == "defocus", ranking
     assert d.verdict != "missing-effect" or d.best.effect == "defocus", d.summary()
+
+
+# --- from the plate alone -----------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def still_fire_i_shot():
+    """The Fire-i filming the bundled photograph with a still camera: 6 frames, each its own noise."""
+    from lowcam.measure.synth import scenes
+    from lowcam.pipeline import simulate
+
+    profile = lowcam.load_profile("fire-i")
+    ideal, _ = scenes(profile, 640)["photo"]
+    return profile, np.stack([simulate(ideal, profile, None, (0, 0, 0), None, 3, k) for k in range(6)])
+
+
+@pytest.mark.parametrize("seed", [91, pytest.param(92, marks=pytest.mark.slow)])
+def test_the_plate_shows_opencvs_bilateral_and_the_noise_law_beneath_it(still_fire_i_shot, seed):
+    """A still shot through OpenCV's bilateral filter on its luma, at a random range sigma: the smoothed-noise
+    probe finds a filter, and the noise law read through it is the unfiltered shot's (read without it, lower)."""
+    from lowcam.measure import plate
+
+    profile, shots = still_fire_i_shot
+    p = drawn(seed, sigma_color=(12.0, 40.0))
+    post = opencv_luma_filter(lambda y: cv2.bilateralFilter(y, 7, p["sigma_color"], 2.0))
+    footage = plate.Footage(np.stack([post(f) for f in shots]), path="denoised")
+    probes = {x.name: x for x in plate.plate_probes()}
+    est = probes["smoothed_noise"].estimate(footage, profile, plate.film)
+    assert est.confidence >= plate.MIN_CONFIDENCE and est.params["luma_strength_dn"] >= 5.0, est.line()
+
+    def sigma(shot, base):
+        law = probes["noise_level_function"].estimate(shot, base, plate.film).params
+        return profile.with_effect("noise", **law).effect("noise").sigma("green", 128.0)
+
+    raw = sigma(plate.Footage(shots), profile)
+    beneath = sigma(footage, profile.with_effect("noise_reduction", **est.params))
+    without = sigma(footage, profile)
+    print(f"{p}: {est.line()}; noise law {beneath / raw:.3f} of the unfiltered shot's, without it {without / raw:.3f}")
+    assert abs(beneath / raw - 1) < 0.2 and without < 0.85 * raw, (beneath, without, raw)
+
+
+def test_the_plate_of_a_raw_or_moving_camera_shows_no_noise_reduction(still_fire_i_shot):
+    from lowcam.measure import plate
+
+    profile, shots = still_fire_i_shot
+    probe = next(x for x in plate.plate_probes() if x.name == "smoothed_noise")
+    raw = probe.estimate(plate.Footage(shots), profile, plate.film)
+    assert raw.params == {} and "no noise reduction" in raw.reason, raw.line()
+    pan = np.stack([np.roll(f, 5 * k, axis=1) for k, f in enumerate(shots)])
+    assert not probe.estimate(plate.Footage(pan), profile, plate.film).measurable

@@ -290,3 +290,26 @@ def test_blenders_render_handler_follows_the_frame_before(tmp_path, fire_i):
     again = read_image(degrade_frame(renders[1], tmp_path / "again.png", profile, plate, frame=2,
                                      previous_path=out[0]))
     assert np.array_equal(again, second)
+    with pytest.raises(LowcamError, match="write PNG frames") as e:
+        degrade_frame(renders[1], tmp_path / "out.jpg", profile, plate, frame=2, previous_path=out[0])
+    assert "\n" not in str(e.value) and not (tmp_path / "out.jpg").exists()
+    _CAMERA_FRAMES.clear()
+
+
+def test_a_coder_after_the_filter_codes_the_capture_from_its_own_first_frame(fire_i):
+    """The lead frames settle the filter and are dropped before the video coder: the capture's sequence is the
+    filter's output of the lead and capture frames, less the lead, coded from its own frame 0."""
+    from lowcam.effects.video_codec import code_sequence
+    from lowcam.pipeline import prepare, resume
+
+    filtered = quiet_fire_i().with_effect("temporal_noise_reduction", strength=0.6)
+    coded = filtered.with_effect("video_codec", crf=30, gop_frames=250)
+    ideal, omega = scenes(fire_i, 640)["photo"]
+    token = prepare(ideal, quiet_fire_i(), None, omega)
+    lead = lead_frames(0.6)
+    plain = np.stack([resume(token, 5, k) for k in (*range(4, 4 + lead), *range(4))])
+    expected = code_sequence(filter_sequence(plain, 0.6, 16.0)[lead:], "h264", 30, 250)
+    capture = SimpleNamespace(ideal=ideal, plate=None, mask=None, angular_velocity=omega, exposure_s=None)
+    assert simulate_capture(coded, capture, 4, seed=5).tobytes() == expected.tobytes()
+    assert simulate_capture(filtered, capture, 4, seed=5).tobytes() == filter_sequence(plain, 0.6, 16.0)[
+        lead:].tobytes()

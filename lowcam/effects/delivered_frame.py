@@ -49,7 +49,7 @@ _SHARES: OrderedDict = OrderedDict()  # (stage, frames' digest, values) -> one c
 _SHARES_KEPT = 20000                  # shares kept (a few numbers each), least recently made out first
 _LOCK = threading.Lock()              # diagnosis fits candidates in threads
 _PLAIN: OrderedDict = OrderedDict()   # (capture's id, profile, count, crop) -> (capture's weakref, model frames)
-_PLAIN_BYTES = 64 << 20               # model frames kept for the other folds' fits, least recently made out first
+_PLAIN_BYTES = 64 << 20               # model frames kept for the other folds' fits, least recently used out first
 
 
 def to_ycc(frame: np.ndarray) -> np.ndarray:
@@ -174,18 +174,23 @@ def _plain_frames(ctx, profile, i: int, count: int, rows: slice, cols: slice) ->
            count, rows.start, rows.stop, cols.start, cols.stop)
     with _LOCK:
         kept = _PLAIN.get(key)
-    if kept is not None and kept[0]() is capture:
-        return kept[1]
+        if kept is not None and kept[0]() is capture:
+            _PLAIN.move_to_end(key)
+            return kept[1]
     frames = np.ascontiguousarray(ctx.simulate(profile, i, count)[:, rows, cols])
-    with _LOCK:
-        _PLAIN[key] = (weakref.ref(capture), frames)
-        while sum(f.nbytes for _, f in _PLAIN.values()) > _PLAIN_BYTES and len(_PLAIN) > 1:
-            _PLAIN.popitem(last=False)
+    frames.flags.writeable = False  # shared by the folds' threads
+    if frames.nbytes <= _PLAIN_BYTES:
+        with _LOCK:
+            for dead in [k for k, (ref, _) in _PLAIN.items() if ref() is None]:
+                del _PLAIN[dead]
+            _PLAIN[key] = (weakref.ref(capture), frames)
+            while sum(f.nbytes for _, f in _PLAIN.values()) > _PLAIN_BYTES:
+                _PLAIN.popitem(last=False)
     return frames
 
 
 def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, int] = _CROP, count: int = 3,
-                        frozen_noise: bool = False, screened_forms: int = 1):
+                        frozen_noise: bool = False, screened_forms: int = 1, lead: int = 0):
     """Diagnosis's fit (a :class:`~lowcam.effects.Search` ``fit``) of a stage that acts on the delivered frame:
     (profile with it, values, values shown).
 
@@ -213,7 +218,8 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     what lies beyond the two sequences' own difference, and the rows family (the variance of per-frame row means,
     :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is scored too. ``screened_forms``: how many forms
     screening tries (the first; a video encoder's two codecs code noise too differently for one to stand for the
-    other)."""
+    other). ``lead``: frames before each sequence that settle a recursive filter: ``process`` is handed ``lead +
+    count`` frames and returns the last ``count``."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
@@ -228,7 +234,8 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     if shortcut:
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
-        plain = [_plain_frames(ctx, base, i, 2 * count if frozen_noise else count, rows, cols) for i in idx]
+        per = count + lead
+        plain = [_plain_frames(ctx, base, i, 2 * per if frozen_noise else per, rows, cols) for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
@@ -242,7 +249,7 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
             got = _SHARES.get(key)
         if got is None:
             if frozen_noise:  # two sequences of independent noise: the noise of the mean from their difference
-                first, second = plain[j][:count], plain[j][count:]
+                first, second = plain[j][:per], plain[j][per:]
                 got = _partial(measured[j], process(values, first)[:, ir, ic], masks[j],
                                process(values, second)[:, ir, ic])
             else:
@@ -259,8 +266,10 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
             if shortcut:
                 parts = [share(j, values) for j in range(len(idx))]
             else:
-                model = p.with_effect(effect, **values)
-                parts = [_partial(measured[j], ctx.simulate(model, i, count)[:, rows, cols][:, ir, ic], masks[j])
+                model = p.with_effect(effect, **values)  # the chain makes its own lead frames (resume_sequence)
+                parts = [_partial(measured[j], ctx.simulate(model, i, count)[:, rows, cols][:, ir, ic], masks[j],
+                                  ctx.simulate(model, i, count, second=True)[:, rows, cols][:, ir, ic]
+                                  if frozen_noise else None)
                          for j, i in enumerate(idx)]
             scores[key] = _combined(parts)
         return scores[key]

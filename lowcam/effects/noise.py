@@ -641,9 +641,9 @@ def noise_level_function_from_plate(footage, base, film):
                 f"; {repeated} more where the codec repeats or flattens pixels" if repeated else ""))
     proportions = channel_proportions(base) if luma else None
     gains = noise_gain(base, method, film, proportions=proportions)
-    if any(e.enabled and e.follows_previous for e in base.effects):
-        # what a temporal filter leaves of the noise depends on its level (the 8-bit rounding, the motion
-        # threshold): the gain again at the footage's own per-sensel sigma
+    if any(e.enabled and (e.follows_previous or e.name == "noise_reduction") for e in base.effects):
+        # what a temporal filter or an edge-preserving denoiser leaves of the noise depends on its level (the 8-bit
+        # rounding, the motion threshold, the range sigma): the gain again at the footage's own per-sensel sigma
         level = float(np.median([np.median(stat["sigma_dn"][ch]) / g for ch, g in zip(channels, gains)]))
         gains = noise_gain(base, method, film, sigma_dn=max(level, 0.5), proportions=proportions)
     params = {"law": law}

@@ -22,6 +22,9 @@ Contents
 - :func:`fit_noise_reduction`: diagnosis's fit: the family, strengths and scale whose filtered noisy model frames
   best match the measured frames' means and noise (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`NoiseReduction`: the stage
+- :func:`neighbour_correlation`, :func:`smoothed_noise_statistic`, :func:`noise_reduction_from_plate`: the plate
+  probe: how much a still shot's noise correlates with its neighbours' and how much of it there is, against the
+  base profile filming the shot's scene with a noise law scaled and the filter at a strength
 
 It has no compositor node: Blender's compositor has no non-local-means filter, and its Bilateral Blur node
 (iterated 3x3 passes with a determinator image) is not OpenCV's bilateral filter, so the node group could not
@@ -43,8 +46,10 @@ import math
 import cv2
 import numpy as np
 
+from ..plate_estimate import PlateEstimate, PlateProbe, register_footage
 from .base import Effect, Param, Search
 from .delivered_frame import fit_delivered_stage, processed_by, to_ycc, within_footprint, ycc_change_to_rgb
+from .noise import PLATE_PAIRS, STILL_PX
 
 #: The filter families: OpenCV's bilateral filter and its fast non-local means.
 METHODS = ("bilateral", "nl_means")
@@ -154,3 +159,139 @@ class NoiseReduction(Effect):
 
 
 fit_noise_reduction.refines = True  # diagnosis calls it again, in full, for a promising candidate
+
+
+#: The grid the plate's statistics are read against: the base's noise sigma scaled by these, and the bilateral
+#: filter's luma strength (DN) at :data:`PLATE_SCALE_PX`.
+PLATE_NOISE_SCALES = (0.5, 0.8, 1.25, 2.0)
+PLATE_STRENGTHS = (0.0, 5.0, 10.0, 20.0, 40.0)
+PLATE_SCALE_PX = 2.0
+#: A fitted strength under this (DN) is no noise reduction.
+PLATE_NONE_BELOW = 2.5
+#: A strength whose model correlation is within this of the strongest filter's is a lower bound.
+SATURATED_WITHIN = 0.015
+
+
+def neighbour_correlation(differences: np.ndarray) -> tuple[float, float] | None:
+    """(correlation of the noise with its neighbour's, averaged right and down; the noise's variance in one frame,
+    DN^2) from differences of still frame pairs (P, H, W, C; NaN where not compared), on their grey (channel
+    mean): a difference holds two frames' noise and no scene. White noise correlates about 0 with its neighbours;
+    a spatial denoiser (or a blur, a demosaic) raises it. None without noise."""
+    d = np.asarray(differences, np.float32).mean(-1)
+    right = d[:, :, 1:] * d[:, :, :-1]
+    down = d[:, 1:] * d[:, :-1]
+    var = float(np.nanmean(np.square(d))) if np.isfinite(d).any() else 0.0
+    if var <= 1e-9 or not (np.isfinite(right).any() and np.isfinite(down).any()):
+        return None
+    return 0.5 * (float(np.nanmean(right)) + float(np.nanmean(down))) / var, var / 2
+
+
+def smoothed_noise_statistic(frames: np.ndarray) -> dict:
+    """The plate statistic: the neighbour correlation of the noise in a still stack's (T >= 2, H, W, 3)
+    consecutive differences (:func:`neighbour_correlation`); ``{}`` for one frame or a stack that moves."""
+    frames = np.asarray(frames, np.float32)
+    diffs = np.diff(frames, axis=0)
+    if len(frames) < 2 or any(float(np.abs(cv2.GaussianBlur(d.mean(-1), (0, 0), 2.0)).mean()) >= 2.0
+                              for d in diffs):
+        return {}
+    got = neighbour_correlation(diffs)
+    return {} if got is None else {"neighbour_correlation": round(got[0], 4)}
+
+
+def _scaled_noise(profile, k: float):
+    noise = profile.effect("noise")
+    power = 1 if noise.law == "sigma_linear" else 2
+    return profile.with_effect("noise", **{ch: [v * k ** power for v in getattr(noise, ch)]
+                                          for ch in ("red", "green", "blue")})
+
+
+def noise_reduction_from_plate(footage, base, film):
+    """The spatial noise reduction's luma strength from footage, as a :class:`lowcam.plate_estimate.PlateEstimate`.
+
+    Frame pairs spread over the shot are registered (:func:`lowcam.plate_estimate.register_footage`) and those
+    that hold still (no pixel moves half a pixel) give the noise's neighbour correlation and variance
+    (:func:`neighbour_correlation`). The base profile without the stage films the shot's scene (the middle frame
+    of those pairs) twice with its noise scaled by each of :data:`PLATE_NOISE_SCALES` and a bilateral filter of
+    each luma strength of :data:`PLATE_STRENGTHS` (scale :data:`PLATE_SCALE_PX`): a denoiser correlates the noise
+    and lowers it, a louder sensor only raises it, so the two statistics together place the footage on that grid
+    (interpolated: ``(ln variance / 0.05)^2 + (correlation / 0.02)^2`` the smallest). A strength under
+    :data:`PLATE_NONE_BELOW` is none (a base's stage is turned off); one whose model correlation is within
+    :data:`SATURATED_WITHIN` of the strongest filter's is said to be a lower bound (a range sigma that takes in
+    all the noise smooths it as a blur does). The noise law's probe, after it, reads the law
+    through the stage. Confidence ``0.9 min(1, pairs / 3)``, halved where the best point lies on the grid's edge
+    (the largest strength or an outer noise scale); a video whose inter-frame coding smooths and holds noise caps
+    it at 0.4. Without a still pair, or a base without a noise law: not measurable."""
+    name, effect = "smoothed_noise", "noise_reduction"
+    if base.effect("noise") is None:
+        return PlateEstimate.not_measurable(name, effect, {}, "the base profile has no noise law to filter")
+    pairs = register_footage(footage, PLATE_PAIRS)
+    still = [k for k, r in enumerate(pairs.registrations) if r.motion_px < STILL_PX]
+    if not still:
+        return PlateEstimate.not_measurable(name, effect, {}, "no still frame pair: the noise's texture shows only "
+                                            "where nothing moves")
+    got = neighbour_correlation(pairs.select(still).diff)
+    if got is None:
+        return PlateEstimate.not_measurable(name, effect, {}, "the still frame pairs hold no noise")
+    corr, var = got
+    scene = footage.frame(pairs.pairs[still[len(still) // 2]][0]) if pairs.pairs else footage.frame(0)
+
+    def ideal(width, height):
+        out = np.ones((height, width, 4), np.float32)
+        out[..., :3] = np.clip(cv2.resize(scene, (width, height), interpolation=cv2.INTER_AREA) / 255.0, 0, 1)
+        return out
+
+    have = base.effect(effect)
+    plain = base.without(effect) if have is not None else base
+    grid_c = np.zeros((len(PLATE_NOISE_SCALES), len(PLATE_STRENGTHS)))
+    grid_v = np.zeros_like(grid_c)
+    for i, k in enumerate(PLATE_NOISE_SCALES):
+        noisy = _scaled_noise(plain, k)
+        for j, strength in enumerate(PLATE_STRENGTHS):
+            model = noisy if strength == 0 else noisy.with_effect(effect, method="bilateral", luma_strength_dn=strength,
+                                                                 chroma_strength_dn=0.0, scale_px=PLATE_SCALE_PX)
+            a, b = (film(model, ideal, seed=0, frame=f) for f in (0, 1))
+            grid_c[i, j], grid_v[i, j] = neighbour_correlation((a - b)[None])
+    fine_k = np.linspace(np.log(PLATE_NOISE_SCALES[0]), np.log(PLATE_NOISE_SCALES[-1]), 61)
+    fine_s = np.linspace(PLATE_STRENGTHS[0], PLATE_STRENGTHS[-1], 161)
+
+    def lattice(grid):  # the grid interpolated on a fine lattice of (log noise scale, strength)
+        along_s = np.array([np.interp(fine_s, PLATE_STRENGTHS, row) for row in grid])
+        return np.array([np.interp(fine_k, np.log(PLATE_NOISE_SCALES), col) for col in along_s.T]).T
+
+    fine_c = lattice(grid_c)
+    cost = np.square((np.log(lattice(grid_v)) - np.log(var)) / 0.05) + np.square((fine_c - corr) / 0.02)
+    bi, bj = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    strength, scale = float(fine_s[bj]), float(np.exp(fine_k[bi]))
+    # a filter whose range takes in all of this noise smooths it as a blur does, whatever its strength
+    saturated = strength >= PLATE_NONE_BELOW and fine_c[bi, -1] - fine_c[bi, bj] < SATURATED_WITHIN
+    measured = {"pairs": len(still), "neighbour_correlation": round(corr, 4), "variance_dn2": round(var, 3),
+                "model_without": round(float(np.interp(0.0, np.log(PLATE_NOISE_SCALES), grid_c[:, 0])), 4),
+                "noise_scale": round(scale, 3)}
+    edge = bj == len(fine_s) - 1 or bi in (0, len(fine_k) - 1)
+    confidence = 0.9 * min(1.0, len(still) / 3) * (0.5 if edge else 1.0)
+    why = (f"{len(still)} still frame pairs: noise correlated {corr:.2f} with its neighbours, variance {var:.2f} "
+           f"DN^2; the base filming their scene matches them with its noise x{scale:.2f} and a bilateral luma "
+           f"filter of {strength:.1f} DN")
+    if edge:
+        why += " (at the edge of the grid searched)"
+    if saturated:
+        measured["strength_at_least"] = True
+        why += (f"; at least that: stronger filters smooth noise this faint alike (correlation within "
+                f"{SATURATED_WITHIN} of the strongest's), and the noise law read through it is the same")
+    video = getattr(footage, "video", None) or {}
+    if video.get("gop_length", 1) > 1 or any(t in video.get("frame_types", "") for t in ("P", "B")):
+        confidence = min(confidence, 0.4)
+        why += "; the clip's inter-frame coding smooths and holds noise as well: reported, not applied"
+    if strength < PLATE_NONE_BELOW:
+        params = {"enabled": False} if have is not None and have.enabled else {}
+        return PlateEstimate(name, effect, measured, params, round(confidence, 3), why + ": no noise reduction")
+    params = {"method": "bilateral", "luma_strength_dn": round(strength, 2), "chroma_strength_dn": 0.0,
+              "scale_px": PLATE_SCALE_PX}
+    return PlateEstimate(name, effect, measured, params, round(confidence, 3), why)
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+NoiseReduction.plate_probe = PlateProbe(
+    "smoothed_noise", noise_reduction_from_plate, smoothed_noise_statistic, order=36,
+    about="the noise's correlation with its neighbours in still frames: a spatial denoiser (before the noise law, "
+          "which it lowers)")

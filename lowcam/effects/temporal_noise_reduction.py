@@ -141,6 +141,7 @@ def fit_temporal_noise_reduction(ctx, effect):
         own = lead_frames(values["strength"])
         return filter_sequence(stack[lead - own:], values["strength"], values["motion_threshold_dn"])[own:]
 
+
     def finer(key, factors, low, high):
         return lambda v: sorted({round(min(max(v[key] * f, low), high), 3) for f in factors})
 
@@ -150,7 +151,7 @@ def fit_temporal_noise_reduction(ctx, effect):
             ("motion_threshold_dn", finer("motion_threshold_dn", (0.7, 0.85, 1.0, 1.2, 1.4), 1.0, 255.0)),
             ("strength", finer("strength", (0.96, 1.0, 1.04), 0.05, MAX_STRENGTH))]
     start = {"strength": 0.5, "motion_threshold_dn": 16.0}
-    return fit_delivered_stage(ctx, effect, process, [(start, plan, coarse)], count=frames + lead,
+    return fit_delivered_stage(ctx, effect, process, [(start, plan, coarse)], count=frames, lead=lead,
                                frozen_noise=True)
 
 
@@ -186,8 +187,10 @@ class TemporalNoiseReduction(Effect):
     def finish_after(self, previous, frame, footprint):
         """``frame`` filtered with ``previous``, the frame the shot delivered before it, where the graphics reach
         (:func:`filter_sequence` of the two)."""
-        if frame.ndim != 3 or np.shape(previous) != frame.shape:
-            raise self.error(f"needs the frame before as {frame.shape} RGB, got {np.shape(previous)}")
+        previous = np.asarray(previous)
+        if frame.ndim != 3 or previous.shape != frame.shape or previous.dtype != np.uint8:
+            raise self.error(f"needs the frame before as {frame.shape} 8-bit RGB, got {previous.dtype} "
+                             f"{previous.shape}")
         pair = np.stack([previous, frame])
         return filter_sequence(pair, self.strength, self.motion_threshold_dn, np.stack([footprint, footprint]))[1], \
             footprint
@@ -215,8 +218,8 @@ PLATE_MIN_FRAMES = 4
 PLATE_FRAMES = 16
 #: A share held at most this much (and two standard errors) above 0 is no filter.
 PLATE_NONE_BELOW = 0.05
-#: The motion threshold a plate estimate sets: at least this many times the standard deviation of the footage's
-#: luma change from one still frame to the next (so that the noise keeps the full strength: under half of it).
+#: The motion threshold a plate estimate sets: at least this many times the standard deviation of the luma change
+#: the filter sees on still frames (so that the noise keeps the full strength: under half of it).
 NOISE_STEPS = 8.0
 #: Still frames: consecutive frames whose Gaussian-blurred (sigma 2 px) grey difference is under this (DN, mean
 #: absolute), the criterion of :func:`lowcam.plate_estimate.still_segments`.
@@ -238,7 +241,7 @@ def held_share(frames: np.ndarray) -> float | None:
     grey = np.asarray(frames).astype(np.float32).mean(-1)
     d1 = float(np.mean(np.square(grey[1:] - grey[:-1]))) - 2 * _GREY_ROUNDING
     d2 = float(np.mean(np.square(grey[2:] - grey[:-2]))) - 2 * _GREY_ROUNDING
-    if d1 <= 1e-6:
+    if d1 <= 2 * _GREY_ROUNDING:  # hardly more than the rounding: the ratio says nothing
         return None
     return float(np.clip(d2 / d1 - 1.0, -1.0, 1.0))
 
@@ -293,7 +296,8 @@ def temporal_noise_reduction_from_plate(footage, base, film):
     threshold = have.motion_threshold_dn if have is not None else TemporalNoiseReduction.params[
         "motion_threshold_dn"].default
     steps = np.diff(frames @ BT601_TO_YCC[0], axis=0)
-    noise_step = float(1.4826 * np.median(np.abs(steps - np.median(steps))))
+    # the filter compares a frame with its last output, which differ by 1 / (1 - k) times the outputs' steps
+    noise_step = float(1.4826 * np.median(np.abs(steps - np.median(steps)))) / max(1.0 - share, 0.1)
     threshold = round(max(threshold, NOISE_STEPS * noise_step), 1)
     measured = {"frames": n, "first_frame": int(start), "held_share": round(share, 4),
                 "standard_error": round(se, 4), "luma_step_sigma_dn": round(noise_step, 3)}
@@ -309,7 +313,7 @@ def temporal_noise_reduction_from_plate(footage, base, film):
         return PlateEstimate(name, effect, measured, params, round(confidence, 3), why + ": no temporal filter")
     strength = float(min(share, MAX_STRENGTH))
     why += (f"; the motion threshold, which still frames cannot show, {threshold:g} DN: {NOISE_STEPS:g} times the "
-            f"noise's frame-to-frame luma change ({noise_step:.2f} DN) or the base's, the larger")
+            f"noise's luma change from the filter's last output ({noise_step:.2f} DN) or the base's, the larger")
     return PlateEstimate(name, effect, measured, {"strength": round(strength, 3), "motion_threshold_dn": threshold},
                          round(confidence, 3), why)
 

@@ -95,8 +95,8 @@ import numpy as np
 from ..effects import known_effects
 from ..errors import NotFitted
 from ..pipeline import prefix_key
-from .compare import (EXPLAINED_BELOW, Comparison, capture_inputs, capture_stats, combine, compare,
-                      residual_family, simulate_capture)
+from .compare import (EXPLAINED_BELOW, SEQUENCE_SEED_STEP, SIM_SEED, Comparison, capture_inputs, capture_stats,
+                      combine, compare, residual_family, simulate_capture)
 from .sets import MeasurementSet
 
 UNEXPLAINED_ABOVE = 1.25
@@ -248,15 +248,22 @@ class Context:
             self._sse_per_capture(self.profile) - self._model_noise
 
     @property
+    def held_noise(self) -> float | None:
+        """The base comparison's :attr:`~lowcam.measure.compare.Comparison.held_noise`, measured once."""
+        if getattr(self, "_held", self) is self:
+            self._held = self.base.held_noise
+        return self._held
+
+    @property
     def holds_noise(self) -> bool:
         """Whether the captures' noise is held from frame to frame more than the profile's (by :data:`HELD_NOISE`):
         the evidence a temporal candidate needs."""
-        held = self.base.held_noise
+        held = self.held_noise
         return held is not None and held >= HELD_NOISE
 
     @property
     def holds_noise_reason(self) -> str:
-        held = self.base.held_noise
+        held = self.held_noise
         if held is None:
             return "no capture has 3 frames to show noise held from frame to frame"
         return (f"the captures' noise is held from frame to frame no more than the profile's (correlation "
@@ -357,12 +364,14 @@ class Context:
             out.append(frame.astype(np.float32))
         return out
 
-    def simulate(self, profile, i: int, count: int) -> np.ndarray:
+    def simulate(self, profile, i: int, count: int, second: bool = False) -> np.ndarray:
         """``count`` noisy frames (uint8, noise frames 0..count-1 of :data:`~lowcam.measure.compare.SIM_SEED`) of
         capture ``i`` through ``profile`` (:func:`~lowcam.measure.compare.simulate_capture`), the chain's
         deterministic front kept in the shared cache: how a fit in an effect's module, which does not run the
-        pipeline itself, asks for the model's frames."""
-        return simulate_capture(profile, self.mset.captures[i], count, inputs=self.inputs[i], cache=self.cache)
+        pipeline itself, asks for the model's frames. ``second``: the second model sequence, of other noise, that
+        ``compare`` makes for a profile whose frames are not independent (a temporal effect)."""
+        seed = SIM_SEED + SEQUENCE_SEED_STEP if second else SIM_SEED
+        return simulate_capture(profile, self.mset.captures[i], count, seed, inputs=self.inputs[i], cache=self.cache)
 
     def _difference(self, i, frame):
         d = self.means[i] - frame
@@ -662,8 +671,8 @@ def _fits(ctx, name, hold=()):
             reasons.append("no capture moves")
         elif search.captures == "textured" and not ctx.textured:
             reasons.append("no capture has texture")
-        elif search.held_noise and not ctx.holds_noise:
-            reasons.append(ctx.holds_noise_reason)
+        elif search.held_noise and not ctx.holds_noise and not (have is not None and have.enabled):
+            reasons.append(ctx.holds_noise_reason)  # (a profile's own temporal effect is refitted regardless)
         elif search.per_pixel and any(len(c.frames) < 2 for c in ctx.mset.captures):
             # a dense map fitted to one frame cannot tell the sensor's pattern from that frame's noise
             reasons.append("a per-pixel map needs several frames per capture")
