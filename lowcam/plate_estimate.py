@@ -16,6 +16,7 @@ Contents
 - :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
   start with the best of the next few frames
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still
+- :func:`inter_frame_coded`: whether footage is a video of predicted frames (which hold and smooth noise)
 """
 from __future__ import annotations
 
@@ -152,3 +153,10 @@ def still_segments(footage, min_length: int = 3, max_frames: int = 200) -> list[
                 runs.append((start, i + 1))
             start = None
     return runs
+
+
+def inter_frame_coded(footage) -> bool:
+    """Whether ``footage`` is a video whose frames are predicted from others (a GOP longer than one frame, P- or
+    B-frames: :func:`lowcam.video.stream_facts` in ``footage.video``): its coding holds and smooths noise too."""
+    video = getattr(footage, "video", None) or {}
+    return video.get("gop_length", 1) > 1 or any(t in video.get("frame_types", "") for t in ("P", "B"))

@@ -46,7 +46,7 @@ import math
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate, PlateProbe, register_footage
+from ..plate_estimate import PlateEstimate, PlateProbe, inter_frame_coded, register_footage
 from .base import Effect, Param, Search
 from .delivered_frame import fit_delivered_stage, processed_by, to_ycc, within_footprint, ycc_change_to_rgb
 from .noise import PLATE_PAIRS, STILL_PX
@@ -278,8 +278,7 @@ def noise_reduction_from_plate(footage, base, film):
         measured["strength_at_least"] = True
         why += (f"; at least that: stronger filters smooth noise this faint alike (correlation within "
                 f"{SATURATED_WITHIN} of the strongest's), and the noise law read through it is the same")
-    video = getattr(footage, "video", None) or {}
-    if video.get("gop_length", 1) > 1 or any(t in video.get("frame_types", "") for t in ("P", "B")):
+    if inter_frame_coded(footage):
         confidence = min(confidence, 0.4)
         why += "; the clip's inter-frame coding smooths and holds noise as well: reported, not applied"
     if strength < PLATE_NONE_BELOW:

@@ -60,7 +60,7 @@ import math
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate, PlateProbe, still_segments
+from ..plate_estimate import PlateEstimate, PlateProbe, inter_frame_coded, still_segments
 from .base import Effect, Param, Search
 from .delivered_frame import BT601_TO_YCC, fit_delivered_stage
 
@@ -303,8 +303,8 @@ def temporal_noise_reduction_from_plate(footage, base, film):
                 "standard_error": round(se, 4), "luma_step_sigma_dn": round(noise_step, 3)}
     confidence = 0.9 * float(np.clip(1 - se / 0.1, 0, 1)) * min(1.0, n / 8)
     why = f"{n} still frames from frame {start}: {share:.2f} +- {se:.2f} of the noise held from frame to frame"
-    video = getattr(footage, "video", None) or {}
-    if video.get("gop_length", 1) > 1 or any(t in video.get("frame_types", "") for t in ("P", "B")):
+    if inter_frame_coded(footage):
+        video = footage.video
         confidence = min(confidence, 0.4)
         why += (f"; the clip's predicted frames ({video.get('codec', 'a codec')}, {video.get('frame_types', '')}) "
                 "hold noise as well: reported, not applied")
