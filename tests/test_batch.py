@@ -291,8 +291,9 @@ def _read_rgb(path):
 def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_bytes(shot_dir, tmp_path, fire_i,
                                                                                    workers):
     """Each frame's graphics averaged with the shot's frame before, as written: ``out_k = round(x_k + w (out_{k-1}
-    - x_k))``, ``w = 0.7 clip(2 - 2 |luma change| / 255, 0, 1)``, ``x_k`` the frame without the filter; the first frame has
-    none before it. A resumed run, and Dask's workers, make the same bytes."""
+    - x_k))``, ``w = 0.7 clip(2 - 2 |luma change| / 255, 0, 1)``, ``x_k`` the frame without the filter; the first
+    frame has none before it. A resumed run, and Dask's workers, make the same bytes; JPEG and EXR frames are
+    refused."""
     frames = [1, 2, 3, 4]
     profile = fire_i.with_effect("temporal_noise_reduction", strength=0.7, motion_threshold_dn=255.0)
     motion = read_motion_json(shot_dir / "motion.json")

@@ -98,8 +98,9 @@ def frame_to_frame_correlation(frames: np.ndarray) -> float | None:
 
 def filter_sequence(frames: np.ndarray, strength: float, motion_threshold_dn: float, footprints=None) -> np.ndarray:
     """``frames`` (T, H, W, 3) uint8 through the recursive filter of the module's docstring, in order: (T, H, W, 3)
-    uint8, frame 0 as it is (the filter's state at full precision, each output rounded). ``footprints`` (T, H, W) bool: where the filter acts in each frame (all when None);
-    elsewhere a frame keeps its bytes, and those are what the next frame is averaged with."""
+    uint8, frame 0 as it is (the filter's state at full precision, each output rounded). ``footprints`` (T, H, W)
+    bool: where the filter acts in each frame (all when None); elsewhere a frame keeps its bytes, and those are
+    what the next frame is averaged with."""
     frames = np.asarray(frames)
     out = np.empty_like(frames)
     if len(frames) == 0:
@@ -111,7 +112,7 @@ def filter_sequence(frames: np.ndarray, strength: float, motion_threshold_dn: fl
     luma = _LUMA.reshape(1, 3).astype(np.float32)
     slope = np.float32(2 * strength / motion_threshold_dn)
     previous = frames[0].astype(np.float32)
-    for t in range(1, len(frames)):  # a mean of 0-255 values needs no clipping
+    for t in range(1, len(frames)):
         current = frames[t].astype(np.float32)
         step = cv2.subtract(previous, current)  # the last output less this frame
         k = np.abs(cv2.transform(step, luma))   # |luma change| ...
@@ -121,7 +122,7 @@ def filter_sequence(frames: np.ndarray, strength: float, motion_threshold_dn: fl
         if footprints is not None:
             k *= footprints[t]
         previous = cv2.add(current, cv2.multiply(step, cv2.merge((k, k, k))))
-        out[t] = cv2.convertScaleAbs(previous)  # rounded
+        out[t] = cv2.convertScaleAbs(previous)  # rounded (a mean of 0-255 values needs no clipping)
     return out
 
 

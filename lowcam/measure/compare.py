@@ -398,7 +398,8 @@ def noise_texture(frames: np.ndarray) -> dict | None:
     blotchy, low-pass noise moves it to ``low`` and ``mid``). ``lag1_t``: the correlation of the noise from one
     frame to the next (:func:`frame_to_frame_correlation`): 0 for noise drawn anew each frame; a temporal filter
     that carries a share ``a`` of the last frame raises it, to below ``a`` over few frames, since their mean takes
-    part of a slow drift (0.43 for ``a = 0.6`` over 8 frames). The frames and the model are read alike. None with fewer than 3 frames.
+    part of a slow drift (0.43 for ``a = 0.6`` over 8 frames). The frames and the model are read alike. None with
+    fewer than 3 frames.
     """
     if len(frames) < 3:
         return None
