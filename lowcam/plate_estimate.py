@@ -16,6 +16,7 @@ Contents
 - :func:`register_footage`: those pairs registered (:mod:`lowcam.registration`) for temporal statistics, each
   start with the best of the next few frames
 - :func:`still_segments`: runs of consecutive frames in which the camera and scene hold still
+- :data:`STILL_DN`, :func:`holds_still`: whether a stack's consecutive frames differ by little more than noise
 - :func:`inter_frame_coded`: whether footage is a video of predicted frames (which hold and smooth noise)
 """
 from __future__ import annotations
@@ -123,6 +124,20 @@ def register_footage(footage, count: int = 12, cache: dict | None = None):
     return register_frames(footage.frames, pair_starts(len(footage), count), cache=cache)
 
 
+#: Two frames hold still where their grey difference, blurred (sigma 2 px), averages less than this (DN).
+STILL_DN = 2.0
+
+
+def holds_still(frames) -> bool:
+    """Whether consecutive frames of a stack (T, H, W, 3) differ by little more than noise: each pair's grey
+    difference, Gaussian-blurred (sigma 2 px: noise averages out, a scene that moved does not), averages less than
+    :data:`STILL_DN` in absolute value (the second test of :func:`still_segments`, without its first, which
+    spatially correlated noise, a denoiser's, fails)."""
+    grey = np.asarray(frames, np.float32).mean(-1)
+    return all(float(np.abs(cv2.GaussianBlur(b - a, (0, 0), 2.0)).mean()) < STILL_DN
+               for a, b in zip(grey[:-1], grey[1:]))
+
+
 def still_segments(footage, min_length: int = 3, max_frames: int = 200) -> list[tuple[int, int]]:
     """Runs ``[start, stop)`` of at least ``min_length`` consecutive frames of ``footage`` (anything with
     ``frame(i)`` and a length, e.g. :class:`lowcam.measure.plate.Footage`) in which nothing moves.
@@ -131,7 +146,7 @@ def still_segments(footage, min_length: int = 3, max_frames: int = 200) -> list[
     entirely (white noise keeps about 1/(2 sqrt(pi) 2) = 14 % of its standard deviation, noise correlated over a
     few pixels by demosaicing about twice that); a scene that moved leaves structure that the blur keeps. A pair is
     still when the blurred difference keeps less than 40 % of the difference's standard deviation and its mean
-    absolute value is below 2 DN."""
+    absolute value is below :data:`STILL_DN`."""
     n = min(len(footage), max_frames)
     if n < 2:
         return []
@@ -141,8 +156,8 @@ def still_segments(footage, min_length: int = 3, max_frames: int = 200) -> list[
         cur = footage.frame(i).mean(axis=2)
         d = cur - prev
         sd = float(d.std())
-        kept = float(cv2.GaussianBlur(d, (0, 0), 2.0).std())
-        still.append(sd > 0 and kept < 0.4 * sd and float(np.abs(cv2.GaussianBlur(d, (0, 0), 2.0)).mean()) < 2.0)
+        blurred = cv2.GaussianBlur(d, (0, 0), 2.0)
+        still.append(sd > 0 and float(blurred.std()) < 0.4 * sd and float(np.abs(blurred).mean()) < STILL_DN)
         prev = cur
     runs, start = [], None
     for i, s_ in enumerate(still + [False]):

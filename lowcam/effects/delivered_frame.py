@@ -15,6 +15,7 @@ Contents
 - :func:`within_footprint`: a frame processed by a function of its pixels, kept where the graphics reach
 - :func:`frame_score`: how far model frames stand from measured ones: the mean and variance families of a
   comparison (:mod:`lowcam.measure.compare`), over a crop
+- :func:`beyond_spread`: a noise family's log ratio less the two model sequences' own (frames not independent)
 - :func:`processed_by`: the ``process`` of :func:`fit_delivered_stage` for a stage class with ``process_frame``
 - :func:`fit_delivered_stage`: diagnosis's fit of such a stage: a coordinate search over its parameters, each
   trial processing the model's noisy frames again
@@ -114,7 +115,7 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
         den = max(den, float(np.square(mg - ma)[keep].sum()))
         if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
             rg, ra = row_noise_variance(np.asarray(simulated)), row_noise_variance(np.asarray(again))
-            rows = [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
+            rows = [beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
                     for a, b, c in zip(measured[3], rg, ra) if a > 1e-9 and b > 1e-9]
     logs = []
     if vf is not None:
@@ -128,13 +129,16 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
                 logs.extend(np.log(sa[ok] / sb[ok]).tolist())
             else:
                 sc = np.bincount(lv, va[..., c][keep], 16)
-                logs.extend(_beyond_spread(x, y) for x, y in zip(np.log(sa[ok] / sb[ok]), np.log(sc[ok] / sb[ok])))
+                logs.extend(beyond_spread(x, y) for x, y in zip(np.log(sa[ok] / sb[ok]), np.log(sc[ok] / sb[ok])))
     return num, den, logs, rows
 
 
-def _beyond_spread(log_ratio: float, spread: float) -> float:
-    """``sign(r) max(|r| - |spread|, 0)``: a noise family's log ratio less what two model sequences of other noise
-    differ by (as :func:`lowcam.measure.compare.capture_stats` counts it for frames that are not independent)."""
+def beyond_spread(log_ratio: float, spread: float) -> float:
+    """A noise family's log ratio, measured over model, less what two model sequences of other noise differ by
+    (``spread``, their log ratio): ``sign(r) max(|r| - |spread|, 0)``. Where frames are not independent (a video
+    encoder holds the noise of one frame in the next), a noise statistic of a few frames scatters from one noise
+    draw to the next by a factor of 2 or more; what the model's own draws show of that is not counted (here and in
+    :func:`lowcam.measure.compare.capture_stats`)."""
     return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
 
 

@@ -46,7 +46,7 @@ import math
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate, PlateProbe, inter_frame_coded, register_footage
+from ..plate_estimate import PlateEstimate, PlateProbe, holds_still, inter_frame_coded, register_footage
 from .base import Effect, Param, Search
 from .delivered_frame import fit_delivered_stage, processed_by, to_ycc, within_footprint, ycc_change_to_rgb
 from .noise import PLATE_PAIRS, STILL_PX
@@ -190,11 +190,9 @@ def smoothed_noise_statistic(frames: np.ndarray) -> dict:
     """The plate statistic: the neighbour correlation of the noise in a still stack's (T >= 2, H, W, 3)
     consecutive differences (:func:`neighbour_correlation`); ``{}`` for one frame or a stack that moves."""
     frames = np.asarray(frames, np.float32)
-    diffs = np.diff(frames, axis=0)
-    if len(frames) < 2 or any(float(np.abs(cv2.GaussianBlur(d.mean(-1), (0, 0), 2.0)).mean()) >= 2.0
-                              for d in diffs):
+    if len(frames) < 2 or not holds_still(frames):
         return {}
-    got = neighbour_correlation(diffs)
+    got = neighbour_correlation(np.diff(frames, axis=0))
     return {} if got is None else {"neighbour_correlation": round(got[0], 4)}
 
 

@@ -60,7 +60,7 @@ import math
 import cv2
 import numpy as np
 
-from ..plate_estimate import PlateEstimate, PlateProbe, inter_frame_coded, still_segments
+from ..plate_estimate import PlateEstimate, PlateProbe, holds_still, inter_frame_coded, still_segments
 from .base import Effect, Param, Search
 from .delivered_frame import BT601_TO_YCC, fit_delivered_stage
 
@@ -222,9 +222,6 @@ PLATE_NONE_BELOW = 0.05
 #: The motion threshold a plate estimate sets: at least this many times the standard deviation of the luma change
 #: the filter sees on still frames (so that the noise keeps the full strength: under half of it).
 NOISE_STEPS = 8.0
-#: Still frames: consecutive frames whose Gaussian-blurred (sigma 2 px) grey difference is under this (DN, mean
-#: absolute), the criterion of :func:`lowcam.plate_estimate.still_segments`.
-_STILL_DN = 2.0
 #: The variance the 8-bit rounding of R, G and B adds to their mean (DN^2): (1/12) / 3.
 _GREY_ROUNDING = 1 / 36
 _TILES = 4
@@ -247,17 +244,11 @@ def held_share(frames: np.ndarray) -> float | None:
     return float(np.clip(d2 / d1 - 1.0, -1.0, 1.0))
 
 
-def _still(frames: np.ndarray) -> bool:
-    grey = np.asarray(frames, np.float32).mean(-1)
-    return all(float(np.abs(cv2.GaussianBlur(b - a, (0, 0), 2.0)).mean()) < _STILL_DN
-               for a, b in zip(grey[:-1], grey[1:]))
-
-
 def held_noise_statistic(frames: np.ndarray) -> dict:
     """The plate statistic: the share of a still stack's (T, H, W, 3) noise held from one frame to the next
     (:func:`held_share`), ``{}`` where the stack has fewer than :data:`PLATE_MIN_FRAMES` frames or moves (a moving
     scene's change is no noise)."""
-    if len(frames) < PLATE_MIN_FRAMES or not _still(frames):
+    if len(frames) < PLATE_MIN_FRAMES or not holds_still(frames):
         return {}
     k = held_share(frames)
     return {} if k is None else {"held_share": round(k, 4)}

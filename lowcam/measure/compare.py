@@ -53,6 +53,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from ..effects.delivered_frame import beyond_spread
 from ..effects.fixed_pattern import row_noise_variance
 from ..effects.temporal_noise_reduction import frame_to_frame_correlation
 from ..errors import LowcamError
@@ -208,7 +209,7 @@ def simulate_capture(profile, capture, count: int, seed: int = SIM_SEED, inputs=
 
 def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=None) -> list[float]:
     """Log ratios of the measured over the model's temporal variance per channel and brightness bin; ``vA``: the
-    variance of a second model sequence (:func:`_beyond_spread`)."""
+    variance of a second model sequence (:func:`~lowcam.effects.delivered_frame.beyond_spread`)."""
     out = []
     nb = len(INTENSITY_BINS) - 1
     keep = slice(None) if mask is None else mask.ravel()
@@ -224,16 +225,8 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=Non
                     out.append(float(np.log(mf / mg)))
                 else:
                     ma = np.bincount(idx, vA[..., c].ravel()[keep], nb)[b] / count[b]
-                    out.append(_beyond_spread(np.log(mf / mg), np.log(max(ma, 0.05) / mg)))
+                    out.append(beyond_spread(np.log(mf / mg), np.log(max(ma, 0.05) / mg)))
     return out
-
-
-def _beyond_spread(log_ratio: float, spread: float) -> float:
-    """A noise family's log ratio, measured over model, less what two model sequences of other noise differ by
-    (``spread``, their log ratio): ``sign(r) max(|r| - |spread|, 0)``. Where frames are not independent (a video
-    encoder holds the noise of one frame in the next), a noise statistic of a few frames scatters from one noise
-    draw to the next by a factor of 2 or more; what the model's own draws show of that is not counted."""
-    return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
 
 
 def _row_log_ratios(F, G, A=None) -> list[float]:
@@ -241,7 +234,7 @@ def _row_log_ratios(F, G, A=None) -> list[float]:
     if A is None:
         return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
     ra = row_noise_variance(A)
-    return [_beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b)) for a, b, c in zip(rf, rg, ra)
+    return [beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b)) for a, b, c in zip(rf, rg, ra)
             if a > 1e-9 and b > 1e-9]
 
 
@@ -273,7 +266,7 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
     then understates the noise of the mean, which is measured instead as ``(mean(G) - mean(again))^2`` (twice the
     model mean's variance, standing for the measured mean's and the model's), averaged over
     :data:`NOISE_OF_MEAN_PX` squares, and at least the independent frames' ``var_F / n + var_G / K``; the noise
-    families count only what lies beyond the two model sequences' own difference (:func:`_beyond_spread`)."""
+    families count only what lies beyond the two model sequences' own difference (:func:`~lowcam.effects.delivered_frame.beyond_spread`)."""
     n, k = len(F), len(G)
     mF, squares_F = _mean_and_squares(F)
     mG, squares_G = _mean_and_squares(G)
