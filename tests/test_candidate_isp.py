@@ -301,7 +301,8 @@ def test_the_plate_shows_opencvs_bilateral_and_the_noise_law_beneath_it(still_fi
     beneath = sigma(footage, profile.with_effect("noise_reduction", **est.params))
     without = sigma(footage, profile)
     print(f"{p}: {est.line()}; noise law {beneath / raw:.3f} of the unfiltered shot's, without it {without / raw:.3f}")
-    assert abs(beneath / raw - 1) < 0.2 and without < 0.85 * raw, (beneath, without, raw)
+    # read at the footage's own level (the filter is not linear): 1.11 and 1.09; at the gain's usual 8 DN, 1.17
+    assert abs(beneath / raw - 1) < 0.15 and without < 0.85 * raw, (beneath, without, raw)
 
 
 def test_the_plate_of_a_raw_or_moving_camera_shows_no_noise_reduction(still_fire_i_shot):
