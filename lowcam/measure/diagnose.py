@@ -80,6 +80,7 @@ References
 """
 from __future__ import annotations
 
+import functools
 import shutil
 import tempfile
 import threading
@@ -247,12 +248,10 @@ class Context:
         self._offset = np.array([s.sums["mean"][0] for s in first.captures]) - \
             self._sse_per_capture(self.profile) - self._model_noise
 
-    @property
+    @functools.cached_property
     def held_noise(self) -> float | None:
         """The base comparison's :attr:`~lowcam.measure.compare.Comparison.held_noise`, measured once."""
-        if getattr(self, "_held", self) is self:
-            self._held = self.base.held_noise
-        return self._held
+        return self.base.held_noise
 
     @property
     def holds_noise(self) -> bool:
