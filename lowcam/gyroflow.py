@@ -27,8 +27,9 @@ is JSON; Lowcam reads:
 
 The distortion coefficients may take any finite value: a lens is judged by its mapping over the frame, not by its
 terms (OpenCV's fit of a narrow lens gives large terms of alternating sign that cancel over its field). A file is
-refused where the mapping folds over inside the frame, is not finite there, or needs rays the model cannot
-carry (:func:`check_lens_over_frame`). Focal lengths that are both negative (a picture turned 180 degrees, in some
+refused where the mapping folds over inside the frame (but for its outermost corners, at most
+:data:`~lowcam.effects.lens.FOLD_SHARE` of it, which see the ray where the radius stops), is not finite there,
+or needs rays the model cannot carry (:func:`check_lens_over_frame`). Focal lengths that are both negative (a picture turned 180 degrees, in some
 files) are the same lens seen upright: made positive (and the tangential terms' signs turned).
 
 The profile delivers the recorded frame (its width cut down to a multiple of 4 and its height to a multiple of 2,
@@ -45,7 +46,8 @@ Contents
 - :func:`scaled_intrinsics`: OpenCV intrinsics (fx, fy, cx, cy) of one frame size at another of its aspect ratio
 - :func:`framed_intrinsics`: OpenCV intrinsics of a frame scaled and cut to another size, as a camera's video mode
 - :func:`radial_limit`: how far a radial lens's mapping reaches one to one
-- :func:`check_lens_over_frame`: refuse a lens whose mapping folds over, or is not finite, inside the frame
+- :func:`check_lens_over_frame`: refuse a lens whose mapping folds over (beyond its corners), or is not finite,
+  inside the frame
 - :func:`lens_in_frame`: the frame a profile of a Gyroflow lens delivers and its lens there, checked
 - :func:`profile_from_gyroflow`: the base profile with the file's lens, rolling shutter and exposure limit
 
@@ -63,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .effects.lens import ROUND_TRIP_PX, LensDistortion, frame_round_trip, lens_model_from
+from .effects.lens import FOLD_SHARE, ROUND_TRIP_PX, LensDistortion, frame_round_trip, lens_model_from, share_beyond
 from .effects.lens_models import KannalaBrandtLens, OpenCVLens
 from .errors import LowcamError
 from . import schema
@@ -228,12 +230,13 @@ def radial_limit(lens) -> tuple[float, float] | None:
     return None
 
 
-def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> None:
+def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> float:
     """Refuse, in one line naming ``where``, the ``lens_distortion`` ``values`` whose mapping over the ``width`` x
-    ``height`` frame folds over, is not finite or needs rays the model cannot carry. A radial lens
-    (:func:`radial_limit`): the frame's farthest corner (outer pixel edges; on a rectangle the farthest point from
-    the principal point is a corner) must lie within the radius its mapping reaches one to one. Another lens: a
-    point of the frame taken to its ray and back must miss itself by at most
+    ``height`` frame folds over, is not finite or needs rays the model cannot carry; return the share of the frame
+    beyond where a radial lens's radius stops rising (0 where it rises out to the corners). A radial lens
+    (:func:`radial_limit`): at most :data:`~lowcam.effects.lens.FOLD_SHARE` of the frame (outer pixel edges) may lie
+    beyond the radius its mapping reaches one to one (those corner pixels see the ray where it stops). Another lens:
+    a point of the frame taken to its ray and back must miss itself by at most
     :data:`~lowcam.effects.lens.ROUND_TRIP_PX` (:func:`~lowcam.effects.lens.frame_round_trip`)."""
     lens = lens_model_from(values, width, height)
     limit = radial_limit(lens)
@@ -244,13 +247,17 @@ def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> 
         if np.isnan(rd) or not np.isfinite(corner):
             raise LowcamError(f"{where}: the lens mapping is not finite over the {width}x{height} frame")
         if corner <= rd:
-            return
+            return 0.0
+        beyond = share_beyond(lens, rd, (-0.5, -0.5, width - 0.5, height - 0.5))
+        if beyond <= FOLD_SHARE:
+            return beyond
         raise LowcamError(f"{where}: the lens folds over inside the {width}x{height} frame (its radius stops rising "
                           f"{np.degrees(theta):.1f} deg from the axis, {100 * rd / corner:.1f} % of the way to the "
-                          "frame's farthest corner): the calibration does not hold out to the frame's corners")
+                          f"frame's farthest corner; {100 * beyond:.1f} % of the frame lies beyond, more than the "
+                          f"{100 * FOLD_SHARE:g} % allowed): the calibration does not hold out to the frame's corners")
     error, u, v = frame_round_trip(lens, width, height)
     if error <= ROUND_TRIP_PX:
-        return
+        return 0.0
     if not np.isfinite(error):
         raise LowcamError(f"{where}: the lens mapping is not finite at pixel ({u:g}, {v:g}) of the {width}x"
                           f"{height} frame")
@@ -260,11 +267,12 @@ def check_lens_over_frame(values: dict, width: int, height: int, where: str) -> 
 
 
 def lens_in_frame(lens: GyroflowLens, size: tuple[int, int] | None = None):
-    """``(w, h, values, rows)``: the frame (px) a profile of ``lens`` delivers (the recorded one cut to a multiple
-    of 4 by 2 px at the right and bottom, or ``size`` made from it as the camera would, :func:`framed_intrinsics`),
-    the ``lens_distortion`` values there, checked over that frame (:func:`check_lens_over_frame`) and as a profile
-    checks them (:class:`~lowcam.effects.lens.LensDistortion`), and the share
-    of the recorded rows the frame keeps (for the read-out)."""
+    """``(w, h, values, rows, beyond)``: the frame (px) a profile of ``lens`` delivers (the recorded one cut to a
+    multiple of 4 by 2 px at the right and bottom, or ``size`` made from it as the camera would,
+    :func:`framed_intrinsics`), the ``lens_distortion`` values there, checked over that frame
+    (:func:`check_lens_over_frame`) and as a profile checks them (:class:`~lowcam.effects.lens.LensDistortion`),
+    the share of the recorded rows the frame keeps (for the read-out) and the share of the frame beyond where the
+    lens's radius stops rising."""
     wr, hr = lens.frame
     if size is None:
         w, h = wr - wr % 4, hr - hr % 2
@@ -279,9 +287,9 @@ def lens_in_frame(lens: GyroflowLens, size: tuple[int, int] | None = None):
     keys = ("fisheye_k1", "fisheye_k2", "fisheye_k3", "fisheye_k4") if lens.model == "opencv_fisheye" else \
         ("k1", "k2", "p1", "p2", "k3")
     values.update(zip(keys, lens.coefficients))
-    check_lens_over_frame(values, w, h, str(lens.path))
+    beyond = check_lens_over_frame(values, w, h, str(lens.path))
     LensDistortion(True, str(lens.path), **values)     # the profile's own checks: what from-gyroflow meets
-    return w, h, values, rows
+    return w, h, values, rows, beyond
 
 
 def profile_from_gyroflow(path, base, size: tuple[int, int] | None = None):
@@ -295,7 +303,7 @@ def profile_from_gyroflow(path, base, size: tuple[int, int] | None = None):
     lens = read_gyroflow_lens(path)
     c = base.camera
     (wc, hc), (wr, hr) = lens.size, lens.frame
-    w, h, values, rows = lens_in_frame(lens, size)
+    w, h, values, rows, beyond = lens_in_frame(lens, size)
     out = base.with_frame(w, h, f"{lens.path}: the frame").with_effect("lens_distortion", replace=True,
                                                                           source=str(lens.path), **values)
     source = f"Gyroflow lens profile {lens.path.name} ({lens.name}; {lens.calibration or 'calibrator not stated'})"
@@ -315,6 +323,9 @@ def profile_from_gyroflow(path, base, size: tuple[int, int] | None = None):
     if lens.turned:
         made += ("; the file's focal lengths are both negative (its picture turned 180 degrees about the axis): "
                  "made positive, the same lens in a camera turned upright")
+    if beyond:
+        made += (f"; the calibration's radius stops rising short of the corners: the outer {100 * beyond:.2g} % of "
+                 "the frame sees the ray where it stops")
     provenance["lens_distortion"] = f"{source}{anamorphic}, {made}"
     notes = [f"lens: {MODELS[lens.model]} model from {lens.model}{anamorphic}, {made}"]
     if readout_s != 0:

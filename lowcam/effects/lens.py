@@ -15,6 +15,8 @@ Contents
 - :func:`ray_angle_needed`: the widest ray angle the border of a region of the frame sees through a lens
 - :data:`ROUND_TRIP_PX`, :func:`frame_round_trip`: how far a point of the frame misses itself through the lens's
   inverse and back (where the mapping folds over inside the frame)
+- :data:`FOLD_SHARE`, :func:`share_beyond`: how much of the frame may lie beyond where a radial lens's radius stops
+  rising (its corners, held at the ray there)
 - :func:`lens_model_from`: the lens model of a dict of :class:`LensDistortion` parameters, unvalidated (a fit's
   trial values)
 - :class:`LensDistortion`: warps the pinhole render through the lens into the working grid, 2x2 supersampled (sec.
@@ -92,6 +94,28 @@ def frame_round_trip(lens: LensModel, width: int, height: int, per_side: int = 3
     error = np.where(np.isfinite(error), error, np.inf)
     worst = int(np.argmax(error))
     return float(error[worst]), float(u[worst]), float(v[worst])
+
+
+#: A radial lens's radius may stop rising inside the frame where the frame's pixels beyond make up at most this share
+#: of it: a calibration's terms hold over the field its target covered, which seldom reaches the outermost corners
+#: (a polynomial fitted there turns just past them). Those pixels see the ray where the radius stops, as the edge of
+#: an image circle does.
+FOLD_SHARE = 0.02
+
+
+def share_beyond(lens: LensModel, rd_limit: float, extent) -> float:
+    """The share of the frame ``extent`` (left, top, right, bottom: outer pixel edges) whose points lie beyond the
+    normalised distorted radius ``rd_limit`` of ``lens``'s principal point, on a 512 x 512 grid of equal cells.
+
+    >>> from lowcam.effects.lens_models import PinholeLens
+    >>> round(share_beyond(PinholeLens(100, 100, 50.0, 50.0, 49.5, 49.5), 1.0, (-0.5, -0.5, 99.5, 99.5)), 2)
+    0.21
+    """
+    fx, fy, cx, cy = lens.pinhole_intrinsics()
+    left, top, right, bottom = extent
+    cells = (np.arange(512) + 0.5) / 512
+    u, v = left + (right - left) * cells, top + (bottom - top) * cells
+    return float((np.hypot(*np.meshgrid((u - cx) / fx, (v - cy) / fy)) > rd_limit).mean())
 
 
 def lens_model_from(values: dict, width: int, height: int) -> LensModel:
@@ -223,17 +247,19 @@ class LensDistortion(Effect):
 
     def check(self):
         if self.model == "fisheye":
-            # every pixel of the frame the principal point centres (2 cx + 1 by 2 cy + 1 px) must see a ray the
-            # model maps one to one (theta_d still rising) and the render holds: short of 90 deg in a pinhole
-            # render, out to theta_rising in a fisheye one
+            # the frame the principal point centres (2 cx + 1 by 2 cy + 1 px) must see rays the model maps one to
+            # one (theta_d still rising) and the render holds (short of 90 deg in a pinhole render, out to
+            # theta_rising in a fisheye one), but for at most FOLD_SHARE of it in the corners
             lens = self.model_for(2, 2)
             fx, fy, cx, cy = lens.pinhole_intrinsics()
             corners = [np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, self.cx_px * 2 + 0.5)
                        for v in (-0.5, self.cy_px * 2 + 0.5)]
             limit = lens.theta_max() if self.render_projection == "pinhole" else lens.theta_rising()
-            if lens.theta_d(limit) < max(corners):
+            beyond = share_beyond(lens, lens.theta_d(limit), (-0.5, -0.5, self.cx_px * 2 + 0.5, self.cy_px * 2 + 0.5))
+            if lens.theta_d(limit) < max(corners) and beyond > FOLD_SHARE:
                 raise self.error(f"the fisheye distortion folds over inside the frame (its radius stops rising at "
-                                 f"{np.degrees(limit):.1f} deg from the axis, before the corner): check "
+                                 f"{np.degrees(limit):.1f} deg from the axis, before the corner; {100 * beyond:.1f} % "
+                                 f"of the frame lies beyond, more than the {100 * FOLD_SHARE:g} % allowed): check "
                                  "the coefficients and the intrinsics")
         if self.model in LENSFUN_MODELS:
             # The frame's corner in lensfun's normalised distorted radius (the crop factors are ratios of
