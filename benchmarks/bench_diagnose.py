@@ -8,6 +8,10 @@ command line's wall time and peak memory (``lowcam diagnose SET --json``, a fres
 included), its wall time beside the in-process figure.
 
     .venv/bin/python benchmarks/bench_diagnose.py [--repeats 3]
+
+With ``--hidden-sets`` it times instead the diagnosis of each held-out case of ``tests/test_diagnose.py`` (the
+standard set, 6 frames of every scene, with one candidate's effect hidden, every candidate ranked) and prints
+each time and the median.
 """
 from __future__ import annotations
 
@@ -35,10 +39,44 @@ runpy.run_module("lowcam.cli", run_name="__main__")
 """
 
 
+def hidden_sets() -> None:
+    """Each standard-set case of ``tests/test_diagnose.py``, diagnosed once: its time, the median of all."""
+    import importlib.util
+
+    import lowcam
+    from lowcam.measure.diagnose import diagnose
+    from lowcam.measure.sets import load_set
+    from lowcam.measure.synth import synthesise
+
+    spec = importlib.util.spec_from_file_location("cases", Path(__file__).resolve().parents[1] / "tests" /
+                                                  "test_diagnose.py")
+    cases = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cases)
+    fire_i, times = lowcam.load_profile("fire-i"), []
+    names = [c for c in cases.HIDDEN if c not in cases.NOT_ON_THE_STANDARD_SET]
+    for k, name in enumerate(names):
+        add, remove, diagnosed = cases.hidden_case(fire_i, name)
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = synthesise(fire_i, Path(tmp) / "set", add=add, seed=100 + len(name), frames=6)
+            profile = diagnosed or (fire_i.without(*remove) if remove else fire_i)
+            mset = load_set(folder, profile)
+            started = time.perf_counter()
+            d = diagnose(mset, profile, workdir=Path(tmp) / "work")
+            times.append(time.perf_counter() - started)
+        print(f"[{k + 1}/{len(names)}] {name:32s} {times[-1]:6.1f} s  {d.summary()}", flush=True)
+    print(f"\ndiagnoses of {len(times)} held-out sets: median {statistics.median(times):.1f} s (min {min(times):.1f}, "
+          f"max {max(times):.1f})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--hidden-sets", action="store_true",
+                        help="time the diagnosis of each held-out case of tests/test_diagnose.py instead")
     args = parser.parse_args()
+    if args.hidden_sets:
+        hidden_sets()
+        return
 
     import lowcam
     import lowcam.measure.diagnose as diagnosis
