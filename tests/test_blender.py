@@ -454,3 +454,42 @@ def test_half_float_renders_round_only_the_colour_and_nearly_keep_the_composite(
         assert np.array_equal(channels["16"][name], channels["32"][name])
     diff = np.abs(composites["16"] - composites["32"])
     assert 0 < (diff > 0).mean() <= 0.005 and diff.max() <= 4
+
+
+def test_headless_blender_hands_no_render_result_in_memory(tmp_path):
+    """Why the render handler reads the file Blender wrote: rendering headless, neither the Render Result image nor
+    a compositor Viewer node's image holds the render's pixels for Python (a world of colour 0.5, Cycles at 32x24
+    px), while the file the same render writes does. When a Blender does hand them over, this fails and the
+    handler can take them instead."""
+    scene = bpy.data.scenes.new("lowcam-memory-probe")
+    scene.render.engine, scene.cycles.samples, scene.cycles.use_denoising = "CYCLES", 1, False
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 32, 24, 100
+    scene.world = bpy.data.worlds.new("lowcam-memory-probe")
+    scene.world.color = (0.5, 0.5, 0.5)
+    scene.camera = bpy.data.objects.new("lowcam-memory-probe", bpy.data.cameras.new("lowcam-memory-probe"))
+    scene.collection.objects.link(scene.camera)
+    if bpy.app.version >= (5, 0, 0):
+        tree = bpy.data.node_groups.new("lowcam-memory-probe", "CompositorNodeTree")
+        tree.interface.new_socket(name="Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+        scene.compositing_node_group = tree
+        layers, out = tree.nodes.new("CompositorNodeRLayers"), tree.nodes.new("NodeGroupOutput")
+    else:
+        scene.use_nodes = True
+        tree = scene.node_tree
+        layers, out = (next(n for n in tree.nodes if n.type == t) for t in ("R_LAYERS", "COMPOSITE"))
+    layers.scene = scene
+    tree.links.new(layers.outputs["Image"], out.inputs[0])
+    tree.links.new(layers.outputs["Image"], tree.nodes.new("CompositorNodeViewer").inputs[0])
+    scene.render.filepath = str(tmp_path / "probe.png")
+    try:
+        bpy.ops.render.render(scene=scene.name, write_still=True)
+        assert read_image(tmp_path / "probe.png").min() > 50       # the render itself: the world's grey
+        held = {}
+        for image in bpy.data.images:
+            if image.type in ("RENDER_RESULT", "COMPOSITING"):
+                pixels = np.zeros(len(image.pixels), np.float32)
+                image.pixels.foreach_get(pixels)
+                held[image.name] = float(np.abs(pixels).max(initial=0.0))
+        assert "Render Result" in held and held and max(held.values()) == 0.0, held
+    finally:
+        bpy.data.scenes.remove(scene)
