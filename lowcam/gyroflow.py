@@ -29,8 +29,9 @@ The distortion coefficients may take any finite value: a lens is judged by its m
 terms (OpenCV's fit of a narrow lens gives large terms of alternating sign that cancel over its field). A file is
 refused where the mapping folds over inside the frame (but for its outermost corners, at most
 :data:`~lowcam.effects.lens.FOLD_SHARE` of it, which see the ray where the radius stops), is not finite there,
-or needs rays the model cannot carry (:func:`check_lens_over_frame`). Focal lengths that are both negative (a picture turned 180 degrees, in some
-files) are the same lens seen upright: made positive (and the tangential terms' signs turned).
+or needs rays the model cannot carry (:func:`check_lens_over_frame`). Focal lengths that are both negative (a
+picture turned 180 degrees, in some files) are the same lens seen upright: made positive (and the tangential
+terms' signs turned).
 
 The profile delivers the recorded frame (its width cut down to a multiple of 4 and its height to a multiple of 2,
 at the right and the bottom, where it is not one already), or a size asked for: the frame is then scaled by ``s``
