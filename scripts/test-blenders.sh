@@ -16,7 +16,7 @@ while [ $# -gt 0 ] && [ "$1" != "--" ]; do parts+=("$1"); shift; done
 [ "${1:-}" = "--" ] && shift
 [ ${#parts[@]} -eq 0 ] && parts=(bpy42 bpy45 bpy50 trixie)
 TESTS=(tests/test_blender.py tests/test_extension.py tests/test_render_passes.py tests/test_colour_management.py
-       tests/test_viewport_look.py)
+       tests/test_viewport_look.py tests/test_video.py)
 declare -A BPY=([bpy42]="4.2.*" [bpy45]="4.5.*")
 
 python311() {

@@ -350,11 +350,11 @@ def test_super_white_and_super_black_saturate_not_wrap(tmp_path):
 def test_blenders_movie_clip_decode_agrees_with_the_add_ons_plate(tmp_path, matrix, rng, bits):
     """Blender decodes a movie with its own FFmpeg; the add-on's plate (this reader) and Blender's pixels of the
     same clip agree within 1 DN everywhere, colour edges included (each chroma sample over its 2x2 luma samples
-    both ways). Checked from Blender 5.0."""
+    both ways), from Blender 4.5. Blender 4.2 rounds up to 2 DN apart, and on the 10-bit clip spreads chroma along
+    colour edges (up to 92 DN there): within 2 DN where the plate is flat over 5x5 pixels, and on 8 bits
+    everywhere."""
     import bpy
 
-    if bpy.app.version < (5, 0, 0):
-        pytest.skip("checked from Blender 5.0")
     clip = _tagged_clip(tmp_path, matrix, rng, bits, "sdr10" if bits == 10 else "sdr")
     image = bpy.data.images.load(str(clip))
     try:
@@ -365,7 +365,13 @@ def test_blenders_movie_clip_decode_agrees_with_the_add_ons_plate(tmp_path, matr
     finally:
         bpy.data.images.remove(image)
     ours = read_video_frame(clip, 0).astype(int)
-    assert np.abs(blender - ours).max() <= 1
+    diff = np.abs(blender - ours).max(axis=2)
+    if bpy.app.version >= (4, 5, 0):
+        assert diff.max() <= 1
+        return
+    flat = np.all([cv2.erode(c, np.ones((5, 5), np.uint8)) == cv2.dilate(c, np.ones((5, 5), np.uint8))
+                   for c in np.moveaxis(ours.astype(np.uint8), 2, 0)], axis=0)
+    assert diff[flat].max() <= 2 and (bits == 10 or diff.max() <= 2)
 
 
 # --- a shot written as a video --------------------------------------------------------------------------------------
