@@ -1086,8 +1086,9 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     1. Every candidate is screened on the first fold (:meth:`Context.folds`): fitted coarsely on one half of the
        captures and measured on the other.
     2. The :data:`FITTED` best by held-out error (within :data:`REFINE_WITHIN` of the best), and every fit that
-       screens coarsely on purpose (``refines``) whose error in sample is within that, are fitted on every
-       fold to convergence, so that every capture is measured with a fit that did not see it (leaving one capture
+       screens coarsely on purpose (``refines``) whose error in sample is within that (and, where the best is at
+       most :data:`~lowcam.measure.compare.EXPLAINED_BELOW`, at least :data:`NAMED_GAIN` below the profile's),
+       are fitted on every fold to convergence, so that every capture is measured with a fit that did not see it (leaving one capture
        out, every fold is screened already); none when the profile's error is explained already (at most
        :data:`~lowcam.measure.compare.EXPLAINED_BELOW`), where no candidate will be named.
     3. Every candidate's errors are estimated, in sample and held out; the finalists' fitted numbers get their
@@ -1132,10 +1133,16 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         if base_error <= EXPLAINED_BELOW:   # explained already: nothing will be named, nothing fitted further
             return
         finalists = [by_name[n] for e, n in errors if e <= REFINE_WITHIN * top][:FITTED]
-        # a fit whose screening is coarse on purpose (``refines``) is refined when its error in sample could win
+
+        def could_win(t):  # a fit whose screening is coarse on purpose (``refines``), by its error in sample
+            error = _in_sample(ctx, t)[0]
+            # where the best already brings the whole error (the profile's noise families kept) to the floor, only
+            # a fit whose own screening lowers the profile's error by NAMED_GAIN
+            return error <= REFINE_WITHIN * top and (top > EXPLAINED_BELOW or error <= (1 - NAMED_GAIN) * base_error)
+
         finalists += [t for t in trials if t.folds and t not in finalists and t.folds[0][2] is not None
                       and getattr(t.folds[0][2].search.fit, "refines", False) and t.folds[0][2].fitted() is not None
-                      and _in_sample(ctx, t)[0] <= REFINE_WITHIN * top]
+                      and could_win(t)]
         run([t for t in finalists if not t.every], "finish", "fitting")
         for t in finalists:
             t.every = True
