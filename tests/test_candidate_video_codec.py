@@ -78,9 +78,7 @@ CASES = {seed: draw(seed) for seed in (1, 2, 3, 4)}
 
 
 #: Draws whose held-out error with the decoys beside it is still above 1.25 (figures in docs/diagnosis.md).
-OPEN = {2: "GOP 6 over 8 frames: video_codec ranks after the decoys (held out 26.05; alone 1.47, HEVC for H.264)",
-        3: "GOP 4 over 8 frames: video_codec ranks after the decoys (held out 26.17; alone 1.30)",
-        4: "video_codec first, but held out 1.87 (in sample 1.26)"}
+OPEN = {4: "video_codec first, but held out 1.65 (in sample 1.12): the flat capture's fold reads CRF 41 for 33"}
 
 
 @pytest.mark.parametrize("seed", [s if s == 1 else pytest.param(s, marks=[pytest.mark.slow] + (
@@ -92,12 +90,12 @@ def test_a_hidden_video_codec_is_named_and_fitted(tmp_path, fire_i, seed):
     d = diagnose(load_set(folder, fire_i), fire_i, only=["video_codec"] + DECOYS, workdir=tmp_path / "work",
                  rounds=1)
     seconds = time.perf_counter() - start
-    ranking = [(c.effect, round(c.score, 3), round(c.error_after, 3)) for c in d.candidates]
-    print(f"video codec {case}: error {d.error:.3f} -> {d.candidates[0].error_after:.3f} "
+    ranking = [(c.effect, round(c.score, 3), round(c.error_after, 3)) for c in d.candidates]  # held out, in sample
+    print(f"video codec {case}: error {d.error:.3f} -> {d.candidates[0].held_out:.3f} held out "
           f"({d.candidates[0].effect}, {d.candidates[0].params}); {seconds:.1f} s; {ranking}")
     assert d.error > 1.5, f"the hidden codec is not visible: error {d.error:.3f}"
     assert d.candidates[0].effect == "video_codec", ranking
-    assert d.candidates[0].error_after <= 1.25, ranking
+    assert d.candidates[0].held_out <= 1.25, ranking
 
 
 # --- the effect's physics ------------------------------------------------------------------------------------------

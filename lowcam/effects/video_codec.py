@@ -150,8 +150,11 @@ _COARSE_CRF = (18, 24, 28, 32, 36, 42)
 _COARSE_B = (0, 2, 3)
 #: The CRF grid while diagnosis screens (each codec).
 _SCREENING_CRF = (22, 28, 34, 40)
-#: Rows, columns of the centre crop a trial codes (and scores, less a margin): a quarter of a 640x480 frame.
-_CROP = (256, 320)
+#: Rows, columns of the centre a trial codes: a 640x480 frame whole (the encoder's rate control weighs each block
+#: against its whole frame: fitted on a quarter of the frame, a flat capture read CRFs 3-7 too high).
+_CROP = (480, 640)
+#: The centre crop while diagnosis screens (and scores, less a margin): a quarter of a 640x480 frame.
+_SCREENING_CROP = (256, 320)
 #: A frame is an I-frame when its mean squared change from the frame before is this many times the median change,
 #: at least half the largest, and above :data:`_MIN_CHANGE` (DN^2).
 _I_FRAME_JUMP = 10.0
@@ -190,7 +193,8 @@ def fit_video_codec(ctx, effect):
     predicted from, so what the coding does to the frames' variance depends on the GOP and on the noise itself.
     The model's noisy frames are simulated once without the codec and each trial codes them again: two sequences
     of independent noise, whose means' difference measures the noise of the mean (the frames' temporal variance no
-    longer does), on a centre crop of :data:`_CROP` px and a margin (the encoder's decisions are local). Per codec
+    longer does), on whole frames up to :data:`_CROP` px (their centre), on a crop of :data:`_SCREENING_CROP` px
+    and a margin while diagnosis screens. Per codec
     a coarse CRF grid (:data:`_COARSE_CRF`), then the B-frames (:data:`_COARSE_B`) and the CRF in steps of 2; for
     the better codec the CRF in steps of 1, the B-frames from 0 to 3 and the CRF again. While diagnosis screens,
     each codec on :data:`_SCREENING_CRF` only. The matrix, range and
@@ -209,11 +213,12 @@ def fit_video_codec(ctx, effect):
         return lambda v: sorted({int(min(51, max(0, v["crf"] + d))) for d in steps})
 
     coarse = [("crf", list(_COARSE_CRF)), ("b_frames", list(_COARSE_B)), ("crf", near((-2, 0, 2)))]
-    if getattr(ctx, "screening", False):  # screening: both codecs on a coarser CRF grid, no B-frames
-        coarse = [("crf", list(_SCREENING_CRF))]
+    crop = _CROP
+    if getattr(ctx, "screening", False):  # screening: both codecs on a coarser CRF grid, no B-frames, a crop
+        coarse, crop = [("crf", list(_SCREENING_CRF))], _SCREENING_CROP
     plan = [("crf", near((-1, 0, 1))), ("b_frames", [0, 1, 2, 3]), ("crf", near((-1, 0, 1)))]
     searches = [(dict(fixed, codec=codec, crf=28, gop_frames=gop, b_frames=0), plan, coarse) for codec in CODECS]
-    out, values, shown = fit_delivered_stage(ctx, effect, _process, searches, crop=_CROP, count=count,
+    out, values, shown = fit_delivered_stage(ctx, effect, _process, searches, crop=crop, count=count,
                                              frozen_noise=True, screened_forms=len(CODECS))
     shown["gop_frames"] = f"{gop}" if jumps else f"at least {gop}"
     return out, values, shown

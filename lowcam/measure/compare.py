@@ -459,10 +459,13 @@ def compare(mset, profile, sim_frames: int | None = None, cache=None, inputs=Non
         cap = mset.captures[i]
         here = CaptureInputs(*inputs[i]) if inputs else capture_inputs(profile, cap)
         count = sim_frames or max(len(cap.frames), 4)
+        temporal = has_temporal(profile)
+        if temporal:  # each frame's place in the sequence (its GOP, its filter's state) shapes it: every frame made
+            count = max(count, len(cap.frames))
         sim = simulate_capture(profile, cap, count, inputs=here, cache=cache,
                                until="bayer_sampling")  # the front diagnosis's noise-free frames share
         again = None
-        if has_temporal(profile):  # frames not independent: a second sequence measures the noise of the mean
+        if temporal:  # frames not independent: a second sequence measures the noise of the mean
             again = simulate_capture(profile, cap, count, SIM_SEED + SEQUENCE_SEED_STEP, inputs=here, cache=cache,
                                      until="bayer_sampling")
         return capture_stats(cap.frames, sim, cap.name, assumed_noise[i] if assumed_noise else None, here.mask,
