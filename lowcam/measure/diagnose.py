@@ -722,6 +722,24 @@ def _changes_noise(name: str) -> bool:
                                                    for _, search in candidates()[name])
 
 
+def _floor_error(ctx, c: Candidate) -> float:
+    """The lowest error a candidate could reach once fully compared: :attr:`Candidate.optimistic` (its noise families
+    at the floor), and for a stage that changes the noise its mean family without the model's noise in the mean
+    too (its estimate counts the profile's, which such a stage may lower); a stage that holds noise from frame to
+    frame, whose mean family is measured otherwise, 0."""
+    if not _changes_noise(c.effect):
+        return c.optimistic
+    if any(search.held_noise for _, search in candidates()[c.effect]):
+        return 0.0
+    fam = dict(c.held_out_families if c.held_out is not None else c.families)
+    if "mean" not in fam:
+        return 0.0
+    share = float(np.sum(ctx._model_noise)) / max(float(np.sum(ctx._noise)), 1e-12)
+    fam = {k: 1.0 if k in ("variance", "rows") else v for k, v in fam.items()}
+    fam["mean"] = float(np.sqrt(max(fam["mean"] ** 2 - share, 0.0)))
+    return float(np.sqrt(sum(v * v for v in fam.values()) / len(fam)))
+
+
 @dataclass
 class Diagnosis:
     comparison: object
@@ -1095,8 +1113,8 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
        spread between the folds, and keys the data do not determine are held at the profile's value and the
        candidate refitted.
     4. The best is fitted on every capture (the profile that would be added); it, every candidate that changes
-       the noise, and every runner-up that could still win with its noise families at the floor (at most
-       :data:`FULL_ERRORS`) get the full noise-aware errors."""
+       the noise and could still beat the best other estimate at its floor (:func:`_floor_error`), and every
+       runner-up that could still win at its floor (at most :data:`FULL_ERRORS`) get the full noise-aware errors."""
     def in_turn(work, items, label):  # ``work`` on each item, WORKERS at a time, results in order
         done = iter(range(len(items)))
 
@@ -1186,12 +1204,18 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
         if redone is not None:
             redone.evidence += f" ({', '.join(loose)} held at the profile's value)"
             out.append(redone)
-    for c in [c for c in out if _changes_noise(c.effect)]:  # its estimate cannot see what it does
+    # a stage that changes the noise: its estimate cannot see what it does, so it is compared in full, unless even
+    # at its floor it cannot beat the best other estimate (the hopeful runners-up below catch it should that rise)
+    rivals = [c.score for c in out if not _changes_noise(c.effect)]
+    for c in sorted((c for c in out if _changes_noise(c.effect)), key=lambda c: _floor_error(ctx, c)):
+        if rivals and _floor_error(ctx, c) >= min(rivals):
+            continue
         if progress:
             progress(0, 1, f"{c.effect} (full error)")
         _full(ctx, c, by_name[c.effect], in_sample=False, sim_frames=4)
         quick = ctx.compare(c.profile, ctx.quick, 4)
         c.error_after, c.families = quick.error, dict(quick.families)
+        rivals.append(c.score)
 
     def settle():  # the best: fitted on every capture (the profile to add), its errors the full ones
         out.sort(key=lambda c: c.score)
@@ -1222,10 +1246,10 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     settle()
     # an estimate keeps the first comparison's noise families; a runner-up that could still win with noise
     # families at the floor is fully compared too (the best first, at most FULL_ERRORS of them)
-    hopeful = sorted((c for c in out if not c.held_out_full and c.optimistic < out[0].score),
-                     key=lambda c: c.optimistic)
+    hopeful = sorted((c for c in out if not c.held_out_full and _floor_error(ctx, c) < out[0].score),
+                     key=lambda c: _floor_error(ctx, c))
     for c in hopeful[:FULL_ERRORS]:
-        if c.optimistic < out[0].score:
+        if _floor_error(ctx, c) < out[0].score:
             if progress:
                 progress(0, 1, f"{c.effect} (full error)")
             _full(ctx, c, by_name.get(c.effect), in_sample=False)
