@@ -193,12 +193,11 @@ def fit_video_codec(ctx, effect):
     predicted from, so what the coding does to the frames' variance depends on the GOP and on the noise itself.
     The model's noisy frames are simulated once without the codec and each trial codes them again: two sequences
     of independent noise, whose means' difference measures the noise of the mean (the frames' temporal variance no
-    longer does), on whole frames up to :data:`_CROP` px (their centre), on a crop of :data:`_SCREENING_CROP` px
-    and a margin while diagnosis screens. Per codec
-    a coarse CRF grid (:data:`_COARSE_CRF`), then the B-frames (:data:`_COARSE_B`) and the CRF in steps of 2; for
-    the better codec the CRF in steps of 1, the B-frames from 0 to 3 and the CRF again. While diagnosis screens,
-    each codec on :data:`_SCREENING_CRF` only. The matrix, range and
-    preset stay the profile's (or the defaults)."""
+    longer does), on whole frames up to :data:`_CROP` px (their centre). Per codec a coarse CRF grid
+    (:data:`_COARSE_CRF`), then the B-frames (:data:`_COARSE_B`) and the CRF in steps of 2; for the better codec
+    the CRF in steps of 1, the B-frames from 0 to 3 and the CRF again. While diagnosis screens, each codec on
+    :data:`_SCREENING_CRF` only, on a centre crop of :data:`_SCREENING_CROP` px and a margin. The matrix, range
+    and preset stay the profile's (or the defaults)."""
     p = ctx.profile
     have = p.effect(effect)
     fixed = {k: getattr(have, k) if have is not None else VideoCodec.params[k].default

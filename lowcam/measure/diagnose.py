@@ -1207,8 +1207,9 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     # a stage that changes the noise: its estimate cannot see what it does, so it is compared in full, unless even
     # at its floor it cannot beat the best other estimate (the hopeful runners-up below catch it should that rise)
     rivals = [c.score for c in out if not _changes_noise(c.effect)]
-    for c in sorted((c for c in out if _changes_noise(c.effect)), key=lambda c: _floor_error(ctx, c)):
-        if rivals and _floor_error(ctx, c) >= min(rivals):
+    for floor, c in sorted(((_floor_error(ctx, c), c) for c in out if _changes_noise(c.effect)),
+                           key=lambda pair: pair[0]):
+        if rivals and floor >= min(rivals):
             continue
         if progress:
             progress(0, 1, f"{c.effect} (full error)")
