@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import warnings
 
 import cv2
 import numpy as np
@@ -152,10 +151,11 @@ def fit_hot_pixels(ctx, effect: str):
     in every capture that can show them; their mean offset per channel. NotFitted when there are none, or when
     the map is dense (the outliers are many, or hold little of the offset energy: DSNU)."""
     clipped, diff, noise_var = _offsets(ctx)
-    with warnings.catch_warnings():  # pixels clipped in every capture: NaN -> 0, not a warning
-        warnings.simplefilter("ignore", RuntimeWarning)
-        offset = np.nan_to_num(np.nanmean(clipped, axis=0))
-        low = np.nan_to_num(np.nanmin(clipped, axis=0))  # bright in every capture that can show it
+    # pixels clipped in every capture (NaN in each) read 0; computed without NumPy's all-NaN warnings, whose filter
+    # (``warnings.catch_warnings``) is not thread-safe and fits run in threads
+    shown = (~np.isnan(clipped)).sum(axis=0)
+    offset = np.where(shown > 0, np.nansum(clipped, axis=0) / np.maximum(shown, 1), 0.0).astype(clipped.dtype)
+    low = np.nan_to_num(np.fmin.reduce(clipped, axis=0))  # bright in every capture that can show it
     ev = offset_evidence(diff, noise_var)
     cut = OUTLIER_SIGMAS * ev["spread"]
     hot = (offset - ev["median"] > cut) & (low - ev["median"] > 0.5 * cut)
