@@ -255,8 +255,9 @@ class LensDistortion(Effect):
             corners = [np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, self.cx_px * 2 + 0.5)
                        for v in (-0.5, self.cy_px * 2 + 0.5)]
             limit = lens.theta_max() if self.render_projection == "pinhole" else lens.theta_rising()
-            beyond = 0.0 if lens.theta_d(limit) >= max(corners) else \
-                share_beyond(lens, lens.theta_d(limit), (-0.5, -0.5, self.cx_px * 2 + 0.5, self.cy_px * 2 + 0.5))
+            peak = lens.theta_d(limit)
+            beyond = 0.0 if peak >= max(corners) else \
+                share_beyond(lens, peak, (-0.5, -0.5, self.cx_px * 2 + 0.5, self.cy_px * 2 + 0.5))
             if beyond > FOLD_SHARE:
                 raise self.error(f"the fisheye distortion folds over inside the frame (its radius stops rising at "
                                  f"{np.degrees(limit):.1f} deg from the axis, before the corner; {100 * beyond:.1f} % "

@@ -177,8 +177,7 @@ class Candidate:
         fam = self.held_out_families if self.held_out is not None else self.families
         if not fam:
             return self.score
-        fam = {k: 1.0 if k in ("variance", "rows") else v for k, v in fam.items()}
-        error = float(np.sqrt(sum(v * v for v in fam.values()) / len(fam)))
+        error = _at_floor(fam)
         return error if self.held_out is not None else max(error, self.base_error)
 
     def as_json(self) -> dict:
@@ -731,12 +730,18 @@ def _floor_error(ctx, c: Candidate) -> float:
         return c.optimistic
     if any(search.held_noise for _, search in candidates()[c.effect]):
         return 0.0
-    fam = dict(c.held_out_families if c.held_out is not None else c.families)
+    fam = c.held_out_families if c.held_out is not None else c.families
     if "mean" not in fam:
         return 0.0
-    share = float(np.sum(ctx._model_noise)) / max(float(np.sum(ctx._noise)), 1e-12)
-    fam = {k: 1.0 if k in ("variance", "rows") else v for k, v in fam.items()}
-    fam["mean"] = float(np.sqrt(max(fam["mean"] ** 2 - share, 0.0)))
+    return _at_floor(fam, float(np.sum(ctx._model_noise)) / max(float(np.sum(ctx._noise)), 1e-12))
+
+
+def _at_floor(families: dict, mean_less: float = 0.0) -> float:
+    """The error of ``families`` with the noise families (variance, rows) at the floor, 1, and ``mean_less`` taken
+    off the mean family's square (not below 0)."""
+    fam = {k: 1.0 if k in ("variance", "rows") else v for k, v in families.items()}
+    if mean_less:
+        fam["mean"] = float(np.sqrt(max(fam["mean"] ** 2 - mean_less, 0.0)))
     return float(np.sqrt(sum(v * v for v in fam.values()) / len(fam)))
 
 
@@ -1247,10 +1252,10 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
     settle()
     # an estimate keeps the first comparison's noise families; a runner-up that could still win with noise
     # families at the floor is fully compared too (the best first, at most FULL_ERRORS of them)
-    hopeful = sorted((c for c in out if not c.held_out_full and _floor_error(ctx, c) < out[0].score),
-                     key=lambda c: _floor_error(ctx, c))
-    for c in hopeful[:FULL_ERRORS]:
-        if _floor_error(ctx, c) < out[0].score:
+    floors = [(_floor_error(ctx, c), c) for c in out if not c.held_out_full]
+    hopeful = sorted(((floor, c) for floor, c in floors if floor < out[0].score), key=lambda pair: pair[0])
+    for floor, c in hopeful[:FULL_ERRORS]:
+        if floor < out[0].score:
             if progress:
                 progress(0, 1, f"{c.effect} (full error)")
             _full(ctx, c, by_name.get(c.effect), in_sample=False)
