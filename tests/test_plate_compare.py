@@ -83,6 +83,33 @@ def test_no_blockiness_is_claimed_on_uncompressed_frames():
     assert jpeg_quality_from_plate(footage(striped)).confidence < 0.2
 
 
+@pytest.mark.parametrize("period", [2, 4])
+def test_a_structure_of_2_or_4_px_is_no_jpeg_grid(period):
+    """A demosaiced Bayer mosaic repeats every 2 px on both axes, 4:1:1 chroma every 4 px across: each raises
+    one phase in 2 or 4 of the 8 alike, which the other phases' median read as an 8x8 grid (t 13-25 and quality
+    95 at full confidence on the Fire-i's frames)."""
+    frames = noisy("coffee")
+    yy, xx = np.mgrid[0:frames[0].shape[0], 0:frames[0].shape[1]]
+    lattice = ((yy % period == 0) | (xx % period == 0))[..., None]  # lines every ``period`` px on both axes
+    ridged = [np.clip(f.astype(np.int16) + 6 * lattice, 0, 255).astype(np.uint8) for f in frames]
+    est = jpeg_quality_from_plate(footage(ridged))
+    assert est.confidence < 0.2 and not est.params, est.line()
+
+
+def test_the_fire_is_own_frames_show_no_jpeg_grid_and_pillows_jpeg_of_them_does():
+    """The Fire-i (Bayer demosaicing, 4:1:1 chroma) without a JPEG: no grid on two photographs; the same
+    frames through Pillow's JPEG at qualities drawn at random: the grid and the quality within 10."""
+    base = load_profile("fire-i")
+    rng = np.random.default_rng(5)
+    for scene in ("astronaut", "coffee"):
+        shot = engine_frames(base, scene, 3)
+        est = jpeg_quality_from_plate(shot)
+        assert est.confidence < 0.2 and not est.params, est.line()
+        quality = int(rng.integers(20, 91))
+        coded = jpeg_quality_from_plate(footage([pillow_jpeg(f.astype(np.uint8), quality) for f in shot.stack()]))
+        assert coded.confidence >= 0.5 and abs(coded.params["quality"] - quality) <= 10, (quality, coded.line())
+
+
 @pytest.mark.parametrize("name", ["astronaut", "coffee", "chelsea"])
 def test_chroma_subsampling_of_pillows_jpegs_is_told_apart(name):
     """The JPEG's subsampling replaces the base's own chroma subsampling (the Fire-i's 4:1:1 of the graphics)

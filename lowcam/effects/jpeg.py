@@ -33,11 +33,14 @@ Blockiness from the footage alone
 ---------------------------------
 JPEG quantises each 8x8 block's DCT on its own, so the luma steps across block boundaries exceed those inside
 blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between neighbours ``p`` and ``p + 1``
-(modulo 8) and the blockiness is ``D[p*] / median(D[others])`` at the grid's phase ``p*`` (7 when the grid starts
-at the frame's corner): 1.0 without a grid. The quality is found by coding the footage's own frame again, shifted
-by half a block so its old grid falls inside the new blocks, at :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`),
-and inverting that curve of the block step in DN (``D[p*] - median``) against quality, corrected for the
-frame being coded already (a second recoding extrapolates back to one coding). The confidence is earned from
+(modulo 8) and the blockiness is ``D[p*] / D[p* + 4]`` at the grid's phase ``p*`` (7 when the grid starts at the
+frame's corner): 1.0 without a grid. The reference is the step mid-way between grid lines, not the other phases'
+median: a structure of period 2 or 4 (a Bayer mosaic's demosaicing, 4:1:1 chroma) raises every second or fourth
+phase alike, ``p* + 4`` with ``p*``, where the others' median would read it as a grid. The quality is found by
+coding the footage's own frame again, shifted by half a block so its old grid falls inside the new blocks, at
+:data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`), and inverting that curve of the block step in DN
+(``D[p*] - median(D[others])``: the frame coded again shares any such structure) against quality, corrected for
+the frame being coded already (a second recoding extrapolates back to one coding). The confidence is earned from
 the tiles (64 px): that the grid is there (its log ratio per tile, mean over standard error: a t statistic, on
 both axes) and how narrow a range of qualities the block step's scatter over the tiles leaves. A frame too flat
 for coding it again to tell qualities apart is not measurable, whatever its grid.
@@ -484,25 +487,29 @@ def block_difference_profile(plane: np.ndarray, axis: int, period: int = 8) -> n
     return d[..., :n].reshape(-1, n // period, period).mean(axis=(0, 1)).astype(np.float64)
 
 
+def _mid_block(phase: int) -> int:
+    """The phase mid-way between grid lines of ``phase``: a period of 2 or 4 px raises it with ``phase``."""
+    return (phase + 4) % 8
+
+
 def _ratio(profile: np.ndarray, phase: int) -> float:
-    others = np.delete(profile, phase)
-    return float(profile[phase] / max(np.median(others), 1e-9))
+    return float(profile[phase] / max(profile[_mid_block(phase)], 1e-9))
 
 
 def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -> dict:
     """Blockiness of a (T, H, W, 3) or (H, W, 3) RGB stack (DN) per axis [Wang2000].
 
-    Returns ``blockiness_h`` / ``blockiness_v`` (``D[p*] / median(D[others])``, 1.0: no grid), the grid phases
-    ``phase_h`` / ``phase_v`` (``p*``: 7 when blocks start at the frame's corner; ``phases`` fixes them), and per
-    axis the tile evidence ``t_h`` / ``t_v``: over 64 px tiles, the mean of the tile's log ratio at ``p*`` over
-    its standard error (a t statistic; about 0-3 without a grid)."""
+    Returns ``blockiness_h`` / ``blockiness_v`` (``D[p*] / D[p* + 4]``, 1.0: no grid), the grid phases
+    ``phase_h`` / ``phase_v`` (``p*``, where ``D[p] - D[p + 4]`` peaks: 7 when blocks start at the frame's corner;
+    ``phases`` fixes them), and per axis the tile evidence ``t_h`` / ``t_v``: over 64 px tiles, the mean of the
+    tile's log ratio at ``p*`` over its standard error (a t statistic; about 0-3 without a grid)."""
     y = bt601_luma(frames)
     if y.ndim == 2:
         y = y[None]
     out = {}
     for k, (axis, name) in enumerate(((-1, "h"), (-2, "v"))):
         prof = block_difference_profile(y, axis)
-        p = int(np.argmax(prof)) if phases is None else int(phases[k])
+        p = int(np.argmax(prof - np.roll(prof, -4))) if phases is None else int(phases[k])
         out[f"blockiness_{name}"] = _ratio(prof, p)
         out[f"phase_{name}"] = p
         h, w = y.shape[1:]
