@@ -108,15 +108,14 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
     keep = np.ones(mf.shape[:2], bool) if mask is None else mask
     num = float(np.square(mf - mg)[keep].sum())
     den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
-    va, rows = None, []
+    va, rows = None, None
     if again is not None:
         ma, va, _ = _moments(again)
         vf, vg, va = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12), np.maximum(va, 1 / 12)
         den = max(den, float(np.square(mg - ma)[keep].sum()))
         if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
-            rg, ra = row_noise_variance(np.asarray(simulated)), row_noise_variance(np.asarray(again))
-            rows = [beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
-                    for a, b, c in zip(measured[3], rg, ra) if a > 1e-9 and b > 1e-9]
+            rows = row_log_ratios(measured[3], row_noise_variance(np.asarray(simulated)),
+                                  row_noise_variance(np.asarray(again)))
     logs = []
     if vf is not None:
         level = np.clip((mg // 16).astype(int), 0, 15)
@@ -142,12 +141,22 @@ def beyond_spread(log_ratio: float, spread: float) -> float:
     return float(np.sign(log_ratio) * max(abs(log_ratio) - abs(spread), 0.0))
 
 
+def row_log_ratios(measured, model, again=None) -> list[float]:
+    """Per channel, the log ratio of the measured frames' row noise variance (the variance of the per-frame row
+    means, :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) over the model's; with a second model sequence
+    ``again``, less the two sequences' own (:func:`beyond_spread`). A channel where either does not vary is left
+    out (clipped, or a coded sequence that holds its noise entirely)."""
+    return [float(np.log(a / b)) if again is None else beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b))
+            for a, b, c in zip(measured, model, model if again is None else again) if a > 1e-9 and b > 1e-9]
+
+
 def _combined(parts) -> float:
     num, den = sum(p[0] for p in parts), sum(p[1] for p in parts)
     logs = [x for p in parts for x in p[2]]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    rows = [x for p in parts for x in p[3]]
-    e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 0.0  # only with a second sequence
+    rows = [x for p in parts if p[3] is not None for x in p[3]]  # scored only with a second sequence
+    scored = any(p[3] is not None for p in parts)
+    e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else float(scored)
     return num / max(den, 1e-12) + e_var ** 2 + e_rows ** 2
 
 

@@ -53,7 +53,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ..effects.delivered_frame import beyond_spread
+from ..effects.delivered_frame import beyond_spread, row_log_ratios
 from ..effects.fixed_pattern import row_noise_variance
 from ..effects.temporal_noise_reduction import frame_to_frame_correlation
 from ..errors import LowcamError
@@ -230,12 +230,7 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=Non
 
 
 def _row_log_ratios(F, G, A=None) -> list[float]:
-    rf, rg = row_noise_variance(F), row_noise_variance(G)
-    if A is None:
-        return [float(np.log(a / b)) for a, b in zip(rf, rg) if a > 1e-9 and b > 1e-9]
-    ra = row_noise_variance(A)
-    return [beyond_spread(np.log(a / b), np.log(max(c, 1e-9) / b)) for a, b, c in zip(rf, rg, ra)
-            if a > 1e-9 and b > 1e-9]
+    return row_log_ratios(row_noise_variance(F), row_noise_variance(G), None if A is None else row_noise_variance(A))
 
 
 def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
