@@ -39,6 +39,7 @@ Contents
 - :func:`read_video_frame`: frame ``index`` of a video file, the file kept open per process
 - :func:`close_videos`: close the videos :func:`read_video_frame` keeps open
 - :func:`av_log_capture`: FFmpeg's warnings and errors while a block runs, kept off the terminal
+- :func:`initialised_heap`: memory the C heap hands out while a block runs holds a fixed byte (x264 reproducible)
 - :func:`stream_facts`: the codec, profile, GOP structure, frame types and bitrate read from the bitstream
 - :data:`VIDEO_OUTPUTS`: the video files a shot can be written as
 - :class:`VideoCoding`: how a shot is coded (encoder, bit depth, colour tags, GOP, B-frames, rate)
@@ -56,8 +57,10 @@ References
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import re
+import threading
 import time
 from dataclasses import dataclass
 from fractions import Fraction
@@ -227,6 +230,47 @@ def av_log_capture():
     finally:
         av.logging.set_level(level)
         said.extend(f"{name}: {message.strip()}" for _, name, message in logs)
+
+
+_M_PERTURB = -6          # glibc's mallopt parameter: fill what malloc hands out and what free takes back
+_PERTURB_BYTE = 0xA5
+_HEAP = {"users": 0, "lock": threading.Lock(), "mallopt": None}
+
+
+def _mallopt():
+    if _HEAP["mallopt"] is None:
+        try:
+            libc = ctypes.CDLL(None)
+            _HEAP["mallopt"] = libc.mallopt if hasattr(libc, "gnu_get_libc_version") else False
+        except (OSError, AttributeError):
+            _HEAP["mallopt"] = False
+    return _HEAP["mallopt"]
+
+
+@contextlib.contextmanager
+def initialised_heap():
+    """While the block runs (in any thread), the C heap's new blocks hold a fixed byte rather than what was
+    freed there before (glibc's ``M_PERTURB``; elsewhere nothing changes).
+
+    x264's lookahead reads memory it has not written: the same frames coded twice in one process came out
+    differently 11-25 times in 25 where x265 had run in between (its freed buffers are what x264 was handed
+    next), at 96x80 px and, rarely, at 368x304. With the heap initialised x264 codes them the same in every
+    process. Blocks nest, across threads: the heap is initialised while any runs."""
+    mallopt = _mallopt()
+    if not mallopt:
+        yield
+        return
+    with _HEAP["lock"]:
+        if _HEAP["users"] == 0:
+            mallopt(_M_PERTURB, _PERTURB_BYTE)
+        _HEAP["users"] += 1
+    try:
+        yield
+    finally:
+        with _HEAP["lock"]:
+            _HEAP["users"] -= 1
+            if _HEAP["users"] == 0:
+                mallopt(_M_PERTURB, 0)
 
 
 def _open(path):
@@ -630,7 +674,8 @@ def write_video(path, frames, coding: VideoCoding) -> Path:
                 out.mux(packet)
 
     try:
-        return atomic_write_with(path, write)
+        with initialised_heap():
+            return atomic_write_with(path, write)
     except av.FFmpegError as e:
         raise LowcamError(f"{path}: the encoder {coding.encoder} refused ({_first_line(e)})") from None
 

@@ -31,7 +31,8 @@ from the graphics' blocks onto the plate around them). A shot written as a video
 writer (:func:`lowcam.video.write_video`), with the plate's own coding where it can be read.
 
 The coding is deterministic: the encoders run on one thread (x264 ``threads=1``; x265 ``pools=none``,
-``frame-threads=1``), so the same frames at the same settings give the same bytes.
+``frame-threads=1``) on an initialised heap (:func:`lowcam.video.initialised_heap`: x264 reads memory it has not
+written), so the same frames at the same settings give the same bytes.
 
 Contents
 --------
@@ -64,7 +65,7 @@ import av
 import numpy as np
 
 from ..errors import LowcamError
-from ..video import PlateColour, rgb_to_ycbcr, to_rgb
+from ..video import PlateColour, initialised_heap, rgb_to_ycbcr, to_rgb
 from .base import Effect, Param, Search
 from .delivered_frame import fit_delivered_stage
 
@@ -115,31 +116,32 @@ def code_sequence(frames: np.ndarray, codec: str = "h264", crf: float = 23.0, go
     hh, ww = padded.shape[1:3]
     full = range == "full"
     colour = PlateColour(matrix, range, "sdr", "the video codec effect")
-    try:
-        enc = _encoder(codec, ww, hh, crf, gop_frames, b_frames, preset, matrix, full, bitrate_kbps, fps)
-        dec = av.CodecContext.create(CODECS[codec][1], "r")
-        dec.thread_count = 1
-        out = []
+    with initialised_heap():  # x264 reads memory it has not written
+        try:
+            enc = _encoder(codec, ww, hh, crf, gop_frames, b_frames, preset, matrix, full, bitrate_kbps, fps)
+            dec = av.CodecContext.create(CODECS[codec][1], "r")
+            dec.thread_count = 1
+            out = []
 
-        def decode(packets):
-            for packet in packets:
-                for picture in dec.decode(packet):
-                    out.append(to_rgb(picture, colour)[:h, :w])
+            def decode(packets):
+                for packet in packets:
+                    for picture in dec.decode(packet):
+                        out.append(to_rgb(picture, colour)[:h, :w])
 
-        for i, rgb in enumerate(padded):
-            picture = av.VideoFrame(ww, hh, "yuv420p")
-            for plane, data in zip(picture.planes, rgb_to_ycbcr(rgb, 8, matrix, full)):
-                buf = np.zeros((plane.height, plane.line_size), np.uint8)
-                buf[:, :data.shape[1]] = data
-                plane.update(buf.tobytes())
-            picture.pts = i
-            picture.colorspace, picture.color_range = _MATRIX_CODE[matrix], 2 if full else 1
-            decode(enc.encode(picture))
-        decode(enc.encode(None))
-        for picture in dec.decode(None):
-            out.append(to_rgb(picture, colour)[:h, :w])
-    except av.FFmpegError as e:
-        raise LowcamError(f"{CODECS[codec][0]} refused {ww}x{hh} frames: {str(e).splitlines()[0]}") from None
+            for i, rgb in enumerate(padded):
+                picture = av.VideoFrame(ww, hh, "yuv420p")
+                for plane, data in zip(picture.planes, rgb_to_ycbcr(rgb, 8, matrix, full)):
+                    buf = np.zeros((plane.height, plane.line_size), np.uint8)
+                    buf[:, :data.shape[1]] = data
+                    plane.update(buf.tobytes())
+                picture.pts = i
+                picture.colorspace, picture.color_range = _MATRIX_CODE[matrix], 2 if full else 1
+                decode(enc.encode(picture))
+            decode(enc.encode(None))
+            for picture in dec.decode(None):
+                out.append(to_rgb(picture, colour)[:h, :w])
+        except av.FFmpegError as e:
+            raise LowcamError(f"{CODECS[codec][0]} refused {ww}x{hh} frames: {str(e).splitlines()[0]}") from None
     if len(out) != t:
         raise LowcamError(f"{CODECS[codec][0]}: {t} frames coded, {len(out)} decoded")
     return np.stack(out)
