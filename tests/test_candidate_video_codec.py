@@ -165,6 +165,23 @@ def test_a_frame_alone_is_an_i_frame_and_a_capture_is_one_sequence(fire_i):
     assert together.tobytes() == code_sequence(plain, "h264", 34, 250).tobytes()
 
 
+def test_a_model_sequence_that_holds_all_its_noise_scores_its_rows_as_the_comparison_does():
+    """A coded model sequence whose frames are all alike (its noise held entirely, as a flat capture at a high
+    CRF gives) has no row noise to compare: the fit's score counts that family as the comparison does, 1, not
+    0, which made such trials look a whole unit better than any other."""
+    from lowcam.effects.delivered_frame import _combined, _moments, _partial, row_noise_variance
+    from lowcam.measure.compare import capture_stats, combine
+
+    measured = still_noisy(seed=1, frames=6)
+    held = np.repeat(still_noisy(seed=2, frames=1), 6, axis=0)     # every frame the same
+    again = np.repeat(still_noisy(seed=3, frames=1), 6, axis=0)
+    part = _partial(_moments(measured) + (row_noise_variance(measured),), held, None, again)
+    assert part[3] == []                                            # scored, nothing to compare
+    e_var = np.exp(np.sqrt(np.mean(np.square(part[2])))) if part[2] else 1.0
+    assert _combined([part]) == pytest.approx(part[0] / part[1] + e_var ** 2 + 1.0)
+    assert combine([capture_stats(measured, held, again=again)])[1]["rows"] == 1.0
+
+
 def test_the_effect_is_declared_and_refuses_bad_options(fire_i):
     assert VideoCodec.temporal and lowcam.effects.EFFECTS["video_codec"] is VideoCodec
     assert any(s.candidate == "video_codec" for s in VideoCodec.searches)
