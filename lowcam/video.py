@@ -300,8 +300,10 @@ class VideoReader:
     """One open video: :meth:`frame` ``(i)`` is frame i (0-based, presentation order) as uint8 RGB (H, W, 3).
 
     ``colour``: ``--plate-colour`` text (or the dict :func:`parse_plate_colour` makes) overriding the stream's
-    tags. Attributes: ``path``, ``count`` (frames), ``fps`` (frames/s, or None), ``colour``
-    (:class:`PlateColour`), ``width``, ``height`` (px), ``pict_types`` (``{index: "I"|"P"|"B"}`` of the frames
+    tags. Each frame is turned as the stream's display matrix says (a phone's upright video), as players and
+    Blender's Movie Clip show it. Attributes: ``path``, ``count`` (frames), ``fps`` (frames/s, or None),
+    ``colour`` (:class:`PlateColour`), ``width``, ``height`` (px, as shown), ``turns`` (quarter turns
+    counter-clockwise applied to each decoded picture), ``pict_types`` (``{index: "I"|"P"|"B"}`` of the frames
     decoded so far)."""
 
     def __init__(self, path, colour=None):
@@ -318,7 +320,8 @@ class VideoReader:
             self.container.close()
             raise
         cc = self.stream.codec_context
-        self.width, self.height = cc.width, cc.height
+        self.turns = self._display_turns()
+        self.width, self.height = (cc.height, cc.width) if self.turns % 2 else (cc.width, cc.height)
         rate = self.stream.average_rate or self.stream.guessed_rate
         self.fps = float(rate) if rate and 0 < float(rate) < 1000 else None
         self.count = len(self.times) if self.times is not None else int(self.stream.frames or 0)
@@ -351,6 +354,23 @@ class VideoReader:
         times.sort()
         return None if len(set(times)) != len(times) else times
 
+    def _display_turns(self) -> int:
+        """Quarter turns counter-clockwise that the stream's display matrix asks of each decoded picture (a phone
+        held upright records its sensor's landscape frames and says so there), read off the first frame: 0 where
+        it has none or cannot be decoded (the frame's read then says why)."""
+        try:
+            degrees = float(next(self.container.decode(self.stream)).rotation or 0.0)
+        except (av.FFmpegError, StopIteration):
+            return 0
+        finally:
+            self.container.seek(0)
+        turns = round(degrees / 90.0)
+        if abs(degrees - 90.0 * turns) > 1.0:
+            self.container.close()
+            raise LowcamError(f"{self.path}: its display matrix turns the picture by {degrees:g} degrees; Lowcam "
+                              "reads turns of 0, 90, 180 and 270 degrees only")
+        return turns % 4
+
     def close(self) -> None:
         self._frames = None
         self.container.close()
@@ -380,7 +400,8 @@ class VideoReader:
         self._frames, self._next = self._decode(), None   # where it landed: told by the first frame's time
 
     def _converted(self, frame) -> np.ndarray:
-        return to_rgb(frame, self.colour, self.path)
+        rgb = to_rgb(frame, self.colour, self.path)
+        return np.ascontiguousarray(np.rot90(rgb, self.turns)) if self.turns else rgb
 
     def frame(self, index: int) -> np.ndarray:
         """Frame ``index`` (0-based, presentation order) as uint8 RGB (H, W, 3)."""
@@ -522,6 +543,8 @@ def stream_facts(video: VideoReader) -> dict:
              "pixel_format": cc.format.name if cc.format else "unknown",
              "bit_depth": int(cc.format.components[0].bits) if cc.format else 8, "colour": str(video.colour),
              "colour_from": video.colour.source, "frames": video.count}
+    if video.turns:
+        facts["display_turned_deg"] = 90 * video.turns   # counter-clockwise, as the display matrix asks
     if video.fps:
         facts["fps"] = round(video.fps, 6)
     pattern = "".join(types)
