@@ -372,3 +372,7 @@ def test_real_phone_video_plausible():
     assert np.all((sig > 0.5) & (sig < 10))
     assert est["gyro_motion"].confidence == 1.0 and 0.01 < est["gyro_motion"].measured["median_speed_rad_s"] < 3
     assert est["radial_falloff"].measured["pairs"] > 10
+    # its frames are JPEGs whose headers say quality 95: the grid is found (the phone's own demosaicing repeats
+    # every 2 px, and its deblocking smears the grid into the next phase) and the quality within 5
+    jpeg = est["jpeg_blockiness"]
+    assert jpeg.confidence >= plate.MIN_CONFIDENCE and 90 <= jpeg.params["quality"] <= 95, jpeg.line()

@@ -16,6 +16,7 @@ Contents
 - :func:`frame_score`: how far model frames stand from measured ones: the mean and variance families of a
   comparison (:mod:`lowcam.measure.compare`), over a crop
 - :func:`beyond_spread`: a noise family's log ratio less the two model sequences' own (frames not independent)
+- :func:`row_log_ratios`: the row noise family's log ratios, measured over model (the fit's and the comparison's)
 - :func:`processed_by`: the ``process`` of :func:`fit_delivered_stage` for a stage class with ``process_frame``
 - :func:`fit_delivered_stage`: diagnosis's fit of such a stage: a coordinate search over its parameters, each
   trial processing the model's noisy frames again

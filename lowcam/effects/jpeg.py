@@ -33,10 +33,10 @@ Blockiness from the footage alone
 ---------------------------------
 JPEG quantises each 8x8 block's DCT on its own, so the luma steps across block boundaries exceed those inside
 blocks [Wang2000]. Per axis, ``D[p]`` is the mean absolute difference between neighbours ``p`` and ``p + 1``
-(modulo 8) and the blockiness is ``D[p*] / D[p* + 4]`` at the grid's phase ``p*`` (7 when the grid starts at the
-frame's corner): 1.0 without a grid. The reference is the step mid-way between grid lines, not the other phases'
-median: a structure of period 2 or 4 (a Bayer mosaic's demosaicing, 4:1:1 chroma) raises every second or fourth
-phase alike, ``p* + 4`` with ``p*``, where the others' median would read it as a grid. The quality is found by
+(modulo 8) and the blockiness is ``D[p*]`` over the median of ``D[p* + 2]``, ``D[p* + 4]``, ``D[p* + 6]`` at the
+grid's phase ``p*`` (7 when the grid starts at the frame's corner): 1.0 without a grid. The reference is the phases
+of ``p*``'s parity, not all the others: a demosaiced Bayer mosaic repeats every 2 px and raises every second phase
+alike, which the median of all the others would read as a grid. The quality is found by
 coding the footage's own frame again, shifted by half a block so its old grid falls inside the new blocks, at
 :data:`PLATE_QUALITIES` (:func:`jpeg_roundtrip`), and inverting that curve of the block step in DN
 (``D[p*] - median(D[others])``: the frame coded again shares any such structure) against quality, corrected for
@@ -487,43 +487,44 @@ def block_difference_profile(plane: np.ndarray, axis: int, period: int = 8) -> n
     return d[..., :n].reshape(-1, n // period, period).mean(axis=(0, 1)).astype(np.float64)
 
 
-def _mid_block(phase: int) -> int:
-    """The phase mid-way between grid lines of ``phase``: a period of 2 or 4 px raises it with ``phase``."""
-    return (phase + 4) % 8
+def _same_parity(profile: np.ndarray) -> np.ndarray:
+    """Per phase ``p``: the median of ``D[p + 2]``, ``D[p + 4]``, ``D[p + 6]``, the other phases a structure of
+    period 2 px (a demosaiced Bayer mosaic) raises with ``p``."""
+    return np.median(np.stack([np.roll(profile, -k) for k in (2, 4, 6)]), axis=0)
 
 
 def _ratio(profile: np.ndarray, phase: int) -> float:
-    return float(profile[phase] / max(profile[_mid_block(phase)], 1e-9))
+    return float(profile[phase] / max(_same_parity(profile)[phase], 1e-9))
 
 
 def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -> dict:
     """Blockiness of a (T, H, W, 3) or (H, W, 3) RGB stack (DN) per axis [Wang2000].
 
-    Returns ``blockiness_h`` / ``blockiness_v`` (``D[p*] / D[p* + 4]``, 1.0: no grid), the grid phases
-    ``phase_h`` / ``phase_v`` (``p*``, where ``D[p] - D[p + 4]`` peaks: 7 when blocks start at the frame's corner;
-    ``phases`` fixes them), and per axis the tile evidence ``t_h`` / ``t_v``: over 64 px tiles, the mean of the
-    tile's log ratio at ``p*`` over its standard error (a t statistic; about 0-3 without a grid)."""
+    Returns ``blockiness_h`` / ``blockiness_v`` (``D[p*]`` over the median of ``D[p* + 2, 4, 6]``, 1.0: no grid),
+    the grid phases ``phase_h`` / ``phase_v`` (``p*``: 7 when blocks start at the frame's corner; ``phases`` fixes
+    them), and per axis the tile evidence ``t_h`` / ``t_v``: over 64 px tiles, the mean of the tile's log ratio at
+    ``p*`` over its standard error (a t statistic; about 0-3 without a grid). ``p*`` is the phase of the largest
+    mean log ratio over the tiles (a grid's smear into the next phase, which a phone's deblocking leaves, and the
+    flat insides of strongly coded blocks do not move it there)."""
     y = bt601_luma(frames)
     if y.ndim == 2:
         y = y[None]
     out = {}
+    h, w = y.shape[1:]
     for k, (axis, name) in enumerate(((-1, "h"), (-2, "v"))):
         prof = block_difference_profile(y, axis)
-        p = int(np.argmax(prof - np.roll(prof, -4))) if phases is None else int(phases[k])
+        tiles = [block_difference_profile(y[:, i:i + _TILE_PX, j:j + _TILE_PX], axis)
+                 for i in range(0, h - _TILE_PX + 1, _TILE_PX) for j in range(0, w - _TILE_PX + 1, _TILE_PX)]
+        tiles = np.array([tp for tp in tiles if tp.min() > 0]).reshape(-1, 8)
+        t, mean = np.zeros(8), prof / np.maximum(_same_parity(prof), 1e-9) - 1
+        if len(tiles) >= 4:  # every phase's tile log ratio: its mean and t statistic
+            logs = np.log(tiles / np.apply_along_axis(_same_parity, 1, tiles))
+            mean = logs.mean(0)
+            t = mean / np.maximum(logs.std(0, ddof=1) / np.sqrt(len(logs)), 1e-9)
+        p = int(np.argmax(mean)) if phases is None else int(phases[k])
         out[f"blockiness_{name}"] = _ratio(prof, p)
         out[f"phase_{name}"] = p
-        h, w = y.shape[1:]
-        logs = []
-        for i in range(0, h - _TILE_PX + 1, _TILE_PX):
-            for j in range(0, w - _TILE_PX + 1, _TILE_PX):
-                tp = block_difference_profile(y[:, i:i + _TILE_PX, j:j + _TILE_PX], axis)
-                if tp.min() > 0:
-                    logs.append(np.log(_ratio(tp, p)))
-        if len(logs) >= 4:
-            logs = np.asarray(logs)
-            out[f"t_{name}"] = float(logs.mean() / max(logs.std(ddof=1) / np.sqrt(len(logs)), 1e-9))
-        else:
-            out[f"t_{name}"] = 0.0
+        out[f"t_{name}"] = float(t[p])
     return out
 
 
