@@ -218,6 +218,18 @@ def plate_sequence_image(scene):
     return image
 
 
+def turned_as_blender_shows(clip, path) -> bool:
+    """Whether this Blender shows the movie ``clip`` turned by its display matrix (a phone's upright video), so
+    that the plate is read so too: Blender 4.5 and later turn it, 4.2 does not. Told by the clip's own size where
+    the turn is a quarter, else by the version."""
+    from lowcam.video import open_video
+
+    video = open_video(path)
+    if video.turns % 2:
+        return tuple(clip.size) == (video.width, video.height)
+    return bpy.app.version >= (4, 5, 0)
+
+
 def plate(scene, frame: int, profile):
     """The plate for ``frame`` as uint8 RGB at the camera's size, or None."""
     from lowcam.video import read_video_frame
@@ -235,7 +247,7 @@ def plate(scene, frame: int, profile):
     path = bpy.path.abspath(clip.filepath)
     index = frame - clip.frame_start + clip.frame_offset
     if clip.source == "MOVIE":
-        img = read_video_frame(path, index)
+        img = read_video_frame(path, index, turned=turned_as_blender_shows(clip, path))
         return check_plate(img, c.width, c.height, name=f"{path} frame {frame}")
     # an image sequence clip: its file names number the frames from the first file's number
     p = Path(path)

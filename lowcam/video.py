@@ -301,12 +301,12 @@ class VideoReader:
 
     ``colour``: ``--plate-colour`` text (or the dict :func:`parse_plate_colour` makes) overriding the stream's
     tags. Each frame is turned as the stream's display matrix says (a phone's upright video), as players and
-    Blender's Movie Clip show it. Attributes: ``path``, ``count`` (frames), ``fps`` (frames/s, or None),
+    Blender 4.5's Movie Clip show it; ``turned=False``: as coded (Blender 4.2 shows it so). Attributes: ``path``, ``count`` (frames), ``fps`` (frames/s, or None),
     ``colour`` (:class:`PlateColour`), ``width``, ``height`` (px, as shown), ``turns`` (quarter turns
     counter-clockwise applied to each decoded picture), ``pict_types`` (``{index: "I"|"P"|"B"}`` of the frames
     decoded so far)."""
 
-    def __init__(self, path, colour=None):
+    def __init__(self, path, colour=None, turned: bool = True):
         self.path = str(path)
         override = colour if isinstance(colour, dict) else parse_plate_colour(colour)
         self.container, self.stream = _open(self.path)
@@ -320,7 +320,7 @@ class VideoReader:
             self.container.close()
             raise
         cc = self.stream.codec_context
-        self.turns = self._display_turns()
+        self.turns = self._display_turns() if turned else 0
         self.width, self.height = (cc.height, cc.width) if self.turns % 2 else (cc.width, cc.height)
         rate = self.stream.average_rate or self.stream.guessed_rate
         self.fps = float(rate) if rate and 0 < float(rate) < 1000 else None
@@ -502,16 +502,16 @@ _OPEN_VIDEOS: dict = {}
 OPEN_VIDEOS_MAX = 2
 
 
-def open_video(path, colour: str | None = None) -> VideoReader:
+def open_video(path, colour: str | None = None, turned: bool = True) -> VideoReader:
     """The :class:`VideoReader` of ``path`` kept open in this process (a new one if the file changed)."""
     path = str(path)
     if not Path(path).is_file():
         raise LowcamError(f"{path}: no such file")
     st = os.stat(path)
-    key = (os.path.realpath(path), st.st_mtime_ns, st.st_size, colour or "")
+    key = (os.path.realpath(path), st.st_mtime_ns, st.st_size, colour or "", turned)
     video = _OPEN_VIDEOS.pop(key, None)
     if video is None:
-        video = VideoReader(path, colour)
+        video = VideoReader(path, colour, turned)
         while len(_OPEN_VIDEOS) >= OPEN_VIDEOS_MAX:                 # the least recently used goes
             _OPEN_VIDEOS.pop(next(iter(_OPEN_VIDEOS))).close()
     _OPEN_VIDEOS[key] = video                                       # most recently used last
@@ -524,11 +524,12 @@ def close_videos() -> None:
         _OPEN_VIDEOS.popitem()[1].close()
 
 
-def read_video_frame(path, index: int, colour: str | None = None) -> np.ndarray:
+def read_video_frame(path, index: int, colour: str | None = None, turned: bool = True) -> np.ndarray:
     """Frame ``index`` (0-based) of a video file as uint8 RGB, converted with the stream's tags (``colour``:
-    ``--plate-colour`` text overriding them). The file is opened once per process and kept open (keyed by path,
-    modification time, size and ``colour``), so a shot's frames are read in sequence without reopening."""
-    return open_video(path, colour).frame(index)
+    ``--plate-colour`` text overriding them), turned as its display matrix says unless ``turned`` is False. The
+    file is opened once per process and kept open (keyed by path, modification time, size, ``colour`` and
+    ``turned``), so a shot's frames are read in sequence without reopening."""
+    return open_video(path, colour, turned).frame(index)
 
 
 def stream_facts(video: VideoReader) -> dict:

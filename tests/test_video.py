@@ -357,6 +357,7 @@ def test_an_upright_phone_clip_is_turned_as_its_display_matrix_says(tmp_path, de
         assert (video.width, video.height) == ((H, W) if degrees % 180 else (W, H))
         assert lv.stream_facts(video)["display_turned_deg"] == degrees
     assert np.array_equal(shown, np.rot90(plain, degrees // 90))
+    assert np.array_equal(read_video_frame(clip, 1, turned=False), plain)   # as coded, where asked (Blender 4.2)
     assert shown.shape[:2] == (video.height, video.width)
     assert max(_patch_errors(np.rot90(shown, -(degrees // 90))).values()) <= 2   # turned back: the known colours
 
@@ -409,25 +410,29 @@ def test_blenders_movie_clip_decode_agrees_with_the_add_ons_plate(tmp_path, matr
 
 
 @pytest.mark.blender
-def test_blender_turns_an_upright_clip_as_the_add_ons_plate_is_turned(tmp_path):
-    """Blender's Movie Clip shows a phone's upright clip turned as its display matrix says, and so does the
-    add-on's plate: the same size, the same pixels within 1 DN. Blender 4.2 shows the clip as coded, unturned
-    (said in docs/video.md): the plate turned back is its picture, within its 2 DN of rounding."""
+@pytest.mark.parametrize("degrees", (None, 270))
+def test_the_add_ons_plate_of_an_upright_clip_is_turned_as_blender_shows_it(tmp_path, degrees):
+    """Blender 4.5 and 5.0 show a phone's upright clip turned as its display matrix says, Blender 4.2 as coded:
+    the add-on reads the plate as this Blender shows it (``turned_as_blender_shows``), the same size and pixels
+    within 1 DN (4.2: 2 DN, its rounding). A clip without a display matrix is read as coded everywhere."""
     import bpy
+    from lowcam_blender import submodule
 
-    clip = _upright_clip(tmp_path, 270)
+    clip = _upright_clip(tmp_path, degrees)
+    movie = bpy.data.movieclips.load(str(clip))
     image = bpy.data.images.load(str(clip))
     try:
         image.colorspace_settings.name = "Non-Color"
         w, h = image.size
         blender = np.rint(np.array(image.pixels[:]).reshape(h, w, 4)[::-1, :, :3] * 255).astype(int)
+        turned = submodule("addon.frames").turned_as_blender_shows(movie, str(clip))
     finally:
         bpy.data.images.remove(image)
-    ours = read_video_frame(clip, 0).astype(int)
-    assert ours.shape == (W, H, 3)
-    if bpy.app.version < (4, 5, 0):
-        ours = np.rot90(ours, -3)
-    assert blender.shape == ours.shape
+        bpy.data.movieclips.remove(movie)
+    if degrees is not None:
+        assert turned == (bpy.app.version >= (4, 5, 0))
+    ours = read_video_frame(clip, 0, turned=turned).astype(int)
+    assert blender.shape == ours.shape == ((W, H, 3) if turned and degrees else (H, W, 3))
     assert np.abs(blender - ours).max() <= (1 if bpy.app.version >= (4, 5, 0) else 2)   # 4.2 rounds otherwise
 
 
