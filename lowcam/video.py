@@ -301,10 +301,10 @@ class VideoReader:
 
     ``colour``: ``--plate-colour`` text (or the dict :func:`parse_plate_colour` makes) overriding the stream's
     tags. Each frame is turned as the stream's display matrix says (a phone's upright video), as players and
-    Blender 4.5's Movie Clip show it; ``turned=False``: as coded (Blender 4.2 shows it so). Attributes: ``path``, ``count`` (frames), ``fps`` (frames/s, or None),
-    ``colour`` (:class:`PlateColour`), ``width``, ``height`` (px, as shown), ``turns`` (quarter turns
-    counter-clockwise applied to each decoded picture), ``pict_types`` (``{index: "I"|"P"|"B"}`` of the frames
-    decoded so far)."""
+    Blender 4.5's Movie Clip show it; ``turned=False``: as coded (Blender 4.2 shows it so). Attributes:
+    ``path``, ``count`` (frames), ``fps`` (frames/s, or None), ``colour`` (:class:`PlateColour`), ``width``,
+    ``height`` (px, as shown), ``turns`` (quarter turns counter-clockwise applied to each decoded picture),
+    ``pict_types`` (``{index: "I"|"P"|"B"}`` of the frames decoded so far)."""
 
     def __init__(self, path, colour=None, turned: bool = True):
         self.path = str(path)
