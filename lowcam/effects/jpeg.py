@@ -488,9 +488,9 @@ def block_difference_profile(plane: np.ndarray, axis: int, period: int = 8) -> n
 
 
 def _same_parity(profile: np.ndarray) -> np.ndarray:
-    """Per phase ``p``: the median of ``D[p + 2]``, ``D[p + 4]``, ``D[p + 6]``, the other phases a structure of
-    period 2 px (a demosaiced Bayer mosaic) raises with ``p``."""
-    return np.median(np.stack([np.roll(profile, -k) for k in (2, 4, 6)]), axis=0)
+    """Per phase ``p`` (the last axis): the median of ``D[p + 2]``, ``D[p + 4]``, ``D[p + 6]``, the other phases a
+    structure of period 2 px (a demosaiced Bayer mosaic) raises with ``p``."""
+    return np.median(np.stack([np.roll(profile, -k, axis=-1) for k in (2, 4, 6)]), axis=0)
 
 
 def _ratio(profile: np.ndarray, phase: int) -> float:
@@ -518,7 +518,7 @@ def jpeg_blockiness(frames: np.ndarray, phases: tuple[int, int] | None = None) -
         tiles = np.array([tp for tp in tiles if tp.min() > 0]).reshape(-1, 8)
         t, mean = np.zeros(8), prof / np.maximum(_same_parity(prof), 1e-9) - 1
         if len(tiles) >= 4:  # every phase's tile log ratio: its mean and t statistic
-            logs = np.log(tiles / np.apply_along_axis(_same_parity, 1, tiles))
+            logs = np.log(tiles / _same_parity(tiles))
             mean = logs.mean(0)
             t = mean / np.maximum(logs.std(0, ddof=1) / np.sqrt(len(logs)), 1e-9)
         p = int(np.argmax(mean)) if phases is None else int(phases[k])
