@@ -221,11 +221,11 @@ def plate_sequence_image(scene):
 def turned_as_blender_shows(clip, path) -> bool:
     """Whether this Blender shows the movie ``clip`` turned by its display matrix (a phone's upright video), so
     that the plate is read so too: Blender 4.5 and later turn it, 4.2 does not. Told by the clip's own size where
-    the turn is a quarter, else by the version."""
+    the turn is a quarter of a clip that is not square, else by the version."""
     from lowcam.video import open_video
 
     video = open_video(path)
-    if video.turns % 2:
+    if video.turns % 2 and video.width != video.height:
         return tuple(clip.size) == (video.width, video.height)
     return bpy.app.version >= (4, 5, 0)
 

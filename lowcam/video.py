@@ -255,7 +255,10 @@ def initialised_heap():
     x264's lookahead reads memory it has not written: the same frames coded twice in one process came out
     differently 11-25 times in 25 where x265 had run in between (its freed buffers are what x264 was handed
     next), at 96x80 px and, rarely, at 368x304. With the heap initialised x264 codes them the same in every
-    process. Blocks nest, across threads: the heap is initialised while any runs."""
+    process. Blocks nest, across threads: the heap is initialised while any runs. glibc's per-thread cache
+    (tcache, blocks up to about 1 KiB) hands such small blocks back as they were freed, and cannot be turned off
+    once a process runs (``GLIBC_TUNABLES=glibc.malloc.tcache_count=0`` before it starts does): x264's coding is
+    reproducible in the tests without that."""
     mallopt = _mallopt()
     if not mallopt:
         yield

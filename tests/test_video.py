@@ -93,11 +93,11 @@ def _tagged_clip(folder, matrix, rng, bits, transfer="sdr"):
                   PRIMARIES_TAG[matrix])
 
 
-def _upright_clip(folder, degrees):
+def _upright_clip(folder, degrees, square=False):
     """The BT.709 colour patches as an MP4 whose display matrix turns them ``degrees`` counter-clockwise (None:
-    no display matrix)."""
-    planes = _ycbcr(_picture(), "bt709", True, 8)
-    return _write(folder / f"turned-{degrees}.mp4", [planes] * 2, "libx264", "yuv420p", 1, 1, 1, 1,
+    no display matrix); ``square``: their left H x H px only."""
+    planes = _ycbcr(_picture()[:, :H] if square else _picture(), "bt709", True, 8)
+    return _write(folder / f"turned-{degrees}{'-square' if square else ''}.mp4", [planes] * 2, "libx264", "yuv420p", 1, 1, 1, 1,
                   display_degrees=degrees)
 
 
@@ -410,15 +410,16 @@ def test_blenders_movie_clip_decode_agrees_with_the_add_ons_plate(tmp_path, matr
 
 
 @pytest.mark.blender
-@pytest.mark.parametrize("degrees", (None, 270))
-def test_the_add_ons_plate_of_an_upright_clip_is_turned_as_blender_shows_it(tmp_path, degrees):
+@pytest.mark.parametrize("degrees, square", [(None, False), (270, False), (90, True)])
+def test_the_add_ons_plate_of_an_upright_clip_is_turned_as_blender_shows_it(tmp_path, degrees, square):
     """Blender 4.5 and 5.0 show a phone's upright clip turned as its display matrix says, Blender 4.2 as coded:
     the add-on reads the plate as this Blender shows it (``turned_as_blender_shows``), the same size and pixels
-    within 1 DN (4.2: 2 DN, its rounding). A clip without a display matrix is read as coded everywhere."""
+    within 1 DN (4.2: 2 DN, its rounding). A clip without a display matrix is read as coded everywhere. A square
+    clip's size cannot tell whether Blender turned it: its pixels do."""
     import bpy
     from lowcam_blender import submodule
 
-    clip = _upright_clip(tmp_path, degrees)
+    clip = _upright_clip(tmp_path, degrees, square)
     movie = bpy.data.movieclips.load(str(clip))
     image = bpy.data.images.load(str(clip))
     try:
@@ -432,7 +433,8 @@ def test_the_add_ons_plate_of_an_upright_clip_is_turned_as_blender_shows_it(tmp_
     if degrees is not None:
         assert turned == (bpy.app.version >= (4, 5, 0))
     ours = read_video_frame(clip, 0, turned=turned).astype(int)
-    assert blender.shape == ours.shape == ((W, H, 3) if turned and degrees else (H, W, 3))
+    width = H if square else W
+    assert blender.shape == ours.shape == ((width, H, 3) if turned and degrees else (H, width, 3))
     assert np.abs(blender - ours).max() <= (1 if bpy.app.version >= (4, 5, 0) else 2)   # 4.2 rounds otherwise
 
 

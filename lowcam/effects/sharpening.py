@@ -383,7 +383,8 @@ def edge_profile_from_plate(footage, base, film):
     # the profile down the frame, which the row filters do not shape: wider than the base makes a step, the scene
     # is softer than steps, and the fit reads that softness as more blur and less sharpening
     down = _model_edges(base, dict(zip(keys, (aa, sol.x[1], sol.x[2] / gain))), film, at)["across_y"]
-    softer = stat["across_y"]["width_10_90_px"] / down["width_10_90_px"] if down.get("edges") else 1.0
+    softer = (stat["across_y"]["width_10_90_px"] / down["width_10_90_px"]
+              if down.get("edges") and down["width_10_90_px"] > 0 else 1.0)
     stat["softer_than_steps"] = softer
     soft = softer > SOFT_SCENE
     confidence = 0.9 * min(1.0, min(nx, ny) / 100) * (1.0 if rms < 0.03 else 0.5) * (0.5 if at_bound else 1.0) \
