@@ -319,11 +319,11 @@ class VideoReader:
             self.stream.thread_type = "AUTO" if av.logging.get_level() is None else "NONE"
             self.colour = _resolve_colour(self.path, self.stream, override)
             self.times = self._presentation_times()
+            self.turns = self._display_turns() if turned else 0
         except BaseException:
             self.container.close()
             raise
         cc = self.stream.codec_context
-        self.turns = self._display_turns() if turned else 0
         self.width, self.height = (cc.height, cc.width) if self.turns % 2 else (cc.width, cc.height)
         rate = self.stream.average_rate or self.stream.guessed_rate
         self.fps = float(rate) if rate and 0 < float(rate) < 1000 else None
@@ -369,7 +369,6 @@ class VideoReader:
             self.container.seek(0)
         turns = round(degrees / 90.0)
         if abs(degrees - 90.0 * turns) > 1.0:
-            self.container.close()
             raise LowcamError(f"{self.path}: its display matrix turns the picture by {degrees:g} degrees; Lowcam "
                               "reads turns of 0, 90, 180 and 270 degrees only")
         return turns % 4
