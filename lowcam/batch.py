@@ -198,11 +198,17 @@ def _simulate_inputs(shot: Shot, frame: int, profile, motion: FrameMotion, input
 
 def _previous_output(shot: Shot, frame: int, profile):
     """The shot's written frame ``frame - 1``, for a profile whose frames follow the one before
-    (:func:`~lowcam.pipeline.follows_previous`: a temporal filter); None where it has none (or is not written)."""
+    (:func:`~lowcam.pipeline.follows_previous`: a temporal filter); None where the shot has none (no render of
+    ``frame - 1``: its first frame). A frame before that has a render but is not written yet is an error: made
+    without it, the frame's bytes would depend on which frames a run happened to make first (chunks run at
+    once, a preview of every other frame)."""
     if not follows_previous(profile):
         return None
     path = shot.output_path(frame - 1)
     if not path.is_file():
+        if Path(expand_pattern(shot.renders, frame - 1)).is_file():
+            raise LowcamError(f"{path}: frame {frame} follows frame {frame - 1}, which is not written yet (the "
+                              "profile's temporal filter carries each frame into the next): make it first")
         return None
     c = profile.camera
     return read_plate(path, c.width, c.height, 3)

@@ -322,6 +322,14 @@ def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_byte
         shot.output_path(f).unlink()
     run_shot(shot, frames, workers=workers, quiet=True)
     assert frame_bytes(tmp_path / "tnr") == made
+    # a chunk that starts before the frame it follows is written (chunks at once, every other frame) fails those
+    # frames in one line each and writes nothing; made in order afterwards, the same bytes
+    shot.output = str(tmp_path / "chunks/####.png")
+    early = run_shot(shot, [3, 4], workers=workers, quiet=True)
+    assert [r.status for r in early] == ["failed"] * 2 and "follows frame 2, which is not written" in early[0].message
+    assert "\n" not in early[0].message and not list((tmp_path / "chunks").glob("*.png"))
+    assert [r.status for r in run_shot(shot, frames, workers=workers, quiet=True)] == ["written"] * 4
+    assert frame_bytes(tmp_path / "chunks") == made
     # JPEG or EXR frames would change what the next frame reads: refused in one line before any frame
     for suffix in ("jpg", "exr"):
         shot.output = str(tmp_path / f"lossy/####.{suffix}")

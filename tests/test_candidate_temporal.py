@@ -263,6 +263,23 @@ def test_a_plate_without_a_filter_moving_or_coded_is_not_taken_for_one(still_sho
     assert coded.params["strength"] > 0.4 and coded.confidence < MIN_CONFIDENCE and "predicted" in coded.reason
 
 
+@pytest.mark.parametrize("strength", [0.3, 0.6])
+def test_black_bars_and_clipped_highlights_do_not_raise_the_plates_strength(fire_i, strength):
+    """A letterboxed shot (black bars: no noise) with clipped highlights, filtered by OpenCV's running average: the
+    share held is read off the pixels that carry noise (it read 0.89 for 0.6 with 60 % of the frame black). A
+    frame too small for the tiles gives a finite confidence."""
+    from lowcam.measure.plate import Footage, film
+
+    shots = still(frames=40, shape=(96, 128), seed=3)
+    shots[:, 56:72] = np.clip(shots[:, 56:72].astype(int) + 130, 0, 255)   # a highlight band clipped at 255
+    frames = opencv_running_average(shots, 1 - strength)[SETTLE // 3:]
+    frames[:, :40] = 0
+    est = plate_probe("held_noise").estimate(Footage(frames), fire_i, film)
+    assert abs(est.params["strength"] - strength) < 0.04, est.line()
+    tiny = plate_probe("held_noise").estimate(Footage(frames[:, 60:63, 60:63]), fire_i, film)
+    assert np.isfinite(tiny.confidence) and np.isfinite(tiny.measured["standard_error"])
+
+
 def test_blenders_render_handler_follows_the_frame_before(tmp_path, fire_i):
     """What the add-on's handler calls per rendered frame (``lowcam.scene.degrade_frame`` with the composite path
     of the frame before): frame 2 follows frame 1's camera frame as made in this process, and the same bytes

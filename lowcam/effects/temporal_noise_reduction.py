@@ -38,6 +38,7 @@ Contents
   sequences best match the measured frames' means and noise
   (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`TemporalNoiseReduction`: the stage
+- :func:`noisy_pixels`: the pixels of a stack whose noise shows (changing, never clipped)
 - :func:`held_share`: the share of a still stack's noise held from one frame to the next (its temporal variogram)
 - :func:`held_noise_statistic`, :func:`temporal_noise_reduction_from_plate`: the plate probe: the noise held from
   frame to frame in the footage's still frames, and the strength that holds as much
@@ -227,16 +228,27 @@ _GREY_ROUNDING = 1 / 36
 _TILES = 4
 
 
+def noisy_pixels(frames: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of a stack (n, H, W, 3) of 8-bit values whose grey changes over the frames and
+    whose channels never reach 0 or 255 (clipped there, noise does not show)."""
+    grey = np.asarray(frames).astype(np.float32).mean(-1)
+    return (grey.max(0) > grey.min(0)) & (frames.min(axis=(0, 3)) > 0) & (frames.max(axis=(0, 3)) < 255)
+
+
 def held_share(frames: np.ndarray) -> float | None:
     """The share ``k`` of a still stack's (n >= 3, (n, H, W, 3)) noise that a first-order recursive filter holds
     from one frame to the next, from the noise's temporal variogram on the grey (channel mean): the mean squared
     change over one frame ``D1 = 2 v (1 - k)`` and over two ``D2 = 2 v (1 - k^2)``, so ``k = D2 / D1 - 1``, each
     less the output rounding's ``2 q`` (``q = 1/36`` DN^2 on the grey). Differences cancel the scene and the
-    frames' slow drift, which biases a lag-one correlation over few frames. 0 for noise drawn anew each frame;
-    None with fewer than 3 frames or no temporal noise beyond the rounding."""
+    frames' slow drift, which biases a lag-one correlation over few frames. Only pixels that carry noise count
+    (:func:`noisy_pixels`: black bars and clipped highlights would add the rounding's share without its change).
+    0 for noise drawn anew each frame; None with fewer than 3 frames or no temporal noise beyond the rounding."""
     if len(frames) < 3:
         return None
-    grey = np.asarray(frames).astype(np.float32).mean(-1)
+    frames = np.asarray(frames)
+    grey = frames.astype(np.float32).mean(-1)[:, noisy_pixels(frames)]
+    if grey.size == 0:
+        return None
     d1 = float(np.mean(np.square(grey[1:] - grey[:-1]))) - 2 * _GREY_ROUNDING
     d2 = float(np.mean(np.square(grey[2:] - grey[:-2]))) - 2 * _GREY_ROUNDING
     if d1 <= 2 * _GREY_ROUNDING:  # hardly more than the rounding: the ratio says nothing
@@ -287,7 +299,7 @@ def temporal_noise_reduction_from_plate(footage, base, film):
     have = base.effect(effect)
     threshold = have.motion_threshold_dn if have is not None else TemporalNoiseReduction.params[
         "motion_threshold_dn"].default
-    steps = np.diff(frames @ BT601_TO_YCC[0], axis=0)
+    steps = np.diff(frames @ BT601_TO_YCC[0], axis=0)[:, noisy_pixels(frames)]
     # the filter compares a frame with its last output, which differ by 1 / (1 - k) times the outputs' steps
     noise_step = float(1.4826 * np.median(np.abs(steps - np.median(steps)))) / max(1.0 - share, 0.1)
     threshold = round(max(threshold, NOISE_STEPS * noise_step), 1)
