@@ -40,6 +40,7 @@ import re
 import signal
 import sys
 import time
+import uuid
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -381,14 +382,17 @@ def run_shot(shot: Shot, frames: list[int], force: bool = False, workers: int = 
 
 def _run_on_dask(shot: Shot, frames: list[int], force: bool, workers: int, scheduler: str | None, done) -> None:
     """Each frame a :func:`process_frame` task on Dask; ``done(result)`` as each finishes. A profile whose frames
-    follow the one before (:func:`~lowcam.pipeline.follows_previous`) has each task run after the frame before it."""
+    follow the one before (:func:`~lowcam.pipeline.follows_previous`) has each task run after the frame before it.
+    Task keys are this run's own: a scheduler shared by several shots at once gives each its own tasks."""
+    run = uuid.uuid4().hex[:12]
     with _dask_client(workers, scheduler) as client:
         client.run(_one_opencv_thread)  # one frame per worker process: no oversubscription
         ordered = follows_previous(shot.load_profile())  # each frame after the one before (a temporal filter)
         futures = []
         for f in frames:
             after = futures[-1] if ordered and futures else None
-            futures.append(client.submit(process_frame, shot, f, force, after, pure=False, key=f"lowcam-frame-{f}"))
+            futures.append(client.submit(process_frame, shot, f, force, after, pure=False,
+                                         key=f"lowcam-frame-{f}-{run}"))
         from dask.distributed import as_completed
 
         try:

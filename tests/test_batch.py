@@ -72,6 +72,29 @@ def test_serial_dask_and_chunked_runs_give_the_same_bytes(shot_dir, tmp_path):
     assert frame_bytes(tmp_path / "chunks") == serial
 
 
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
+def test_two_shots_at_once_on_one_scheduler_each_get_their_own_frames(shot_dir, tmp_path):
+    """A farm's shared Dask scheduler: two shots of the same frame numbers submitted at once each run their own
+    tasks (the same keys would have handed the second shot the first one's results, its frames never made)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from dask.distributed import LocalCluster
+
+    def shot(name, seed):
+        return Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / f"{name}/####.png"),
+                    str(shot_dir / "plates/####.png"), read_motion_json(shot_dir / "motion.json"), True, seed=seed)
+
+    run_shot(shot("serial-a", 1), FRAMES, quiet=True)
+    run_shot(shot("serial-b", 2), FRAMES, quiet=True)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            ThreadPoolExecutor(2) as pool:
+        runs = [pool.submit(run_shot, shot(name, seed), FRAMES, scheduler=cluster.scheduler_address, quiet=True)
+                for name, seed in (("a", 1), ("b", 2))]
+        assert all([r.status for r in run.result()] == ["written"] * 12 for run in runs)
+    assert frame_bytes(tmp_path / "a") == frame_bytes(tmp_path / "serial-a")
+    assert frame_bytes(tmp_path / "b") == frame_bytes(tmp_path / "serial-b") != frame_bytes(tmp_path / "a")
+
+
 @pytest.mark.parametrize("workers", [[], pytest.param(["--workers", "2"], marks=pytest.mark.slow)],
                          ids=["serial", "dask"])
 def test_a_killed_run_resumes_without_redoing_finished_frames(shot_dir, tmp_path, workers):
