@@ -242,12 +242,16 @@ def _real(path: str) -> str:
 
 
 def _identity(path: str):
-    """The file ``path`` is: (device, inode) of what it points to, or its real path if it is not there."""
-    try:
-        st = os.stat(path)
-        return ("inode", st.st_dev, st.st_ino)
-    except (OSError, ValueError):
-        return ("path", _real(path))
+    """The file ``path`` is: (device, inode) of what it points to, or its real path if it is not there. A path
+    through a folder that does not exist yet and back out of it (``new/../clip.mp4``) is the file its real path
+    names: writing it makes the folder, and then reaches that file."""
+    for p in (path, _real(path)):
+        try:
+            st = os.stat(p)
+            return ("inode", st.st_dev, st.st_ino)
+        except (OSError, ValueError):
+            continue
+    return ("path", _real(path))
 
 
 def _inside(path: str, folder: str) -> bool:

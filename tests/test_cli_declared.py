@@ -204,6 +204,15 @@ def test_links_to_an_input_are_the_input(tmp_path, capsys):
                 ("--json", frame), f)
 
 
+def test_a_path_through_a_folder_still_to_be_made_is_the_file_it_reaches(tmp_path, capsys):
+    """``new/../f.png``: the folder is made before the file is written, which then replaces the input."""
+    f = frames(tmp_path / "footage")
+    through = tmp_path / "footage" / "new" / ".." / f[1].name
+    refused(capsys, ["compare", "--plate-only", tmp_path / "footage", "--json", through], ("--json", "this input"), f)
+    refused(capsys, ["calibrate", "plate", tmp_path / "footage", "-o", tmp_path / "p.toml", "--json", through],
+            ("--json", "this input"), f)
+
+
 def outside_set(tmp_path) -> tuple[Path, list[Path], Path]:
     """A set whose set.toml names frames and an ideal outside its folder."""
     f = frames(tmp_path / "outside")
