@@ -64,6 +64,9 @@ def load_frames(patterns, min_frames: int = 1, what: str = "calibration") -> tup
     frames, names = [], []
     for p in paths:
         img = read_image(p)
+        if img.dtype.kind == "f":
+            raise LowcamError(f"{p}: a frame of floating-point values; frames are 8- or 16-bit images as a camera "
+                              "writes them")
         if img.dtype != np.uint8:
             img = np.round(img / 257.0).astype(np.uint8)
         if img.ndim == 2:

@@ -167,16 +167,16 @@ def test_read_footage_folder_video_and_errors(tmp_path):
     folder = tmp_path / "frames"
     folder.mkdir()
     for i in (1, 2, 10):  # natural order: 1, 2, 10
-        cv2.imwrite(str(folder / f"f{i}.png"), np.full((24, 32, 3), i, np.uint8))
+        cv2.imwrite(str(folder / f"f{i}.png"), np.full((64, 80, 3), i, np.uint8))
     shot = plate.read_footage(folder)
-    assert len(shot) == 3 and shot.shape == (24, 32) and [f[0, 0, 0] for f in shot.frames] == [1, 2, 10]
+    assert len(shot) == 3 and shot.shape == (64, 80) and [f[0, 0, 0] for f in shot.frames] == [1, 2, 10]
     video = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (32, 24))
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (80, 64))
     for _ in range(4):
-        writer.write(rng.integers(0, 255, (24, 32, 3), dtype=np.uint8))
+        writer.write(rng.integers(0, 255, (64, 80, 3), dtype=np.uint8))
     writer.release()
     clip = plate.read_footage(video)
-    assert len(clip) == 4 and clip.fps == pytest.approx(25.0) and clip.shape == (24, 32)
+    assert len(clip) == 4 and clip.fps == pytest.approx(25.0) and clip.shape == (64, 80)
     with pytest.raises(LowcamError, match="no such video file, folder or frames"):
         plate.read_footage(tmp_path / "missing.mp4")
     one = tmp_path / "one"
@@ -190,6 +190,31 @@ def test_read_footage_folder_video_and_errors(tmp_path):
     (tmp_path / "bad.mp4").write_bytes(b"not a video")
     with pytest.raises(LowcamError, match="bad.mp4"):
         plate.read_footage(tmp_path / "bad.mp4")
+    # frames too small for the statistics' blocks, edges and tiles, and frames of floating-point values (a float
+    # TIFF, which the 16-bit scaling read as black): one line each
+    small, floats = tmp_path / "small", tmp_path / "floats"
+    for folder, image, name in ((small, np.zeros((16, 200, 3), np.uint8), "f{}.png"),
+                                (floats, rng.random((64, 80, 3)).astype(np.float32) * 1.7 - 0.7, "f{}.tif")):
+        folder.mkdir()
+        for i in range(3):
+            cv2.imwrite(str(folder / name.format(i)), image)
+    with pytest.raises(LowcamError, match="frames of 200x16 px are too small"):
+        plate.read_footage(small)
+    with pytest.raises(LowcamError, match=r"f0\.tif: a frame of floating-point values"):
+        plate.read_footage(floats)
+
+
+def test_binary_frames_give_a_noise_law_that_is_reported_not_applied():
+    """Frames of 0 and 255 only (a 1-bit PNG): the noise probe's law lies beyond the law's own range, which is
+    reported, not applied (it was an error naming no file)."""
+    rng = np.random.default_rng(8)
+    shot = plate.Footage(np.stack([(rng.random((96, 128, 1)) < 0.5).repeat(3, 2) * 255.0 for _ in range(4)]),
+                         path="binary")
+    probe = next(p for p in plate.plate_probes() if p.name == "noise_level_function")
+    est = probe.estimate(shot, load_profile("fire-i"), plate.film)
+    assert est.confidence == 0 and "not applied" in est.reason and "out of range" in est.reason, est.line()
+
+
 
 
 # --- too little texture: said, nothing written ------------------------------------------------------------------------

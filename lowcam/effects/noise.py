@@ -57,7 +57,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import LowcamError, NotFitted
+from ..errors import LowcamError, NotFitted, ProfileError
 from ..parallel import thread_map
 from ..plate_estimate import PlateEstimate, PlateProbe, pair_starts, register_footage
 from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
@@ -688,7 +688,10 @@ def noise_level_function_from_plate(footage, base, film):
         reason += ("; read on the luma, which JPEG codes at full resolution (it quantises most of the chroma's "
                    "noise away), and shared in the base profile's proportions red : green : blue = "
                    f"{' : '.join(f'{k:.2f}' for k in proportions)}")
-    bad = Noise(True, "plate", None, **params).implausible()
+    try:
+        bad = Noise(True, "plate", None, **params).implausible()
+    except ProfileError as e:  # beyond the law's range (the noise of binary frames): no law a camera has
+        bad = [str(e)]
     if bad:
         confidence = 0.0
         reason += f"; not applied: {'; '.join(bad)}"

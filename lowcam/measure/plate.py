@@ -59,7 +59,7 @@ import numpy as np
 
 from ..captures import expand_paths, load_frames
 from ..effects import known_effects
-from ..errors import LowcamError, NotFitted
+from ..errors import LowcamError, NotFitted, ProfileError
 from ..gyro_logs import log_kind, read_gyro_log
 from ..pipeline import prepare, render_camera, resume_sequence, simulate
 from ..plate_estimate import PlateEstimate, PlateProbe, still_segments  # noqa: F401  (still_segments: the API)
@@ -71,6 +71,8 @@ MIN_CONFIDENCE = 0.5
 
 #: A shot needs at least this many frames.
 MIN_FRAMES = 2
+#: Footage narrower or lower than this (px) is refused: its statistics need blocks, edges and tiles.
+MIN_SIDE_PX = 64
 
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr"}
 
@@ -144,6 +146,10 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
         footage = Footage(np.stack(frames), fps or 30.0, name, names=names)
     if len(footage) < MIN_FRAMES:
         raise LowcamError(f"{name}: {len(footage)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+    h, w = footage.shape
+    if min(h, w) < MIN_SIDE_PX:
+        raise LowcamError(f"{name}: frames of {w}x{h} px are too small to measure (at least {MIN_SIDE_PX} px each "
+                          "way)")
     if gyro is not None:
         footage.gyro, footage.frame_times = read_phone_gyro(gyro)
     return footage
@@ -351,7 +357,11 @@ def estimate_profile(footage: Footage, base_profile, progress: bool = True, min_
         if est.params and est.measurable and est.confidence >= min_confidence:
             note = (f"estimated from the plate {footage.path} ({probe.name.replace('_', ' ')}, confidence "
                     f"{est.confidence:.2f})")
-            trial, entries = apply_estimate(out, est, note)
+            try:
+                trial, entries = apply_estimate(out, est, note)
+            except ProfileError as e:  # a value the effect refuses (binary frames' noise): reported, not applied
+                est.reason += f"; not applied: {e}"
+                continue
             touched = [trial.effect(name) for name in {_target(est, k)[0] for k in est.params}]
             bad = [f"{e.name}: {why}" for e in touched if e is not None and e.enabled for why in e.implausible()]
             if bad:
