@@ -364,6 +364,15 @@ def test_calibrate_plate_command(tmp_path):
     r = _cli("calibrate", "plate", tmp_path / "nothing", "--base", base, "-o", tmp_path / "x.toml")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "nothing" in r.stderr
     assert not (tmp_path / "x.toml").exists()
+    # frames named by a glob: one that matches nothing, and frames too small to measure
+    small = tmp_path / "small"
+    small.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(small / f"{i}.png"), np.full((8, 8, 3), 100, np.uint8))
+    for pattern, says in ((folder / "*.jpg", "no file matches it"), (small / "*.png", "8x8 px are too small")):
+        r = _cli("calibrate", "plate", pattern, "--base", base, "-o", tmp_path / "x.toml")
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and says in r.stderr, r.stderr
+        assert not (tmp_path / "x.toml").exists()
 
 
 # --- real frames ------------------------------------------------------------------------------------------------------

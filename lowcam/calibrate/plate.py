@@ -123,6 +123,7 @@ def calibrate_plate(footage, base, gyro: str | None = None, fps: float | None = 
     else:
         frames, names_read, source = load_checked(names, plate.MIN_FRAMES, "plate estimation")
         shot = plate.Footage(np.stack(frames), fps or 30.0, source, names=names_read)
+        plate.check_footage(shot)
         if gyro:
             shot.gyro, shot.frame_times = plate.read_phone_gyro(gyro)
     threshold = plate.MIN_CONFIDENCE if min_confidence is None else float(min_confidence)

@@ -21,6 +21,7 @@ Contents
 --------
 - :class:`Footage`: the frames of a shot (RGB, DN 0-255 as the camera delivered them), fps, path, optional gyro
 - :func:`read_footage`: a video file (:mod:`lowcam.video`) or a folder or glob of frames as :class:`Footage`
+- :func:`check_footage`: footage too short or too small to measure, refused in one line
 - :func:`read_phone_gyro`: a gyro log of rows ``wx wy wz t`` (and optional frame stamps) as ``t, wx, wy, wz``
 - :func:`plate_probes`: every plate probe the effects declare, in the order they run
 - :data:`MIN_CONFIDENCE`: estimates below this confidence are reported, not applied
@@ -144,15 +145,21 @@ def read_footage(path, fps: float | None = None, gyro=None, max_frames: int = 20
         paths = paths[:max_frames]
         frames, names = load_frames(paths, MIN_FRAMES, name)
         footage = Footage(np.stack(frames), fps or 30.0, name, names=names)
-    if len(footage) < MIN_FRAMES:
-        raise LowcamError(f"{name}: {len(footage)} frame(s); plate estimation needs at least {MIN_FRAMES}")
-    h, w = footage.shape
-    if min(h, w) < MIN_SIDE_PX:
-        raise LowcamError(f"{name}: frames of {w}x{h} px are too small to measure (at least {MIN_SIDE_PX} px each "
-                          "way)")
+    check_footage(footage)
     if gyro is not None:
         footage.gyro, footage.frame_times = read_phone_gyro(gyro)
     return footage
+
+
+def check_footage(footage: Footage) -> None:
+    """Refuse, in one line naming it, footage a plate cannot be measured on: fewer than :data:`MIN_FRAMES`
+    frames, or frames under :data:`MIN_SIDE_PX` either way."""
+    if len(footage) < MIN_FRAMES:
+        raise LowcamError(f"{footage.path}: {len(footage)} frame(s); plate estimation needs at least {MIN_FRAMES}")
+    h, w = footage.shape
+    if min(h, w) < MIN_SIDE_PX:
+        raise LowcamError(f"{footage.path}: frames of {w}x{h} px are too small to measure (at least {MIN_SIDE_PX} "
+                          "px each way)")
 
 
 def _read_video(path: Path, max_frames: int, colour: str | None = None):
