@@ -219,6 +219,29 @@ def _failed(frame: int, error: LowcamError, read_s: float = 0.0, simulate_s: flo
     return FrameResult(frame, "failed", " ".join(str(error).splitlines()), read_s, simulate_s)  # one line
 
 
+def _already_made(shot: Shot, frame: int, profile) -> FrameResult:
+    """A frame whose output exists: finished (skipped) where that file is an image of the camera's frame size;
+    another picture, or a file that is no image, fails the frame in one line (it is no frame of this shot, and a
+    resumed run would keep it). EXR frames are taken as they are."""
+    out = shot.output_path(frame)
+    if out.suffix.lower() == ".exr":
+        return FrameResult(frame, "skipped")
+    from PIL import Image
+
+    c = profile.camera
+    try:
+        with Image.open(out) as img:
+            size = img.size
+    except (OSError, ValueError, Image.DecompressionBombError):
+        return _failed(frame, LowcamError(f"{out}: there already, but no image; remove it, or make the frame again "
+                                          "with --force"))
+    if size != (c.width, c.height):
+        return _failed(frame, LowcamError(f"{out}: there already, but {size[0]}x{size[1]} where this camera's frames "
+                                          f"are {c.width}x{c.height}: no frame of this shot; remove it, or make the "
+                                          "frame again with --force"))
+    return FrameResult(frame, "skipped")
+
+
 def process_frame(shot: Shot, frame: int, force: bool = False, after=None) -> FrameResult:
     """Simulate one frame of ``shot`` and write it; never raises for bad input, reports it instead. A full disk
     (:class:`~lowcam.errors.DiskFull`) is raised: it is no frame's fault, and it ends the shot. A profile whose
@@ -226,7 +249,7 @@ def process_frame(shot: Shot, frame: int, force: bool = False, after=None) -> Fr
     (ignored) is the task Dask runs it after."""
     out = shot.output_path(frame)
     if out.exists() and not force:
-        return FrameResult(frame, "skipped")
+        return _already_made(shot, frame, shot.load_profile())
     read_s = simulate_s = 0.0
     try:
         profile = shot.load_profile()
@@ -258,7 +281,7 @@ def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
             ThreadPoolExecutor(1, thread_name_prefix="lowcam-write") as writer:
         def start(frame):
             if shot.output_path(frame).exists() and not force:
-                return FrameResult(frame, "skipped")
+                return _already_made(shot, frame, profile)
             try:
                 motion = _frame_motion(shot, frame)
             except LowcamError as e:

@@ -72,7 +72,7 @@ import numpy as np
 
 from .errors import LowcamError
 from .io import read_image
-from .outputs import atomic_write_with
+from .outputs import atomic_write_with, remove_stale_temporaries
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv", ".3gp",
                             ".mts", ".m2ts", ".ts"})
@@ -443,6 +443,15 @@ class VideoReader:
         if frame.is_corrupt:
             self.corrupt.append(i)
 
+    def note_frame_types(self, max_frames: int) -> None:
+        """Decode the first ``max_frames`` frames, without converting them, so that :attr:`pict_types` holds their
+        types (the GOP structure :func:`stream_facts` reads)."""
+        self._start(0)
+        for _ in self._decoded():
+            if self._next >= max_frames:
+                break
+        self._frames = None
+
     def frames(self, max_frames: int | None = None):
         """Frames in order from the first, each (index, uint8 RGB), at most ``max_frames``."""
         self._start(0)
@@ -626,27 +635,34 @@ class VideoCoding:
     source: str = "Lowcam's default (H.264, CRF 18, BT.709 limited range)"
 
 
-def coding_of_plate(video: VideoReader, fps: float | None = None) -> VideoCoding:
-    """The coding of the plate ``video``: its codec (H.264, HEVC; others coded as H.264), bit depth, colour tags,
-    GOP length, B-frames and rate (x264's or x265's CRF where the stream states it, else its bitrate), as
-    :func:`stream_facts` reads them from the frames decoded so far."""
-    facts = stream_facts(video)
-    cc = video.stream.codec_context
-    rgb = video.colour.matrix not in MATRICES
-    crf = facts.get("encoder_crf")
-    try:
-        crf = float(crf) if crf is not None and facts.get("encoder_rc") == "crf" else None
-    except ValueError:
-        crf = None
-    return VideoCoding(
-        encoder=_ENCODERS.get(facts["codec"], "libx264"),
-        pixel_format="yuv420p10le" if facts["bit_depth"] > 8 else "yuv420p",
-        matrix="bt709" if rgb else video.colour.matrix, range="limited" if rgb else video.colour.range,
-        transfer_tag=_tag_value(cc.color_trc) or 1, primaries_tag=_tag_value(cc.color_primaries) or 1,
-        gop=int(facts.get("gop_length") or max(1, round(2 * (video.fps or 24)))),
-        b_frames=int(facts["max_consecutive_b_frames"]), crf=crf,
-        bitrate_bps=None if crf is not None else facts.get("bitrate_bps"),
-        fps=float(fps or video.fps or 24.0), source=f"the plate {video.path} ({facts['codec']})")
+#: The frames of a plate video whose types give the GOP structure a shot's video is coded with.
+CODING_FRAMES = 250
+
+
+def coding_of_plate(path, colour: str | None = None, fps: float | None = None) -> VideoCoding:
+    """The coding of the plate video ``path`` (``colour``: ``--plate-colour``): its codec (H.264, HEVC; others
+    coded as H.264), bit depth, colour tags, GOP length, B-frames and rate (x264's or x265's CRF where the stream
+    states it, else its bitrate), as :func:`stream_facts` reads them from its first :data:`CODING_FRAMES` frames
+    (decoded here: the same whatever frames a run read before)."""
+    with VideoReader(path, colour) as video:
+        video.note_frame_types(CODING_FRAMES)
+        facts = stream_facts(video)
+        cc = video.stream.codec_context
+        rgb = video.colour.matrix not in MATRICES
+        crf = facts.get("encoder_crf")
+        try:
+            crf = float(crf) if crf is not None and facts.get("encoder_rc") == "crf" else None
+        except ValueError:
+            crf = None
+        return VideoCoding(
+            encoder=_ENCODERS.get(facts["codec"], "libx264"),
+            pixel_format="yuv420p10le" if facts["bit_depth"] > 8 else "yuv420p",
+            matrix="bt709" if rgb else video.colour.matrix, range="limited" if rgb else video.colour.range,
+            transfer_tag=_tag_value(cc.color_trc) or 1, primaries_tag=_tag_value(cc.color_primaries) or 1,
+            gop=int(facts.get("gop_length") or max(1, round(2 * (video.fps or 24)))),
+            b_frames=int(facts["max_consecutive_b_frames"]), crf=crf,
+            bitrate_bps=None if crf is not None else facts.get("bitrate_bps"),
+            fps=float(fps or video.fps or 24.0), source=f"the plate {video.path} ({facts['codec']})")
 
 
 def rgb_to_ycbcr(rgb: np.ndarray, bits: int, matrix: str, full: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -712,10 +728,11 @@ def write_shot_video(path, frame_files, fps: float | None = None, plate=None, pl
     :class:`VideoCoding`'s default at ``fps`` (24 when None). Returns one line saying how it was coded. Used by
     ``lowcam batch -o shot.mp4`` and the add-on's Video Output."""
     if plate is not None and is_video(plate):
-        coding = coding_of_plate(open_video(plate, plate_colour), fps)
+        coding = coding_of_plate(plate, plate_colour, fps)
     else:
         coding = VideoCoding(fps=fps or 24.0)
     frame_files = list(frame_files)
+    remove_stale_temporaries(Path(path).parent)   # a killed run's, left beside the video
     t = time.perf_counter()
 
     def rgb(file):

@@ -12,6 +12,8 @@ picture (8 black or white blocks), so a frame read by seeking shows whether it i
 import concurrent.futures
 import multiprocessing
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import av
@@ -482,6 +484,27 @@ def test_batch_writes_a_shot_as_a_video_coded_and_tagged_as_its_plate_and_resume
     assert main(args) == 0
     assert "1 written, 5 already done" in capsys.readouterr().out and shot.is_file()
     assert [n for n in os.listdir(tmp_path / "out") if n != "shot.mp4.frames"] == ["shot.mp4"]   # no temporaries
+    # run again by a process that decodes no plate frame (every frame is done): the same coding, the same bytes;
+    # a killed run's temporary beside the video goes
+    from lowcam.outputs import _part_prefix
+
+    made = shot.read_bytes()
+    lv.close_videos()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / "out" / (_part_prefix().rsplit("-", 2)[0] + f"-{int(dead.stdout)}-ab12.shot.mp4.part")
+    stale.write_bytes(b"half a video")
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "0 written, 6 already done" in out and "GOP 4, 2 B-frames" in out and shot.read_bytes() == made
+    assert not stale.exists()
+    # a file there that is no frame of this shot (another picture, no image) is not taken for a finished frame
+    frames = tmp_path / "out" / "shot.mp4.frames"
+    cv2.imwrite(str(frames / "000002.png"), np.zeros((240, 320, 3), np.uint8))
+    (frames / "000004.png").write_text("notes")
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "000002.png: there already, but 320x240 where this camera's frames are 640x480" in err
+    assert "000004.png: there already, but no image" in err and shot.read_bytes() == made
 
 
 def stream_facts_of(video):
