@@ -85,7 +85,7 @@ def main() -> None:
 
         with VideoReader(clip) as video:
             rgb_frames = [rgb for _, rgb in video.frames()]
-            coding = coding_of_plate(video)
+        coding = coding_of_plate(clip)
 
         def lowcam_encode():   # a shot coded as the plate was (lowcam batch -o shot.mp4)
             write_video(Path(tmp) / "shot.mp4", iter(rgb_frames), coding)

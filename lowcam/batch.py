@@ -38,9 +38,11 @@ import logging
 import os
 import re
 import signal
+import struct
 import sys
 import time
 import uuid
+import warnings
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -219,6 +221,26 @@ def _failed(frame: int, error: LowcamError, read_s: float = 0.0, simulate_s: flo
     return FrameResult(frame, "failed", " ".join(str(error).splitlines()), read_s, simulate_s)  # one line
 
 
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of an image file from its header (a PNG's own, others through Pillow), None where it is no
+    image, (0, 0) for one too large for Pillow to read its size (past its guard against decompression bombs)."""
+    from PIL import Image
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            return struct.unpack(">II", head[16:24])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as img:
+                return img.size
+    except Image.DecompressionBombError:
+        return (0, 0)
+    except (OSError, ValueError):
+        return None
+
+
 def _already_made(shot: Shot, frame: int, profile) -> FrameResult:
     """A frame whose output exists: finished (skipped) where that file is an image of the camera's frame size;
     another picture, or a file that is no image, fails the frame in one line (it is no frame of this shot, and a
@@ -226,16 +248,12 @@ def _already_made(shot: Shot, frame: int, profile) -> FrameResult:
     out = shot.output_path(frame)
     if out.suffix.lower() == ".exr":
         return FrameResult(frame, "skipped")
-    from PIL import Image
-
     c = profile.camera
-    try:
-        with Image.open(out) as img:
-            size = img.size
-    except (OSError, ValueError, Image.DecompressionBombError):
+    size = _image_size(out)
+    if size is None:
         return _failed(frame, LowcamError(f"{out}: there already, but no image; remove it, or make the frame again "
                                           "with --force"))
-    if size != (c.width, c.height):
+    if size not in ((c.width, c.height), (0, 0)):
         return _failed(frame, LowcamError(f"{out}: there already, but {size[0]}x{size[1]} where this camera's frames "
                                           f"are {c.width}x{c.height}: no frame of this shot; remove it, or make the "
                                           "frame again with --force"))

@@ -443,12 +443,15 @@ class VideoReader:
         if frame.is_corrupt:
             self.corrupt.append(i)
 
-    def note_frame_types(self, max_frames: int) -> None:
+    def note_frame_types(self, max_frames: int, limit: int) -> None:
         """Decode the first ``max_frames`` frames, without converting them, so that :attr:`pict_types` holds their
-        types (the GOP structure :func:`stream_facts` reads)."""
+        types (the GOP structure :func:`stream_facts` reads); on, up to ``limit`` frames, until a second key frame
+        shows (a long GOP)."""
         self._start(0)
-        for _ in self._decoded():
-            if self._next >= max_frames:
+        keys = 0
+        for i, _ in self._decoded():
+            keys += self.pict_types.get(i) == "I"
+            if self._next >= limit or (self._next >= max_frames and keys >= 2):
                 break
         self._frames = None
 
@@ -635,17 +638,24 @@ class VideoCoding:
     source: str = "Lowcam's default (H.264, CRF 18, BT.709 limited range)"
 
 
-#: The frames of a plate video whose types give the GOP structure a shot's video is coded with.
-CODING_FRAMES = 250
+#: The frames of a plate video whose types give the GOP structure a shot's video is coded with, and how far the
+#: decoding goes on to find a second key frame.
+CODING_FRAMES, CODING_FRAMES_MAX = 250, 1000
+
+
+def _whole(text) -> int | None:
+    """A positive whole number written in an encoder's settings, else None."""
+    return int(text) if isinstance(text, str) and text.isdigit() and int(text) > 0 else None
 
 
 def coding_of_plate(path, colour: str | None = None, fps: float | None = None) -> VideoCoding:
     """The coding of the plate video ``path`` (``colour``: ``--plate-colour``): its codec (H.264, HEVC; others
     coded as H.264), bit depth, colour tags, GOP length, B-frames and rate (x264's or x265's CRF where the stream
-    states it, else its bitrate), as :func:`stream_facts` reads them from its first :data:`CODING_FRAMES` frames
-    (decoded here: the same whatever frames a run read before)."""
+    states it, else its bitrate), as :func:`stream_facts` reads them from its first :data:`CODING_FRAMES` frames,
+    or more until a second key frame (decoded here: the same whatever frames a run read before). A GOP that no two
+    key frames show is the encoder's own ``keyint`` where the stream states it, else two seconds."""
     with VideoReader(path, colour) as video:
-        video.note_frame_types(CODING_FRAMES)
+        video.note_frame_types(CODING_FRAMES, CODING_FRAMES_MAX)
         facts = stream_facts(video)
         cc = video.stream.codec_context
         rgb = video.colour.matrix not in MATRICES
@@ -659,7 +669,8 @@ def coding_of_plate(path, colour: str | None = None, fps: float | None = None) -
             pixel_format="yuv420p10le" if facts["bit_depth"] > 8 else "yuv420p",
             matrix="bt709" if rgb else video.colour.matrix, range="limited" if rgb else video.colour.range,
             transfer_tag=_tag_value(cc.color_trc) or 1, primaries_tag=_tag_value(cc.color_primaries) or 1,
-            gop=int(facts.get("gop_length") or max(1, round(2 * (video.fps or 24)))),
+            gop=int(facts.get("gop_length") or _whole(facts.get("encoder_keyint"))
+                    or max(1, round(2 * (video.fps or 24)))),
             b_frames=int(facts["max_consecutive_b_frames"]), crf=crf,
             bitrate_bps=None if crf is not None else facts.get("bitrate_bps"),
             fps=float(fps or video.fps or 24.0), source=f"the plate {video.path} ({facts['codec']})")

@@ -38,7 +38,7 @@ Contents
   sequences best match the measured frames' means and noise
   (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`TemporalNoiseReduction`: the stage
-- :func:`noisy_pixels`: the pixels of a stack whose noise shows (changing, never clipped)
+- :func:`noisy_pixels`: the pixels of a stack whose noise shows (those that change over the frames)
 - :func:`held_share`: the share of a still stack's noise held from one frame to the next (its temporal variogram)
 - :func:`held_noise_statistic`, :func:`temporal_noise_reduction_from_plate`: the plate probe: the noise held from
   frame to frame in the footage's still frames, and the strength that holds as much
@@ -229,10 +229,11 @@ _TILES = 4
 
 
 def noisy_pixels(frames: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels of a stack (n, H, W, 3) of 8-bit values whose grey changes over the frames and
-    whose channels never reach 0 or 255 (clipped there, noise does not show)."""
+    """(H, W) bool: the pixels of a stack (n, H, W, 3) whose grey changes over the frames: not a letterbox's black
+    or a highlight held at 255, where no noise shows. (Pixels that touch 0 or 255 now and then stay: leaving them
+    out would choose pixels by how their noise ran.)"""
     grey = np.asarray(frames).astype(np.float32).mean(-1)
-    return (grey.max(0) > grey.min(0)) & (frames.min(axis=(0, 3)) > 0) & (frames.max(axis=(0, 3)) < 255)
+    return grey.max(0) > grey.min(0)
 
 
 def held_share(frames: np.ndarray) -> float | None:
