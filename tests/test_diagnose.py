@@ -353,6 +353,30 @@ def test_a_grey_camera_is_found_monochrome(tmp_path, fire_i):
 
 
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
+def test_only_names_the_candidates_of_every_step_once_and_none_is_refused(tmp_path):
+    """``--only`` holds for ``--until-explained`` too (it screened every candidate and added the tone curve it
+    hid), names each candidate once (``gamma`` is ``tone_curve``), and naming none is refused in one line."""
+    def lowcam(*args):
+        return subprocess.run([sys.executable, "-m", "lowcam.cli", *map(str, args)], capture_output=True, text=True,
+                              timeout=600)
+
+    assert lowcam("synth", "--add", "tone_curve:gamma=2.0", "--frames", "2", "--width", "160", "-o",
+                  tmp_path / "set").returncode == 0
+    r = lowcam("diagnose", tmp_path / "set", "--only", "vignetting,vignetting", "--until-explained", "-o",
+               tmp_path / "p.toml", "--json", tmp_path / "u.json")
+    assert r.returncode == 0, r.stderr
+    steps = json.loads((tmp_path / "u.json").read_text())["steps"]
+    assert {c["effect"] for s in steps for c in s["candidates"]} == {"vignetting"}, steps
+    assert {s.get("added") for s in steps} <= {"vignetting", None}
+    r = lowcam("diagnose", tmp_path / "set", "--only", "gamma,tone_curve", "--json", tmp_path / "d.json")
+    assert r.returncode == 0 and [c["effect"] for c in json.loads((tmp_path / "d.json").read_text())[
+        "candidates"]] == ["tone_curve"], r.stderr
+    r = lowcam("diagnose", tmp_path / "set", "--only=", "--json", tmp_path / "e.json")
+    assert r.returncode == 2 and "names no candidate" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_until_explained_adds_effects_step_by_step_and_draws_the_history(tmp_path):
     """Two hidden effects (a tone curve, and no vignetting): the loop adds both, refits them together and stops
     near the noise floor; each step's profile, the history plot and the JSON are written."""

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
@@ -345,6 +346,8 @@ GOOD_CAPTURE = '[[capture]]\nname = "a"\ntarget = "checkerboard:9x6:0.025"\nfram
     (GOOD_CAPTURE.replace("frames = [\"frames/a-*.png\"]", "frames = 5"), ["'frames' must be a list"]),
     (GOOD_CAPTURE.replace("frames = [\"frames/a-*.png\"]", "frames = []"), ["'frames' must have at least 1"]),
     (GOOD_CAPTURE.replace("frames/a-*", "frames/b-*"), ["'frames': no file matches", "frames/b-*.png"]),
+    (GOOD_CAPTURE.replace('"frames/a-*.png"', '"frames/a-*.png", "frames/a-007.png"'),
+     ["'frames'", "frames/a-007.png: no such file"]),   # a name without a wildcard must be there
     (GOOD_CAPTURE.replace('target = "checkerboard:9x6:0.025"', 'ideal = "ideal/a.exr"'),
      ["'ideal' names a file that does not exist", "ideal/a.exr"]),
     (GOOD_CAPTURE + 'plate = "plates/a.png"\n', ["'plate' names a file that does not exist", "plates/a.png"]),
@@ -369,6 +372,17 @@ def test_a_good_measurement_set_loads_and_a_missing_one_is_named(tmp_path):
     assert capture.angular_velocity == (0.0, 0.5, 0.0) and capture.exposure_s == 0.02
     assert capture.target == "checkerboard:9x6:0.025" and capture.frames.shape == (1, 48, 64, 3)
     refused(lambda: load_set(tmp_path / "nowhere"), "nowhere", "no such measurement set")
+
+
+def test_a_set_in_a_folder_named_like_a_pattern_loads_and_a_float_mask_is_read(tmp_path):
+    """A folder whose name holds [, ] or * is a path, not a pattern; a floating-point mask (a float TIFF) is white
+    above 0.5, as an 8-bit one above 127."""
+    folder = _set(tmp_path / "shot[1]*", GOOD_CAPTURE + 'mask = "mask.tif"\n')
+    mask = np.zeros((48, 64), np.float32)
+    mask[:, :40] = 1.0
+    assert cv2.imwrite(str(folder / "mask.tif"), mask)
+    capture = load_set(folder).captures[0]
+    assert capture.frames.shape == (1, 48, 64, 3) and capture.mask.sum() == 48 * 40
 
 
 def test_parse_target_without_a_file_names_the_target():

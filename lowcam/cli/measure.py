@@ -121,12 +121,17 @@ def cmd_diagnose(args) -> int:
             effect_class(plugin, "--plugin")
     mset = load_set(args.set, profile)
     known = [*candidates(), *removal_candidates(profile)]       # without_EFFECT too: a row the Match panel adds
-    only = [RENAMED_CANDIDATES.get(n, n) for n in args.only.split(",")] if args.only else None
+    only = None
+    if args.only is not None:  # each candidate once, by its current name; none at all is refused
+        only = list(dict.fromkeys(RENAMED_CANDIDATES.get(n, n) for n in (n.strip() for n in args.only.split(","))
+                                  if n))
+        if not only:
+            raise LowcamError(f"--only {args.only!r}: names no candidate (known: {', '.join(known)})")
     for name in only or []:
         if name not in known:
             raise LowcamError(f"--only {name}: unknown candidate (known: {', '.join(known)})")
     if args.until_explained:
-        return _explain(args, mset, profile)
+        return _explain(args, mset, profile, only)
     d = diagnose(mset, profile, only, progress=progress_line)
     end_progress_lines()
     if args.add_best and d.best is None:  # refused before anything is written
@@ -153,13 +158,13 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
-def _explain(args, mset, profile) -> int:
+def _explain(args, mset, profile, only=None) -> int:
     """``diagnose --until-explained``: add and refit until explained; every step's profile and the history."""
     out = Path(args.output)
     steps_dir = _steps_folder(out)
     check_output_folder(steps_dir, "-o (its steps folder)")
     with tempfile.TemporaryDirectory(prefix="lowcam-explain-") as work:
-        steps = explain(mset, profile, work, args.max_steps, progress=progress_line)
+        steps = explain(mset, profile, work, args.max_steps, progress=progress_line, only=only)
         end_progress_lines()
         make_output_folder(steps_dir)
         history, doc = [], []

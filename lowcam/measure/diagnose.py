@@ -1340,16 +1340,18 @@ class Step:
     profile: object
 
 
-def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain: float = NAMED_GAIN) -> list[Step]:
+def explain(mset, profile, workdir, max_steps: int = 6, progress=None, min_gain: float = NAMED_GAIN,
+            only=None) -> list[Step]:
     """``diagnose --until-explained``: diagnose, add the best candidate, refit every continuous parameter added so
     far together (:func:`polish`), and repeat until the error is explained, no candidate lowers it by at least
-    ``min_gain`` (relative), or ``max_steps`` effects were added. The last step's ``added`` is None."""
+    ``min_gain`` (relative), or ``max_steps`` effects were added. The last step's ``added`` is None. ``only``: the
+    candidates to try (all when None), as :func:`diagnose` takes them."""
     workdir = Path(workdir)
     steps: list[Step] = []
     added: list[Candidate] = []
     assumed = None
     for k in range(max_steps + 1):
-        d = diagnose(mset, profile, workdir=workdir / f"step-{k}", progress=progress, rounds=1,
+        d = diagnose(mset, profile, only, workdir=workdir / f"step-{k}", progress=progress, rounds=1,
                      assumed_noise=assumed, refit=added)
         assumed = assumed or [s.sums["variance_map"] if len(s.measured) == 1 else None
                               for s in d.comparison.captures]

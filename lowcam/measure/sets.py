@@ -30,6 +30,7 @@ Contents
 from __future__ import annotations
 
 import glob
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -114,7 +115,11 @@ def load_set(folder, profile=None) -> MeasurementSet:
         patterns = entry["frames"]
         patterns = [patterns] if isinstance(patterns, str) else patterns
         patterns = schema.array_of(patterns, where, "frames", _nonempty, min_length=1)
-        names = sorted({p for pat in patterns for p in glob.glob(str(folder / pat))})
+        # the set's folder is a path, not a pattern (a name with [ or *); a name without a wildcard must be there
+        names = sorted({p for pat in patterns for p in glob.glob(glob.escape(str(folder)) + os.sep + pat)})
+        missing = [pat for pat in patterns if not glob.has_magic(pat) and not (folder / pat).is_file()]
+        if missing:
+            raise LowcamError(f"{where}: 'frames': {folder / missing[0]}: no such file")
         if not names:
             raise LowcamError(f"{where}: 'frames': no file matches {', '.join(str(folder / p) for p in patterns)}")
         frames, _ = load_frames(names, 1, where)
@@ -141,7 +146,7 @@ def _read_mask(path, width: int, height: int) -> np.ndarray:
     img = img.mean(axis=2) if img.ndim == 3 else img
     if img.shape != (height, width):
         raise LowcamError(f"{path}: the mask is {img.shape[1]}x{img.shape[0]}, the frames are {width}x{height}")
-    mask = img > np.iinfo(raw.dtype).max / 2
+    mask = img > (0.5 if raw.dtype.kind == "f" else np.iinfo(raw.dtype).max / 2)   # a float image: 0-1
     if not mask.any():
         raise LowcamError(f"{path}: the mask leaves no pixel to compare (white marks the pixels compared)")
     return mask
