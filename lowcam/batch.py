@@ -436,9 +436,18 @@ def _run_on_dask(shot: Shot, frames: list[int], force: bool, workers: int, sched
                                          key=f"lowcam-frame-{f}-{run}"))
         from dask.distributed import as_completed
 
+        frame_of = {future.key: f for future, f in zip(futures, frames)}
         try:
             for future in as_completed(futures):
-                done(future.result())
+                try:
+                    result = future.result()
+                except (DiskFull, KeyboardInterrupt):
+                    raise
+                except Exception as e:  # the task's worker died (killed for memory: KilledWorker) or was lost
+                    result = _failed(frame_of[future.key], LowcamError(
+                        f"frame {frame_of[future.key]}: its Dask worker failed ({type(e).__name__}: "
+                        f"{str(e).split('. ')[0]})"))
+                done(result)
         except DiskFull:
             client.cancel(futures)  # frames not started are not tried
             raise

@@ -95,6 +95,50 @@ def test_two_shots_at_once_on_one_scheduler_each_get_their_own_frames(shot_dir, 
     assert frame_bytes(tmp_path / "b") == frame_bytes(tmp_path / "serial-b") != frame_bytes(tmp_path / "a")
 
 
+DYING = '''
+import os
+from lowcam.effects import Effect, Param
+
+
+class Dying(Effect):
+    """Ends the worker process that runs it, as the kernel's out-of-memory killer would."""
+
+    name = "dying"
+    writes = "bayer"
+    order = 125
+    params = {"code": Param(3.0, low=0.0, high=255.0)}
+
+    def apply(self, state):
+        os._exit(int(self.code))
+'''
+
+
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
+def test_a_frame_whose_dask_worker_dies_fails_in_one_line(shot_dir, tmp_path, monkeypatch, fire_i):
+    """A worker killed under a frame (here: a plug-in effect ends its process) is that frame's failure, in one
+    line, not a traceback that ends the shot."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    (tmp_path / "user_dying.py").write_text(DYING)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "user_dying")
+    profile = fire_i.with_effect("user_dying:Dying").save(tmp_path / "dying.toml")
+    shot = Shot(str(profile), str(shot_dir / "renders/####.exr"), str(tmp_path / "out/####.png"),
+                str(shot_dir / "plates/####.png"), read_motion_json(shot_dir / "motion.json"), True,
+                plugins=("user_dying",))
+    try:
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+                LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+            results = run_shot(shot, [1, 2], scheduler=cluster.scheduler_address, quiet=True)
+    finally:
+        sys.modules.pop("user_dying", None)
+    assert [r.status for r in results] == ["failed", "failed"]
+    assert all("its Dask worker failed (KilledWorker" in r.message and "\n" not in r.message for r in results)
+    assert not list((tmp_path / "out").glob("*.png"))
+
+
 @pytest.mark.parametrize("workers", [[], pytest.param(["--workers", "2"], marks=pytest.mark.slow)],
                          ids=["serial", "dask"])
 def test_a_killed_run_resumes_without_redoing_finished_frames(shot_dir, tmp_path, workers):
