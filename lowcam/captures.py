@@ -61,8 +61,8 @@ def load_frames(patterns, min_frames: int = 1, what: str = "calibration") -> tup
     paths = expand_paths(patterns)
     missing = next((p for p in paths if not p.exists()), None)
     if missing is not None:
-        raise LowcamError(f"{missing}: no such file" + (", and no file matches it" if any(c in str(missing) for c in
-                                                                                        "*?[") else ""))
+        raise LowcamError(f"{missing}: no such file" + (", and no file matches it" if glob.has_magic(str(missing))
+                                                         else ""))
     if len(paths) < min_frames:
         raise LowcamError(f"{what}: {len(paths)} frame(s) given, at least {min_frames} needed")
     frames, names = [], []

@@ -38,7 +38,7 @@ Contents
   sequences best match the measured frames' means and noise
   (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`TemporalNoiseReduction`: the stage
-- :func:`noisy_pixels`: the pixels of a stack whose noise shows (those that change over the frames)
+- :func:`noisy_pixels`: the pixels of a grey stack whose noise shows (those that change over the frames)
 - :func:`held_share`: the share of a still stack's noise held from one frame to the next (its temporal variogram)
 - :func:`held_noise_statistic`, :func:`temporal_noise_reduction_from_plate`: the plate probe: the noise held from
   frame to frame in the footage's still frames, and the strength that holds as much
@@ -228,11 +228,10 @@ _GREY_ROUNDING = 1 / 36
 _TILES = 4
 
 
-def noisy_pixels(frames: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels of a stack (n, H, W, 3) whose grey changes over the frames: not a letterbox's black
-    or a highlight held at 255, where no noise shows. (Pixels that touch 0 or 255 now and then stay: leaving them
-    out would choose pixels by how their noise ran.)"""
-    grey = np.asarray(frames).astype(np.float32).mean(-1)
+def noisy_pixels(grey: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of a stack's grey (n, H, W) that change over the frames: not a letterbox's black or
+    a highlight held at 255, where no noise shows. (Pixels that touch 0 or 255 now and then stay: leaving them out
+    would choose pixels by how their noise ran.)"""
     return grey.max(0) > grey.min(0)
 
 
@@ -246,8 +245,8 @@ def held_share(frames: np.ndarray) -> float | None:
     0 for noise drawn anew each frame; None with fewer than 3 frames or no temporal noise beyond the rounding."""
     if len(frames) < 3:
         return None
-    frames = np.asarray(frames)
-    grey = frames.astype(np.float32).mean(-1)[:, noisy_pixels(frames)]
+    grey = np.asarray(frames).astype(np.float32).mean(-1)
+    grey = grey[:, noisy_pixels(grey)]
     if grey.size == 0:
         return None
     d1 = float(np.mean(np.square(grey[1:] - grey[:-1]))) - 2 * _GREY_ROUNDING
@@ -300,7 +299,7 @@ def temporal_noise_reduction_from_plate(footage, base, film):
     have = base.effect(effect)
     threshold = have.motion_threshold_dn if have is not None else TemporalNoiseReduction.params[
         "motion_threshold_dn"].default
-    steps = np.diff(frames @ BT601_TO_YCC[0], axis=0)[:, noisy_pixels(frames)]
+    steps = np.diff(frames @ BT601_TO_YCC[0], axis=0)[:, noisy_pixels(frames.astype(np.float32).mean(-1))]
     # the filter compares a frame with its last output, which differ by 1 / (1 - k) times the outputs' steps
     noise_step = float(1.4826 * np.median(np.abs(steps - np.median(steps)))) / max(1.0 - share, 0.1)
     threshold = round(max(threshold, NOISE_STEPS * noise_step), 1)
