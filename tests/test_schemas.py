@@ -383,6 +383,11 @@ def test_a_set_in_a_folder_named_like_a_pattern_loads_and_a_float_mask_is_read(t
     assert cv2.imwrite(str(folder / "mask.tif"), mask)
     capture = load_set(folder).captures[0]
     assert capture.frames.shape == (1, 48, 64, 3) and capture.mask.sum() == 48 * 40
+    # frames named by an absolute path, with or without a wildcard, are found wherever the set is
+    plain = _set(tmp_path / "plain", GOOD_CAPTURE) / "frames"
+    for frames in (plain / "a-000.png", plain / "a-*.png"):
+        other = _set(tmp_path / "elsewhere", GOOD_CAPTURE.replace("frames/a-*.png", str(frames)))
+        assert load_set(other).captures[0].frame_names == [str(plain / "a-000.png")]
 
 
 def test_parse_target_without_a_file_names_the_target():

@@ -116,10 +116,15 @@ def load_set(folder, profile=None) -> MeasurementSet:
         patterns = [patterns] if isinstance(patterns, str) else patterns
         patterns = schema.array_of(patterns, where, "frames", _nonempty, min_length=1)
         # the set's folder is a path, not a pattern (a name with [ or *); a name without a wildcard must be there
-        names = sorted({p for pat in patterns for p in glob.glob(glob.escape(str(folder)) + os.sep + pat)})
-        missing = [pat for pat in patterns if not glob.has_magic(pat) and not (folder / pat).is_file()]
-        if missing:
-            raise LowcamError(f"{where}: 'frames': {folder / missing[0]}: no such file")
+        names = set()
+        for pat in patterns:
+            if not glob.has_magic(pat):
+                if not (folder / pat).is_file():
+                    raise LowcamError(f"{where}: 'frames': {folder / pat}: no such file")
+                names.add(str(folder / pat))
+            else:
+                names.update(glob.glob(pat if os.path.isabs(pat) else glob.escape(str(folder)) + os.sep + pat))
+        names = sorted(names)
         if not names:
             raise LowcamError(f"{where}: 'frames': no file matches {', '.join(str(folder / p) for p in patterns)}")
         frames, _ = load_frames(names, 1, where)
