@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .effects import plugin_failures
 from .effects.bayer import demosaic_bilinear, mosaic, sensel_shift_px, unmosaic
 from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
@@ -266,10 +267,11 @@ def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False,
     for effect in state.applied:
         if in_sequence and effect.temporal:
             break
-        if previous is not None and effect.follows_previous:
-            frame, footprint = effect.finish_after(previous, frame, footprint)
-        else:
-            frame, footprint = effect.finish(state, frame, footprint)
+        with plugin_failures(effect):
+            if previous is not None and effect.follows_previous:
+                frame, footprint = effect.finish_after(previous, frame, footprint)
+            else:
+                frame, footprint = effect.finish(state, frame, footprint)
     return frame, footprint
 
 
@@ -316,7 +318,8 @@ def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray
     tail = _sequence_tail(profile)
     count = len(frames) - lead
     for k, effect in enumerate(tail):
-        frames, footprints = effect.finish_frames(frames, footprints)
+        with plugin_failures(effect):
+            frames, footprints = effect.finish_frames(frames, footprints)
         keep = count + max((e.lead_frames() for e in tail[k + 1:] if e.temporal), default=0)
         frames, footprints = frames[len(frames) - keep:], footprints[len(footprints) - keep:]
     return frames, footprints
@@ -404,7 +407,8 @@ def _walk(state: SimState, start: int = 0, stop: int | None = None, stages=None,
         effect = effects[i]
         if not effect.enabled and not effect.always_runs:
             continue
-        effect.apply(state)
+        with plugin_failures(effect):
+            effect.apply(state)
         state.applied.append(effect)
         if stages is not None:
             stages[f"{i:02d}-{effect.name}"] = stage_image(state, effect.writes, plate_u8)

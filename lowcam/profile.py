@@ -165,7 +165,7 @@ class Profile:
         second vertical blur after ``"sharpening"``, where a scaler or codec blurs the output), inserted there
         new (from its defaults and ``values``) unless the effect right after it is already of type ``name``."""
         out = self.copy()
-        cls = effect_class(name, self.source)
+        cls = effect_class(name, source or self.source)
         if after is None:
             old = out.effect(cls.name)
         else:

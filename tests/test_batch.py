@@ -113,6 +113,45 @@ class Dying(Effect):
 '''
 
 
+RAISING = '''
+import numpy as np
+from lowcam.effects import Effect
+
+
+class Raising(Effect):
+    """A user's effect with a bug in its last stage."""
+
+    name = "raising"
+    writes = "output"
+    order = 300
+
+    def apply(self, state):
+        pass
+
+    def finish(self, state, frame, footprint):
+        return np.broadcast_to(frame, (2,) + frame.shape)[5], footprint
+'''
+
+
+def test_a_plug_in_effect_that_raises_fails_each_frame_in_one_line(shot_dir, tmp_path, monkeypatch, fire_i):
+    """A plug-in's exception in a serial shot is that frame's one-line failure naming the effect and its line, and
+    the shot goes on to the next frame (it was a traceback that ended the shot)."""
+    (tmp_path / "user_raising.py").write_text(RAISING)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "user_raising")
+    try:
+        profile = fire_i.with_effect("user_raising:Raising").save(tmp_path / "raising.toml")
+    finally:
+        sys.modules.pop("user_raising", None)
+    r = lowcam_batch(shot_dir, tmp_path / "out", "--profile", str(profile), "--frames", "1-2")
+    assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+    line = (f"plug-in effect 'raising' (user_raising:Raising) failed at {tmp_path / 'user_raising.py'}:17: "
+            "IndexError: index 5 is out of bounds for axis 0 with size 2")
+    assert f"frame 1: {line}" in r.stderr and f"frame 2: {line}" in r.stderr, r.stderr
+    assert not list((tmp_path / "out").glob("*.png"))
+
+
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_frame_whose_dask_worker_dies_fails_in_one_line(shot_dir, tmp_path, monkeypatch, fire_i):
     """A worker killed under a frame (here: a plug-in effect ends its process) is that frame's failure, in one

@@ -323,6 +323,10 @@ LENSFUN = ["profile", "from-lensfun", "--maker", "Canon", "--model", "EF 50mm", 
     (["batch", "--renders", "r/####.exr", "--frames", "1-x"], "--frames"),
     (["diagnose", "FOOTAGE", "--json", "d.json", "--max-steps", "0"], "--max-steps"),
     (["synth", "--width", "1e9"], "--width"),
+    (["synth", "--add", "vignetting:k2=1e9"], "--add vignetting:k2=1e+09: effect 'vignetting': 'k2'"),
+    (["synth", "--add", "vignetting:k2=abc"], "--add vignetting:k2=abc: effect 'vignetting': 'k2' must be a number"),
+    (["synth", "--add", "vignet"], "--add vignet: unknown effect type 'vignet'"),
+    (["synth", "--remove", "vignet"], "--remove vignet: "),
 ])
 def test_numbers_out_of_range_are_refused_naming_the_option(tmp_path, capsys, argv, option):
     f = frames(tmp_path / "footage", 2, (64, 48))

@@ -80,8 +80,13 @@ def parse_change(spec: str):
 def hidden_profile(profile, add=(), remove=()):
     """``profile`` with effects added or changed (``add``: (name, values)) and others switched off."""
     p = profile
-    for name, values in add:
-        p = p.with_effect(name, **values)
+    for name, values in add:  # a bad name or value is the option's fault, not the profile's
+        shown = ",".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}" for k, v in values.items())
+        p = p.with_effect(name, source=f"--add {name}" + (f":{shown}" if shown else ""), **values)
+    for name in remove:
+        if p.effect(name) is None:
+            raise LowcamError(f"--remove {name}: {p.source} has no effect '{name}' (its chain: "
+                              f"{', '.join(e.name for e in p.effects)})")
     return p.without(*remove) if remove else p
 
 
