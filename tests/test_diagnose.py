@@ -141,16 +141,8 @@ def test_every_candidate_has_a_hidden_case_and_a_focused_set():
 
 
 #: Focused-set cases known to stop short: candidate -> why (strict: a pass fails it).
-SHORT_ON_A_FOCUSED_SET = {
-    "video_codec": "named first and 1.04 in sample, but 1.53 held out: fitted on one capture of held noise, its "
-                   "CRF and GOP (32, 4 of 31, 250) do not carry to the other",
-}
-
-
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
-@pytest.mark.parametrize("candidate", [
-    pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=SHORT_ON_A_FOCUSED_SET[c]))
-    if c in SHORT_ON_A_FOCUSED_SET else c for c in HIDDEN])
+@pytest.mark.parametrize("candidate", HIDDEN)
 def test_a_hidden_effect_beats_its_decoys_on_a_small_focused_set(tmp_path, fire_i, candidate):
     """A small focused set: 4 frames of 2-3 scenes that show the effect, the candidate against two it could be
     mistaken for."""
@@ -308,6 +300,27 @@ def test_with_one_frame_per_capture_added_model_noise_cannot_lower_the_error(tmp
     assert compare(mset, noisier).error < 0.9 * ctx.base.error  # with its own noise as the yardstick it games
     assert ctx.compare(noisier).error >= ctx.base.error
     assert ctx.base.measured == {"mean": True, "variance": False, "rows": False}
+
+
+@pytest.mark.parametrize("scenes, by_captures", [(("photo", "flat-bright", "flat-dark"), False),
+                                                  (("photo", "chart", "flat-bright"), True)])
+def test_no_fold_is_fitted_on_captures_that_cannot_determine_the_candidate(tmp_path, fire_i, scenes, by_captures):
+    """A candidate whose parameters only textured captures determine (``determined_by``) is held out by capture
+    only where every fold is fitted on a textured one; otherwise each capture's frames are split into tiles."""
+    from lowcam.measure.diagnose import TILE_PX, Context
+
+    folder = synthesise(fire_i, tmp_path / "set", frames=1, seed=5, width=320, only_scenes=scenes)
+    ctx = Context(load_set(folder, fire_i), fire_i, tmp_path / "w")
+    assert sorted(ctx.mset.captures[i].name for i in ctx.textured) == sorted(s for s in scenes if "flat" not in s)
+    assert ctx.folds("all", True)[1] == "leave-one-out over 3 captures"
+    pairs, how = ctx.folds("all", True, "textured")
+    if by_captures:
+        assert how == "leave-one-out over 3 captures"
+    else:
+        assert how == f"2 folds of {TILE_PX}-px image tiles"
+        for fitted, measured in pairs:  # each fold fits every capture on half its tiles, measured on the others
+            assert len(fitted.mset.captures) == len(measured.mset.captures) == 3
+            assert not any((a.mask & b.mask).any() for a, b in zip(fitted.inputs, measured.inputs))
 
 
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes

@@ -148,7 +148,10 @@ class Search:
     ``changes_noise``: the fitted effect changes the frames' noise, which the screening's noise-free estimate
     cannot see (the candidate is always compared in full). ``held_noise``: the effect holds noise from one frame to
     the next (a temporal filter, a video encoder): it is fitted only where the captures' noise is held more than
-    the profile's (:attr:`lowcam.measure.compare.Comparison.held_noise`), its own evidence.
+    the profile's (:attr:`lowcam.measure.compare.Comparison.held_noise`), its own evidence. ``determined_by``:
+    the captures (as ``captures``) without which a fit cannot determine the parameters (a flat capture shows that
+    a video encoder holds noise, not how coarsely it codes): diagnosis holds out no capture whose fold would be
+    fitted on none of them, and splits the frames into image tiles instead (a ``fit`` with ``honours_masks``).
     ``evidence`` is formatted with the fitted values (``{key}``) and the profile's (``{was_key}``).
     """
 
@@ -170,6 +173,7 @@ class Search:
     reach: dict = field(default_factory=dict)
     changes_noise: bool = False
     held_noise: bool = False
+    determined_by: str = ""
 
 
 class Effect(ParamSet):

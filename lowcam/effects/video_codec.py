@@ -226,6 +226,7 @@ def fit_video_codec(ctx, effect):
 
 
 fit_video_codec.refines = True  # diagnosis calls it again, in full, for a promising candidate
+fit_video_codec.honours_masks = True  # scored where the capture's mask is (fit_delivered_stage): tiles can be held out
 
 
 class VideoCodec(Effect):
@@ -239,7 +240,8 @@ class VideoCodec(Effect):
     order = 290
     temporal = True
     searches = (Search("video_codec", "{codec} video at CRF {crf:g}, a GOP of {gop_frames} frames, up to "
-                       "{b_frames} B-frames", fit=fit_video_codec, changes_noise=True, held_noise=True),)
+                       "{b_frames} B-frames", fit=fit_video_codec, changes_noise=True, held_noise=True,
+                       determined_by="textured"),)
     params = {
         "codec": Param("h264", str, choices=tuple(CODECS), doc="h264: x264 (ITU-T H.264); hevc: x265 (ITU-T "
                                                                  "H.265)"),

@@ -292,23 +292,26 @@ class Context:
         out._calibrate(Comparison(error, families, stats, self.base.noise_floor))
         return out
 
-    def folds(self, captures: str, tiles: bool):
+    def folds(self, captures: str, tiles: bool, determined_by: str = ""):
         """The folds a candidate searching ``captures`` ("all", "textured", "moving") is fitted and measured on:
         (``[(fitted on, measured on), ...]`` views, each capture measured once, and how they were made).
 
         Up to :data:`LEAVE_ONE_OUT_UP_TO` captures, each is left out in turn; more are dealt alternately into two
         halves by kind (moving first, then the most colourful, then the most textured), so each half holds moving,
         colourful, textured and flat captures alike. When a fold would be fitted on none of the captures the
-        candidate is fitted on, the frames are split into two chequerboards of :data:`TILE_PX` tiles instead
-        (``tiles``: the fit honours masks), else the result is a string saying why nothing can be held out."""
+        candidate is fitted on, or on none of the captures that determine its parameters (``determined_by``, as
+        ``captures``: a video encoder's strength shows on textured captures, while a flat one only shows that noise
+        is held), the frames are split into two chequerboards of :data:`TILE_PX` tiles instead (``tiles``: the fit
+        honours masks), else the result is a string saying why nothing can be held out."""
         n = len(self.inputs)
         relevant = set(range(n) if captures == "all" else self.subset(captures))
+        determining = relevant & set(range(n) if determined_by in ("", "all") else self.subset(determined_by))
         if n <= LEAVE_ONE_OUT_UP_TO:  # the first fold, which screens, leaves out the least telling capture
             held = [[i] for i in sorted(range(n), key=lambda i: (i in self.moving_ones, self.texture[i], i))]
         else:
             order = sorted(range(n), key=lambda i: (i not in self.moving_ones, -self.chroma[i], -self.texture[i], i))
             held = [order[0::2], order[1::2]]
-        if len(held) > 1 and all(relevant - set(h) for h in held) and len(relevant) > 1:
+        if len(held) > 1 and all(determining - set(h) for h in held) and len(relevant) > 1:
             key = "captures"
             if key not in self._folds:
                 pairs = [(self.view(sorted(set(range(n)) - set(h))), self.view(sorted(h))) for h in held]
@@ -1007,7 +1010,9 @@ def _setup(ctx, name, hold=(), refit=()) -> _Trial:
         if not probe.fits_anything:
             trial.fixed = _evidence(ctx, probe)
             return trial
-        folds = ctx.folds(probe.search.captures, tiles=not probe.search.fit)
+        search = probe.search
+        folds = ctx.folds(search.captures, not search.fit or getattr(search.fit, "honours_masks", False),
+                          search.determined_by)
         if isinstance(folds, str):
             trial.how, trial.main = folds, probe
             return trial
