@@ -19,6 +19,7 @@ Contents
 - :data:`REDRAW_S`: the shortest time between two redraws of a running job's progress (s)
 - :class:`Job`: one or more ``lowcam`` commands in a child process, their output, progress, result or error
 - :func:`lowcam_command`: the command line that runs ``lowcam ARGS`` in a child process, and its environment
+- :func:`group_running`: whether a process of a process group still runs (a zombie does not)
 - :func:`current`: the job running now (one at a time), or None
 - :func:`start`: start a job and the timer that polls it
 - :func:`poll`: poll the current job once (never blocks); True while it runs
@@ -60,6 +61,30 @@ def lowcam_command(args) -> tuple[list[str], dict]:
     paths = [engine_home] + [p for p in sys.path if p and p != engine_home and os.path.isdir(p)]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys(paths)), PYTHONUNBUFFERED="1")
     return [sys.executable, "-m", "lowcam.cli", *map(str, args)], env
+
+
+def group_running(pgid: int) -> bool:
+    """Whether a process of process group ``pgid`` still runs (POSIX). A member that has ended but waits to be
+    reaped (a zombie: a grandchild orphaned when the child ended, reaped by init in its own time) does not run;
+    where ``/proc`` lists no states, any member counts."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    if not os.path.isdir("/proc/self"):
+        return True
+    for entry in os.scandir("/proc"):
+        if entry.name.isdigit():
+            try:
+                with open(f"/proc/{entry.name}/stat", "rb") as f:
+                    fields = f.read().rsplit(b")", 1)[1].split()  # after the command name, which may hold spaces
+            except OSError:
+                continue
+            if int(fields[2]) == pgid and fields[0] != b"Z":
+                return True
+    return False
 
 
 class Job:
@@ -167,6 +192,15 @@ class Job:
                         pass
                 p.kill()
                 p.wait()
+            if os.name == "posix":  # a grandchild (a tool the child ran) may outlive it for a moment
+                deadline = time.monotonic() + 2.0
+                while group_running(p.pid) and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                if group_running(p.pid):
+                    try:
+                        os.killpg(p.pid, signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
         self.error = "cancelled"
         self._end("cancelled")
 

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effects import known_effects
+from .effects.base import plugin_failures
 from .errors import LowcamError
 from .pipeline import run
 from .profile import load_profile
@@ -89,5 +90,6 @@ def bake(profile="fire-i", render_shape=(1200, 1600), angular_velocity=(0.0, 0.0
     state = run(dummy, profile, None, angular_velocity, exposure_s, stop_after=before).state
     out = CameraBake(profile, tuple(render_shape), stages=stages)
     for name in stages:
-        profile.effect(name).bake_node(state, out)
+        with plugin_failures(profile.effect(name)):
+            profile.effect(name).bake_node(state, out)
     return out

@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .effects import plugin_failures
+from .effects.base import lead_frames, plugin_failures
 from .effects.bayer import demosaic_bilinear, mosaic, sensel_shift_px, unmosaic
 from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
@@ -320,7 +320,7 @@ def finish_sequence(profile: Profile, frames: np.ndarray, footprints: np.ndarray
     for k, effect in enumerate(tail):
         with plugin_failures(effect):
             frames, footprints = effect.finish_frames(frames, footprints)
-        keep = count + max((e.lead_frames() for e in tail[k + 1:] if e.temporal), default=0)
+        keep = count + lead_frames(e for e in tail[k + 1:] if e.temporal)
         frames, footprints = frames[len(frames) - keep:], footprints[len(footprints) - keep:]
     return frames, footprints
 
@@ -493,7 +493,7 @@ def resume_sequence(token, seed: int = 0, count: int = 1, profile: Profile | Non
     tail = _sequence_tail(prof)
     if not tail:
         return np.stack([resume(token, seed, k, profile) for k in range(count)])
-    lead = max(e.lead_frames() for e in tail)
+    lead = lead_frames(tail)
     done = [resume(token, seed, k, profile, in_sequence=True) for k in (*range(count, count + lead), *range(count))]
     frames, _ = finish_sequence(prof, np.stack([d[0] for d in done]), np.stack([d[1] for d in done]), lead)
     return frames

@@ -152,6 +152,44 @@ def test_a_plug_in_effect_that_raises_fails_each_frame_in_one_line(shot_dir, tmp
     assert not list((tmp_path / "out").glob("*.png"))
 
 
+@pytest.mark.parametrize("statement", ["sys.exit(3)", "raise ValueError('bad\\nstate')"])
+def test_a_plug_in_that_exits_or_raises_is_one_line_and_is_not_imported_again(tmp_path, monkeypatch, capsys,
+                                                                            fire_i, statement):
+    """From Python too (``lowcam.run``): ``sys.exit`` in a plug-in ends no shot, and the line is found without
+    importing the plug-in's module again (it may be gone from ``sys.modules``: its code would run twice)."""
+    import lowcam
+    from lowcam.effects import PLUGINS
+
+    (tmp_path / "user_exiting.py").write_text(f"""
+import sys
+from lowcam.effects import Effect
+print("IMPORTED")
+
+
+class Exiting(Effect):
+    name = "exiting"
+    writes = "bayer"
+    order = 125
+
+    def apply(self, state):
+        {statement}
+""")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("LOWCAM_PLUGINS", "user_exiting")
+    try:
+        profile = fire_i.with_effect("user_exiting:Exiting")
+        sys.modules.pop("user_exiting")
+        with pytest.raises(LowcamError) as e:
+            lowcam.run(disk_render(fire_i, 0.2), profile)
+        assert "user_exiting" not in sys.modules and capsys.readouterr().out.count("IMPORTED") == 1
+    finally:
+        sys.modules.pop("user_exiting", None)
+        PLUGINS.pop("user_exiting:Exiting", None)
+    kind = "SystemExit: 3" if "exit" in statement else "ValueError: bad state"
+    assert str(e.value) == (f"plug-in effect 'exiting' (user_exiting:Exiting) failed at "
+                            f"{tmp_path / 'user_exiting.py'}:13: {kind}")
+
+
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_a_frame_whose_dask_worker_dies_fails_in_one_line(shot_dir, tmp_path, monkeypatch, fire_i):
     """A worker killed under a frame (here: a plug-in effect ends its process) is that frame's failure, in one

@@ -313,6 +313,7 @@ def test_no_fold_is_fitted_on_captures_that_cannot_determine_the_candidate(tmp_p
     ctx = Context(load_set(folder, fire_i), fire_i, tmp_path / "w")
     assert sorted(ctx.mset.captures[i].name for i in ctx.textured) == sorted(s for s in scenes if "flat" not in s)
     assert ctx.folds("all", True)[1] == "leave-one-out over 3 captures"
+    assert ctx.folds("all", False, "textured")[1] == "leave-one-out over 3 captures"  # a fit that takes whole frames
     pairs, how = ctx.folds("all", True, "textured")
     if by_captures:
         assert how == "leave-one-out over 3 captures"

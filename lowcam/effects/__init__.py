@@ -24,7 +24,6 @@ Contents
 - :func:`known_effects`: every effect class known in this process, bundled and plug-in, in chain order
 - :func:`canonical_order`: the names of :func:`known_effects` in the order they stand in a complete chain
 - :func:`effect_class`: the class for a profile ``type``: a bundled name or ``"package.module:ClassName"``
-- :func:`plugin_failures`: a plug-in effect's exception as a one-line error naming the effect and where it raised
 - :class:`Effect`: base class of every stage (:mod:`lowcam.effects.base`)
 - :class:`Param`, :class:`ParamSet`: an effect's typed, validated parameters
 - :class:`NodeStage`, :class:`Search`: how the compositor node builds an effect and how diagnosis fits it
@@ -73,8 +72,6 @@ from __future__ import annotations
 import importlib
 import os
 import re
-import traceback
-from contextlib import contextmanager
 
 from .. import schema
 from ..errors import LowcamError, ProfileError, UntrustedPlugin
@@ -227,24 +224,3 @@ def _first_line(e: Exception) -> str:
 __all__ = ["EFFECTS", "PLUGINS", "PLUGINS_ENV", "TRUSTED", "TRUST_PROVIDERS", "Effect", "NodeStage", "Param",
            "ParamSet", "Search", "canonical_order", "effect_class", "known_effects", "plugin_trusted",
            "trust_plugins", "trusted_modules"] + [c.__name__ for c in EFFECTS.values()]
-
-
-@contextmanager
-def plugin_failures(effect: Effect):
-    """Around a call into ``effect``: an exception a plug-in effect raises becomes a one-line
-    :class:`~lowcam.errors.LowcamError` naming the effect, its type and the line of its module that raised (a shot fails that
-    frame and goes on, as for bad input); a bundled effect's exception passes through with its traceback (a bug)."""
-    try:
-        yield
-    except (LowcamError, MemoryError):
-        raise
-    except Exception as e:
-        if type(effect) in EFFECTS.values():
-            raise
-        frames = traceback.extract_tb(e.__traceback__)
-        own = getattr(importlib.import_module(type(effect).__module__), "__file__", None)
-        where = next((f for f in reversed(frames) if f.filename == own), frames[-1])  # the plug-in's own line
-        kind = f"{type(effect).__module__}:{type(effect).__qualname__}"
-        message = " ".join(str(e).split())
-        raise LowcamError(f"plug-in effect '{effect.name}' ({kind}) failed at {where.filename}:{where.lineno}: "
-                          f"{type(e).__name__}" + (f": {message}" if message else "")) from e

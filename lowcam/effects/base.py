@@ -26,6 +26,8 @@ Contents
 - :class:`NodeStage`: how the compositor node group builds an effect (the Blender side reads this; no bpy here)
 - :class:`Search`: how diagnosis fits an effect as a candidate (:mod:`lowcam.measure.diagnose` reads this)
 - :class:`Effect`: base class of every stage
+- :func:`plugin_failures`: a plug-in effect's exception as a one-line error naming the effect and where it raised
+- :func:`lead_frames`: the most frames before a sequence's first that any of some effects needs to settle
 
 References
 ----------
@@ -34,6 +36,9 @@ References
 """
 from __future__ import annotations
 
+import sys
+import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -41,7 +46,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .. import schema
-from ..errors import ProfileError
+from ..errors import LowcamError, ProfileError
 from ..node_images import mosaic_kernel, planes_to_mosaic
 
 
@@ -312,3 +317,35 @@ def _validated(where: str, key: str, spec: Param, value: Any, base_dir: Path | N
     if spec.kind is int:
         return schema.integer(value, where, key, spec.low, spec.high, spec.unit, error=e)
     return schema.number(value, where, key, spec.low, spec.high, spec.unit, error=e)
+
+
+@contextmanager
+def plugin_failures(effect: Effect):
+    """Around a call into ``effect``: an exception (or ``sys.exit``) a plug-in effect raises becomes a one-line
+    :class:`~lowcam.errors.LowcamError` naming the effect, its type and the line of its module that raised (a shot
+    fails that frame and goes on, as for bad input); a bundled effect's exception passes through with its
+    traceback (a bug)."""
+    try:
+        yield
+    except (LowcamError, MemoryError):
+        raise
+    except (Exception, SystemExit) as e:
+        kind = type(effect)
+        if kind.__module__.startswith("lowcam."):
+            raise
+        frames = traceback.extract_tb(e.__traceback__)
+        own = getattr(sys.modules.get(kind.__module__), "__file__", None)  # never imported again here
+        where = next((f for f in reversed(frames) if f.filename == own), frames[-1])  # the plug-in's own line
+        message = " ".join(str(e).split())
+        raise LowcamError(f"plug-in effect '{effect.name}' ({kind.__module__}:{kind.__qualname__}) failed at "
+                          f"{where.filename}:{where.lineno}: {type(e).__name__}" + (f": {message}" if message
+                                                                                    else "")) from e
+
+
+def lead_frames(effects) -> int:
+    """The most frames before a sequence's first that any of ``effects`` needs to settle
+    (:meth:`Effect.lead_frames`; 0 for none)."""
+    def one(effect):
+        with plugin_failures(effect):
+            return effect.lead_frames()
+    return max(map(one, effects), default=0)

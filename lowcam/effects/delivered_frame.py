@@ -115,8 +115,8 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
         vf, vg, va = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12), np.maximum(va, 1 / 12)
         den = max(den, float(np.square(mg - ma)[keep].sum()))
         if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
-            rows = row_log_ratios(measured[3], row_noise_variance(np.asarray(simulated)),
-                                  row_noise_variance(np.asarray(again)))
+            rows = row_log_ratios(measured[3], row_noise_variance(np.asarray(simulated), mask),
+                                  row_noise_variance(np.asarray(again), mask))
     logs = []
     if vf is not None:
         level = np.clip((mg // 16).astype(int), 0, 15)
@@ -238,9 +238,10 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
     measured = [_moments(caps[i].frames[:, rows, cols][:, ir, ic]) for i in idx]
-    if frozen_noise:  # the row family too: a coded sequence's row means show where the noise is held
-        measured = [m + (row_noise_variance(caps[i].frames[:, rows, cols][:, ir, ic]),) for m, i in zip(measured, idx)]
     masks = [None if ctx.inputs[i].mask is None else ctx.inputs[i].mask[rows, cols][ir, ic] for i in idx]
+    if frozen_noise:  # the row family too: a coded sequence's row means show where the noise is held
+        measured = [m + (row_noise_variance(caps[i].frames[:, rows, cols][:, ir, ic], k),)
+                    for m, i, k in zip(measured, idx, masks)]
     # ``count`` model frames per capture: the same noise in every trial, so trials compare fairly
     with_it = p.with_effect(effect, **searches[0][0])
     names = [e.name for e in with_it.effects if e.enabled or e.always_runs]

@@ -208,12 +208,21 @@ class _PixelMap(Effect):
         return (self.strength * rng.standard_normal(shape)).astype(np.float32)
 
 
-def row_noise_variance(frames: np.ndarray) -> np.ndarray:
+def row_noise_variance(frames: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """Per channel: the variance of the per-frame row means of the noise of a (frames, H, W, 3) stack, over rows
-    and frames (row noise shows here; pixel noise averages out over a row)."""
+    and frames (row noise shows here; pixel noise averages out over a row). With ``mask`` (H, W) bool, each row's
+    mean is over the pixels it keeps, and rows it keeps none of are left out."""
     # the row means of the noise are those of the frames less their temporal mean; cv2.reduce sums rows exactly
-    sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0] for f in frames])
-    rows = sums / frames.shape[2]
+    if mask is None:
+        sums = np.stack([cv2.reduce(np.ascontiguousarray(f), 1, cv2.REDUCE_SUM, dtype=cv2.CV_64F)[:, 0]
+                         for f in frames])
+        rows = sums / frames.shape[2]
+    else:
+        kept = mask.sum(axis=1)
+        rows = np.stack([np.einsum("hwc,hw->hc", f.astype(np.float64), mask) for f in frames])[:, kept > 0]
+        rows /= kept[kept > 0][None, :, None]
+    if rows.shape[1] == 0:
+        return np.zeros(frames.shape[-1])
     return (rows - rows.mean(axis=0)).var(axis=(0, 1))
 
 

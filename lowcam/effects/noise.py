@@ -61,7 +61,7 @@ from ..errors import LowcamError, NotFitted, ProfileError
 from ..parallel import thread_map
 from ..plate_estimate import PlateEstimate, PlateProbe, pair_starts, register_footage
 from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
-from .base import Effect, NodeStage, Param
+from .base import Effect, NodeStage, Param, lead_frames, plugin_failures
 from .jpeg import _GRID_T, LUMA_WEIGHTS, bt601_luma, jpeg_blockiness
 
 
@@ -510,13 +510,14 @@ def noise_gain(profile, method: str, film, level: float = 0.5, sigma_dn: float =
     crop = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
     count = frames if method != "spatial" else 1
     following = [e for e in profile.effects if e.enabled and e.follows_previous]
-    lead = max((e.lead_frames() for e in following), default=0)
+    lead = lead_frames(following)
     shots = np.stack([film(noisy, ideal, seed=1, frame=k) for k in range(count + lead)])
     if following:  # a temporal filter holds noise: the frames in order, settled first
         shots = np.clip(np.rint(shots), 0, 255).astype(np.uint8)
         reach = np.ones(shots.shape[:3], bool)
         for effect in following:
-            shots, reach = effect.finish_frames(shots, reach)
+            with plugin_failures(effect):
+                shots, reach = effect.finish_frames(shots, reach)
         shots = shots.astype(np.float32)
     diffs = shots[lead:, crop[0], crop[1]] - clean[crop] + 128.0
     stat = noise_level_statistic(diffs, method, luma=proportions is not None)

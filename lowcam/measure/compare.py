@@ -229,8 +229,9 @@ def _variance_log_ratios(vF, vG, level, min_pixels: int = 400, mask=None, vA=Non
     return out
 
 
-def _row_log_ratios(F, G, A=None) -> list[float]:
-    return row_log_ratios(row_noise_variance(F), row_noise_variance(G), None if A is None else row_noise_variance(A))
+def _row_log_ratios(F, G, A=None, mask=None) -> list[float]:
+    return row_log_ratios(row_noise_variance(F, mask), row_noise_variance(G, mask),
+                          None if A is None else row_noise_variance(A, mask))
 
 
 def _mean_and_squares(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -290,7 +291,7 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
             "noise_map": noise, "variance_map": vF, "mask": mask,
             "variance": _variance_log_ratios(vF, vG, mG, mask=mask, vA=vA) if n > 1 else [],
             "variance_unmasked": _variance_log_ratios(vF, vG, mG, vA=vA) if n > 1 and mask is not None else None,
-            "rows": _row_log_ratios(F, G, again) if n > 1 else []}
+            "rows": _row_log_ratios(F, G, again, mask) if n > 1 else []}
     return CaptureStats(name, F, G, sums)
 
 

@@ -302,10 +302,12 @@ class Context:
         candidate is fitted on, or on none of the captures that determine its parameters (``determined_by``, as
         ``captures``: a video encoder's strength shows on textured captures, while a flat one only shows that noise
         is held), the frames are split into two chequerboards of :data:`TILE_PX` tiles instead (``tiles``: the fit
-        honours masks), else the result is a string saying why nothing can be held out."""
+        honours masks; without it, ``determined_by`` is not asked), else the result is a string saying why nothing
+        can be held out."""
         n = len(self.inputs)
         relevant = set(range(n) if captures == "all" else self.subset(captures))
-        determining = relevant & set(range(n) if determined_by in ("", "all") else self.subset(determined_by))
+        determining = relevant & set(range(n) if determined_by in ("", "all") or not tiles else
+                                     self.subset(determined_by))
         if n <= LEAVE_ONE_OUT_UP_TO:  # the first fold, which screens, leaves out the least telling capture
             held = [[i] for i in sorted(range(n), key=lambda i: (i in self.moving_ones, self.texture[i], i))]
         else:

@@ -4,7 +4,7 @@ Contents
 --------
 - :data:`PAN`: the camera's angular velocity (rad/s) during the "pan" capture
 - :func:`scenes`: ideal scenes framed for a profile: name -> (premultiplied RGBA render, angular velocity)
-- :func:`parse_change`: ``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value})
+- :func:`parse_change`: ``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value}, the spec)
 - :func:`hidden_profile`: a profile with effects added or changed and others switched off
 - :func:`synthesise`: write a measurement set made by a profile with hidden changes; returns its folder
 """
@@ -63,7 +63,7 @@ def scenes(profile, width: int = 640) -> dict:
 
 
 def parse_change(spec: str):
-    """``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value})."""
+    """``EFFECT`` or ``EFFECT:key=value,key=value`` -> (effect, {key: value}, ``spec``)."""
     name, _, rest = spec.partition(":")
     values = {}
     for item in filter(None, rest.split(",")):
@@ -74,15 +74,15 @@ def parse_change(spec: str):
             values[key.strip()] = int(value) if value.strip().lstrip("-").isdigit() else float(value)
         except ValueError:
             values[key.strip()] = value.strip()
-    return name.strip(), values
+    return name.strip(), values, spec
 
 
 def hidden_profile(profile, add=(), remove=()):
-    """``profile`` with effects added or changed (``add``: (name, values)) and others switched off."""
+    """``profile`` with effects added or changed (``add``: (name, values), or :func:`parse_change`'s (name,
+    values, spec), whose errors then name the ``--add`` spec) and others switched off."""
     p = profile
-    for name, values in add:  # a bad name or value is the option's fault, not the profile's
-        shown = ",".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}" for k, v in values.items())
-        p = p.with_effect(name, source=f"--add {name}" + (f":{shown}" if shown else ""), **values)
+    for name, values, *spec in add:
+        p = p.with_effect(name, source=f"--add {spec[0]}" if spec else None, **values)
     for name in remove:
         if p.effect(name) is None:
             raise LowcamError(f"--remove {name}: {p.source} has no effect '{name}' (its chain: "
