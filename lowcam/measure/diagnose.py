@@ -1246,6 +1246,10 @@ def rank(ctx, base_error: float, names, progress=None, refit=()) -> tuple[list[C
                 _attempt(t.main.screen, t)
                 if t.main is not None and not t.main.done:
                     _attempt(t.main.finish, t)
+                if t.main is not None and t.main.fitted() is None:  # its folds' fits did, this one finds nothing
+                    t.reason, t.main = "fitted on every capture, the fit found nothing", None
+                    out.pop(0)
+                    continue
                 if t.main is not None:
                     c.profile, params, c.evidence = _evidence(ctx, t.main)
                     c.params = dict(params)
