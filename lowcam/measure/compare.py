@@ -291,7 +291,8 @@ def capture_stats(F: np.ndarray, G: np.ndarray, name: str = "", assumed_noise: n
             "noise_map": noise, "variance_map": vF, "mask": mask,
             "variance": _variance_log_ratios(vF, vG, mG, mask=mask, vA=vA) if n > 1 else [],
             "variance_unmasked": _variance_log_ratios(vF, vG, mG, vA=vA) if n > 1 and mask is not None else None,
-            "rows": _row_log_ratios(F, G, again, mask) if n > 1 else []}
+            "rows": _row_log_ratios(F, G, again, mask) if n > 1 else [],
+            "rows_unmasked": _row_log_ratios(F, G, again) if n > 1 and mask is not None else None}
     return CaptureStats(name, F, G, sums)
 
 
@@ -305,7 +306,8 @@ def combine(stats: list[CaptureStats], masked: bool = True) -> tuple[float, dict
     logs = [v for s in stats for v in (s.sums["variance"] if masked or s.sums["variance_unmasked"] is None
                                        else s.sums["variance_unmasked"])]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    rows = [v for s in stats for v in s.sums["rows"]]
+    rows = [v for s in stats for v in (s.sums["rows"] if masked or s.sums.get("rows_unmasked") is None
+                                       else s.sums["rows_unmasked"])]
     e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 1.0
     error = float(np.sqrt((e_mean ** 2 + e_var ** 2 + e_rows ** 2) / 3))
     return error, {"mean": e_mean, "variance": e_var, "rows": e_rows}
