@@ -23,6 +23,8 @@ Contents
 - :func:`fit_edge_enhancement`: diagnosis's fit: gain, radius, coring and clamps whose enhanced noisy model frames
   best match the measured frames (:func:`lowcam.effects.delivered_frame.fit_delivered_stage`)
 - :class:`EdgeEnhancement`: the stage
+- :func:`edge_halo_statistic`, :func:`edge_enhancement_from_plate`: the plate probe: the profile across natural
+  near-horizontal edges (which the Fire-i's row filters do not shape) against the base profile filming ideal steps
 
 It has no compositor node yet: the node group refuses a profile with it (``lowcam.node_maps.bake``), and the
 render handler, which runs the engine, simulates it.
@@ -42,8 +44,10 @@ import math
 import cv2
 import numpy as np
 
+from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, Param, Search
 from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, within_footprint
+from .sharpening import EDGE_FRAMES, MIN_EDGES, SOFT_SCENE, edge_profile_statistic, model_edge_profiles
 
 #: Coring shapes: details under the threshold dropped ("hard") or every detail shrunk by it ("soft").
 CORING = ("hard", "soft")
@@ -141,3 +145,102 @@ class EdgeEnhancement(Effect):
 
 
 fit_edge_enhancement.refines = True  # diagnosis calls it again, in full, for a promising candidate
+
+
+#: Near-horizontal edges of the footage narrower than this share of the base's step, or with this much more
+#: overshoot (a fraction of the step) than it, show an enhancement.
+NARROWER = 0.95
+MORE_OVERSHOOT = 0.02
+#: Footage up to this share larger or smaller than the base profile's frame is scaled to it; beyond, not measurable.
+SAME_SIZE = 0.05
+#: The most confidence "no enhancement" gets: edges as sharp as a step without halos may be a soft scene enhanced.
+NONE_CONFIDENCE = 0.45
+_HALO_KEYS = ("edges", "width_10_90_px", "overshoot")
+
+
+def edge_halo_statistic(frames) -> dict:
+    """The edges, 10-90 % width (px) and overshoot (fraction of the step) of the mean profile across the strong,
+    straight, near-horizontal edges of a stack (T, H, W, 3) float32 DN
+    (:func:`lowcam.effects.sharpening.edge_profile_statistic`'s ``across_y``); ``{}`` without such edges."""
+    stat = edge_profile_statistic(frames)["across_y"]
+    return {k: stat[k] for k in _HALO_KEYS if k in stat}
+
+
+def edge_enhancement_from_plate(footage, base, film):
+    """The edge enhancement's gain and radius from footage's natural edges, as a
+    :class:`lowcam.plate_estimate.PlateEstimate`.
+
+    The mean profile across near-horizontal edges (:func:`edge_halo_statistic`, the footage scaled to the
+    profile's frame, to which it must be within :data:`SAME_SIZE`), which the Fire-i's row filters do not shape,
+    is set against the base profile without the stage filming ideal steps (rotated so that they fall at every
+    phase of the pixel grid). Natural edges are never
+    sharper than the camera makes a step; footage edges narrower than :data:`NARROWER` times the step, or with
+    :data:`MORE_OVERSHOOT` more overshoot, were enhanced, and the gain and radius are fitted by least squares to
+    the profile (the base's other settings of the stage kept). A natural edge softer than a step hides part of
+    the enhancement, so the gain is a lower bound. Confidence ``0.9 min(1, edges / 100)``, halved where the fit
+    misses the profile by 0.03 of the step or more (root mean square). Edges as sharp as a step without halos
+    say "no enhancement" with at most :data:`NONE_CONFIDENCE` (a soft scene enhanced looks alike: reported, not
+    applied); edges over :data:`lowcam.effects.sharpening.SOFT_SCENE` times as wide as a step without halos, or
+    fewer than :data:`lowcam.effects.sharpening.MIN_EDGES` edges, are not measurable. A scene drawn on the render's
+    pixel grid (steps on pixel boundaries, which no pixel straddles) comes out sharper than natural edges and reads
+    as enhanced."""
+    from scipy.optimize import least_squares
+
+    name, effect = "edge_halos", "edge_enhancement"
+    frames = footage.stack(max_frames=EDGE_FRAMES)
+    w, h = base.camera.width, base.camera.height
+    fh, fw = frames.shape[1:3]
+    if max(abs(fw / w - 1), abs(fh / h - 1)) > SAME_SIZE:
+        return PlateEstimate.not_measurable(name, effect, {}, f"the footage's {fw}x{fh} frames differ in size from "
+                                            f"the base profile's {w}x{h}, and scaling them changes every edge's "
+                                            "width: a base profile of the footage's size is needed")
+    if (fh, fw) != (h, w):
+        frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+    stat = edge_profile_statistic(frames, max_frames=len(frames))["across_y"]
+    measured = {k: stat[k] for k in _HALO_KEYS if k in stat}
+    n = measured.get("edges", 0)
+    if n < MIN_EDGES:
+        return PlateEstimate.not_measurable(name, effect, measured, f"too little texture to estimate edge "
+                                            f"enhancement: {n} near-horizontal strong straight edges (at least "
+                                            f"{MIN_EDGES} needed)")
+    have = base.effect(effect)
+    plain = base.without(effect) if have is not None else base
+    at: dict = {}
+    step = model_edge_profiles(plain, {}, film, None, at)["across_y"]
+    width, over = stat["width_10_90_px"], stat["overshoot"]
+    measured.update(step_width_10_90_px=step["width_10_90_px"], step_overshoot=step["overshoot"])
+    against = (f"{n} near-horizontal edges {width:.2f} px wide (10-90 %), overshoot {over:.3f} of the step; the "
+               f"base makes a step {step['width_10_90_px']:.2f} px wide, overshoot {step['overshoot']:.3f}")
+    if width >= NARROWER * step["width_10_90_px"] and over <= step["overshoot"] + MORE_OVERSHOOT:
+        if width > SOFT_SCENE * step["width_10_90_px"]:
+            return PlateEstimate.not_measurable(name, effect, measured, against + ": a scene softer than steps, "
+                                                "without halos, shows no enhancement and could hide one")
+        params = {"enabled": False} if have is not None and have.enabled else {}
+        confidence = min(NONE_CONFIDENCE, 0.9 * min(1.0, n / 100))
+        return PlateEstimate(name, effect, measured, params, round(confidence, 3),
+                             against + ": no edge enhancement, or one that a softer scene hides")
+    target = np.asarray(stat["profile"])
+    keys = (f"{effect}.gain", f"{effect}.radius_px")
+
+    def residual(p):
+        m = model_edge_profiles(base, dict(zip(keys, p)), film, at)["across_y"]
+        return np.asarray(m["profile"]) - target if m.get("edges") else np.ones_like(target)
+
+    hi = (EdgeEnhancement.params["gain"].high, EdgeEnhancement.params["radius_px"].high)
+    lo = (EdgeEnhancement.params["gain"].low, EdgeEnhancement.params["radius_px"].low)
+    start = (have.gain, have.radius_px) if have is not None else (1.0, 1.2)
+    sol = least_squares(residual, np.clip(start, lo, hi), bounds=(lo, hi), diff_step=0.05, max_nfev=16)
+    rms = float(np.sqrt(np.mean(sol.fun ** 2)))
+    gain, radius = (round(float(v), 3) for v in sol.x)
+    measured.update(fit_rms=round(rms, 4), gain_at_least=True)
+    confidence = 0.9 * min(1.0, n / 100) * (1.0 if rms < 0.03 else 0.5)
+    return PlateEstimate(name, effect, measured, {"gain": gain, "radius_px": radius}, round(confidence, 3),
+                         against + f": enhanced, gain {gain:.2f} at radius {radius:.2f} px (profile fit rms "
+                         f"{rms:.3f}; at least that gain: a scene softer than steps hides some of it)")
+
+
+#: Declared after its estimator and statistic, which the module defines below the class.
+EdgeEnhancement.plate_probe = PlateProbe(
+    "edge_halos", edge_enhancement_from_plate, edge_halo_statistic, order=8,
+    about="width and halos across natural near-horizontal edges, against the base filming steps (before the "
+          "horizontal sharpening, which fits the edges across the rows through it)")

@@ -15,6 +15,7 @@ Contents
 - :data:`EDGE_HALF_PX`, :data:`MIN_EDGES`, :data:`EDGE_FRAMES`: the edge profiles' half-length (px), the edges an
   estimate needs and the frames it measures
 - :func:`edge_profile_statistic`: the mean edge profile across strong natural edges: 10-90 % width, overshoot
+- :func:`model_edge_profiles`: that statistic of a profile filming ideal steps
 - :func:`edge_profile_from_plate`: horizontal blur and sharpening from footage's natural edges (a PlateEstimate)
 
 References
@@ -309,7 +310,10 @@ def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0)
     return out
 
 
-def _model_edges(profile, values, film, at=None, found=None) -> dict:
+def model_edge_profiles(profile, values, film, at=None, found=None) -> dict:
+    """:func:`edge_profile_statistic` of ``profile`` (noise off, ``values`` set: ``{"effect.param": value}``)
+    filming ideal steps rotated 4 degrees, so that edges fall at every phase of the pixel grid; ``at`` /
+    ``found`` as there."""
     model = profile.without("noise") if profile.effect("noise") else profile
     for key, v in values.items():
         effect, param = key.split(".")
@@ -359,7 +363,7 @@ def edge_profile_from_plate(footage, base, film):
     at: dict = {}
 
     def model(aa, hs, a):  # the edges found at the start are sampled at every step
-        m = _model_edges(base, dict(zip(keys, (aa, hs, a / gain))), film, at or None, None if at else at)
+        m = model_edge_profiles(base, dict(zip(keys, (aa, hs, a / gain))), film, at or None, None if at else at)
         return [np.asarray(m[k]["profile"]) if m[k].get("edges") else None for k in ("across_x", "across_y")]
 
     # the spatial blur is kept: on natural edges under a 2x2 demosaic it is barely identifiable (0 and 0.2 px give
@@ -382,7 +386,7 @@ def edge_profile_from_plate(footage, base, film):
     at_bound = sol.x[2] >= 0.99 * a_max
     # the profile down the frame, which the row filters do not shape: wider than the base makes a step, the scene
     # is softer than steps, and the fit reads that softness as more blur and less sharpening
-    down = _model_edges(base, dict(zip(keys, (aa, sol.x[1], sol.x[2] / gain))), film, at)["across_y"]
+    down = model_edge_profiles(base, dict(zip(keys, (aa, sol.x[1], sol.x[2] / gain))), film, at)["across_y"]
     softer = (stat["across_y"]["width_10_90_px"] / down["width_10_90_px"]
               if down.get("edges") and down["width_10_90_px"] > 0 else 1.0)
     stat["softer_than_steps"] = softer
