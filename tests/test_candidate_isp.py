@@ -319,14 +319,19 @@ def test_the_plate_of_a_raw_or_moving_camera_shows_no_noise_reduction(still_fire
 @pytest.fixture(scope="module")
 def still_fire_i_films():
     """The Fire-i filming the bundled chart (sharp, natural-phase edges), the photograph (soft edges) and a flat
-    grey with a still camera: 4 frames of each, each its own noise."""
+    grey with a still camera, and the chart with three times its noise: 4 frames of each, each its own noise."""
+    from lowcam.effects.noise_reduction import _scaled_noise
     from lowcam.measure.synth import scenes
     from lowcam.pipeline import simulate
 
     profile = lowcam.load_profile("fire-i")
     made = scenes(profile, 640)
-    return profile, {name: np.stack([simulate(made[name][0], profile, None, (0, 0, 0), None, 3, k)
-                                     for k in range(4)]) for name in ("chart", "photo", "flat-bright")}
+    films = {name: np.stack([simulate(made[name][0], profile, None, (0, 0, 0), None, 3, k) for k in range(4)])
+             for name in ("chart", "photo", "flat-bright")}
+    noisy = _scaled_noise(profile, 3.0)
+    films["noisy chart"] = np.stack([simulate(made["chart"][0], noisy, None, (0, 0, 0), None, 3, k)
+                                     for k in range(4)])
+    return profile, films
 
 
 def edge_halos(frames, profile):
@@ -341,7 +346,7 @@ def edge_halos(frames, profile):
 def test_the_plate_shows_pillows_unsharp_mask_across_its_near_horizontal_edges(still_fire_i_films, seed):
     """Pillow's unsharp mask (its own Gaussian, threshold and RGB planes) over a still chart shot at random radius,
     percent and threshold: the edge enhancement's gain comes back near Pillow's percent, and the profile with the
-    estimate makes the footage's edges where the Fire-i alone makes them 1.3-1.7 times as wide."""
+    estimate makes the footage's edges where the Fire-i alone makes them far wider."""
     from lowcam.measure import plate
     from lowcam.effects.sharpening import model_edge_profiles
 
@@ -349,7 +354,7 @@ def test_the_plate_shows_pillows_unsharp_mask_across_its_near_horizontal_edges(s
     p = drawn(seed, radius=(0.8, 2.5), percent=[60, 80, 100, 130, 160], threshold=[2, 3, 4, 6])
     est = edge_halos([pillow_unsharp_mask(**p)(f) for f in films["chart"]], profile)
     print(p, est.line())
-    assert est.confidence >= plate.MIN_CONFIDENCE and est.measured["gain_at_least"], est.line()
+    assert est.confidence >= plate.MIN_CONFIDENCE, est.line()
     assert 0.7 < est.params["gain"] / (p["percent"] / 100) < 1.6, (p, est.params)
     made = model_edge_profiles(profile.with_effect("edge_enhancement", **est.params), {}, plate.film)["across_y"]
     width, step = est.measured["width_10_90_px"], est.measured["step_width_10_90_px"]
@@ -359,19 +364,20 @@ def test_the_plate_shows_pillows_unsharp_mask_across_its_near_horizontal_edges(s
 
 def test_the_plate_without_enhancement_or_with_soft_or_no_edges_gets_no_enhancement(still_fire_i_films):
     """The chart as the Fire-i films it: edges as sharp as its steps, no halos: "no enhancement", too weakly to be
-    applied (a soft scene enhanced looks alike). The photograph's soft edges: not measurable, and with a strong
-    unsharp mask, a gain found, as a lower bound. A flat grey, or frames of another size than the profile's
-    (scaling them changes every edge's width): not measurable."""
+    applied (a soft scene enhanced looks alike), with three times its noise too. The photograph's soft edges: not
+    measurable, and with a strong unsharp mask, a gain found, said to be read low. A flat grey, or frames of
+    another size than the profile's (scaling them changes every edge's width): not measurable."""
     from lowcam.measure import plate
 
     profile, films = still_fire_i_films
-    raw = edge_halos(films["chart"], profile)
-    assert raw.params == {} and "no edge enhancement" in raw.reason and raw.confidence < plate.MIN_CONFIDENCE, \
-        raw.line()
+    for name in ("chart", "noisy chart"):
+        raw = edge_halos(films[name], profile)
+        assert raw.params == {} and "no edge enhancement" in raw.reason and raw.confidence < plate.MIN_CONFIDENCE, \
+            (name, raw.line())
     soft = edge_halos(films["photo"], profile)
     assert not soft.measurable and "softer than steps" in soft.reason, soft.line()
     strong = edge_halos([pillow_unsharp_mask(2.5, 150, 5)(f) for f in films["photo"]], profile)
-    assert strong.params["gain"] > 0.1 and "at least" in strong.reason, strong.line()
+    assert strong.params["gain"] > 0.1 and "reads the gain low" in strong.reason, strong.line()
     flat = edge_halos(films["flat-bright"], profile)
     assert not flat.measurable and "too little texture" in flat.reason, flat.line()
     larger = edge_halos([cv2.resize(f, (800, 600), interpolation=cv2.INTER_LINEAR) for f in films["chart"]], profile)

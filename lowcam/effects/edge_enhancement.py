@@ -148,9 +148,12 @@ fit_edge_enhancement.refines = True  # diagnosis calls it again, in full, for a 
 
 
 #: Near-horizontal edges of the footage narrower than this share of the base's step, or with this much more
-#: overshoot (a fraction of the step) than it, show an enhancement.
+#: overshoot (a fraction of the step) than it, show an enhancement ...
 NARROWER = 0.95
 MORE_OVERSHOOT = 0.02
+#: ... and an estimate is applied only with those halos or edges narrower than this share of the step (noise and a
+#: base blurrier than the camera narrow the edges too, without halos).
+MUCH_NARROWER = 0.8
 #: Footage up to this share larger or smaller than the base profile's frame is scaled to it; beyond, not measurable.
 SAME_SIZE = 0.05
 #: The most confidence "no enhancement" gets: edges as sharp as a step without halos may be a soft scene enhanced.
@@ -176,12 +179,16 @@ def edge_enhancement_from_plate(footage, base, film):
     phase of the pixel grid). Natural edges are never
     sharper than the camera makes a step; footage edges narrower than :data:`NARROWER` times the step, or with
     :data:`MORE_OVERSHOOT` more overshoot, were enhanced, and the gain and radius are fitted by least squares to
-    the profile (the base's other settings of the stage kept). A natural edge softer than a step hides part of
-    the enhancement, so the gain is a lower bound. Confidence ``0.9 min(1, edges / 100)``, halved where the fit
-    misses the profile by 0.03 of the step or more (root mean square). Edges as sharp as a step without halos
-    say "no enhancement" with at most :data:`NONE_CONFIDENCE` (a soft scene enhanced looks alike: reported, not
-    applied); edges over :data:`lowcam.effects.sharpening.SOFT_SCENE` times as wide as a step without halos, or
-    fewer than :data:`lowcam.effects.sharpening.MIN_EDGES` edges, are not measurable. A scene drawn on the render's
+    the profile (the base's other settings of the stage kept). All of it is relative to the base's blur down the
+    frame: a base blurrier than the camera makes natural edges look enhanced. A natural edge softer than a step
+    reads the gain low (on a sharp scene the gain and radius trade: gain up to 1.5 times the truth's at a smaller
+    radius). Confidence ``0.9 min(1, edges / 100)``, halved where the fit misses the profile by 0.03 of the step
+    or more (root mean square), and at most :data:`NONE_CONFIDENCE` (reported, not applied) without those halos
+    unless the edges are narrower than :data:`MUCH_NARROWER` times the step (noise narrows the edges found a
+    little, too). Edges as sharp as a step without halos say "no enhancement" with at most
+    :data:`NONE_CONFIDENCE` and no params (a soft scene enhanced looks alike; a base's own stage is kept); edges
+    over :data:`lowcam.effects.sharpening.SOFT_SCENE` times as wide as a step without halos, or fewer than
+    :data:`lowcam.effects.sharpening.MIN_EDGES` edges, are not measurable. A scene drawn on the render's
     pixel grid (steps on pixel boundaries, which no pixel straddles) comes out sharper than natural edges and reads
     as enhanced."""
     from scipy.optimize import least_squares
@@ -207,6 +214,9 @@ def edge_enhancement_from_plate(footage, base, film):
     plain = base.without(effect) if have is not None else base
     at: dict = {}
     step = model_edge_profiles(plain, {}, film, None, at)["across_y"]
+    if not step.get("edges"):
+        return PlateEstimate.not_measurable(name, effect, measured, "the base profile films no straight edges of "
+                                            "its steps to compare with")
     width, over = stat["width_10_90_px"], stat["overshoot"]
     measured.update(step_width_10_90_px=step["width_10_90_px"], step_overshoot=step["overshoot"])
     against = (f"{n} near-horizontal edges {width:.2f} px wide (10-90 %), overshoot {over:.3f} of the step; the "
@@ -215,10 +225,10 @@ def edge_enhancement_from_plate(footage, base, film):
         if width > SOFT_SCENE * step["width_10_90_px"]:
             return PlateEstimate.not_measurable(name, effect, measured, against + ": a scene softer than steps, "
                                                 "without halos, shows no enhancement and could hide one")
-        params = {"enabled": False} if have is not None and have.enabled else {}
         confidence = min(NONE_CONFIDENCE, 0.9 * min(1.0, n / 100))
-        return PlateEstimate(name, effect, measured, params, round(confidence, 3),
-                             against + ": no edge enhancement, or one that a softer scene hides")
+        return PlateEstimate(name, effect, measured, {}, round(confidence, 3),
+                             against + ": no edge enhancement, or one that a softer scene hides" +
+                             ("; the base's own enhancement is kept" if have is not None and have.enabled else ""))
     target = np.asarray(stat["profile"])
     keys = (f"{effect}.gain", f"{effect}.radius_px")
 
@@ -232,11 +242,15 @@ def edge_enhancement_from_plate(footage, base, film):
     sol = least_squares(residual, np.clip(start, lo, hi), bounds=(lo, hi), diff_step=0.05, max_nfev=16)
     rms = float(np.sqrt(np.mean(sol.fun ** 2)))
     gain, radius = (round(float(v), 3) for v in sol.x)
-    measured.update(fit_rms=round(rms, 4), gain_at_least=True)
+    measured["fit_rms"] = round(rms, 4)
     confidence = 0.9 * min(1.0, n / 100) * (1.0 if rms < 0.03 else 0.5)
-    return PlateEstimate(name, effect, measured, {"gain": gain, "radius_px": radius}, round(confidence, 3),
-                         against + f": enhanced, gain {gain:.2f} at radius {radius:.2f} px (profile fit rms "
-                         f"{rms:.3f}; at least that gain: a scene softer than steps hides some of it)")
+    why = (against + f": enhanced, gain {gain:.2f} at radius {radius:.2f} px (profile fit rms {rms:.3f}; a scene "
+           "softer than steps reads the gain low)")
+    if over <= step["overshoot"] + MORE_OVERSHOOT and width >= MUCH_NARROWER * step["width_10_90_px"]:
+        confidence = min(confidence, NONE_CONFIDENCE)
+        why += ("; narrower edges without halos: noise, or a base blurrier down the frame than the camera, narrow "
+                "them too, so it is reported, not applied")
+    return PlateEstimate(name, effect, measured, {"gain": gain, "radius_px": radius}, round(confidence, 3), why)
 
 
 #: Declared after its estimator and statistic, which the module defines below the class.
