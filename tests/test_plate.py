@@ -410,3 +410,19 @@ def test_real_phone_video_plausible():
     # every 2 px, and its deblocking smears the grid into the next phase) and the quality within 5
     jpeg = est["jpeg_blockiness"]
     assert jpeg.confidence >= plate.MIN_CONFIDENCE and 90 <= jpeg.params["quality"] <= 95, jpeg.line()
+
+
+@pytest.mark.slow  # the edge probe films the base's steps: over 10 s
+def test_real_chessboard_edges_sharper_than_the_base_are_reported_not_applied():
+    """A real camera's chessboard views (640x480 grey, no halos) against the Fire-i: their near-horizontal edges are
+    narrower than the Fire-i makes a step, which an enhancement, noise or a base blurrier than the camera could do;
+    without halos the estimate is reported, not applied."""
+    folder = DATA / "opencv-chessboard-left"
+    if not folder.is_dir():
+        pytest.skip("no shared data")
+    shot = plate.read_footage(folder / "left*.jpg")
+    probe = next(p for p in plate.plate_probes() if p.name == "edge_halos")
+    est = probe.estimate(shot, load_profile("fire-i"), plate.film)
+    m = est.measured
+    assert m["width_10_90_px"] < 0.9 * m["step_width_10_90_px"] and m["overshoot"] < m["step_overshoot"] + 0.02, m
+    assert est.confidence < plate.MIN_CONFIDENCE and "reported, not applied" in est.reason, est.line()
