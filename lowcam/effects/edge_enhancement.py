@@ -173,24 +173,23 @@ def edge_enhancement_from_plate(footage, base, film):
     """The edge enhancement's gain and radius from footage's natural edges, as a
     :class:`lowcam.plate_estimate.PlateEstimate`.
 
-    The mean profile across near-horizontal edges (:func:`edge_halo_statistic`, the footage scaled to the
-    profile's frame, to which it must be within :data:`SAME_SIZE`), which the Fire-i's row filters do not shape,
-    is set against the base profile without the stage filming ideal steps (rotated so that they fall at every
-    phase of the pixel grid). Natural edges are never
-    sharper than the camera makes a step; footage edges narrower than :data:`NARROWER` times the step, or with
-    :data:`MORE_OVERSHOOT` more overshoot, were enhanced, and the gain and radius are fitted by least squares to
-    the profile (the base's other settings of the stage kept). All of it is relative to the base's blur down the
-    frame: a base blurrier than the camera makes natural edges look enhanced. A natural edge softer than a step
-    reads the gain low (on a sharp scene the gain and radius trade: gain up to 1.5 times the truth's at a smaller
-    radius). Confidence ``0.9 min(1, edges / 100)``, halved where the fit misses the profile by 0.03 of the step
-    or more (root mean square), and at most :data:`NONE_CONFIDENCE` (reported, not applied) without those halos
-    unless the edges are narrower than :data:`MUCH_NARROWER` times the step (noise narrows the edges found a
-    little, too). Edges as sharp as a step without halos say "no enhancement" with at most
+    The mean profile across near-horizontal edges (:func:`edge_halo_statistic`, the footage scaled to the profile's
+    frame, to which it must be within :data:`SAME_SIZE`), which the Fire-i's row filters do not shape, is set
+    against the base profile without the stage filming ideal steps (rotated so that they fall at every phase of the
+    pixel grid). Natural edges are never sharper than the camera makes a step; footage edges narrower than
+    :data:`NARROWER` times the step, or with :data:`MORE_OVERSHOOT` more overshoot, were enhanced, and the gain and
+    radius are fitted by least squares to the profile (the base's other settings of the stage kept). All of it is
+    relative to the base's blur down the frame: a base blurrier than the camera makes natural edges look enhanced. A
+    natural edge softer than a step reads the gain low (on a sharp scene the gain and radius trade: gain up to 1.5
+    times the truth's at a smaller radius). Confidence ``0.9 min(1, edges / 100)``, halved where the fit misses the
+    profile by 0.03 of the step or more (root mean square), and at most :data:`NONE_CONFIDENCE` (reported, not
+    applied) without those halos unless the edges are narrower than :data:`MUCH_NARROWER` times the step (noise
+    narrows the edges found a little, too). Edges as sharp as a step without halos say "no enhancement" with at most
     :data:`NONE_CONFIDENCE` and no params (a soft scene enhanced looks alike; a base's own stage is kept); edges
     over :data:`lowcam.effects.sharpening.SOFT_SCENE` times as wide as a step without halos, or fewer than
-    :data:`lowcam.effects.sharpening.MIN_EDGES` edges, are not measurable. A scene drawn on the render's
-    pixel grid (steps on pixel boundaries, which no pixel straddles) comes out sharper than natural edges and reads
-    as enhanced."""
+    :data:`lowcam.effects.sharpening.MIN_EDGES` edges, are not measurable. A scene drawn on the render's pixel grid
+    (steps on pixel boundaries, which no pixel straddles) comes out sharper than natural edges and reads as
+    enhanced."""
     from scipy.optimize import least_squares
 
     name, effect = "edge_halos", "edge_enhancement"
