@@ -72,7 +72,8 @@ def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: f
 def fit_edge_enhancement(ctx, effect):
     """Diagnosis's fit (a :class:`Search` ``fit``): on the luma and on R, G, B, the gain and radius on coarse
     grids (soft coring, no clamps); for the better, gain and radius together on a finer grid (they trade against
-    each other), the coring threshold and shape together, gain and radius finer, the coring and gain and radius
+    each other), the coring threshold and shape together with the gain (a harder coring drops detail that more
+    gain restores), gain and radius finer, the coring and gain and radius
     again, the coring finer, the clamps of each side, then gain, radius and clamps finer
     (:func:`~lowcam.effects.delivered_frame.fit_delivered_stage`). While diagnosis screens: the luma's coarse
     grids only."""
@@ -88,8 +89,12 @@ def fit_edge_enhancement(ctx, effect):
         return lambda v: [(min(v["gain"] * a, 8.0), min(max(v["radius_px"] * b, 0.3), 6.0)) for a in steps
                           for b in steps]
 
+    def cored(v):  # the coring's shape and threshold with the gain: a harder coring drops detail the gain restores
+        return [(c, t, min(v["gain"] * k, 8.0)) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)
+                for k in (0.85, 1.0, 1.18)]
+
     plan = [(("gain", "radius_px"), together((0.7, 0.85, 1.0, 1.18, 1.4))),
-            (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
+            (("coring", "coring_dn", "gain"), cored),
             (("gain", "radius_px"), together((0.86, 0.93, 1.0, 1.08, 1.16))),
             (("coring", "coring_dn"), [(c, t) for c in CORING for t in (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0)]),
             (("gain", "radius_px"), together((0.9, 0.95, 1.0, 1.05, 1.1))),
