@@ -20,6 +20,7 @@ Contents
 - :func:`action_fcurves`: an object's animation F-curves (slotted actions from 4.4, plain ``action.fcurves`` before)
 - :func:`path_options`: the options a blend-relative path property may declare
 - :func:`mark_asset`: mark an ID as an asset with a description and tags
+- :func:`shader_nodes`: the node tree of a new material or world
 """
 from __future__ import annotations
 
@@ -145,3 +146,11 @@ def mark_asset(id_data, description: str, tags=()) -> None:
     id_data.asset_data.description = description
     for tag in tags:
         id_data.asset_data.tags.new(tag)
+
+
+def shader_nodes(block):
+    """The shader node tree of a new material or world: from 5.0 each is made with its nodes (and ``use_nodes`` is
+    deprecated, to be removed in 6.0); 4.x makes them when ``use_nodes`` is set."""
+    if block.node_tree is None:
+        block.use_nodes = True
+    return block.node_tree

@@ -23,6 +23,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ..blender_compat import shader_nodes
 from .frames import aim_render_camera
 from .render import render_still
 
@@ -36,8 +37,7 @@ _BLENDER_CAM_TO_LOWCAM = np.diag([1.0, -1.0, -1.0])
 
 def _material(name, colour, metallic=0.0, roughness=0.4):
     m = bpy.data.materials.new(name)
-    m.use_nodes = True
-    bsdf = m.node_tree.nodes.get("Principled BSDF")
+    bsdf = shader_nodes(m).nodes.get("Principled BSDF")
     bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
     bsdf.inputs["Metallic"].default_value = metallic
     bsdf.inputs["Roughness"].default_value = roughness
@@ -77,8 +77,7 @@ def build_footage_scene(hfov_deg: float, width: int, height: int, samples: int =
     bpy.ops.object.light_add(type="SUN", rotation=(0.7, 0.2, 0.9))
     bpy.context.object.data.energy = 4.0
     world = bpy.data.worlds.new("World")
-    world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.75, 0.78, 0.82, 1.0)
+    shader_nodes(world).nodes["Background"].inputs["Color"].default_value = (0.75, 0.78, 0.82, 1.0)
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.8
     scene.world = world
 

@@ -17,11 +17,12 @@ from pathlib import Path
 
 import bpy
 
+from ..blender_compat import shader_nodes
+
 
 def _material(name, colour, emission=0.0):
     m = bpy.data.materials.new(name)
-    m.use_nodes = True
-    bsdf = m.node_tree.nodes.get("Principled BSDF")
+    bsdf = shader_nodes(m).nodes.get("Principled BSDF")
     bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
     if emission:
         bsdf.inputs["Emission Color"].default_value = (*colour, 1.0)
@@ -71,8 +72,7 @@ def build_sample_scene(folder, profile: str = "fire-i", render_width: int = 800,
     bpy.ops.object.light_add(type="SUN", rotation=(0.6, 0.2, 0.8))
     bpy.context.object.data.energy = 6.0
     world = bpy.data.worlds.new("World")
-    world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
+    shader_nodes(world).nodes["Background"].inputs["Strength"].default_value = 1.0
     scene.world = world
 
     overlays = bpy.data.collections.new("Overlays")

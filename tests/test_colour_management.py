@@ -139,7 +139,8 @@ USER_VIEWS = {"Linear Rec.709": ("AgX", "AgX - Punchy"), "Linear Rec.2020": ("Kh
 
 def _emission(bpy, name, rgb):
     m = bpy.data.materials.new(name)
-    m.use_nodes = True
+    if m.node_tree is None:  # Blender 4 (5 gives each its nodes)
+        m.use_nodes = True
     nodes = m.node_tree.nodes
     nodes.clear()
     emit = nodes.new("ShaderNodeEmission")

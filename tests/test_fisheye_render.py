@@ -339,7 +339,8 @@ def _ray_render(profile_path, folder, width=384):
     c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = "CPU", 1, False, False
     c.pixel_filter_type, c.filter_width, scene.render.filter_size = "GAUSSIAN", 0.01, 0.01   # (a box is 1 px wide)
     world = bpy.data.worlds.new("rays")
-    world.use_nodes = True
+    if world.node_tree is None:  # Blender 4 (5 gives each its nodes)
+        world.use_nodes = True
     tree = world.node_tree
     encode = tree.nodes.new("ShaderNodeVectorMath")
     encode.operation = "MULTIPLY_ADD"

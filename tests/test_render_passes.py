@@ -286,7 +286,8 @@ def _render_moving_plane(folder, engine: str, width=128, height=96):
     bpy.ops.mesh.primitive_plane_add(size=2.0)
     plane = bpy.context.object
     white = bpy.data.materials.new("White")                             # self-lit: the scene has no light
-    white.use_nodes = True
+    if white.node_tree is None:  # Blender 4 (5 gives each its nodes)
+        white.use_nodes = True
     bsdf = white.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 0.8
