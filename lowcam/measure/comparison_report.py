@@ -182,14 +182,15 @@ def probe_figures(cmp, folder: Path) -> list[tuple[str, Path]]:
                     found[o].append(edge_sigma(grey, x0, y0, x1, y1)[0])
                 except (RuntimeError, ValueError, ZeroDivisionError):
                     pass
-            for k, o in enumerate(("vertical", "horizontal")):
-                if found[o]:
-                    ax.bar(k + off, np.median(found[o]), 0.4, label=f"{label}" if k == 0 else None,
-                           color="tab:orange" if label == "model" else "tab:blue")
+            shown = [(k, o) for k, o in enumerate(("vertical", "horizontal")) if found[o]]
+            for k, o in shown:  # the label on the first bar shown (the vertical edges may have none)
+                ax.bar(k + off, np.median(found[o]), 0.4, label=label if (k, o) == shown[0] else None,
+                       color="tab:orange" if label == "model" else "tab:blue")
         ax.set_xticks([0, 1], ["across vertical edges (x)", "across horizontal edges (y)"])
         ax.set_ylabel("edge-spread sigma (px)")
         ax.set_title("edge spread by direction", fontsize=9)
-        ax.legend()
+        if ax.get_legend_handles_labels()[1]:
+            ax.legend()
     fig("probe_edges", "Edge spread by direction", edges)
 
     def noise_mean(f):
