@@ -164,13 +164,14 @@ SAME_SIZE = 0.05
 #: The most confidence "no enhancement" gets: edges as sharp as a step without halos may be a soft scene enhanced.
 NONE_CONFIDENCE = 0.45
 _HALO_KEYS = ("edges", "width_10_90_px", "overshoot")
+_DOWN = ("across_y",)  # the profiles down the frame, across near-horizontal edges
 
 
 def edge_halo_statistic(frames) -> dict:
     """The edges, 10-90 % width (px) and overshoot (fraction of the step) of the mean profile across the strong,
     straight, near-horizontal edges of a stack (T, H, W, 3) float32 DN
     (:func:`lowcam.effects.sharpening.edge_profile_statistic`'s ``across_y``); ``{}`` without such edges."""
-    stat = edge_profile_statistic(frames)["across_y"]
+    stat = edge_profile_statistic(frames, across=_DOWN)["across_y"]
     return {k: stat[k] for k in _HALO_KEYS if k in stat}
 
 
@@ -207,7 +208,7 @@ def edge_enhancement_from_plate(footage, base, film):
                                             "width: a base profile of the footage's size is needed")
     if (fh, fw) != (h, w):
         frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
-    stat = edge_profile_statistic(frames, max_frames=len(frames))["across_y"]
+    stat = edge_profile_statistic(frames, max_frames=len(frames), across=_DOWN)["across_y"]
     measured = {k: stat[k] for k in _HALO_KEYS if k in stat}
     n = measured.get("edges", 0)
     if n < MIN_EDGES:
@@ -217,7 +218,7 @@ def edge_enhancement_from_plate(footage, base, film):
     have = base.effect(effect)
     plain = base.without(effect) if have is not None else base
     at: dict = {}
-    step = model_edge_profiles(plain, {}, film, None, at)["across_y"]
+    step = model_edge_profiles(plain, {}, film, None, at, across=_DOWN)["across_y"]
     if not step.get("edges"):
         return PlateEstimate.not_measurable(name, effect, measured, "the base profile films no straight edges of "
                                             "its steps to compare with")
@@ -237,7 +238,7 @@ def edge_enhancement_from_plate(footage, base, film):
     keys = (f"{effect}.gain", f"{effect}.radius_px")
 
     def residual(p):
-        m = model_edge_profiles(base, dict(zip(keys, p)), film, at)["across_y"]
+        m = model_edge_profiles(base, dict(zip(keys, p)), film, at, across=_DOWN)["across_y"]
         return np.asarray(m["profile"]) - target if m.get("edges") else np.ones_like(target)
 
     hi = (EdgeEnhancement.params["gain"].high, EdgeEnhancement.params["radius_px"].high)

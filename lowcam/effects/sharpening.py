@@ -268,7 +268,8 @@ def _profile_numbers(profiles: list[np.ndarray], positions: list[np.ndarray]) ->
             "overshoot": 0.5 * (over + under), "offsets_px": offsets.tolist(), "profile": mean.tolist()}
 
 
-def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None) -> dict:
+def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None,
+                           across=("across_x", "across_y")) -> dict:
     """The mean edge profile across strong natural edges of a stack (T, H, W, 3) float32 DN (up to
     ``max_frames`` frames, the green channel), for edges near vertical (``"across_x"``: the profile along rows,
     which horizontal blur and sharpening shape) and near horizontal (``"across_y"``): each with the number of
@@ -276,21 +277,22 @@ def edge_profile_statistic(frames, max_frames: int = 4, at=None, found=None) -> 
     the dark side's undershoot, as a fraction of the step); ``{}`` for an orientation without edges (not
     measurable). ``at`` / ``found``: the edge positions to sample
     (``{"across_x": [...], "across_y": [...]}`` per frame index) instead of finding them, or a dict to fill with
-    those found (see :func:`_edge_profiles`)."""
+    those found (see :func:`_edge_profiles`). ``across``: the orientations measured (the others are left out)."""
     x = np.asarray(frames, np.float32)
     if x.ndim == 3:
         x = x[None]
     idx = np.linspace(0, len(x) - 1, min(len(x), max_frames)).round().astype(int)
-    across_x, across_y = ([], []), ([], [])
+    collected = {key: ([], []) for key in across}
     for i in idx:
         grey = x[i][..., 1] if x.ndim == 4 else x[i]  # green: one linear chain (a grey mix of colour edges is not)
-        for key, image, into in (("across_x", grey, across_x), ("across_y", grey.T, across_y)):
+        for key, into in collected.items():
+            image = grey if key == "across_x" else grey.T
             where = None if at is None else at[key][int(i)]
             kept = None if found is None else found.setdefault(key, {}).setdefault(int(i), [])
             profs, pos = _edge_profiles(image, at=where, found=kept)
             into[0].extend(profs)
             into[1].append(pos)
-    return {"across_x": _profile_numbers(*across_x), "across_y": _profile_numbers(*across_y)}
+    return {key: _profile_numbers(*into) for key, into in collected.items()}
 
 
 def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0) -> np.ndarray:
@@ -310,16 +312,16 @@ def _edge_scene(width: int, height: int, cell: int = 24, angle_deg: float = 4.0)
     return out
 
 
-def model_edge_profiles(profile, values, film, at=None, found=None) -> dict:
+def model_edge_profiles(profile, values, film, at=None, found=None, across=("across_x", "across_y")) -> dict:
     """:func:`edge_profile_statistic` of ``profile`` (noise off, ``values`` set: ``{"effect.param": value}``)
     filming ideal steps rotated 4 degrees, so that edges fall at every phase of the pixel grid; ``at`` /
-    ``found`` as there."""
+    ``found`` / ``across`` as there."""
     model = profile.without("noise") if profile.effect("noise") else profile
     for key, v in values.items():
         effect, param = key.split(".")
         model = model.with_effect(effect, **{param: v})
     frame = film(model, lambda w, h: _edge_scene(w, h, cell=max(12, w // 14)))
-    return edge_profile_statistic(frame[None], at=at, found=found)
+    return edge_profile_statistic(frame[None], at=at, found=found, across=across)
 
 
 def edge_profile_from_plate(footage, base, film):

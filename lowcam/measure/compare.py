@@ -303,11 +303,14 @@ def combine(stats: list[CaptureStats], masked: bool = True) -> tuple[float, dict
     num = sum(s.sums[mean][0] for s in stats)
     den = sum(s.sums[mean][1] for s in stats)
     e_mean = float(np.sqrt(num / den))
-    logs = [v for s in stats for v in (s.sums["variance"] if masked or s.sums["variance_unmasked"] is None
-                                       else s.sums["variance_unmasked"])]
+
+    def family(s, name):  # a noise family's log ratios, read through the masks or (where there are some) not
+        unmasked = s.sums[f"{name}_unmasked"]
+        return s.sums[name] if masked or unmasked is None else unmasked
+
+    logs = [v for s in stats for v in family(s, "variance")]
     e_var = float(np.exp(np.sqrt(np.mean(np.square(logs))))) if logs else 1.0
-    rows = [v for s in stats for v in (s.sums["rows"] if masked or s.sums.get("rows_unmasked") is None
-                                       else s.sums["rows_unmasked"])]
+    rows = [v for s in stats for v in family(s, "rows")]
     e_rows = float(np.exp(np.sqrt(np.mean(np.square(rows))))) if rows else 1.0
     error = float(np.sqrt((e_mean ** 2 + e_var ** 2 + e_rows ** 2) / 3))
     return error, {"mean": e_mean, "variance": e_var, "rows": e_rows}
