@@ -117,6 +117,34 @@ def test_hard_coring_leaves_small_details_and_matches_pillow():
     assert np.array_equal(enhance_edges(flat, 3.0, 1.0, 4.0, "hard"), flat)   # details under 4 DN: untouched
 
 
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_a_delivered_stage_trial_is_scored_by_the_comparisons_formula(masked):
+    """frame_score against its formula written out pixel by pixel: e_mean^2 = sum R^2 / sum(var_F / n + var_G / K),
+    e_var = exp(rms ln(sum var_F / sum var_G)) per channel and 16-DN bin of the model's mean holding >= 100 pixels."""
+    from lowcam.effects.delivered_frame import frame_score
+
+    rng = np.random.default_rng(11)
+    h, w = 40, 60
+    scene = np.tile(np.linspace(5, 250, w), (h, 1))[..., None] * np.array([1.0, 0.8, 0.5])
+    measured = to_uint8(scene + rng.normal(0, 3, (4, h, w, 3)))
+    model = to_uint8(scene + 1.5 + rng.normal(0, 2, (3, h, w, 3)))
+    mask = rng.random((h, w)) > 0.25 if masked else np.ones((h, w), bool)
+    mf, vf = measured.astype(float).mean(0), measured.astype(float).var(0, ddof=1)
+    mg, vg = model.astype(float).mean(0), model.astype(float).var(0, ddof=1)
+    num = sum(((mf - mg)[y, x] ** 2).sum() for y in range(h) for x in range(w) if mask[y, x])
+    den = sum((vf / 4 + vg / 3)[y, x].sum() for y in range(h) for x in range(w) if mask[y, x])
+    logs = []
+    for c in range(3):
+        for b in range(16):
+            pixels = [(y, x) for y in range(h) for x in range(w) if mask[y, x] and int(mg[y, x, c] // 16) == b]
+            if len(pixels) >= 100:
+                logs.append(np.log(sum(vf[y, x, c] for y, x in pixels) / sum(vg[y, x, c] for y, x in pixels)))
+    assert len(logs) >= 6
+    expected = num / den + np.exp(np.sqrt(np.mean(np.square(logs)))) ** 2
+    got = frame_score([measured], [model], [mask if masked else None])
+    assert got == pytest.approx(expected, rel=1e-5)
+
 #: The delivered-frame stages, each at values that change a frame.
 STAGES = {"noise_reduction": {"luma_strength_dn": 15.0, "chroma_strength_dn": 10.0},
           "edge_enhancement": {"gain": 1.5, "coring_dn": 2.0},

@@ -106,29 +106,32 @@ def _partial(measured, simulated, mask, again=None) -> tuple[float, float, list]
     at least 1/12 DN^2 (the rounding's), as :func:`lowcam.measure.compare.capture_stats` has them."""
     mf, vf, n = measured[:3]
     mg, vg, k = _moments(simulated)
-    keep = np.ones(mf.shape[:2], bool) if mask is None else mask
-    num = float(np.square(mf - mg)[keep].sum())
-    den = float(((vg if vf is None else vf) / n + vg / k)[keep].sum())
+
+    def kept(a):  # the compared pixels, in order (a sum over them is the same as over the unmasked array)
+        return a if mask is None else a[mask]
+
+    num = float(kept(np.square(mf - mg)).sum())
+    den = float(kept((vg if vf is None else vf) / n + vg / k).sum())
     va, rows = None, None
     if again is not None:
         ma, va, _ = _moments(again)
         vf, vg, va = (None if vf is None else np.maximum(vf, 1 / 12)), np.maximum(vg, 1 / 12), np.maximum(va, 1 / 12)
-        den = max(den, float(np.square(mg - ma)[keep].sum()))
+        den = max(den, float(kept(np.square(mg - ma)).sum()))
         if len(measured) > 3 and vf is not None:  # the row family, beyond the model sequences' own spread
             rows = row_log_ratios(measured[3], row_noise_variance(np.asarray(simulated), mask),
                                   row_noise_variance(np.asarray(again), mask))
     logs = []
     if vf is not None:
-        level = np.clip((mg // 16).astype(int), 0, 15)
+        level = np.minimum(mg * np.float32(1 / 16), 15).astype(np.intp)  # mg >= 0: the cast floors, as // 16
         for c in range(3):
-            lv, a, b = level[..., c][keep], vf[..., c][keep], vg[..., c][keep]
+            lv, a, b = (kept(x[..., c]).ravel() for x in (level, vf, vg))
             counts = np.bincount(lv, minlength=16)
             sa, sb = np.bincount(lv, a, 16), np.bincount(lv, b, 16)
             ok = (counts >= 100) & (sa > 0) & (sb > 0)
             if va is None:
                 logs.extend(np.log(sa[ok] / sb[ok]).tolist())
             else:
-                sc = np.bincount(lv, va[..., c][keep], 16)
+                sc = np.bincount(lv, kept(va[..., c]).ravel(), 16)
                 logs.extend(beyond_spread(x, y) for x, y in zip(np.log(sa[ok] / sb[ok]), np.log(sc[ok] / sb[ok])))
     return num, den, logs, rows
 

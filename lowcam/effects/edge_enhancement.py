@@ -65,8 +65,10 @@ def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: f
     if coring_dn > 0:
         d = np.where(np.abs(d) >= coring_dn, d, 0.0) if coring == "hard" else \
             np.sign(d) * np.maximum(np.abs(d) - coring_dn, 0.0)
-    boost = np.clip(gain * d, -undershoot_dn, overshoot_dn)
-    return np.clip(np.rint(f + boost), 0, 255).astype(np.uint8)
+    boost = np.multiply(d, gain, dtype=np.float32)
+    out = f + np.minimum(np.maximum(boost, -undershoot_dn, out=boost), overshoot_dn, out=boost)
+    np.rint(out, out=out)  # in place: the clip and rounding of a float frame cost more than the filter
+    return np.minimum(np.maximum(out, 0, out=out), 255, out=out).astype(np.uint8)
 
 
 def fit_edge_enhancement(ctx, effect):
