@@ -12,6 +12,7 @@ Contents
 - :data:`BT601_TO_YCC`, :data:`BT601_FROM_YCC`: full-range BT.601 RGB -> (Y, Cb, Cr) and back (as JFIF, [T871])
 - :func:`to_ycc`: a frame's luma and chroma planes (float32, DN; chroma centred on 0)
 - :func:`ycc_change_to_rgb`: an RGB change (float32, DN) from a change of luma and chroma
+- :func:`to_uint8`: a float frame rounded (half to even) and limited to 0-255, as 8 bits
 - :func:`within_footprint`: a frame processed by a function of its pixels, kept where the graphics reach
 - :func:`frame_score`: how far model frames stand from measured ones: the mean and variance families of a
   comparison (:mod:`lowcam.measure.compare`), over a crop
@@ -65,6 +66,12 @@ def ycc_change_to_rgb(change: np.ndarray) -> np.ndarray:
     c = np.asarray(change, np.float32)
     return (c.reshape(-1, 3) @ BT601_FROM_YCC.T).reshape(c.shape)
 
+
+def to_uint8(frame: np.ndarray) -> np.ndarray:
+    """``np.clip(np.rint(frame), 0, 255).astype(np.uint8)`` of a float ``frame``, rounded and limited in place
+    (``frame`` is overwritten): the same bytes at half the cost of a frame-sized clip."""
+    np.rint(frame, out=frame)
+    return np.minimum(np.maximum(frame, 0, out=frame), 255, out=frame).astype(np.uint8)
 
 def within_footprint(frame: np.ndarray, footprint: np.ndarray, process, reach: int) -> np.ndarray:
     """``frame`` (H, W, 3) uint8 with ``process(crop) -> crop`` (uint8) applied where ``footprint`` (H, W) bool is

@@ -46,7 +46,7 @@ import numpy as np
 
 from ..plate_estimate import PlateEstimate, PlateProbe
 from .base import Effect, Param, Search
-from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, within_footprint
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, to_uint8, within_footprint
 from .sharpening import EDGE_FRAMES, MIN_EDGES, SOFT_SCENE, edge_profile_statistic, model_edge_profiles
 
 #: Coring shapes: details under the threshold dropped ("hard") or every detail shrunk by it ("soft").
@@ -66,9 +66,7 @@ def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: f
         d = np.where(np.abs(d) >= coring_dn, d, 0.0) if coring == "hard" else \
             np.sign(d) * np.maximum(np.abs(d) - coring_dn, 0.0)
     boost = np.multiply(d, gain, dtype=np.float32)
-    out = f + np.minimum(np.maximum(boost, -undershoot_dn, out=boost), overshoot_dn, out=boost)
-    np.rint(out, out=out)  # in place: the clip and rounding of a float frame cost more than the filter
-    return np.minimum(np.maximum(out, 0, out=out), 255, out=out).astype(np.uint8)
+    return to_uint8(f + np.minimum(np.maximum(boost, -undershoot_dn, out=boost), overshoot_dn, out=boost))
 
 
 def fit_edge_enhancement(ctx, effect):

@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 from .base import Effect, Param, Search
-from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, within_footprint
+from .delivered_frame import BT601_TO_YCC, fit_delivered_stage, processed_by, to_uint8, within_footprint
 
 
 def equalise_luma(luma: np.ndarray, clip_limit: float, tiles: int, strength: float) -> np.ndarray:
@@ -72,7 +72,7 @@ def tone_map_frame(frame: np.ndarray, clip_limit: float, tiles: int, strength: f
         return np.asarray(frame, np.uint8)
     y = f @ BT601_TO_YCC[0]
     change = equalise_luma(y, clip_limit, tiles, strength) - y
-    return np.clip(np.rint(f + change[..., None]), 0, 255).astype(np.uint8)
+    return to_uint8(f + change[..., None])
 
 
 def fit_local_tone_mapping(ctx, effect):

@@ -48,7 +48,8 @@ import numpy as np
 
 from ..plate_estimate import PlateEstimate, PlateProbe, holds_still, inter_frame_coded, register_footage
 from .base import Effect, Param, Search
-from .delivered_frame import fit_delivered_stage, processed_by, to_ycc, within_footprint, ycc_change_to_rgb
+from .delivered_frame import (fit_delivered_stage, processed_by, to_uint8, to_ycc, within_footprint,
+                              ycc_change_to_rgb)
 from .noise import PLATE_PAIRS, STILL_PX
 
 #: The filter families: OpenCV's bilateral filter and its fast non-local means.
@@ -93,8 +94,7 @@ def denoise_frame(frame: np.ndarray, method: str, luma_strength_dn: float, chrom
         change[..., 0] = denoise_plane(ycc[..., 0], method, luma_strength_dn, scale_px) - ycc[..., 0]
     if chroma_strength_dn > 0:
         change[..., 1:] = denoise_plane(ycc[..., 1:], method, chroma_strength_dn, scale_px) - ycc[..., 1:]
-    out = frame.astype(np.float32) + ycc_change_to_rgb(change)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    return to_uint8(frame.astype(np.float32) + ycc_change_to_rgb(change))
 
 
 def fit_noise_reduction(ctx, effect):
