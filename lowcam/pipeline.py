@@ -55,6 +55,7 @@ import numpy as np
 
 from .effects.base import lead_frames, plugin_failures
 from .effects.bayer import demosaic_bilinear, mosaic, sensel_shift_px, unmosaic
+from .effects.delivered_frame import to_uint8
 from .effects.yuv import yuv_to_rgb
 from .errors import LowcamError
 from .geometry import grid_points, sample_texture
@@ -239,11 +240,6 @@ def _any_nonzero(a: np.ndarray) -> np.ndarray:
     return (a[..., 0] != 0) | (a[..., 1] != 0) | (a[..., 2] != 0)
 
 
-def _to_u8(a: np.ndarray) -> np.ndarray:
-    a = np.clip(a, 0, 255)
-    return np.rint(a, out=a).astype(np.uint8)
-
-
 def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False,
             previous: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The 8-bit frame and its footprint from the current state: the blended graphics over the plate, then each
@@ -261,7 +257,7 @@ def _finish(state: SimState, plate_u8: np.ndarray, in_sequence: bool = False,
         else:
             out = state.plate[part] * (1 - state.rgb_alpha[part]) + state.rgb[part]
             footprint[part] = _any_nonzero(state.rgb_alpha[part])
-        cv2.copyTo(_to_u8(out), footprint[part].astype(np.uint8), frame[part])
+        cv2.copyTo(to_uint8(out), footprint[part].astype(np.uint8), frame[part])
 
     thread_map(blend, row_strips(frame.shape[0], min_rows=256))
     for effect in state.applied:

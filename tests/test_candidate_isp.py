@@ -117,7 +117,6 @@ def test_hard_coring_leaves_small_details_and_matches_pillow():
     assert np.array_equal(enhance_edges(flat, 3.0, 1.0, 4.0, "hard"), flat)   # details under 4 DN: untouched
 
 
-
 @pytest.mark.parametrize("masked", [False, True])
 def test_a_delivered_stage_trial_is_scored_by_the_comparisons_formula(masked):
     """frame_score against its formula written out pixel by pixel: e_mean^2 = sum R^2 / sum(var_F / n + var_G / K),
@@ -144,6 +143,7 @@ def test_a_delivered_stage_trial_is_scored_by_the_comparisons_formula(masked):
     expected = num / den + np.exp(np.sqrt(np.mean(np.square(logs)))) ** 2
     got = frame_score([measured], [model], [mask if masked else None])
     assert got == pytest.approx(expected, rel=1e-5)
+
 
 #: The delivered-frame stages, each at values that change a frame.
 STAGES = {"noise_reduction": {"luma_strength_dn": 15.0, "chroma_strength_dn": 10.0},

@@ -73,6 +73,7 @@ def to_uint8(frame: np.ndarray) -> np.ndarray:
     np.rint(frame, out=frame)
     return np.minimum(np.maximum(frame, 0, out=frame), 255, out=frame).astype(np.uint8)
 
+
 def within_footprint(frame: np.ndarray, footprint: np.ndarray, process, reach: int) -> np.ndarray:
     """``frame`` (H, W, 3) uint8 with ``process(crop) -> crop`` (uint8) applied where ``footprint`` (H, W) bool is
     set; the crop holds the footprint's bounding box and ``reach`` px around it (what the filter reads). Pixels

@@ -65,7 +65,7 @@ def enhance_edges(frame: np.ndarray, gain: float, radius_px: float, coring_dn: f
     if coring_dn > 0:
         d = np.where(np.abs(d) >= coring_dn, d, 0.0) if coring == "hard" else \
             np.sign(d) * np.maximum(np.abs(d) - coring_dn, 0.0)
-    boost = np.multiply(d, gain, dtype=np.float32)
+    boost = gain * d
     return to_uint8(f + np.minimum(np.maximum(boost, -undershoot_dn, out=boost), overshoot_dn, out=boost))
 
 
