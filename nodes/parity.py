@@ -94,9 +94,9 @@ def plate_image(plate_u8: np.ndarray) -> bpy.types.Image:
     """The plate as Blender loads a video frame: an sRGB 8-bit image file."""
     from lowcam.outputs import write_png
 
-    folder = Path(tempfile.mkdtemp(prefix="lowcam-plate-"))
-    path = write_png(folder / "plate.png", plate_u8)
-    image = bpy.data.images.load(str(path), check_existing=False)
+    with tempfile.TemporaryDirectory(prefix="lowcam-plate-") as folder:
+        image = bpy.data.images.load(str(write_png(Path(folder) / "plate.png", plate_u8)), check_existing=False)
+        image.pack()                   # the file's bytes, kept in memory once the folder is gone
     image.colorspace_settings.name = "sRGB"
     return image
 
@@ -105,13 +105,16 @@ def parity(render: np.ndarray, plate_u8: np.ndarray, profile="fire-i", angular_v
            exposure_s=None, stages=None, out_dir=None) -> dict:
     """{stage: {"mad": mean |node - engine| over the frame (DN), "mad_object": the same where the render
     reaches, "max": the largest difference, "max_outside": the largest where it does not}} for each stage of the
-    node group, noise off."""
+    node group, noise off. The stages' renders are kept in ``out_dir``, or in a temporary folder removed after."""
+    if out_dir is None:
+        with tempfile.TemporaryDirectory(prefix="lowcam-parity-") as scratch:
+            return parity(render, plate_u8, profile, angular_velocity, exposure_s, stages, scratch)
+    out_dir = Path(out_dir)
     profile = load_profile(profile)
     quiet = profile.copy()             # the engine without noise; the group keeps its noise stage at strength 0
     for effect in quiet.effects:
         if effect.random:
             effect.enabled = False
-    out_dir = Path(out_dir or tempfile.mkdtemp(prefix="lowcam-parity-"))
     render_image = image_from_array("Lowcam parity render", render)
     render_image.alpha_mode = "PREMUL"
     plate = plate_image(plate_u8)

@@ -43,6 +43,8 @@ case "${1:-}" in
     slow_tmp=$(mktemp -d /tmp/lowcam-slow-tier.XXXXXX)
     other_tmp=$(mktemp -d /tmp/lowcam-slow-tier.XXXXXX)
     claims=$(mktemp -d /tmp/lowcam-slow-claims.XXXXXX)
+    trap 'rm -rf "$slow_log" "$slow_tmp" "$other_tmp" "$claims"' EXIT
+    df -h "$slow_tmp" | awk 'NR == 2 {print "test: " $4 " free for temporary files in " $6}'
     slow=(-m "slow and not blender" -p no:cacheprovider)
     # the slow lane below the other's priority: the Blender tier times Blender's responsiveness
     LOWCAM_SHARED_TIER="$claims" nice -n 5 .venv/bin/python -m pytest "${slow[@]}" --basetemp "$slow_tmp" \
@@ -57,7 +59,6 @@ case "${1:-}" in
     wait "$slow_pid" || slow_rc=$?
     echo "=== the slow tier (run beside the above) ==="
     cat "$slow_log"
-    rm -rf "$slow_log" "$slow_tmp" "$other_tmp" "$claims"
     exit $((rc ? rc : slow_rc)) ;;
   --tier) tier=(-m "${2:?--tier needs a marker expression}"); shift 2 ;;
 esac
