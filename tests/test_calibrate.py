@@ -117,6 +117,54 @@ def test_noise_law_recovered_within_5_percent(fire_i, tmp_path, law, coeffs):
         assert fa == pytest.approx(a, rel=0.05) and fb == pytest.approx(b, rel=0.05), (channel, fa, fb)
 
 
+def _lag_correlation(frames, d):
+    """The temporal noise's correlation with the noise d pixels right and d pixels down, on the grey."""
+    grey = np.asarray(frames, np.float64).mean(-1)
+    noise = grey - grey.mean(0)
+    return (np.mean(noise[:, :, d:] * noise[:, :, :-d]) + np.mean(noise[:, d:] * noise[:, :-d])) / (2 * noise.var())
+
+
+@pytest.mark.slow  # over 4 s: the fast tier stays within minutes
+def test_noise_calibration_gives_the_grain_and_level_of_gaussian_correlated_noise(fire_i, tmp_path):
+    """Frames whose noise is white noise through scipy's Gaussian filter (sigma s drawn at random), added to the
+    base camera's noise-free frames: their correlation at d pixels is exp(-d^2 / (4 s^2)), in closed form. The
+    calibrated profile's frames correlate as the stack's at 1-3 px and carry its noise level per channel (a grain
+    the demosaicing averages less keeps more of green's noise); white noise gives no grain."""
+    from scipy import ndimage
+
+    base = quiet(fire_i, "horizontal_blur", "sharpening", "quantisation")
+    base.save(tmp_path / "base.toml")
+    render = gradient_render()
+    clean = lowcam.simulate(render, base.without("noise")).astype(np.float64)
+    rng = np.random.default_rng(2026)
+    grains = {}
+    for s in [0.0] + sorted(rng.uniform(0.6, 2.2, 2).round(2).tolist()):
+        white = rng.standard_normal((12, 3) + clean.shape[:2])
+        noise = ndimage.gaussian_filter(white, (0, 0, s, s)) * np.sqrt(4 * np.pi) * s if s else white  # unit variance
+        frames = np.clip(np.rint(clean + 2.5 * noise.transpose(0, 2, 3, 1)), 0, 255).astype(np.uint8)
+        for d in (1, 2):
+            assert _lag_correlation(frames, d) == pytest.approx(np.exp(-d * d / (4 * s * s)) if s else 0, abs=0.02)
+        out = tmp_path / f"cam{s}.toml"
+        r = subprocess.run([sys.executable, "-m", "lowcam.cli", "calibrate", "noise",
+                            *save(list(frames), tmp_path / f"stack{s}"), "--profile", str(tmp_path / "base.toml"),
+                            "-o", str(out), "--plots", str(tmp_path / f"plots{s}")],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        calibrated = lowcam.load_profile(out)
+        grains[s] = calibrated.effect("noise").grain_px
+        assert (tmp_path / f"plots{s}" / "noise.png").stat().st_size > 10000
+        if not s:
+            assert grains[s] == 0.0
+            continue
+        model = np.stack([lowcam.simulate(render, calibrated, seed=9, frame=f) for f in range(8)])
+        for d in (1, 2, 3):
+            assert _lag_correlation(model, d) == pytest.approx(_lag_correlation(frames, d), abs=0.05), (s, d)
+        inner = (slice(None), slice(20, -20), slice(40, -200))   # away from the borders and the saturated end
+        level = model[inner].astype(np.float64).std(0, ddof=1).mean((0, 1))
+        assert level == pytest.approx(frames[inner].astype(np.float64).std(0, ddof=1).mean((0, 1)), rel=0.08), s
+    assert list(grains.values()) == sorted(grains.values()) and grains[max(grains)] > grains[min(grains)] + 0.3
+
+
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 @pytest.mark.parametrize("method", ["block", "bilinear"])
 def test_demosaic_method_identified(fire_i, tmp_path, method):

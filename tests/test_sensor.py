@@ -56,6 +56,37 @@ def test_noise_is_reproducible_from_seed_and_frame(fire_i):
     assert abs(np.corrcoef((a - a.mean()).ravel(), (c - c.mean()).ravel())[0, 1]) < 0.02  # frames independent
 
 
+@pytest.mark.parametrize("grain_px", [0.0, 1.0, 1.7])
+def test_a_grain_correlates_the_sensels_noise_as_a_gaussian_does_and_keeps_its_level(fire_i, grain_px):
+    """White noise through a Gaussian of sigma s correlates by exp(-d^2 / (4 s^2)) at d pixels (the
+    autocorrelation of a Gaussian is a Gaussian of sigma s sqrt 2): on the mosaic, before demosaicing, along rows
+    and columns and across the colour filters; each sensel's sigma stays the law's."""
+    from lowcam.effects.bayer import mosaic
+
+    law = dict(law="sigma_linear", red=[3.0, 0.0], green=[3.0, 0.0], blue=[3.0, 0.0], grain_px=grain_px)
+    profile = _noise_only(fire_i, **law)
+    render = flat_render(0.4, 640, 480)
+    clean = lowcam.run(render, profile.without("noise"), stop_after="noise").state.bayer
+    noise = np.stack([mosaic(lowcam.run(render, profile, seed=4, frame=f, stop_after="noise").state.bayer - clean,
+                             profile.geometry)[8:-8, 8:-8] for f in range(3)]).astype(np.float64)
+    assert noise.std() == pytest.approx(3.0, rel=0.03)
+    for d in (1, 2, 3):
+        expected = np.exp(-d * d / (4 * grain_px ** 2)) if grain_px else 0.0
+        along_rows = np.mean(noise[:, :, d:] * noise[:, :, :-d]) / noise.var()
+        down_columns = np.mean(noise[:, d:] * noise[:, :-d]) / noise.var()
+        assert along_rows == pytest.approx(expected, abs=0.02) and down_columns == pytest.approx(expected, abs=0.02)
+
+
+def test_a_profile_whose_noise_has_a_grain_is_refused_by_the_node_bake_in_one_line(fire_i):
+    from lowcam.errors import LowcamError
+    from lowcam.node_maps import bake
+
+    bake(fire_i, (300, 400))  # white noise: the node group draws it
+    with pytest.raises(LowcamError) as e:
+        bake(fire_i.with_effect("noise", grain_px=1.2), (300, 400))
+    assert "\n" not in str(e.value) and "grain_px = 1.2" in str(e.value) and "engine" in str(e.value)
+
+
 @pytest.mark.slow  # over 4 s: the fast tier stays within minutes
 def test_noise_covariance_shows_2x2_block_cliques_not_the_bilinear_pattern(fire_i):
     profile = fire_i.without("vignetting", "chromatic_aberration", "spatial_blur", "chroma_subsampling")

@@ -278,7 +278,7 @@ CALIBRATIONS: dict[str, Calibrator] = {c.name: c for c in (
                (_FRAMES, Option("law", str, "sigma_linear", choices=("sigma_linear", "variance_linear"),
                                 help="the law written into the profile (both are fitted and reported)"),
                 Option("demosaic", str, "block", choices=("block", "bilinear"))),
-               lambda o, base, plots: calibrate_noise(o["frames"], o["demosaic"], o["law"], plots)),
+               lambda o, base, plots: calibrate_noise(o["frames"], o["demosaic"], o["law"], plots, base)),
     Calibrator("demosaic", calibrate_demosaic, "identify the demosaicing from a static stack", (_FRAMES,),
                lambda o, base, plots: calibrate_demosaic(o["frames"], base.geometry, plots)),
     Calibrator("blur", calibrate_blur, "horizontal/vertical blur from slanted edges", (_FRAMES,),

@@ -9,11 +9,19 @@ sensor with a black level has a negative variance intercept (EMVA 1288: ``a = K^
 ``a`` may be negative; the variance is clamped at 0 where the law falls below it. A law is fitted only to a stack
 that shows at least :data:`MIN_LEVELS` brightness levels.
 
+Beyond the paper, the noise may carry a grain (``grain_px``): the white noise is correlated in space by a Gaussian
+of that sigma over the sensor's mosaic, its variance kept, so that its level per intensity is the law's and its
+power per spatial frequency the Gaussian's, ``exp(-(2 pi f sigma)^2)`` (a sensor read out at more pixels than the
+frame and scaled down, binning, or a raw-domain denoiser leave such noise). Neighbours ``d`` pixels apart then
+correlate by ``exp(-d^2 / (4 sigma^2))`` before demosaicing.
+
 Contents
 --------
 - :data:`SEED_RANGE`, :data:`FRAME_RANGE`: the seeds and frame numbers accepted
 - :func:`frame_rng`: the random generator of one frame: reproducible from (seed, frame), independent between frames
 - :class:`Noise`: Gaussian noise per sensel, its sigma a function of the mean (DN), scaled by alpha
+- :data:`MAX_GRAIN_PX`: the largest grain (px) a profile may give its noise
+- :func:`grain_noise`: white unit noise on the sensel planes correlated by a Gaussian over the mosaic, variance kept
 - :data:`MIN_LEVELS`, :data:`LEVEL_STEP_DN`: the brightness levels (bands of DN) a noise stack must show
 - :func:`brightness_levels`: how many distinct brightness levels per-pixel temporal means show
 - :func:`fit_noise_law`: fit ``[a, b]`` of a noise law to per-pixel temporal means and deviations (sec. 4.3);
@@ -55,9 +63,12 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
+
 from ..errors import LowcamError, NotFitted, ProfileError
+from ..geometry import CFA_CHANNELS
 from ..parallel import thread_map
 from ..plate_estimate import PlateEstimate, PlateProbe, pair_starts, register_footage
 from ..registration import GRID_WINDOW, RegisteredPairs, register_frames, register_on_grid
@@ -84,14 +95,40 @@ def frame_rng(seed: int, frame: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(words))
 
 
+#: The largest grain (Gaussian sigma, px) of a profile's noise: beyond it the noise is blotches, which spatial noise
+#: reduction (:mod:`lowcam.effects.noise_reduction`) models with the detail it also takes.
+MAX_GRAIN_PX = 4.0
+
+
+def grain_noise(white: np.ndarray, cfa: dict, sigma_px: float) -> np.ndarray:
+    """White unit noise on the four sensel planes (4, rows, cols; R, Gr, Gb, B at ``cfa``'s offsets in the 2x2
+    cell) correlated in space: interleaved into the mosaic, filtered by a Gaussian of ``sigma_px`` (px of the
+    mosaic; edges mirrored) and divided by the filter's gain on white noise, ``sum(g^2)`` per axis, so that every
+    sensel keeps unit variance. Returns new planes; ``sigma_px`` 0 returns ``white``.
+    """
+    if sigma_px <= 0.0:
+        return white
+    _, rows, cols = white.shape
+    mosaic = np.empty((2 * rows, 2 * cols), np.float32)
+    for k, name in enumerate(CFA_CHANNELS):
+        dy, dx = cfa[name]
+        mosaic[dy::2, dx::2] = white[k]
+    radius = int(np.ceil(4.0 * sigma_px))
+    g = cv2.getGaussianKernel(2 * radius + 1, sigma_px, cv2.CV_32F)
+    shaped = cv2.sepFilter2D(mosaic, -1, g, g, borderType=cv2.BORDER_REFLECT_101)
+    shaped *= np.float32(1.0 / float(np.sum(g.astype(np.float64) ** 2)))
+    return np.stack([shaped[dy::2, dx::2] for dy, dx in (cfa[name] for name in CFA_CHANNELS)])
+
+
 class Noise(Effect):
-    """Gaussian noise per sensel, independent in space and time, its sigma a function of the mean (DN).
+    """Gaussian noise per sensel, independent in time, its sigma a function of the mean (DN).
 
     ``law = "sigma_linear"``: ``sigma = a + b mu`` (the paper's fit, sec. 4.3);
     ``law = "variance_linear"``: ``sigma^2 = a + b mu`` (photon transfer: read noise plus shot noise).
     ``red``, ``green``, ``blue`` hold ``[a, b]`` per sensel, in 8-bit DN (green is the per-sensel value, i.e. the
     demosaiced green sigma times sqrt 2 under 2x2-block demosaicing). On partially covered sensels the noise is
     scaled by alpha, so transparent areas stay noise-free and the plate's own noise is not doubled.
+    ``grain_px`` (0: white, the paper) correlates the noise in space (:func:`grain_noise`), its level kept.
     """
 
     name = "noise"
@@ -107,6 +144,8 @@ class Noise(Effect):
         "red": Param([1.5, 0.015], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
         "green": Param([1.2, 0.012], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
         "blue": Param([1.8, 0.016], "vector", length=2, low=-255.0, high=255.0, doc="[a, b]; a < 0: black level"),
+        "grain_px": Param(0.0, low=0.0, high=MAX_GRAIN_PX, unit="px",
+                          doc="sigma of the Gaussian that correlates the noise in space; 0: white"),
     }
 
     def check(self):
@@ -141,13 +180,18 @@ class Noise(Effect):
         return law if self.law == "sigma_linear" else np.sqrt(law)
 
     def bake_node(self, state, bake) -> None:
-        """The law and its coefficients per channel (the node adds noise from them)."""
+        """The law and its coefficients per channel (the node adds noise from them). The node draws each sensel's
+        noise apart, so a profile whose noise has a grain is refused in one line."""
+        if self.grain_px > 0.0:
+            raise self.error(f"grain_px = {self.grain_px:g}: the compositor node group draws white noise (each sensel "
+                             f"apart); use the engine (the add-on's render handler), or set grain_px = 0 for the "
+                             f"node group")
         bake.values["noise_law"] = self.law
         bake.values["noise"] = {c: list(getattr(self, c)) for c in ("red", "green", "blue")}
 
     def apply(self, state):
         rng = frame_rng(state.seed, state.frame)
-        z = rng.standard_normal(state.bayer.shape, dtype=np.float32)
+        z = grain_noise(rng.standard_normal(state.bayer.shape, dtype=np.float32), state.geometry.cfa, self.grain_px)
         alpha = state.bayer_alpha
         mean = state.bayer / np.maximum(alpha, 1e-6)
 

@@ -37,6 +37,8 @@ Contents
 - :func:`capture_stats`: the error sums of one capture's measured frames F against simulated frames G
 - :func:`combine`: the error and its families over all captures
 - :data:`BANDS`: the radial spatial-frequency bands of :func:`where` and :func:`noise_texture`
+- :func:`temporal_noise`: a static capture's temporal noise on the grey (each frame less the frames' mean)
+- :func:`spatial_correlation`: the correlation of that noise with the noise d pixels right and d pixels down
 - :func:`noise_texture`: how a capture's temporal noise is correlated in space (neighbours, frequency bands) and time
 - :func:`residual_family`: the kind of residual left (edges, levels, space or time), with its numbers
 - :func:`where`: where the mean residual lives: per channel, region (3x3), spatial-frequency band, brightness
@@ -381,6 +383,25 @@ def where(stats: list[CaptureStats]) -> dict:
 BANDS = ((0.0, 0.05, "low"), (0.05, 0.2, "mid"), (0.2, 0.71, "high"))
 
 
+def temporal_noise(frames: np.ndarray) -> np.ndarray:
+    """A static capture's temporal noise on the grey: each frame (n, H, W, 3) less the frames' mean, the channels
+    averaged (n, H, W; the scene cancels)."""
+    grey = np.asarray(frames).astype(np.float32).mean(-1)
+    return grey - grey.mean(0)
+
+
+def spatial_correlation(noise: np.ndarray, lag_px: int = 1) -> tuple[float, float]:
+    """The correlation of noise (n, H, W; :func:`temporal_noise`) with the noise ``lag_px`` pixels to the right and
+    ``lag_px`` pixels down: 0 for white noise, ``exp(-d^2 / (4 sigma^2))`` for white noise through a Gaussian of
+    ``sigma``; 0 where there is no noise."""
+    var = float(np.mean(noise ** 2))
+    if var <= 1e-9:
+        return 0.0, 0.0
+    d = int(lag_px)
+    return (float(np.mean(noise[:, :, d:] * noise[:, :, :-d]) / var),
+            float(np.mean(noise[:, d:, :] * noise[:, :-d, :]) / var))
+
+
 def noise_texture(frames: np.ndarray) -> dict | None:
     """How the temporal noise of a static capture's frames (n, H, W, 3; n >= 3) is correlated, in space and time:
     what tells a denoised camera from a raw one of the same noise variance.
@@ -397,15 +418,12 @@ def noise_texture(frames: np.ndarray) -> dict | None:
     """
     if len(frames) < 3:
         return None
-    grey = np.asarray(frames).astype(np.float32).mean(-1)
-    noise = grey - grey.mean(0)
-    var = float(np.mean(noise ** 2))
-    if var <= 1e-9:
+    noise = temporal_noise(frames)
+    if float(np.mean(noise ** 2)) <= 1e-9:
         return None
-    lag_x = float(np.mean(noise[:, :, 1:] * noise[:, :, :-1]) / var)
-    lag_y = float(np.mean(noise[:, 1:, :] * noise[:, :-1, :]) / var)
+    lag_x, lag_y = spatial_correlation(noise)
     lag_t = frame_to_frame_correlation(frames)
-    h, w = grey.shape[1:]
+    h, w = noise.shape[1:]
     spec = (np.abs(np.fft.rfft2(noise)) ** 2).sum(0)
     fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.rfftfreq(w), indexing="ij")
     f = np.hypot(fx, fy)
