@@ -99,10 +99,10 @@ def fit_grain(frames, base, noise_values: dict) -> dict:
     correlate its noise with the neighbours one pixel away as the stack ``frames`` does, by bisection over
     0-:data:`~lowcam.effects.noise.MAX_GRAIN_PX` (the correlation rises with the grain).
 
-    A stack that correlates by less than :data:`GRAIN_MARGIN` more than the base's white noise has none (0). A
-    grain lowers the noise the demosaicing and the filters after it average away less, so each channel's noise
-    leaves the chain stronger: ``variance_factor`` per channel is the model's output variance with the grain over
-    that without it, by which the law's variance is divided to keep the level measured. Returns ``grain_px``,
+    A stack that correlates by less than :data:`GRAIN_MARGIN` more than the base's white noise has none (0).
+    The demosaicing and the filters after the noise average a grain away less than white noise, so each channel's
+    noise leaves the chain stronger: ``variance_factor`` per channel is the model's output variance with the grain
+    over that without it, by which the law's variance is divided to keep the level measured. Returns ``grain_px``,
     ``variance_factor``, ``measured`` and ``white`` (the base's correlation at grain 0) and ``correlation`` per
     lag (:data:`GRAIN_LAGS_PX`) for the stack, the white model and the grainy one."""
     measured = neighbour_correlation(frames)

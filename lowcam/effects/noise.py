@@ -66,7 +66,6 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-
 from ..errors import LowcamError, NotFitted, ProfileError
 from ..geometry import CFA_CHANNELS
 from ..parallel import thread_map
