@@ -144,13 +144,14 @@ def calibrate_noise(patterns, demosaic: str = "block", law: str = "sigma_linear"
     corrected for it; without one the noise is white, as the paper's."""
     frames, names, source = load_checked(patterns, 10, "noise calibration")
     _check_noise_stack(source, frames)
+    stack = np.stack(frames)
     try:
-        fit = fit_noise(np.stack(frames), demosaic)
+        fit = fit_noise(stack, demosaic)
     except ValueError as e:  # too few pixels in the brightness bins, despite the checks above
         raise LowcamError(f"{source}: {e}") from None
     require_finite(source, "the noise law", sigma_linear_law=fit["sigma_linear"],
                     variance_linear_law=fit["variance_linear"])
-    grain = fit_grain(np.stack(frames), base, {"law": law, **fit[law]}) if base is not None else None
+    grain = fit_grain(stack, base, {"law": law, **fit[law]}) if base is not None else None
     if grain is not None and grain["grain_px"] > 0.0:
         for name in ("sigma_linear", "variance_linear"):
             fit[name] = _keep_level(fit[name], name, grain["variance_factor"])
