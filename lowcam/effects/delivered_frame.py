@@ -191,18 +191,18 @@ def processed_by(stage_class):
     return process
 
 
-def _plain_frames(ctx, profile, i: int, count: int, rows: slice, cols: slice) -> np.ndarray:
-    """``ctx.simulate(profile, i, count)`` within ``rows``, ``cols``, kept (up to :data:`_PLAIN_BYTES`) for the
-    other folds' fits, which see the same capture (a temporal stage's fit asks for dozens of frames)."""
+def _plain_frames(ctx, profile, i: int, count: int, rows: slice, cols: slice, second: bool = False) -> np.ndarray:
+    """``ctx.simulate(profile, i, count, second)`` within ``rows``, ``cols``, kept (up to :data:`_PLAIN_BYTES`) for
+    the other folds' fits, which see the same capture (a temporal stage's fit asks for dozens of frames)."""
     capture = ctx.mset.captures[i]
     key = (id(capture), repr((profile.camera.values(), [(e.name, e.enabled, e.values()) for e in profile.effects])),
-           count, rows.start, rows.stop, cols.start, cols.stop)
+           count, second, rows.start, rows.stop, cols.start, cols.stop)
     with _LOCK:
         kept = _PLAIN.get(key)
         if kept is not None and kept[0]() is capture:
             _PLAIN.move_to_end(key)
             return kept[1]
-    frames = np.ascontiguousarray(ctx.simulate(profile, i, count)[:, rows, cols])
+    frames = np.ascontiguousarray(ctx.simulate(profile, i, count, second)[:, rows, cols])
     frames.flags.writeable = False  # shared by the folds' threads
     if frames.nbytes <= _PLAIN_BYTES:
         with _LOCK:
@@ -238,13 +238,14 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
     searched together. ``count``: model frames per capture (3; a stage that acts across frames, a video encoder,
     asks for as many as the captures have). ``frozen_noise``: the stage holds noise from frame to frame (a video
     encoder's predicted frames), so the frames' temporal variance no longer measures the noise of their mean: each
-    trial processes a second sequence of ``count`` frames of other noise too, and the mean family's noise is
-    measured from the two (:func:`_partial`'s ``again``), as the comparison does; the noise families count only
-    what lies beyond the two sequences' own difference, and the rows family (the variance of per-frame row means,
-    :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is scored too. ``screened_forms``: how many forms
-    screening tries (the first; a video encoder's two codecs code noise too differently for one to stand for the
-    other). ``lead``: frames before each sequence that settle a recursive filter: ``process`` is handed ``lead +
-    count`` frames and returns the last ``count``."""
+    trial processes a second sequence of ``count`` frames of other noise too, the one the comparison draws (the
+    noise is coded differently in each draw, so a fit on a draw of its own chose settings that only its draw
+    favoured), and the mean family's noise is measured from the two (:func:`_partial`'s ``again``), as the
+    comparison does; the noise families count only what lies beyond the two sequences' own difference, and the
+    rows family (the variance of per-frame row means, :func:`~lowcam.effects.fixed_pattern.row_noise_variance`) is
+    scored too. ``screened_forms``: how many forms screening tries (the first; a video encoder's two codecs code
+    noise too differently for one to stand for the other). ``lead``: frames before each sequence that settle a
+    recursive filter: ``process`` is handed ``lead + count`` frames and returns the last ``count``."""
     p = ctx.profile
     caps, idx = ctx.mset.captures, ctx.quick
     rows, cols, ir, ic = _crop(ctx.means[0].shape[:2], crop)
@@ -261,7 +262,10 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
         per = count + lead
-        plain = [_plain_frames(ctx, base, i, 2 * per if frozen_noise else per, rows, cols) for i in idx]
+        plain = [_plain_frames(ctx, base, i, per, rows, cols) for i in idx]
+        if frozen_noise:  # the comparison's own second sequence (``ctx.simulate``'s ``second``)
+            plain = [np.concatenate([f, _plain_frames(ctx, base, i, per, rows, cols, second=True)])
+                     for f, i in zip(plain, idx)]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
                                    + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
