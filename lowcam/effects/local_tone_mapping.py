@@ -35,6 +35,10 @@ It has no compositor node: Blender's compositor has no histogram of a region, so
 curves from the frame; ``lowcam.node_maps.bake`` refuses a profile with it, and the render handler, which runs the
 engine, simulates it.
 
+It has no plate probe (``calibrate plate``): a region's curve is made from the region's own histogram, so footage
+alone cannot tell a scene of high local contrast filmed plainly from a flat one equalised; a measurement set of
+known scenes shows it to diagnosis.
+
 References
 ----------
 - [Pizer1987] S. M. Pizer, E. P. Amburn, J. D. Austin, R. Cromartie, A. Geselowitz, T. Greer, B. ter Haar Romeny,
