@@ -262,14 +262,14 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         have = p.effect(effect)
         base = p.without(effect) if have is not None and have.enabled else p
         per = count + lead
-        plain = [_plain_frames(ctx, base, i, per, rows, cols) for i in idx]
-        if frozen_noise:  # the comparison's own second sequence (``ctx.simulate``'s ``second``)
-            plain = [np.concatenate([f, _plain_frames(ctx, base, i, per, rows, cols, second=True)])
-                     for f, i in zip(plain, idx)]
+        # per capture, its model sequence and, where noise is held, the comparison's own second one
+        plain = [(_plain_frames(ctx, base, i, per, rows, cols),
+                  _plain_frames(ctx, base, i, per, rows, cols, second=True) if frozen_noise else None) for i in idx]
         # a capture's share of a trial depends on its frames alone: kept for the other folds' fits
         digests = [hashlib.blake2b(np.ascontiguousarray(caps[i].frames[:, rows, cols][:, ir, ic]).tobytes()
-                                   + f.tobytes() + (b"" if m is None else np.packbits(m).tobytes()),
-                                   digest_size=16).digest() for i, f, m in zip(idx, plain, masks)]
+                                   + f.tobytes() + (b"" if g is None else g.tobytes())
+                                   + (b"" if m is None else np.packbits(m).tobytes()),
+                                   digest_size=16).digest() for i, (f, g), m in zip(idx, plain, masks)]
 
     scores: dict = {}
 
@@ -278,12 +278,12 @@ def fit_delivered_stage(ctx, effect: str, process, searches, crop: tuple[int, in
         with _LOCK:
             got = _SHARES.get(key)
         if got is None:
+            first, second = plain[j]
             if frozen_noise:  # two sequences of independent noise: the noise of the mean from their difference
-                first, second = plain[j][:per], plain[j][per:]
                 got = _partial(measured[j], process(values, first)[:, ir, ic], masks[j],
                                process(values, second)[:, ir, ic])
             else:
-                got = _partial(measured[j], process(values, plain[j])[:, ir, ic], masks[j])
+                got = _partial(measured[j], process(values, first)[:, ir, ic], masks[j])
             with _LOCK:
                 _SHARES[key] = got
                 while len(_SHARES) > _SHARES_KEPT:
