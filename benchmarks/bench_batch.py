@@ -10,7 +10,7 @@ serial run with one frame at a time (no reading ahead or writing behind) as the 
 Then the targets, as ratios measured in the same run (``--targets`` alone skips the runs above): on renders in the
 compression the add-on writes (:data:`RENDER_CODEC`), a serial shot's CPU per frame against the engine's own (the
 simulation of the same frames from memory; target <= 1.25x) and the render reading's share of that frame CPU
-(target <= 15 %); on ZIP renders, a serial shot's wall time per frame against the code of 2026-11-25 (commit
+(target <= 15 %; read as the shot reads them, into arrays reused from frame to frame); on ZIP renders, a serial shot's wall time per frame against the code of 2026-11-25 (commit
 7f593e9, run from ``git archive`` in a child Python on the same files, the two taking turns; target <= 0.55x). CPU
 times are the process's (every thread's, ``time.process_time``): on the shared development machine they are far
 steadier than wall times.
@@ -82,7 +82,8 @@ def child_shot(pythonpath: str, renders: str, plates: str, output: str, frames: 
 
 def targets(tmp: Path, render: np.ndarray, frames: list[int], turns: int) -> None:
     """The issue's targets as ratios, measured in this run (see the module's docstring)."""
-    from lowcam.batch import Shot, _read_inputs, _simulate_inputs, run_shot
+    from lowcam.batch import READ_AHEAD, Shot, _read_inputs, _simulate_inputs, run_shot
+    from lowcam.io import reusing_render_buffers
     from lowcam.motion import FrameMotion
     from lowcam.passes import read_render_and_passes
 
@@ -111,8 +112,9 @@ def targets(tmp: Path, render: np.ndarray, frames: list[int], turns: int) -> Non
                 engine += time.process_time() - c
             engine_cpu.append(engine / len(frames))
             c = time.process_time()
-            for f in frames:
-                read_render_and_passes(tmp / f"renders-{codec}/{f:04d}.exr", None, (), 24.0)
+            with reusing_render_buffers(READ_AHEAD + 2):    # as the shot reads them
+                for f in frames:
+                    read_render_and_passes(tmp / f"renders-{codec}/{f:04d}.exr", None, (), 24.0)
             read_cpu.append((time.process_time() - c) / len(frames))
         shot_ms, engine_ms, read_ms = (float(np.median(v)) * 1e3 for v in (shot_cpu, engine_cpu, read_cpu))
         print(f"\ntargets, renders in {codec}{' (the add-on' + chr(39) + 's default)' if codec == RENDER_CODEC else ''}, "

@@ -54,7 +54,7 @@ from tqdm import tqdm
 from .effects import trust_plugins
 from .effects.noise import FRAME_RANGE
 from .errors import DiskFull, LowcamError
-from .io import check_plate, read_plate
+from .io import check_plate, read_plate, reusing_render_buffers
 from .motion import FrameMotion
 from .outputs import check_image_output, remove_stale_temporaries, write_image
 from .passes import needed_passes, read_render_and_passes
@@ -296,7 +296,8 @@ def _run_overlapped(shot: Shot, frames: list[int], force: bool, done) -> None:
     :class:`~lowcam.errors.DiskFull` once the frames before it are reported."""
     profile = shot.load_profile()
     with ThreadPoolExecutor(1, thread_name_prefix="lowcam-read") as reader, \
-            ThreadPoolExecutor(1, thread_name_prefix="lowcam-write") as writer:
+            ThreadPoolExecutor(1, thread_name_prefix="lowcam-write") as writer, \
+            reusing_render_buffers(READ_AHEAD + 2):   # read ahead, simulated, being read
         def start(frame):
             if shot.output_path(frame).exists() and not force:
                 return _already_made(shot, frame, profile)

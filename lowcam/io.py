@@ -14,6 +14,7 @@ Contents
 - :func:`read_render`: read a render as premultiplied linear Rec.709 RGBA float32 (H, W, 4)
 - :func:`read_checked_render`: :func:`read_render` with its window, which the pipeline then need not find again
 - :func:`exr_render`: :func:`read_checked_render` of an OpenEXR file's channels already read
+- :func:`reusing_render_buffers`: renders read into the same few arrays, frame after frame, while it is on
 - :data:`RENDER_MAX`: the largest render value accepted
 - :func:`check_render`: validate an in-memory render: (H, W, 4), finite, in range, alpha in [0, 1]
 - :func:`check_render_window`: :func:`check_render`, and the window around the render's non-zero pixels
@@ -44,8 +45,8 @@ import numpy as np
 from .errors import LowcamError
 from .parallel import thread_map, threads
 from .render_spaces import LINEAR_REC709, header_space, render_space, to_camera_space
-from .uncompressed_exr import read_uncompressed_exr
-from .window import nonzero_window
+from .uncompressed_exr import LazyChannels, read_uncompressed_exr
+from .window import nonzero_window, window_union
 
 
 def _check_finite(path, image: np.ndarray) -> None:
@@ -258,21 +259,27 @@ def _refuse_damaged_parts(path: Path, parts: list, reason: str) -> None:
 OVERLAY_LAYER = "Lowcam Overlay"
 
 
-def _rgba_from_exr(path, channels: dict[str, np.ndarray], layer: str | None = None) -> np.ndarray:
-    """The render's RGBA from an EXR's channels: the ``RGBA`` layer, the one ``*.Combined`` layer (Lowcam's
-    overlay layer aside) or view layer ``layer``'s; several candidates without ``layer`` are refused."""
+def _combined_layers(path, channels: Mapping, layer: str | None) -> list[str]:
+    """The entries that may hold the render: the ``RGBA`` layer, the one ``*.Combined`` layer (Lowcam's overlay
+    layer aside) or view layer ``layer``'s; several candidates without ``layer`` are refused."""
     candidates = [k for k in channels if k == "RGBA" or k.endswith(".Combined") or k == "Combined"]
     if layer is not None:
         chosen = [k for k in candidates if k in (layer, f"{layer}.Combined")]
         if not chosen:
             raise LowcamError(f"{path}: no layer '{layer}' (layers: {', '.join(candidates) or 'none'})")
-        candidates = chosen
-    elif len(candidates) > 1:
+        return chosen
+    if len(candidates) > 1:
         candidates = [k for k in candidates if k != f"{OVERLAY_LAYER}.Combined"]
         if len(candidates) > 1:
             raise LowcamError(f"{path}: {len(candidates)} render layers ({', '.join(candidates)}); "
                               "choose one with --layer")
-    for key in candidates:
+    return candidates
+
+
+def _rgba_from_exr(path, channels: dict[str, np.ndarray], layer: str | None = None) -> np.ndarray:
+    """The render's RGBA from an EXR's channels: the first of :func:`_combined_layers` with four channels, or
+    R, G, B and A channels of their own."""
+    for key in _combined_layers(path, channels, layer):
         arr = channels[key]
         if arr.ndim == 3 and arr.shape[2] == 4:
             return arr
@@ -318,9 +325,84 @@ def read_checked_render(path, layer: str | None = None, render_space: str | None
 def exr_render(path, channels: dict, tags: dict, layer: str | None = None,
                render_space: str | None = None) -> CheckedRender:
     """:func:`read_checked_render` of an OpenEXR file whose channels and colour tags are read
-    (:func:`read_exr_tagged`)."""
-    rgba = _rgba_from_exr(path, channels, layer)
-    return check_render_window(to_camera_space(rgba, render_space_of(path, render_space, tags)), path)
+    (:func:`read_exr_tagged`). A linear Rec.709 render in an uncompressed file is checked strip by strip as it is
+    read (:func:`_checked_in_strips`)."""
+    space = render_space_of(path, render_space, tags)
+    checked = _checked_in_strips(path, channels, layer) if space is None or space == LINEAR_REC709 else None
+    if checked is not None:
+        return checked
+    return check_render_window(to_camera_space(_rgba_from_exr(path, channels, layer), space), path)
+
+
+class _RenderBuffers:
+    """Render-sized arrays kept while :func:`reusing_render_buffers` is on, so that a shot reads its renders into
+    the same memory frame after frame instead of fresh pages, which the system must first zero. An array is given
+    again only once nothing else refers to it."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._kept: list[np.ndarray] = []
+        self._users = self._count = 0
+
+    def take(self, shape: tuple, dtype) -> np.ndarray:
+        with self._lock:
+            for array in self._kept:
+                # referred to by the list, this loop and the call alone: no one uses it
+                if array.shape == shape and array.dtype == dtype and sys.getrefcount(array) == 3:
+                    return array
+            array = np.empty(shape, dtype)
+            if self._users and self._count:
+                self._kept = [*self._kept, array][-self._count:]
+            return array
+
+    @contextlib.contextmanager
+    def reusing(self, count: int):
+        with self._lock:
+            self._users += 1
+            self._count = max(self._count, count)
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if not self._users:
+                    self._kept, self._count = [], 0
+
+
+_render_buffers = _RenderBuffers()
+
+
+def reusing_render_buffers(count: int):
+    """While on (a context manager), renders read from uncompressed files go into at most ``count`` arrays kept and
+    reused once no one refers to them (a shot's frames in flight), instead of fresh memory for every frame."""
+    return _render_buffers.reusing(count)
+
+
+def _checked_in_strips(path, channels: Mapping, layer: str | None) -> CheckedRender | None:
+    """:func:`check_render_window` of the render's RGBA where an uncompressed part holds it as float32
+    (:meth:`~lowcam.uncompressed_exr.LazyChannels.read_in_strips`): each strip of lines is checked and its window
+    found while it is in cache, instead of reading the part, then the array, then the array again; the array is
+    one of :func:`reusing_render_buffers`'s while that is on. The same array, window and refusals; None where the
+    render is not held that way."""
+    keys = _combined_layers(path, channels, layer)
+    part = next((m for m in getattr(channels, "maps", [channels]) if keys and keys[0] in m), None)
+    if not isinstance(part, LazyChannels):
+        return None
+
+    def visit(top: int, lines: np.ndarray):
+        window = nonzero_window(lines)                    # NaN counts; None: -0.0 alone
+        if window is None:
+            return None
+        inside = lines[window]
+        return top, window, cv2.countNonZero(cv2.inRange(inside, *_RENDER_BOUNDS)) == inside[..., 0].size
+
+    read = part.read_in_strips(keys[0], 4, visit, _render_buffers.take)
+    if read is None:
+        return None
+    rgba, found = read
+    if not all(passed for _, _, passed in found):
+        return check_render_window(rgba, path)           # refuses it with the exact reason
+    return CheckedRender(rgba, window_union([(top, window) for top, window, _ in found]))
 
 
 #: The largest render value accepted: half-float's maximum (no real render is brighter; larger finite values

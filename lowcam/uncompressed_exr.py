@@ -23,10 +23,12 @@ Contents
 --------
 - :func:`read_uncompressed_exr`: the parts' channels (read when taken) and the first part's colour tags, or None
 - :func:`group_names`: channel names grouped as the OpenEXR Python binding groups them (``RGBA``, ``layer.pass``)
-- :class:`LazyChannels`: a part's channels by the binding's names, its bytes read from the file when one is taken
+- :class:`LazyChannels`: a part's channels by the binding's names, its bytes read from the file when one is taken,
+  or a float32 layer read strip by strip into an array (:meth:`LazyChannels.read_in_strips`)
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import struct
 import threading
@@ -37,6 +39,7 @@ import cv2
 import numpy as np
 
 from .errors import LowcamError
+from .parallel import thread_map
 
 _MAGIC = 20000630
 _TILED, _DEEP, _MULTIPART = 0x200, 0x800, 0x1000
@@ -46,6 +49,10 @@ _PIXEL_TYPES = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}
 _GROUPED = ("R", "G", "B", "A")
 #: The first bytes read for the headers and offset tables (more when they are longer).
 _HEAD_BYTES = 1 << 20
+#: About how many bytes of a part :meth:`LazyChannels.read_in_strips` reads at a time: a strip stays in cache
+#: while it is interleaved and looked at.
+_STRIP_BYTES = 4 << 20
+_strip_buffers = threading.local()    # each thread's buffer for a strip's bytes, kept from call to call
 
 
 class _Unread(Exception):
@@ -153,19 +160,74 @@ class LazyChannels(Mapping):
     def _read_part(self) -> np.ndarray:
         """The part's bytes, from its first chunk to the end of its last, checked whole."""
         first, stride, count, lead, _, line = self._layout
-        size = stride * (count - 1) + lead + line
-        data = np.empty(size, np.uint8)
+        data = np.empty(stride * (count - 1) + lead + line, np.uint8)
+        with self._opened() as read:
+            read(data, first)
+        return data
+
+    @contextlib.contextmanager
+    def _opened(self):
+        """``read(buffer, offset)``: fills ``buffer`` from the file at ``offset``, in one line: the file must be the
+        one whose headers were read, and as long."""
         again = "(rendered again?); read it again once it is written"
-        try:
-            with open(self._path, "rb") as f:
-                if _identity(f) != self._identity:
-                    raise LowcamError(f"{self._path}: the file changed while it was read {again}")
-                f.seek(first)
-                if f.readinto(memoryview(data)) != size:
+
+        def read(buffer: np.ndarray, offset: int) -> None:
+            view, done = memoryview(buffer), 0
+            while done < len(view):                   # one call reads at most about 2 GB
+                got = os.preadv(fd, [view[done:]], offset + done)
+                if not got:
                     raise LowcamError(f"{self._path}: the file was cut short while it was read {again}")
+                done += got
+        try:
+            fd = os.open(self._path, os.O_RDONLY)
         except OSError as e:
             raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
-        return data
+        try:
+            if _identity(fd) != self._identity:
+                raise LowcamError(f"{self._path}: the file changed while it was read {again}")
+            yield read
+        except OSError as e:
+            raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
+        finally:
+            os.close(fd)
+
+    def read_in_strips(self, key: str, depth: int, visit, allocate=np.empty) -> tuple[np.ndarray, list] | None:
+        """Entry ``key``, a group of ``depth`` float32 channels, read into an array ``allocate((H, W, depth),
+        float32)`` a strip of lines at a time (about :data:`_STRIP_BYTES`, the strips shared out among the engine's
+        threads), so the part never lies in memory whole and each strip is looked at while it is in cache: a strip
+        whose channels are all zero bytes is zeroed, any other is interleaved and ``visit(first line, its lines)``
+        called on it. Returns (the array, the visits' results other than None, in order), the array's bits those
+        ``self[key]`` gives; None where the entry is no such group or its lines are not aligned for float32
+        (``self[key]`` reads it)."""
+        names = self._groups.get(key, ())
+        if len(names) != depth:
+            return None
+        first, stride, count, lead, width, _ = self._layout
+        starts = [lead + self._channels[n][1] for n in names]
+        if any(self._channels[n][0] != np.float32 for n in names) or stride % 4 or \
+                any(start % 4 for start in starts):
+            return None
+        out = allocate((count, width, depth), np.float32)
+        rows = max(1, _STRIP_BYTES // stride)
+        end = max(starts) + 4 * width                     # a strip's bytes end there in its last line
+
+        def strip(read, top: int):
+            n = min(rows, count - top)
+            buffer = getattr(_strip_buffers, "bytes", None)
+            if buffer is None or buffer.nbytes < rows * stride:
+                buffer = _strip_buffers.bytes = np.empty(rows * stride, np.uint8)
+            read(buffer[:(n - 1) * stride + end], first + top * stride)
+            planes = [np.ndarray((n, width), np.float32, buffer, start, (stride, 4)) for start in starts]
+            lines = out[top:top + n]
+            if not any(cv2.countNonZero(plane.view(np.int32)) for plane in planes):   # -0.0 is not zero bytes
+                lines.fill(0)
+                return None
+            cv2.merge(planes, lines)
+            return visit(top, lines)
+
+        with self._opened() as read:
+            found = thread_map(lambda top: strip(read, top), range(0, count, rows))
+        return out, [result for result in found if result is not None]
 
     def __getitem__(self, key: str) -> np.ndarray:
         with self._lock:
@@ -200,7 +262,7 @@ class LazyChannels(Mapping):
 
 
 def _identity(f) -> tuple:
-    st = os.fstat(f.fileno())
+    st = os.fstat(f if isinstance(f, int) else f.fileno())
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 

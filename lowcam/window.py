@@ -9,6 +9,7 @@ entry alone.
 Contents
 --------
 - :func:`nonzero_window`: the smallest (rows, cols) window holding every non-zero element of an image
+- :func:`window_union`: the window holding the windows found in strips of an image's rows
 - :func:`grow_window`: a window grown by a margin, within an image
 - :class:`WindowedRemap`: ``cv2.remap`` with fixed maps that computes only what can be non-zero
 - :func:`filter_in_strips`: a neighbourhood filter of an image run in strips of rows on every thread, same result
@@ -38,8 +39,18 @@ def nonzero_window(image: np.ndarray, block: int = 32) -> tuple[slice, slice] | 
     (slice(10, 11, None), slice(20, 23, None))
     """
     strips = row_strips(image.shape[0], min_rows=4 * block)
-    found = [(strip.start, window) for strip, window in
-             zip(strips, thread_map(lambda strip: _strip_window(image[strip], block), strips)) if window is not None]
+    return window_union([(strip.start, window) for strip, window in
+                         zip(strips, thread_map(lambda strip: _strip_window(image[strip], block), strips))])
+
+
+def window_union(found: list[tuple[int, tuple[slice, slice] | None]]) -> tuple[slice, slice] | None:
+    """The smallest window holding the windows of strips of rows, each given as (the strip's first row, its own
+    window or None); None where every strip's is None.
+
+    >>> window_union([(0, None), (10, (slice(2, 4), slice(5, 9))), (20, (slice(0, 1), slice(1, 3)))])
+    (slice(12, 21, None), slice(1, 9, None))
+    """
+    found = [(top, window) for top, window in found if window is not None]
     if not found:
         return None
     return (slice(min(top + rows.start for top, (rows, _) in found), max(top + rows.stop for top, (rows, _) in found)),

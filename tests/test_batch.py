@@ -479,3 +479,39 @@ def test_a_temporal_filter_follows_the_frame_before_and_resumes_to_the_same_byte
         with pytest.raises(LowcamError, match="write PNG frames") as e:
             run_shot(shot, frames, quiet=True)
         assert "\n" not in str(e.value) and not (tmp_path / "lossy").exists()
+
+
+def test_a_serial_shot_reads_uncompressed_renders_into_a_few_reused_arrays(shot_dir, tmp_path, monkeypatch):
+    """Renders in the add-on's uncompressed format, read strip by strip and checked as they are read: the overlapped
+    serial shot gives the bytes of process_frame frame after frame and reads its eight renders into at most four
+    arrays (two read ahead, one simulated, one being read), reused as each frame is done with."""
+    import OpenEXR
+
+    from lowcam import io
+    from lowcam.io import read_render
+
+    renders = tmp_path / "renders"
+    renders.mkdir()
+    for f in FRAMES[:8]:
+        rgba = read_render(shot_dir / "renders" / f"{f:04d}.exr")
+        OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                     {c: rgba[..., i].copy() for i, c in enumerate("RGBA")}).write(str(renders / f"{f:04d}.exr"))
+    motion = read_motion_json(shot_dir / "motion.json")
+
+    def shot(out):
+        return Shot("fire-i", str(renders / "####.exr"), str(tmp_path / out / "####.png"),
+                    str(shot_dir / "plates/####.png"), motion, True)
+
+    one_at_a_time = [process_frame(shot("single"), f) for f in FRAMES[:8]]
+    addresses, take = [], io._render_buffers.take
+
+    def noted(*args):
+        array = take(*args)
+        addresses.append(array.__array_interface__["data"][0])
+        return array
+
+    monkeypatch.setattr(io._render_buffers, "take", noted)
+    overlapped = run_shot(shot("overlapped"), FRAMES[:8], quiet=True)
+    assert [r.status for r in overlapped] == [r.status for r in one_at_a_time] == ["written"] * 8
+    assert frame_bytes(tmp_path / "overlapped") == frame_bytes(tmp_path / "single")
+    assert len(addresses) == 8 and len(set(addresses)) <= 4

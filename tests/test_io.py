@@ -271,3 +271,65 @@ def test_a_render_truncated_in_its_last_pass_names_the_layer_and_its_channels(tm
         assert "\n" not in text
     path.write_bytes(whole)
     assert read_render_and_passes(path, None, ("Vector",), 24.0)[0].rgba.tobytes() == rgba.tobytes()
+
+
+def _strip_test_render() -> np.ndarray:
+    """A 240x200 render with zero margins, graphics in the middle and, below them, a band holding only -0.0."""
+    rgba = np.zeros((240, 200, 4), np.float32)
+    rgba[60:130, 70:150] = np.random.default_rng(4).uniform(0, 1, (70, 80, 4))
+    rgba[170:180, 20:40] = -0.0
+    return rgba
+
+
+def _uncompressed_exr(path, rgba):
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {c: rgba[..., i].copy() for i, c in enumerate("RGBA")}).write(str(path))
+
+
+@pytest.mark.parametrize("spot, value", [(None, None), ((150, 5, 2), np.nan), ((2, 190, 0), np.inf),
+                                         ((100, 100, 3), 1.5), ((175, 30, 1), -1e6), ((239, 199, 3), np.nan)])
+def test_a_render_checked_strip_by_strip_is_checked_as_a_whole(tmp_path, monkeypatch, spot, value):
+    """An uncompressed render is checked a strip of lines at a time as it is read: the same array (bits, -0.0
+    included) and window as the whole array checked, or the same refusal, wherever the bad value lies (a strip
+    otherwise zero, a band of -0.0, the graphics, the last line)."""
+    from lowcam import uncompressed_exr
+    from lowcam.io import check_render_window, read_checked_render
+
+    monkeypatch.setattr(uncompressed_exr, "_STRIP_BYTES", 7 * 200 * 16)      # strips of 7 lines
+    rgba = _strip_test_render()
+    if spot is not None:
+        rgba[spot] = value
+    path = tmp_path / "render.exr"
+    _uncompressed_exr(path, rgba)
+    try:
+        expected = check_render_window(rgba, path)
+    except LowcamError as e:
+        with pytest.raises(LowcamError) as got:
+            read_checked_render(path)
+        assert str(got.value) == str(e)
+        return
+    got = read_checked_render(path)
+    assert got.rgba.tobytes() == rgba.tobytes() and got.window == expected.window == (slice(60, 130), slice(70, 150))
+
+
+def test_a_shots_renders_reuse_arrays_no_one_holds(tmp_path):
+    """While reusing_render_buffers is on, an uncompressed render is read into an array of an earlier one once
+    nothing refers to that array any more (not while a view of it lives); without it nothing is kept."""
+    from lowcam.io import read_render, reusing_render_buffers
+
+    rgba = _strip_test_render()
+    path = tmp_path / "render.exr"
+    _uncompressed_exr(path, rgba)
+    with reusing_render_buffers(3):
+        first = read_render(path)
+        address = first.__array_interface__["data"][0]
+        second = read_render(path)                      # the first is held: another array
+        assert second.__array_interface__["data"][0] != address
+        corner = first[:5]
+        del first
+        assert read_render(path).__array_interface__["data"][0] != address    # a view of it is held
+        del corner
+        again = read_render(path)
+        assert again.__array_interface__["data"][0] == address and again.tobytes() == rgba.tobytes()
+    held = read_render(path)
+    assert read_render(path).__array_interface__["data"][0] != held.__array_interface__["data"][0]

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lowcam.io import read_exr_tagged
+from lowcam.io import exr_render, read_exr_tagged
+from lowcam import uncompressed_exr
 from lowcam.uncompressed_exr import group_names, read_uncompressed_exr
 
 PREFIXES = ("", "ViewLayer.Combined", "ViewLayer.Vector", "Lowcam Overlay.Combined", "L.Shadow", "p.q", "x")
@@ -64,11 +65,11 @@ def _binding(path):
 
 @settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(layout=layouts())
-def test_mapped_channels_are_the_openexr_bindings_own(tmp_path, layout):
+def test_mapped_channels_are_the_openexr_bindings_own(tmp_path, monkeypatch, layout):
     """Random uncompressed files, single- and multi-part, written by the OpenEXR binding: mapped, each part's
     channels are the binding's (names in its order, RGB(A) grouped as it groups them, pixel types, shapes and
     every bit, NaNs included) and so are the colour tags; only a group of mixed pixel types, which the binding
-    refuses, is left to it."""
+    refuses, is left to it. A float32 group read strip by strip holds the same bits."""
     parts, mixed = layout
     if not parts:
         return
@@ -92,6 +93,15 @@ def test_mapped_channels_are_the_openexr_bindings_own(tmp_path, layout):
         for key, pixels in expected.items():
             assert got[key].dtype == pixels.dtype and got[key].shape == pixels.shape, key
             assert got[key].tobytes() == pixels.tobytes(), key
+            # read a line or two at a time instead: the same bits, every strip visited (no line is all zero)
+            monkeypatch.setattr(uncompressed_exr, "_STRIP_BYTES", 1 + len(key) * 97)
+            depth = pixels.shape[2] if pixels.ndim == 3 else 1
+            strips = got.read_in_strips(key, depth, lambda top, lines: (top, len(lines)))
+            if pixels.dtype != np.float32:
+                assert strips is None
+            elif strips is not None:                    # None: lines off float32's 4-byte grid
+                assert strips[0].tobytes() == pixels.tobytes(), key
+                assert sum(n for _, n in strips[1]) == pixels.shape[0] and strips[1][0][0] == 0
     assert tags == {k: list(v) if k == "chromaticities" else v for k, v in expected_tags.items()}
 
 
@@ -158,9 +168,9 @@ def test_a_render_changed_before_its_channels_are_taken_is_refused_in_one_line(t
     else:
         path.write_bytes(path.read_bytes()[:-1000])
     assert "RGBA" in channels                # asking does not read
-    for _ in range(2):
+    for take in (lambda: channels["RGBA"], lambda: channels["RGBA"], lambda: exr_render(path, channels, {})):
         with pytest.raises(LowcamError) as e:
-            channels["RGBA"]
+            take()                           # the part whole, again, or strip by strip as a shot reads it
         assert str(e.value).startswith(f"{path}: the file changed while it was read") and "\n" not in str(e.value)
     if change == "rendered again":          # read again: the new render
         assert read_exr_tagged(path)[0]["RGBA"].tobytes() == rgba[::-1].tobytes()
