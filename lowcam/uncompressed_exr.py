@@ -212,6 +212,12 @@ class LazyChannels(Mapping):
         end = max(starts) + 4 * width                     # a strip's bytes end there in its last line
 
         def strip(read, top: int):
+            try:
+                return strip_into(read, top)
+            except Exception as e:      # raised once every strip is done: none writes into an array given up
+                return e
+
+        def strip_into(read, top: int):
             n = min(rows, count - top)
             buffer = getattr(_strip_buffers, "bytes", None)
             if buffer is None or buffer.nbytes < rows * stride:
@@ -227,6 +233,9 @@ class LazyChannels(Mapping):
 
         with self._opened() as read:
             found = thread_map(lambda top: strip(read, top), range(0, count, rows))
+        for result in found:
+            if isinstance(result, Exception):
+                raise result
         return out, [result for result in found if result is not None]
 
     def __getitem__(self, key: str) -> np.ndarray:

@@ -204,3 +204,35 @@ def test_awkward_layouts_read_as_the_binding_reads_them(tmp_path, channels):
     assert list(got) == list(expected)
     for n, p in expected.items():
         assert got[n].tobytes() == p.astype(np.float32).tobytes(), n     # read_exr_tagged gives float32
+
+
+def test_a_render_cut_short_while_its_strips_are_read_is_refused_once_every_strip_is_done(tmp_path, monkeypatch):
+    """A file cut short after its size was checked, under one strip, while others are still being read: the read
+    is refused in one line, and only once every other strip is done, so none writes into an array the shot has
+    already given to the next frame."""
+    import os
+    import time
+
+    from lowcam import LowcamError
+
+    rgba = np.random.default_rng(2).uniform(0, 1, (64, 40, 4)).astype(np.float32)
+    path = tmp_path / "frame.exr"
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {c: rgba[..., i].copy() for i, c in enumerate("RGBA")}).write(str(path))
+    parts, _ = read_uncompressed_exr(path)
+    monkeypatch.setattr(uncompressed_exr, "_STRIP_BYTES", 8 * (8 + 40 * 16))    # eight strips of 8 lines
+    preadv, calls, done = os.preadv, [], []
+
+    def slow_or_short(fd, buffers, offset):
+        calls.append(offset)
+        if len(calls) == 1:
+            return 0                                    # the file ends here now
+        time.sleep(0.05)
+        done.append(offset)
+        return preadv(fd, buffers, offset)
+
+    monkeypatch.setattr(uncompressed_exr.os, "preadv", slow_or_short)
+    with pytest.raises(LowcamError) as e:
+        parts[0][1].read_in_strips("RGBA", 4, lambda top, lines: top)
+    assert str(e.value).startswith(f"{path}: the file was cut short while it was read") and "\n" not in str(e.value)
+    assert len(calls) == 8 and len(done) == 7
