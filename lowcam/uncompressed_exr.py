@@ -167,8 +167,8 @@ class LazyChannels(Mapping):
 
     @contextlib.contextmanager
     def _opened(self):
-        """``read(buffer, offset)``: fills ``buffer`` from the file at ``offset``, in one line: the file must be the
-        one whose headers were read, and as long."""
+        """``read(buffer, offset)``, filling ``buffer`` from the file at ``offset``; a file that is not the one whose
+        headers were read, or ends early, is refused in one line."""
         again = "(rendered again?); read it again once it is written"
 
         def read(buffer: np.ndarray, offset: int) -> None:
@@ -212,24 +212,21 @@ class LazyChannels(Mapping):
         end = max(starts) + 4 * width                     # a strip's bytes end there in its last line
 
         def strip(read, top: int):
+            n = min(rows, count - top)
             try:
-                return strip_into(read, top)
+                buffer = getattr(_strip_buffers, "bytes", None)
+                if buffer is None or buffer.nbytes < rows * stride:
+                    buffer = _strip_buffers.bytes = np.empty(rows * stride, np.uint8)
+                read(buffer[:(n - 1) * stride + end], first + top * stride)
+                planes = [np.ndarray((n, width), np.float32, buffer, start, (stride, 4)) for start in starts]
+                lines = out[top:top + n]
+                if not any(cv2.countNonZero(plane.view(np.int32)) for plane in planes):  # -0.0: not zero bytes
+                    lines.fill(0)
+                    return None
+                cv2.merge(planes, lines)
+                return visit(top, lines)
             except Exception as e:      # raised once every strip is done: none writes into an array given up
                 return e
-
-        def strip_into(read, top: int):
-            n = min(rows, count - top)
-            buffer = getattr(_strip_buffers, "bytes", None)
-            if buffer is None or buffer.nbytes < rows * stride:
-                buffer = _strip_buffers.bytes = np.empty(rows * stride, np.uint8)
-            read(buffer[:(n - 1) * stride + end], first + top * stride)
-            planes = [np.ndarray((n, width), np.float32, buffer, start, (stride, 4)) for start in starts]
-            lines = out[top:top + n]
-            if not any(cv2.countNonZero(plane.view(np.int32)) for plane in planes):   # -0.0 is not zero bytes
-                lines.fill(0)
-                return None
-            cv2.merge(planes, lines)
-            return visit(top, lines)
 
         with self._opened() as read:
             found = thread_map(lambda top: strip(read, top), range(0, count, rows))
