@@ -334,6 +334,15 @@ def exr_render(path, channels: dict, tags: dict, layer: str | None = None,
     return check_render_window(to_camera_space(_rgba_from_exr(path, channels, layer), space), path)
 
 
+def _references(arrays: list, i: int) -> int:
+    return sys.getrefcount(arrays[i])
+
+
+#: What :func:`_references` counts for an array that no one but its list refers to, measured rather than assumed
+#: (what ``sys.getrefcount`` counts besides the holders differs between Python versions).
+_HELD_BY_LIST_ALONE = _references([np.empty(0)], 0)
+
+
 class _RenderBuffers:
     """Render-sized arrays kept while :func:`reusing_render_buffers` is on, so that a shot reads its renders into
     the same memory frame after frame instead of fresh pages, which the system must first zero. An array is given
@@ -346,10 +355,10 @@ class _RenderBuffers:
 
     def take(self, shape: tuple, dtype) -> np.ndarray:
         with self._lock:
-            for array in self._kept:
-                # referred to by the list, this loop and the call alone: no one uses it
-                if array.shape == shape and array.dtype == dtype and sys.getrefcount(array) == 3:
-                    return array
+            kept = self._kept
+            for i in range(len(kept)):      # no loop variable: it would hold a reference
+                if kept[i].shape == shape and kept[i].dtype == dtype and _references(kept, i) == _HELD_BY_LIST_ALONE:
+                    return kept[i]
             array = np.empty(shape, dtype)
             if self._users and self._count:
                 self._kept = [*self._kept, array][-self._count:]
@@ -383,10 +392,10 @@ def _checked_in_strips(path, channels: Mapping, layer: str | None) -> CheckedRen
     (:meth:`~lowcam.uncompressed_exr.LazyChannels.read_in_strips`): each strip of lines is checked and its window
     found while it is in cache, instead of reading the part, then the array, then the array again; the array is
     one of :func:`reusing_render_buffers`'s while that is on. The same array, window and refusals; None where the
-    render is not held that way."""
+    render is not held that way, or its part holds other entries too (Blender writes one part per pass)."""
     keys = _combined_layers(path, channels, layer)
     part = next((m for m in getattr(channels, "maps", [channels]) if keys and keys[0] in m), None)
-    if not isinstance(part, LazyChannels):
+    if not isinstance(part, LazyChannels) or len(part) > 1:   # passes beside it: one read of the part serves all
         return None
 
     def visit(top: int, lines: np.ndarray):
@@ -400,6 +409,7 @@ def _checked_in_strips(path, channels: Mapping, layer: str | None) -> CheckedRen
     if read is None:
         return None
     rgba, found = read
+    _check_render_shape(rgba.shape, path)
     if not all(passed for _, _, passed in found):
         return check_render_window(rgba, path)           # refuses it with the exact reason
     return CheckedRender(rgba, window_union([(top, window) for top, window, _ in found]))
@@ -439,14 +449,18 @@ def check_render(rgba: np.ndarray, name="render") -> np.ndarray:
     return check_render_window(rgba, name)[0]
 
 
+def _check_render_shape(shape: tuple, name) -> None:
+    if len(shape) != 3 or shape[2] != 4:
+        raise LowcamError(f"{name}: a render must be RGBA of shape (H, W, 4), got {shape}")
+    if shape[0] < 16 or shape[1] < 16:
+        raise LowcamError(f"{name}: a render of {shape[1]}x{shape[0]} is too small")
+
+
 def check_render_window(rgba: np.ndarray, name="render") -> CheckedRender:
     """:func:`check_render`, and the :func:`~lowcam.window.nonzero_window` around the render's non-zero pixels
     (None: all zero). The zero margins are valid by construction, so only the window is checked in full."""
     rgba = np.asarray(rgba)
-    if rgba.ndim != 3 or rgba.shape[2] != 4:
-        raise LowcamError(f"{name}: a render must be RGBA of shape (H, W, 4), got {rgba.shape}")
-    if rgba.shape[0] < 16 or rgba.shape[1] < 16:
-        raise LowcamError(f"{name}: a render of {rgba.shape[1]}x{rgba.shape[0]} is too small")
+    _check_render_shape(rgba.shape, name)
     if rgba.dtype.kind not in "fiu":
         raise LowcamError(f"{name}: a render must hold numbers, got {rgba.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):

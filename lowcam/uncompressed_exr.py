@@ -230,9 +230,9 @@ class LazyChannels(Mapping):
 
         with self._opened() as read:
             found = thread_map(lambda top: strip(read, top), range(0, count, rows))
-        for result in found:
-            if isinstance(result, Exception):
-                raise result
+            for result in found:
+                if isinstance(result, Exception):
+                    raise result            # an OSError as the one-line error _opened makes of it
         return out, [result for result in found if result is not None]
 
     def __getitem__(self, key: str) -> np.ndarray:

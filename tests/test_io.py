@@ -333,3 +333,54 @@ def test_a_shots_renders_reuse_arrays_no_one_holds(tmp_path):
         assert again.__array_interface__["data"][0] == address and again.tobytes() == rgba.tobytes()
     held = read_render(path)
     assert read_render(path).__array_interface__["data"][0] != held.__array_interface__["data"][0]
+
+
+@pytest.mark.parametrize("height, width", [(10, 10), (200, 8), (8, 200)])
+def test_a_render_too_small_is_refused_when_read_strip_by_strip_too(tmp_path, height, width):
+    from lowcam.io import check_render_window, read_checked_render
+
+    rgba = np.zeros((height, width, 4), np.float32)
+    rgba[height // 2, width // 2] = 0.5
+    _uncompressed_exr(tmp_path / "small.exr", rgba)
+    with pytest.raises(LowcamError) as whole:
+        check_render_window(rgba, tmp_path / "small.exr")
+    with pytest.raises(LowcamError) as got:
+        read_checked_render(tmp_path / "small.exr")
+    assert str(got.value) == str(whole.value) and "too small" in str(got.value)
+
+
+def test_a_read_error_under_a_strip_fails_the_render_in_one_line(tmp_path, monkeypatch):
+    """An I/O error (a network disk gone) while strips are read is a one-line error naming the file, which a shot
+    reports as that frame's failure, not a traceback."""
+    import errno
+
+    from lowcam import uncompressed_exr
+    from lowcam.io import read_checked_render
+
+    _uncompressed_exr(tmp_path / "render.exr", _strip_test_render())
+
+    def fail(*args):
+        raise OSError(errno.EIO, os.strerror(errno.EIO))
+
+    monkeypatch.setattr(uncompressed_exr.os, "preadv", fail)
+    with pytest.raises(LowcamError) as e:
+        read_checked_render(tmp_path / "render.exr")
+    assert str(e.value).startswith(f"{tmp_path / 'render.exr'}: cannot read it any more (Input/output error)")
+
+
+def test_a_part_holding_the_render_and_its_passes_is_read_once(tmp_path, monkeypatch):
+    """Combined and Vector in one part (as writers other than Blender put them): the part is read once for both,
+    not strip by strip for the render and again for the pass."""
+    from lowcam.passes import read_render_and_passes
+    from lowcam.uncompressed_exr import LazyChannels
+
+    rgba = _strip_test_render()
+    channels = {f"ViewLayer.Combined.{c}": rgba[..., i].copy() for i, c in enumerate("RGBA")}
+    channels |= {f"ViewLayer.Vector.{c}": np.zeros(rgba.shape[:2], np.float32) for c in "XYZW"}
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 channels).write(str(tmp_path / "render.exr"))
+    reads, read_part = [], LazyChannels._read_part
+    monkeypatch.setattr(LazyChannels, "_read_part", lambda self: reads.append(1) or read_part(self))
+    monkeypatch.setattr(LazyChannels, "read_in_strips", None)     # never called for such a part
+    checked, passes = read_render_and_passes(tmp_path / "render.exr", None, ("Vector",), 24.0)
+    assert checked.rgba.tobytes() == rgba.tobytes() and passes is not None and len(reads) == 1
