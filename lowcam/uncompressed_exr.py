@@ -28,7 +28,6 @@ Contents
 """
 from __future__ import annotations
 
-import contextlib
 import os
 import struct
 import threading
@@ -161,35 +160,26 @@ class LazyChannels(Mapping):
         """The part's bytes, from its first chunk to the end of its last, checked whole."""
         first, stride, count, lead, _, line = self._layout
         data = np.empty(stride * (count - 1) + lead + line, np.uint8)
-        with self._opened() as read:
-            read(data, first)
+        self._read_at(data, first)
         return data
 
-    @contextlib.contextmanager
-    def _opened(self):
-        """``read(buffer, offset)``, filling ``buffer`` from the file at ``offset``; a file that is not the one whose
-        headers were read, or ends early, is refused in one line."""
+    def _read_at(self, buffer: np.ndarray, offset: int) -> None:
+        """Fill ``buffer`` (bytes) from the file at ``offset``; a file that is not the one whose headers were read,
+        or ends early, is refused in one line. Each call opens the file itself, so threads read side by side."""
         again = "(rendered again?); read it again once it is written"
-
-        def read(buffer: np.ndarray, offset: int) -> None:
-            view, done = memoryview(buffer), 0
-            while done < len(view):                   # one call reads at most about 2 GB
-                got = os.preadv(fd, [view[done:]], offset + done)
-                if not got:
-                    raise LowcamError(f"{self._path}: the file was cut short while it was read {again}")
-                done += got
         try:
-            fd = os.open(self._path, os.O_RDONLY)
+            with open(self._path, "rb", buffering=0) as f:
+                if _identity(f) != self._identity:
+                    raise LowcamError(f"{self._path}: the file changed while it was read {again}")
+                f.seek(offset)
+                view, done = memoryview(buffer), 0
+                while done < len(view):           # one call reads at most about 2 GB
+                    got = f.readinto(view[done:])
+                    if not got:
+                        raise LowcamError(f"{self._path}: the file was cut short while it was read {again}")
+                    done += got
         except OSError as e:
             raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
-        try:
-            if _identity(fd) != self._identity:
-                raise LowcamError(f"{self._path}: the file changed while it was read {again}")
-            yield read
-        except OSError as e:
-            raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
-        finally:
-            os.close(fd)
 
     def read_in_strips(self, key: str, depth: int, visit, allocate=np.empty) -> tuple[np.ndarray, list] | None:
         """Entry ``key``, a group of ``depth`` float32 channels, read into an array ``allocate((H, W, depth),
@@ -211,13 +201,13 @@ class LazyChannels(Mapping):
         rows = max(1, _STRIP_BYTES // stride)
         end = max(starts) + 4 * width                     # a strip's bytes end there in its last line
 
-        def strip(read, top: int):
+        def strip(top: int):
             n = min(rows, count - top)
             try:
                 buffer = getattr(_strip_buffers, "bytes", None)
                 if buffer is None or buffer.nbytes < rows * stride:
                     buffer = _strip_buffers.bytes = np.empty(rows * stride, np.uint8)
-                read(buffer[:(n - 1) * stride + end], first + top * stride)
+                self._read_at(buffer[:(n - 1) * stride + end], first + top * stride)
                 planes = [np.ndarray((n, width), np.float32, buffer, start, (stride, 4)) for start in starts]
                 lines = out[top:top + n]
                 if not any(cv2.countNonZero(plane.view(np.int32)) for plane in planes):  # -0.0: not zero bytes
@@ -228,11 +218,10 @@ class LazyChannels(Mapping):
             except Exception as e:      # raised once every strip is done: none writes into an array given up
                 return e
 
-        with self._opened() as read:
-            found = thread_map(lambda top: strip(read, top), range(0, count, rows))
-            for result in found:
-                if isinstance(result, Exception):
-                    raise result            # an OSError as the one-line error _opened makes of it
+        found = thread_map(strip, range(0, count, rows))
+        for result in found:
+            if isinstance(result, Exception):
+                raise result
         return out, [result for result in found if result is not None]
 
     def __getitem__(self, key: str) -> np.ndarray:
@@ -268,7 +257,7 @@ class LazyChannels(Mapping):
 
 
 def _identity(f) -> tuple:
-    st = os.fstat(f if isinstance(f, int) else f.fileno())
+    st = os.fstat(f.fileno())
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 

@@ -353,16 +353,18 @@ def test_a_read_error_under_a_strip_fails_the_render_in_one_line(tmp_path, monke
     """An I/O error (a network disk gone) while strips are read is a one-line error naming the file, which a shot
     reports as that frame's failure, not a traceback."""
     import errno
+    import io
 
     from lowcam import uncompressed_exr
     from lowcam.io import read_checked_render
 
     _uncompressed_exr(tmp_path / "render.exr", _strip_test_render())
 
-    def fail(*args):
-        raise OSError(errno.EIO, os.strerror(errno.EIO))
+    class Failing(io.FileIO):
+        def readinto(self, buffer):
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
 
-    monkeypatch.setattr(uncompressed_exr.os, "preadv", fail)
+    monkeypatch.setattr(uncompressed_exr, "open", lambda path, *args, **kw: Failing(path), raising=False)
     with pytest.raises(LowcamError) as e:
         read_checked_render(tmp_path / "render.exr")
     assert str(e.value).startswith(f"{tmp_path / 'render.exr'}: cannot read it any more (Input/output error)")

@@ -210,7 +210,7 @@ def test_a_render_cut_short_while_its_strips_are_read_is_refused_once_every_stri
     """A file cut short after its size was checked, under one strip, while others are still being read: the read
     is refused in one line, and only once every other strip is done, so none writes into an array the shot has
     already given to the next frame."""
-    import os
+    import io
     import time
 
     from lowcam import LowcamError
@@ -221,17 +221,18 @@ def test_a_render_cut_short_while_its_strips_are_read_is_refused_once_every_stri
                  {c: rgba[..., i].copy() for i, c in enumerate("RGBA")}).write(str(path))
     parts, _ = read_uncompressed_exr(path)
     monkeypatch.setattr(uncompressed_exr, "_STRIP_BYTES", 8 * (8 + 40 * 16))    # eight strips of 8 lines
-    preadv, calls, done = os.preadv, [], []
+    calls, done = [], []
 
-    def slow_or_short(fd, buffers, offset):
-        calls.append(offset)
-        if len(calls) == 1:
-            return 0                                    # the file ends here now
-        time.sleep(0.05)
-        done.append(offset)
-        return preadv(fd, buffers, offset)
+    class CutShortOnce(io.FileIO):
+        def readinto(self, buffer):
+            calls.append(self.tell())
+            if len(calls) == 1:
+                return 0                                # the file ends here now
+            time.sleep(0.05)
+            done.append(self.tell())
+            return super().readinto(buffer)
 
-    monkeypatch.setattr(uncompressed_exr.os, "preadv", slow_or_short)
+    monkeypatch.setattr(uncompressed_exr, "open", lambda path, *args, **kw: CutShortOnce(path), raising=False)
     with pytest.raises(LowcamError) as e:
         parts[0][1].read_in_strips("RGBA", 4, lambda top, lines: top)
     assert str(e.value).startswith(f"{path}: the file was cut short while it was read") and "\n" not in str(e.value)
