@@ -9,11 +9,11 @@ serial run with one frame at a time (no reading ahead or writing behind) as the 
 
 Then the targets, as ratios measured in the same run (``--targets`` alone skips the runs above): on renders in the
 compression the add-on writes (:data:`RENDER_CODEC`), a serial shot's CPU per frame against the engine's own (the
-simulation of the same frames from memory; target <= 1.25x) and the render reading's share of that frame CPU
-(target <= 15 %; read as the shot reads them, into arrays reused from frame to frame); on ZIP renders, a serial shot's wall time per frame against the code of 2026-11-25 (commit
-7f593e9, run from ``git archive`` in a child Python on the same files, the two taking turns; target <= 0.55x). CPU
-times are the process's (every thread's, ``time.process_time``): on the shared development machine they are far
-steadier than wall times.
+simulation of the same frames from memory; target <= 1.25x) and the render reading's share of that frame CPU (target
+<= 15 %; read as the shot reads them, into arrays reused from frame to frame); on ZIP renders, a serial shot's wall
+time per frame against the code of 2026-11-25 (commit 7f593e9, run from ``git archive`` in a child Python on the
+same files, the two taking turns; target <= 0.55x). CPU times are the process's (every thread's,
+``time.process_time``): on the shared development machine they are far steadier than wall times.
 
     .venv/bin/python benchmarks/bench_batch.py [--frames 16] [--depth 16] [--targets] [--turns 3]
 """
