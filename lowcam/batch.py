@@ -439,7 +439,9 @@ def _run_on_dask(shot: Shot, frames: list[int], force: bool, workers: int, sched
 
         frame_of = {future.key: f for future, f in zip(futures, frames)}
         try:
-            for future in as_completed(futures):
+            # on this client's loop: Dask's default is the newest client of the process, which may be another
+            # shot's, closed before this one ends (its futures then never reported done)
+            for future in as_completed(futures, loop=client.loop):
                 try:
                     result = future.result()
                 except (DiskFull, KeyboardInterrupt):

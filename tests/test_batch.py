@@ -1,4 +1,5 @@
 """Shots: serial, Dask (real workers on loopback) and chunked runs give the same bytes; resume; bad frames."""
+import contextlib
 import json
 import os
 import signal
@@ -515,3 +516,37 @@ def test_a_serial_shot_reads_uncompressed_renders_into_a_few_reused_arrays(shot_
     assert [r.status for r in overlapped] == [r.status for r in one_at_a_time] == ["written"] * 8
     assert frame_bytes(tmp_path / "overlapped") == frame_bytes(tmp_path / "single")
     assert len(addresses) == 8 and len(set(addresses)) <= 4
+
+
+@pytest.mark.slow  # a Dask cluster
+def test_a_shot_on_dask_ends_when_another_client_of_the_process_closes_first(shot_dir, tmp_path, monkeypatch):
+    """Dask's as_completed follows the process's newest client unless told which: a shot whose client was made
+    before another shot's, which then closed first, waited for ever (seen once as a hung CI run). Here a second
+    client is made just after the shot's and closed while the shot runs: the shot still ends, every frame made."""
+    import threading
+
+    from dask.distributed import Client, LocalCluster
+
+    from lowcam import batch
+
+    made = batch._dask_client
+    others = []
+
+    @contextlib.contextmanager
+    def with_a_newer_client(workers, scheduler):
+        with made(workers, scheduler) as client:
+            others.append(Client(scheduler, timeout="10s"))       # the process's newest client now
+            threading.Timer(1.0, others[-1].close).start()        # closed while the shot runs
+            yield client
+
+    monkeypatch.setattr(batch, "_dask_client", with_a_newer_client)
+    shot = Shot("fire-i", str(shot_dir / "renders/####.exr"), str(tmp_path / "out/####.png"),
+                str(shot_dir / "plates/####.png"), read_motion_json(shot_dir / "motion.json"), True)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        finished = []
+        run = threading.Thread(target=lambda: finished.append(
+            run_shot(shot, FRAMES, scheduler=cluster.scheduler_address, quiet=True)), daemon=True)
+        run.start()
+        run.join(timeout=120)
+        assert finished and [r.status for r in finished[0]] == ["written"] * len(FRAMES)
+    assert len(others) == 1 and others[0].status == "closed"
