@@ -181,6 +181,14 @@ class LazyChannels(Mapping):
         except OSError as e:
             raise LowcamError(f"{self._path}: cannot read it any more ({e.strerror or e}) {again}") from None
 
+    def _mergeable(self, names) -> bool:
+        """Whether ``cv2.merge`` takes these channels' views: a type it holds (not UINT) and every sample on its
+        type's grid in every line."""
+        dtype = self._channels[names[0]][0]
+        _, stride, _, lead, _, _ = self._layout
+        return dtype != np.uint32 and not stride % dtype.itemsize and \
+            not any((lead + self._channels[n][1]) % dtype.itemsize for n in names)
+
     def read_in_strips(self, key: str, depth: int, visit, allocate=np.empty) -> tuple[np.ndarray, list] | None:
         """Entry ``key``, a group of ``depth`` float32 channels, read into an array ``allocate((H, W, depth),
         float32)`` a strip of lines at a time (about :data:`_STRIP_BYTES`, the strips shared out among the engine's
@@ -192,11 +200,10 @@ class LazyChannels(Mapping):
         names = self._groups.get(key, ())
         if len(names) != depth:
             return None
+        if any(self._channels[n][0] != np.float32 for n in names) or not self._mergeable(names):
+            return None
         first, stride, count, lead, width, _ = self._layout
         starts = [lead + self._channels[n][1] for n in names]
-        if any(self._channels[n][0] != np.float32 for n in names) or stride % 4 or \
-                any(start % 4 for start in starts):
-            return None
         out = allocate((count, width, depth), np.float32)
         rows = max(1, _STRIP_BYTES // stride)
         end = max(starts) + 4 * width                     # a strip's bytes end there in its last line
@@ -233,11 +240,9 @@ class LazyChannels(Mapping):
                 _, stride, count, lead, width, _ = self._layout
                 views = [np.ndarray((count, width), self._channels[n][0], self._data, lead + self._channels[n][1],
                                     (stride, self._channels[n][0].itemsize)) for n in names]
-                itemsize = views[0].dtype.itemsize
                 if len(views) == 1:
                     pixels = np.array(views[0])
-                elif views[0].dtype == np.uint32 or stride % itemsize or \
-                        any((lead + self._channels[n][1]) % itemsize for n in names):
+                elif not self._mergeable(names):
                     pixels = np.stack(views, -1)        # a type or a line alignment OpenCV does not take
                 else:
                     pixels = cv2.merge(views)           # interleaved, about 2.5x np.stack's speed
